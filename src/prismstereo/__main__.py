@@ -1,0 +1,5 @@
+import sys
+
+from prismstereo.cli import main
+
+sys.exit(main())

@@ -1,0 +1,120 @@
+"""Thin command line over the library (DESIGN.md §5). No algorithm code lives here.
+
+Each subcommand has an ``_add_<name>`` function that declares its arguments and a ``_cmd_<name>``
+function that calls the library. Errors the user can fix (``PrismStereoError``) become one line on
+stderr and exit code 2; anything else is exit code 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from collections.abc import Callable, Sequence
+
+from prismstereo import __version__
+from prismstereo.errors import ConfigError, PrismStereoError
+
+log = logging.getLogger("prismstereo")
+
+Handler = Callable[[argparse.Namespace], int]
+
+
+def _parse_views(text: str | None) -> tuple[int, ...] | str | None:
+    if text is None:
+        return None
+    if text.strip().lower() == "all":
+        return "all"
+    try:
+        return tuple(int(v) for v in text.split(","))
+    except ValueError:
+        raise ConfigError(f"--views: expected face indices like 1,0 or 'all', got {text!r}") from None
+
+
+def _parse_pair(text: str, name: str) -> tuple[float, float]:
+    try:
+        a, b = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ConfigError(f"{name}: expected two numbers like 800,5000, got {text!r}") from None
+    return a, b
+
+
+# --------------------------------------------------------------------------- simulate
+def _add_simulate(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("simulate", help="render a prism capture of a scene with exact ground truth")
+    p.add_argument("scene", help="scene TOML (a [camera], [prism] and the scene objects)")
+    p.add_argument("-o", "--output", required=True, help="output folder")
+    p.add_argument("--supersample", type=int, default=None, help="samples per pixel side (overrides the scene)")
+    p.set_defaults(handler=_cmd_simulate)
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from prismstereo.simulate import simulate_to_folder
+
+    result = simulate_to_folder(args.scene, args.output, supersample=args.supersample)
+    print(result.summary())
+    return 0
+
+
+# --------------------------------------------------------------------------- calibrate
+def _add_calibrate(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("calibrate", help="virtual cameras of a rig from its optics -> cameras.json")
+    p.add_argument("rig", help="rig TOML (DESIGN.md §4)")
+    p.add_argument("-o", "--output", required=True, help="cameras.json to write")
+    p.add_argument("--method", choices=["thesis", "fit"], default="fit", help="virtual camera model")
+    p.set_defaults(handler=_cmd_calibrate)
+
+
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from prismstereo.cameras import calibrate_rig, cameras_table, write_cameras_json
+    from prismstereo.config import load_rig
+
+    rig = load_rig(args.rig)
+    cams = calibrate_rig(rig, method=args.method)
+    write_cameras_json(args.output, rig, cams, method=args.method)
+    print(cameras_table(rig, cams))
+    print(f"wrote {args.output}")
+    return 0
+
+
+_ADDERS: list[Callable[[argparse._SubParsersAction], None]] = [_add_simulate, _add_calibrate]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="prismstereo",
+        description="Depth from a single camera and a prism: simulate, calibrate, rectify, match, depth.",
+    )
+    parser.add_argument("--version", action="version", version=f"prismstereo {__version__}")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for add in _ADDERS:
+        add(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    level = logging.WARNING - 10 * min(args.verbose, 2)
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    handler: Handler = args.handler
+    try:
+        return handler(args)
+    except PrismStereoError as exc:
+        print(f"prismstereo {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"prismstereo {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # noqa: BLE001 - last resort: one line, exit 1, traceback with -v
+        if args.verbose:
+            raise
+        print(f"prismstereo {args.command}: unexpected failure: {type(exc).__name__}: {exc} "
+              "(run with -v for the traceback)", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
