@@ -77,7 +77,28 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
-_ADDERS: list[Callable[[argparse._SubParsersAction], None]] = [_add_simulate, _add_calibrate]
+# --------------------------------------------------------------------------- reproduce
+def _add_reproduce(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("reproduce", help="re-measure a thesis table beside the thesis's numbers")
+    p.add_argument("table", help="table3.4, table4.3, table5.1, table6.1, table6.2, table7.1 or table7.2")
+    p.add_argument("-o", "--output", required=True, help="output folder (markdown + JSON)")
+    p.add_argument("--data", default=None, help="Middlebury folder (default ../shared/data/middlebury)")
+    p.add_argument("--quick", action="store_true", help="smaller, faster run (for smoke tests)")
+    p.set_defaults(handler=_cmd_reproduce)
+
+
+def _cmd_reproduce(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from prismstereo.evaluation.reproduce import reproduce_table
+
+    result = reproduce_table(args.table, args.output, data_dir=Path(args.data) if args.data else None,
+                             quick=args.quick)
+    print(result.markdown)
+    return 0
+
+
+_ADDERS: list[Callable[[argparse._SubParsersAction], None]] = [_add_simulate, _add_calibrate, _add_reproduce]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,65 @@
+"""Reproduction of the thesis's tables: ours re-measured beside the thesis's own numbers.
+
+Each table lives in its own module that defines::
+
+    def reproduce(*, data_dir: Path | None, quick: bool = False) -> TableResult
+
+The modules are imported lazily, so a table's heavy dependencies cost nothing to the others.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from prismstereo.errors import ConfigError
+from prismstereo.io.atomic import atomic_write_text
+from prismstereo.io.jsonio import write_json
+
+#: table name -> module that implements it
+TABLE_MODULES: dict[str, str] = {
+    "table3.4": "prismstereo.evaluation.table3_4",
+    "table4.3": "prismstereo.evaluation.table4_3",
+    "table5.1": "prismstereo.evaluation.table5_1",
+    "table6.1": "prismstereo.evaluation.table6_1",
+    "table6.2": "prismstereo.evaluation.table6_2",
+    "table7.1": "prismstereo.evaluation.table7_1",
+    "table7.2": "prismstereo.evaluation.table7_2",
+}
+
+
+@dataclass(frozen=True)
+class TableResult:
+    """A reproduced table: a markdown rendering (ours beside the thesis) and the raw numbers."""
+
+    name: str
+    markdown: str
+    data: dict[str, Any] = field(default_factory=dict)
+
+
+def available_tables() -> list[str]:
+    return sorted(TABLE_MODULES)
+
+
+def reproduce_table(name: str, out_dir: str | os.PathLike[str], *, data_dir: Path | None = None,
+                    quick: bool = False) -> TableResult:
+    """Run one table's reproduction and write ``<name>.md`` and ``<name>.json`` into ``out_dir``."""
+    key = name.lower().replace("table", "table").strip()
+    if not key.startswith("table"):
+        key = "table" + key
+    if key not in TABLE_MODULES:
+        raise ConfigError(f"expected one of {', '.join(available_tables())}, got {name!r}")
+    try:
+        module = importlib.import_module(TABLE_MODULES[key])
+    except ModuleNotFoundError as exc:
+        if exc.name == TABLE_MODULES[key]:
+            raise ConfigError(f"{key} is not implemented yet") from None
+        raise
+    result: TableResult = module.reproduce(data_dir=data_dir, quick=quick)
+    out = Path(out_dir)
+    atomic_write_text(out / f"{key}.md", result.markdown)
+    write_json(out / f"{key}.json", {"table": key, **result.data})
+    return result
