@@ -1,0 +1,262 @@
+"""Virtual cameras of a prism rig: three models behind one interface.
+
+- ``thesis``: the geometric construction of thesis §3.2.1 and §4.1.2 — the optical centre is the average
+  of midpoints of the common perpendiculars of back-extended exit rays (Appendix A), the optical axis is
+  the refracted ray of the image centre, the intrinsics are the real camera's.
+- ``fit``: a pinhole (K, R, C) with OpenCV 5-term distortion fitted by least squares to exactly traced
+  rays of the face's image region, so that it reprojects 3D points where the real optics put them.
+- ``exact``: the generalised camera: for any real pixel the exact ray (origin, direction) through the
+  prism, and :func:`~prismstereo.optics.project_exact` for the inverse.
+
+Refraction through a prism is not a central projection (the exit rays of one face do not meet in one
+point), so ``thesis`` and ``fit`` are approximations whose error is reported, and ``exact`` is the
+reference they are measured against.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass
+from itertools import combinations
+from typing import Any
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from prismstereo.cameras.pinhole import PinholeCamera, rotation_from_axis
+from prismstereo.config import Rig, rig_from_dict
+from prismstereo.errors import ConfigError, GeometryError
+from prismstereo.io.jsonio import write_json
+from prismstereo.optics import RayBundle, closest_points_between_lines, pixel_grid, project_exact, trace_pixels
+
+log = logging.getLogger(__name__)
+
+METHODS = ("thesis", "fit")
+DEPTH_RANGE_MM = (500.0, 3000.0)
+
+
+@dataclass(frozen=True)
+class VirtualView:
+    """One virtual camera of a rig: which face, which model, and how well it reprojects."""
+
+    face: int
+    name: str
+    method: str
+    camera: PinholeCamera
+    rms_px: float
+    max_px: float
+
+    def project(self, points_in_world: np.ndarray) -> np.ndarray:
+        """(..., 3) world points → (..., 2) real-image pixels predicted by this model."""
+        return self.camera.project(points_in_world)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"face": self.face, "name": self.name, **self.camera.to_dict(),
+                "rms_px": self.rms_px, "max_px": self.max_px}
+
+
+class ExactCamera:
+    """The exact generalised camera of a rig: every pixel's true ray through the prism."""
+
+    def __init__(self, rig: Rig) -> None:
+        self.rig = rig
+
+    def rays_from_pixels(self, pixels: np.ndarray) -> RayBundle:
+        """(..., 2) real pixels → their rays after the prism (see :class:`~prismstereo.optics.RayBundle`)."""
+        return trace_pixels(self.rig, pixels)
+
+    def project(self, points_in_world: np.ndarray, face: int) -> tuple[np.ndarray, np.ndarray]:
+        """(N, 3) world points → ((N, 2) real pixels seeing them through ``face``, (N,) valid)."""
+        return project_exact(points_in_world, self.rig, face)
+
+
+def face_pixels(rig: Rig, face: int, *, step: float = 8.0, margin: float = 0.0) -> np.ndarray:
+    """(M, 2) pixels on a regular grid that look through ``face`` (optionally ``margin`` px inside)."""
+    _check_face(rig, face)
+    grid = pixel_grid(rig.camera.width, rig.camera.height, step=step).reshape(-1, 2)
+    grid = grid + (step - 1) / 2.0 * (step > 1)
+    grid = grid[(grid[:, 0] <= rig.camera.width - 1) & (grid[:, 1] <= rig.camera.height - 1)]
+    faces = trace_pixels(rig, grid).face
+    keep = faces == face
+    if margin > 0:
+        for off in ((margin, 0), (-margin, 0), (0, margin), (0, -margin)):
+            keep &= trace_pixels(rig, grid + np.array(off)).face == face
+    pts = grid[keep]
+    if pts.shape[0] < 8:
+        raise GeometryError(f"expected face {face} to be seen by the camera, got {pts.shape[0]} sample pixels")
+    return pts
+
+
+def _check_face(rig: Rig, face: int) -> None:
+    if not 0 <= int(face) < rig.prism.faces:
+        raise GeometryError(f"expected a face index in [0, {rig.prism.faces - 1}], got {face}")
+
+
+def sample_points(
+    rig: Rig, face: int, *, n: int = 2000, depth_range: tuple[float, float] = DEPTH_RANGE_MM, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Random 3D points seen through ``face`` at world depths in ``depth_range`` with their exact pixels.
+
+    Returns
+    -------
+    pixels : (M, 2) real pixels (uniform over the face's image region), M ≤ n.
+    points : (M, 3) world points on those pixels' exact rays, mm.
+    """
+    rng = np.random.default_rng(seed)
+    w, h = rig.camera.width, rig.camera.height
+    px = rng.uniform([0, 0], [w - 1, h - 1], size=(4 * n, 2))
+    b = trace_pixels(rig, px)
+    keep = np.flatnonzero(b.face == face)[:n]
+    if keep.size < 8:
+        raise GeometryError(f"expected face {face} to be seen by the camera, got {keep.size} sample pixels")
+    z = rng.uniform(depth_range[0], depth_range[1], size=keep.size)
+    pts = _points_at_depth(b, keep, z)
+    return px[keep], pts
+
+
+def _points_at_depth(b: RayBundle, idx: np.ndarray, z: np.ndarray) -> np.ndarray:
+    o, d = b.origins[idx], b.directions[idx]
+    s = (z - o[:, 2]) / d[:, 2]
+    return o + s[:, None] * d
+
+
+def reprojection_error(
+    camera: PinholeCamera, rig: Rig, face: int, *, n: int = 2000, seed: int = 1,
+    depth_range: tuple[float, float] = DEPTH_RANGE_MM,
+) -> tuple[float, float]:
+    """RMS and max reprojection error (px) of a model against exact refraction.
+
+    Points at world depths in ``depth_range`` (0.5–3 m by default) seen through ``face`` are projected
+    with the model and compared with the real pixel that sees them.
+    """
+    px, pts = sample_points(rig, face, n=n, depth_range=depth_range, seed=seed)
+    err = np.linalg.norm(camera.project(pts) - px, axis=1)
+    return float(np.sqrt(np.mean(err**2))), float(np.max(err))
+
+
+def thesis_camera(rig: Rig, face: int, *, n_rays: int = 16) -> PinholeCamera:
+    """The thesis's geometric virtual camera of ``face`` (thesis §3.2.1 steps 1–6, §4.1.2).
+
+    The optical centre is the average of the midpoints of the common perpendiculars between pairs of
+    back-extended exit rays (thesis Appendix A) of ``n_rays`` pixels spread over the face's image region;
+    the optical axis is the exit ray of the image centre refracted through this face (thesis Eqs.
+    3.31–3.34, generalised to any face orientation); the intrinsics are the real camera's.
+    """
+    _check_face(rig, face)
+    pts = face_pixels(rig, face, step=16.0, margin=8.0)
+    rng = np.random.default_rng(face)
+    pick = pts[rng.choice(pts.shape[0], size=min(n_rays, pts.shape[0]), replace=False)]
+    b = trace_pixels(rig, pick)
+    pairs = np.array(list(combinations(range(pick.shape[0]), 2)))
+    mids, _ = closest_points_between_lines(
+        b.origins[pairs[:, 0]], b.directions[pairs[:, 0]], b.origins[pairs[:, 1]], b.directions[pairs[:, 1]]
+    )
+    centre = np.nanmean(mids, axis=0)
+    axis_ray = trace_pixels(rig, np.array([rig.camera.center]), face=face, bounded=False)
+    if not axis_ray.valid[0]:
+        raise GeometryError(f"expected the image centre's ray to pass face {face}, got total internal reflection")
+    R = rotation_from_axis(axis_ray.directions[0])
+    return PinholeCamera(K=rig.camera.K, R=R, C=centre)
+
+
+def fit_camera(
+    rig: Rig,
+    face: int,
+    *,
+    distortion: bool = True,
+    depth_range: tuple[float, float] = DEPTH_RANGE_MM,
+    step: float = 16.0,
+    n_depths: int = 6,
+) -> PinholeCamera:
+    """A pinhole camera (+ optional 5-term distortion) fitted to the exact rays of ``face``.
+
+    The exact rays of a grid of pixels over the face's image region are sampled at ``n_depths`` world
+    depths spanning ``depth_range``; K (fx, fy, cx, cy), the rotation, the optical centre and, if
+    ``distortion``, (k1, k2, p1, p2, k3) minimise the reprojection error of those points to their pixels
+    (Levenberg–Marquardt, started from the thesis construction).
+    """
+    init = thesis_camera(rig, face)
+    px = face_pixels(rig, face, step=step)
+    b = trace_pixels(rig, px)
+    z = np.geomspace(depth_range[0], depth_range[1], n_depths)
+    pts = np.concatenate([_points_at_depth(b, np.arange(px.shape[0]), np.full(px.shape[0], zi)) for zi in z])
+    target = np.tile(px, (n_depths, 1))
+    ok = np.all(np.isfinite(pts), axis=1)
+    pts, target = pts[ok], target[ok]
+    f0 = rig.camera.focal_px
+    rvec0 = Rotation.from_matrix(init.R).as_rotvec()
+    x0 = np.concatenate([[init.K[0, 0] / f0, init.K[1, 1] / f0, init.K[0, 2] / f0, init.K[1, 2] / f0],
+                         rvec0, init.C / 100.0, np.zeros(5 if distortion else 0)])
+
+    def unpack(x: np.ndarray) -> PinholeCamera:
+        K = np.array([[x[0] * f0, 0.0, x[2] * f0], [0.0, x[1] * f0, x[3] * f0], [0.0, 0.0, 1.0]])
+        R = Rotation.from_rotvec(x[4:7]).as_matrix()
+        return PinholeCamera(K=K, R=R, C=x[7:10] * 100.0, dist=x[10:])
+
+    def residuals(x: np.ndarray) -> np.ndarray:
+        r = unpack(x).project(pts) - target
+        return np.nan_to_num(r, nan=1e6).ravel()
+
+    sol = least_squares(residuals, x0, method="lm", x_scale="jac", max_nfev=400)
+    cam = unpack(sol.x)
+    log.debug("fit face %d: cost %.4g after %d evaluations", face, sol.cost, sol.nfev)
+    return cam
+
+
+def virtual_view(rig: Rig, face: int, *, method: str = "fit") -> VirtualView:
+    """Build one virtual camera with the chosen model and measure its reprojection error."""
+    if method == "thesis":
+        cam = thesis_camera(rig, face)
+    elif method == "fit":
+        cam = fit_camera(rig, face)
+    else:
+        raise ConfigError(f"expected a virtual camera method in {METHODS}, got {method!r}")
+    rms, mx = reprojection_error(cam, rig, face)
+    return VirtualView(face=face, name=rig.view_name(face), method=method, camera=cam, rms_px=rms, max_px=mx)
+
+
+def calibrate_rig(rig: Rig, *, method: str = "fit") -> list[VirtualView]:
+    """All virtual cameras of a rig (one per face) with the chosen model (``thesis`` or ``fit``)."""
+    if method not in METHODS:
+        raise ConfigError(f"expected a virtual camera method in {METHODS}, got {method!r}")
+    return [virtual_view(rig, k, method=method) for k in range(rig.prism.faces)]
+
+
+def write_cameras_json(path: str | os.PathLike[str], rig: Rig, views: list[VirtualView], *, method: str) -> None:
+    """Write cameras.json (DESIGN.md §6)."""
+    write_json(path, {"method": method, "rig": rig.to_dict(), "views": [v.to_dict() for v in views]})
+
+
+def read_cameras_json(data: dict[str, Any]) -> tuple[Rig, list[VirtualView]]:
+    """Parse the mapping of a cameras.json file back into a rig and its views."""
+    try:
+        rig = rig_from_dict(data["rig"])
+        method = str(data["method"])
+        views = [
+            VirtualView(face=int(v["face"]), name=str(v["name"]), method=method,
+                        camera=PinholeCamera.from_dict(v), rms_px=float(v["rms_px"]), max_px=float(v["max_px"]))
+            for v in data["views"]
+        ]
+    except (KeyError, TypeError) as exc:
+        raise ConfigError(f"expected a cameras.json with method, rig and views, got a missing {exc}") from None
+    return rig, views
+
+
+def rotation_degrees(R: np.ndarray) -> tuple[float, float, float]:
+    """Rotation of a camera relative to the real camera as (about X, about Y, about Z) degrees (XYZ)."""
+    ang = Rotation.from_matrix(np.asarray(R).T).as_euler("xyz", degrees=True)
+    return float(ang[0]), float(ang[1]), float(ang[2])
+
+
+def cameras_table(rig: Rig, views: list[VirtualView]) -> str:
+    """A short text table of the views: centre (mm), rotation (degrees), reprojection error (px)."""
+    lines = [f"{'view':<7} {'face':>4} {'C x':>9} {'C y':>9} {'C z':>9} {'rot x':>7} {'rot y':>7} "
+             f"{'rot z':>7} {'fx':>8} {'rms px':>7} {'max px':>7}"]
+    for v in views:
+        c = v.camera.C
+        rx, ry, rz = rotation_degrees(v.camera.R)
+        lines.append(f"{v.name:<7} {v.face:>4} {c[0]:>9.3f} {c[1]:>9.3f} {c[2]:>9.3f} {rx:>7.3f} {ry:>7.3f} "
+                     f"{rz:>7.3f} {v.camera.K[0, 0]:>8.1f} {v.rms_px:>7.3f} {v.max_px:>7.3f}")
+    return "\n".join(lines)

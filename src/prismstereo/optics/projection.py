@@ -1,0 +1,96 @@
+"""Exact projection of 3D points through a prism face: the inverse of tracing.
+
+There is no closed form for the pixel that sees a point through two refracting planes, so it is solved
+with Newton's method on the pixel (u, v): the residual is the offset, in the plane z = Z of the point,
+between the traced ray and the point. The map from pixel to ray is smooth for a fixed face, so Newton
+converges in a few iterations from the no-prism projection.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from prismstereo.config import Rig
+from prismstereo.errors import GeometryError
+from prismstereo.optics.prism import trace_pixels
+
+
+def _residual(rig: Rig, pixels: np.ndarray, points: np.ndarray, face: int) -> np.ndarray:
+    b = trace_pixels(rig, pixels, face=face, bounded=False)
+    s = (points[:, 2] - b.origins[:, 2]) / b.directions[:, 2]
+    hit = b.origins + s[:, None] * b.directions
+    return hit[:, :2] - points[:, :2]
+
+
+def project_exact(
+    points_in_world: np.ndarray,
+    rig: Rig,
+    face: int,
+    *,
+    tolerance_px: float = 1e-4,
+    max_iterations: int = 30,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Real-image pixels that see 3D points through one prism face (exact refraction).
+
+    Parameters
+    ----------
+    points_in_world : (N, 3) or (3,) array
+        Points in the world frame, mm; they must lie beyond the back plane.
+    rig : Rig
+    face : int
+        Face index, 0 ≤ face < rig.prism.faces.
+    tolerance_px : float
+        Newton stops when the last step is below this (px); points that do not get there fail.
+    max_iterations : int
+
+    Returns
+    -------
+    pixels : (N, 2) float64
+        (u, v) of the real pixel whose traced ray passes through each point; NaN where it failed.
+    valid : (N,) bool
+        True where Newton converged and the ray really enters through ``face`` (the bounded trace of
+        the solution goes through that face). The pixel may still lie outside the sensor.
+
+    Raises
+    ------
+    GeometryError
+        If ``face`` is not a face of the rig.
+    """
+    if not 0 <= int(face) < rig.prism.faces:
+        raise GeometryError(f"expected a face index in [0, {rig.prism.faces - 1}], got {face}")
+    pts = np.atleast_2d(np.asarray(points_in_world, dtype=np.float64))
+    n = pts.shape[0]
+    K = rig.camera.K
+    with np.errstate(divide="ignore", invalid="ignore"):
+        proj = pts @ K.T
+        px = proj[:, :2] / proj[:, 2:3]
+    active = np.all(np.isfinite(pts), axis=1) & (pts[:, 2] > rig.prism.back_distance)
+    px[~active] = np.nan
+    converged = np.zeros(n, dtype=bool)
+    h = 0.5
+    du = np.array([h, 0.0])
+    dv = np.array([0.0, h])
+    for _ in range(max_iterations):
+        idx = np.flatnonzero(active & ~converged)
+        if idx.size == 0:
+            break
+        p, X = px[idx], pts[idx]
+        r = _residual(rig, p, X, face)
+        ju = (_residual(rig, p + du, X, face) - _residual(rig, p - du, X, face)) / (2 * h)
+        jv = (_residual(rig, p + dv, X, face) - _residual(rig, p - dv, X, face)) / (2 * h)
+        det = ju[:, 0] * jv[:, 1] - jv[:, 0] * ju[:, 1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            step_u = (jv[:, 1] * r[:, 0] - jv[:, 0] * r[:, 1]) / det
+            step_v = (-ju[:, 1] * r[:, 0] + ju[:, 0] * r[:, 1]) / det
+        step = np.stack([step_u, step_v], axis=1)
+        norm = np.linalg.norm(step, axis=1)
+        # Far from the solution a full step can leave the region where the face's plane is hit at all.
+        scale = np.where(norm > 500.0, 500.0 / np.maximum(norm, 1e-300), 1.0)
+        px[idx] = p - step * scale[:, None]
+        bad = ~np.isfinite(norm)
+        active[idx[bad]] = False
+        converged[idx[~bad & (norm < tolerance_px)]] = True
+    px[~converged] = np.nan
+    final = trace_pixels(rig, np.nan_to_num(px), bounded=True)
+    valid = converged & (final.face == face)
+    return px, valid
