@@ -1,0 +1,450 @@
+"""Disparity plane estimation per segment (thesis §6.1): robust fitting and merging of neighbours.
+
+Every segment ``j`` of the reference image gets a disparity plane ``d = a x + b y + c`` (Eq. 6.1), fitted by
+least squares through the SVD pseudo-inverse of ``AᵀA`` (Eqs. 6.2-6.6) on its reliable pixels. Outliers are
+removed by the thesis's three rules: the left-right cross-check (Eq. 6.7), the unreliable-segment ratio
+(Eq. 6.8), and the distance to the current plane (Eq. 6.9), iterated until the parameters settle
+(Eq. 6.10). The iteration is seeded by a small deterministic RANSAC (best of random pixel triples), so that a
+segment whose initial disparities are half wrong still converges to the right plane. Neighbouring planes
+that are nearly the same surface are then merged (§6.1.3, Eqs. 6.14-6.17) and refitted.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+from numba import njit
+
+log = logging.getLogger(__name__)
+
+__all__ = ["PlaneParams", "SegmentIndex", "build_segment_index", "fit_planes", "merge_planes",
+           "plane_similarity", "render_planes", "fill_missing_planes"]
+
+F64 = npt.NDArray[np.float64]
+I32 = npt.NDArray[np.int32]
+
+
+@dataclass(frozen=True)
+class PlaneParams:
+    """Parameters of the plane estimation (thesis §6.1).
+
+    Attributes
+    ----------
+    gamma_segment : float
+        ``γ_segment`` of Eq. 6.8: a segment whose fraction of unreliable pixels exceeds it gets no plane.
+    t_outlier : float
+        ``t_outlier`` of Eq. 6.9, pixels: reliable pixels farther from the plane are outliers.
+    epsilon : float
+        ``ε`` of the convergence test Eq. 6.10, ``exp(-(|Δa| + |Δb| + |Δc|)) > ε``.
+    max_iter : int
+        Cap on the Eq. 6.9/6.10 iterations.
+    min_pixels : int
+        Fewest reliable pixels for a plane; with fewer than ``3 * min_pixels`` only ``c`` is fitted.
+    ransac_trials : int
+        Random pixel triples tried to seed the iteration (0 = seed with the plain least-squares fit).
+    max_slope : float
+        Largest accepted ``|a|`` and ``|b|`` (px per px); steeper fits fall back to a constant plane.
+    delta : float
+        ``δ`` of Eq. 6.17: neighbours merge when their similarity (Eq. 6.16) exceeds it.
+    """
+
+    gamma_segment: float = 0.9
+    t_outlier: float = 1.0
+    epsilon: float = 0.99
+    max_iter: int = 10
+    min_pixels: int = 6
+    ransac_trials: int = 48
+    max_slope: float = 1.0
+    delta: float = 0.6
+
+
+@dataclass(frozen=True)
+class SegmentIndex:
+    """Pixels of every segment in compressed-row form.
+
+    Attributes
+    ----------
+    order : (N,) int64
+        Flat pixel indices sorted by segment.
+    starts : (K + 1,) int64
+        Segment ``j`` owns ``order[starts[j]:starts[j + 1]]``.
+    shape : tuple
+        (H, W) of the label map.
+    """
+
+    order: npt.NDArray[np.int64]
+    starts: npt.NDArray[np.int64]
+    shape: tuple[int, int]
+
+    @property
+    def n_segments(self) -> int:
+        return int(self.starts.size - 1)
+
+
+def build_segment_index(labels: npt.NDArray[np.integer]) -> SegmentIndex:
+    """Index the pixels of each segment of a (H, W) label map with labels 0..K-1."""
+    lab = np.asarray(labels).ravel()
+    k = int(lab.max()) + 1
+    order = np.argsort(lab, kind="stable").astype(np.int64)
+    counts = np.bincount(lab, minlength=k)
+    starts = np.zeros(k + 1, np.int64)
+    np.cumsum(counts, out=starts[1:])
+    return SegmentIndex(order, starts, (int(labels.shape[0]), int(labels.shape[1])))
+
+
+@njit(cache=True)
+def _lsq(xs: F64, ys: F64, ds: F64, cx: float, cy: float, full: bool) -> tuple[float, float, float]:
+    """Least squares plane (Eqs. 6.2-6.6: SVD pseudo-inverse of AᵀA) in coordinates centred on (cx, cy)."""
+    n = xs.size
+    if not full:
+        return 0.0, 0.0, float(np.mean(ds))
+    ata = np.zeros((3, 3))
+    atb = np.zeros(3)
+    for i in range(n):
+        u = xs[i] - cx
+        v = ys[i] - cy
+        row = (u, v, 1.0)
+        for r in range(3):
+            atb[r] += row[r] * ds[i]
+            for c in range(3):
+                ata[r, c] += row[r] * row[c]
+    sol = np.linalg.pinv(ata) @ atb
+    return sol[0], sol[1], sol[2]
+
+
+@njit(cache=True)
+def _fit_one(xs: F64, ys: F64, ds: F64, t_out: float, eps: float, max_iter: int, min_pix: int,
+             trials: int, max_slope: float, seed: int) -> tuple[float, float, float, int]:
+    """Robust plane of one segment's reliable pixels; returns (a, b, c_centred, n_inliers)."""
+    n = xs.size
+    cx = np.mean(xs)
+    cy = np.mean(ys)
+    full = n >= 3 * min_pix and (np.max(xs) - np.min(xs)) >= 2 and (np.max(ys) - np.min(ys)) >= 2
+    # seed: median constant, then the best random triple (inlier count within t_outlier)
+    a = 0.0
+    b = 0.0
+    c = float(np.median(ds))
+    best = 0
+    for i in range(n):
+        if abs(ds[i] - c) <= t_out:
+            best += 1
+    if full and trials > 0:
+        state = np.uint64(seed * 2654435761 + 12345)
+        for _t in range(trials):
+            # small deterministic LCG (Knuth MMIX constants): reproducible, no global RNG state
+            state = state * np.uint64(6364136223846793005) + np.uint64(1442695040888963407)
+            i0 = int((state >> np.uint64(33)) % np.uint64(n))
+            state = state * np.uint64(6364136223846793005) + np.uint64(1442695040888963407)
+            i1 = int((state >> np.uint64(33)) % np.uint64(n))
+            state = state * np.uint64(6364136223846793005) + np.uint64(1442695040888963407)
+            i2 = int((state >> np.uint64(33)) % np.uint64(n))
+            u0, v0 = xs[i0] - cx, ys[i0] - cy
+            u1, v1 = xs[i1] - cx, ys[i1] - cy
+            u2, v2 = xs[i2] - cx, ys[i2] - cy
+            det = (u1 - u0) * (v2 - v0) - (u2 - u0) * (v1 - v0)
+            if abs(det) < 1e-9:
+                continue
+            d10 = ds[i1] - ds[i0]
+            d20 = ds[i2] - ds[i0]
+            aa = (d10 * (v2 - v0) - d20 * (v1 - v0)) / det
+            bb = ((u1 - u0) * d20 - (u2 - u0) * d10) / det
+            if abs(aa) > max_slope or abs(bb) > max_slope:
+                continue
+            cc = ds[i0] - aa * u0 - bb * v0
+            cnt = 0
+            for i in range(n):
+                if abs(ds[i] - (aa * (xs[i] - cx) + bb * (ys[i] - cy) + cc)) <= t_out:
+                    cnt += 1
+            if cnt > best:
+                best = cnt
+                a, b, c = aa, bb, cc
+    # Eq. 6.9 / 6.10 iteration
+    mask = np.zeros(n, np.bool_)
+    ninl = 0
+    for _it in range(max_iter):
+        ninl = 0
+        for i in range(n):
+            m = abs(ds[i] - (a * (xs[i] - cx) + b * (ys[i] - cy) + c)) <= t_out
+            mask[i] = m
+            if m:
+                ninl += 1
+        if ninl < min_pix:
+            break
+        xi = xs[mask]
+        yi = ys[mask]
+        di = ds[mask]
+        ok_full = full and ninl >= 3 * min_pix
+        a2, b2, c2 = _lsq(xi, yi, di, cx, cy, ok_full)
+        if abs(a2) > max_slope or abs(b2) > max_slope:
+            a2, b2, c2 = _lsq(xi, yi, di, cx, cy, False)
+        conv = np.exp(-(abs(a - a2) + abs(b - b2) + abs(c - c2))) > eps
+        a, b, c = a2, b2, c2
+        if conv:
+            break
+    return a, b, c - a * cx - b * cy, ninl
+
+
+@njit(cache=True)
+def _fit_all(order: npt.NDArray[np.int64], starts: npt.NDArray[np.int64], w: int, disp: F64,
+             reliable: npt.NDArray[np.bool_], gamma: float, t_out: float, eps: float, max_iter: int,
+             min_pix: int, trials: int, max_slope: float) -> tuple[F64, I32]:
+    k = starts.size - 1
+    planes = np.full((k, 3), np.nan)
+    ninl = np.zeros(k, np.int32)
+    for j in range(k):
+        s0 = starts[j]
+        s1 = starts[j + 1]
+        nseg = s1 - s0
+        nrel = 0
+        for t in range(s0, s1):
+            if reliable[order[t]]:
+                nrel += 1
+        # Eq. 6.8: too many unreliable pixels -> no plane for this segment
+        if nrel < min_pix or (nseg - nrel) > gamma * nseg:
+            continue
+        xs = np.empty(nrel)
+        ys = np.empty(nrel)
+        ds = np.empty(nrel)
+        q = 0
+        for t in range(s0, s1):
+            p = order[t]
+            if reliable[p]:
+                xs[q] = p % w
+                ys[q] = p // w
+                ds[q] = disp[p]
+                q += 1
+        a, b, c, n_in = _fit_one(xs, ys, ds, t_out, eps, max_iter, min_pix, trials, max_slope, j + 1)
+        if n_in >= min_pix:
+            planes[j, 0] = a
+            planes[j, 1] = b
+            planes[j, 2] = c
+            ninl[j] = n_in
+    return planes, ninl
+
+
+def fit_planes(index: SegmentIndex, disparity: npt.NDArray[np.floating], reliable: npt.NDArray[np.bool_], *,
+               params: PlaneParams | None = None) -> tuple[F64, I32]:
+    """Fit one disparity plane per segment (thesis Eqs. 6.1-6.10).
+
+    Parameters
+    ----------
+    index : SegmentIndex
+        Pixels of each segment (``build_segment_index(labels)``).
+    disparity : (H, W) float
+        Initial disparity map (d = x_left - x_right), NaN allowed where ``reliable`` is False.
+    reliable : (H, W) bool
+        Pixels passing the cross-check (Eq. 6.7).
+    params : PlaneParams, keyword-only
+
+    Returns
+    -------
+    planes : (K, 3) float64
+        ``(a, b, c)`` per segment, image coordinates (x = column, y = row); NaN rows for segments that
+        failed Eq. 6.8 or kept too few inliers.
+    inliers : (K,) int32
+        Reliable pixels within ``t_outlier`` of the final plane.
+    """
+    p = params or PlaneParams()
+    d = np.nan_to_num(np.asarray(disparity, dtype=np.float64).ravel(), nan=0.0)
+    rel = np.asarray(reliable, dtype=np.bool_).ravel() & np.isfinite(np.asarray(disparity).ravel())
+    return _fit_all(index.order, index.starts, index.shape[1], d, rel, p.gamma_segment, p.t_outlier,
+                    p.epsilon, p.max_iter, p.min_pixels, p.ransac_trials, p.max_slope)
+
+
+def plane_similarity(pa: F64, pb: F64, ca: F64, cb: F64) -> F64:
+    """Similarity of neighbouring disparity planes (thesis Eqs. 6.14-6.16).
+
+    The planes ``d = a x + b y + c`` are surfaces in (x, y, d) space with normals ``(a, b, -1)``. The
+    intersection angle θ of Eq. 6.14 is taken between these normals (folded to ``min(θ, π - θ)``), and the
+    parallel distance of Eq. 6.15 is the mean point-to-plane distance between the two planes over the two
+    segments' centroids. Eq. 6.16 scores each property by ``exp(-·)``; since two planes can be nearly parallel
+    yet far apart, both properties are required together: ``simfun = exp(-θ) · exp(-d_dist)``.
+
+    Parameters
+    ----------
+    pa, pb : (P, 3)
+        Plane parameters of the two members of each pair.
+    ca, cb : (P, 2)
+        Centroids (x, y) of the two segments.
+
+    Returns
+    -------
+    (P,) similarity in (0, 1].
+    """
+    na = np.stack([pa[:, 0], pa[:, 1], -np.ones(len(pa))], axis=1)
+    nb = np.stack([pb[:, 0], pb[:, 1], -np.ones(len(pb))], axis=1)
+    cos = np.abs((na * nb).sum(1)) / np.sqrt((na * na).sum(1) * (nb * nb).sum(1))
+    theta = np.arccos(np.clip(cos, -1.0, 1.0))
+
+    def ev(p: F64, c: F64) -> F64:
+        return p[:, 0] * c[:, 0] + p[:, 1] * c[:, 1] + p[:, 2]
+
+    gap = 0.5 * (np.abs(ev(pa, ca) - ev(pb, ca)) + np.abs(ev(pa, cb) - ev(pb, cb)))
+    dist = gap / np.sqrt((na * na).sum(1))
+    return np.asarray(np.exp(-theta) * np.exp(-dist), dtype=np.float64)
+
+
+def _uf_find(parent: npt.NDArray[np.int64], i: int) -> int:
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = int(parent[i])
+    return i
+
+
+def merge_planes(index: SegmentIndex, planes: F64, pairs: I32, disparity: npt.NDArray[np.floating],
+                 reliable: npt.NDArray[np.bool_], *, params: PlaneParams | None = None,
+                 ) -> tuple[I32, F64]:
+    """Cluster neighbouring segments with similar planes and refit each cluster (thesis §6.1.3).
+
+    Parameters
+    ----------
+    index : SegmentIndex
+    planes : (K, 3) float64
+        Per-segment planes from :func:`fit_planes` (NaN = none).
+    pairs : (P, 2) int32
+        Adjacent segment pairs (Eq. 6.11, from ``segment_adjacency``).
+    disparity, reliable : (H, W)
+        As for :func:`fit_planes`.
+    params : PlaneParams, keyword-only
+        ``delta`` is the threshold δ of Eq. 6.17.
+
+    Returns
+    -------
+    cluster : (K,) int32
+        Cluster index per segment (-1 for segments without a plane).
+    cluster_planes : (C, 3) float64
+        Refitted plane of each cluster (a member that the refitted plane no longer fits keeps its own
+        plane as a cluster of its own).
+    """
+    p = params or PlaneParams()
+    k = planes.shape[0]
+    h, w = index.shape
+    has = np.isfinite(planes[:, 0])
+    pix_x = (index.order % w).astype(np.float64)
+    pix_y = (index.order // w).astype(np.float64)
+    seg_of = np.repeat(np.arange(k), np.diff(index.starts))
+    cnt = np.maximum(np.diff(index.starts), 1)
+    cent = np.stack([np.bincount(seg_of, pix_x, k) / cnt, np.bincount(seg_of, pix_y, k) / cnt], axis=1)
+    ok = has[pairs[:, 0]] & has[pairs[:, 1]]
+    pr = pairs[ok]
+    sim = plane_similarity(planes[pr[:, 0]], planes[pr[:, 1]], cent[pr[:, 0]], cent[pr[:, 1]])
+    parent = np.arange(k, dtype=np.int64)
+    # greedy clustering in decreasing similarity (Eq. 6.17: merge while simfun > δ)
+    for e in np.argsort(-sim, kind="stable"):
+        if sim[e] <= p.delta:
+            break
+        ra = _uf_find(parent, int(pr[e, 0]))
+        rb = _uf_find(parent, int(pr[e, 1]))
+        if ra != rb:
+            parent[max(ra, rb)] = min(ra, rb)
+    roots = np.array([_uf_find(parent, i) for i in range(k)], dtype=np.int64)
+    roots[~has] = -1
+    # refit every multi-segment cluster on the union of its members' reliable pixels
+    relabel = np.where(has, roots, k)  # label map over clusters, k = none
+    cl_lab = relabel[np.asarray(_segment_label_map(index))]
+    cidx = build_segment_index(cl_lab.reshape(h, w))
+    merged, _ = fit_planes(cidx, disparity, reliable, params=p)
+    cluster = np.full(k, -1, np.int32)
+    out: list[npt.NDArray[np.float64]] = []
+    root_to_c: dict[int, int] = {}
+    sizes = np.bincount(roots[has], minlength=k)
+    d = np.asarray(disparity, dtype=np.float64).ravel()
+    rel = np.asarray(reliable, dtype=bool).ravel() & np.isfinite(d)
+    for j in np.flatnonzero(has):
+        r = int(roots[j])
+        use_merged = sizes[r] > 1 and np.isfinite(merged[r, 0])
+        if use_merged:
+            # keep the member only if the merged plane explains its reliable pixels about as well
+            px = index.order[index.starts[j]:index.starts[j + 1]]
+            px = px[rel[px]]
+            if px.size:
+                xs, ys = px % w, px // w
+                own = np.abs(d[px] - (planes[j, 0] * xs + planes[j, 1] * ys + planes[j, 2])) <= p.t_outlier
+                mer = np.abs(d[px] - (merged[r, 0] * xs + merged[r, 1] * ys + merged[r, 2])) <= p.t_outlier
+                use_merged = mer.mean() >= own.mean() - 0.1
+        if use_merged:
+            if r not in root_to_c:
+                root_to_c[r] = len(out)
+                out.append(merged[r])
+            cluster[j] = root_to_c[r]
+        else:
+            cluster[j] = len(out)
+            out.append(planes[j])
+    cplanes = np.array(out, dtype=np.float64).reshape(-1, 3)
+    log.debug("plane merging: %d planes -> %d clusters", int(has.sum()), cplanes.shape[0])
+    return cluster, cplanes
+
+
+def _segment_label_map(index: SegmentIndex) -> npt.NDArray[np.int64]:
+    k = index.n_segments
+    lab = np.empty(index.order.size, np.int64)
+    lab[index.order] = np.repeat(np.arange(k), np.diff(index.starts))
+    return lab
+
+
+def fill_missing_planes(assign: I32, pairs: I32, contrast: F64) -> I32:
+    """Give every segment without a plane (-1) the plane of its most similar-coloured labelled neighbour.
+
+    Parameters
+    ----------
+    assign : (K,) int32
+        Plane index per segment, -1 = none.
+    pairs : (P, 2) int32
+        Adjacent pairs; ``contrast`` (P,) their colour contrast (lower = more similar).
+
+    Returns
+    -------
+    (K,) int32 with -1 left only for segments with no labelled segment in their connected component
+    (and every -1 replaced by 0 when no segment has a plane at all).
+    """
+    a = assign.copy()
+    order = np.argsort(contrast, kind="stable")
+    p0, p1 = pairs[order, 0], pairs[order, 1]
+    for _ in range(1000):
+        miss = a < 0
+        if not miss.any():
+            break
+        changed = False
+        for u, v in ((p0, p1), (p1, p0)):
+            sel = miss[u] & (a[v] >= 0)
+            uu, vv = u[sel], v[sel]
+            # first (most similar) labelled neighbour wins
+            first = np.unique(uu, return_index=True)[1]
+            if first.size:
+                a[uu[first]] = np.where(a[uu[first]] < 0, a[vv[first]], a[uu[first]])
+                changed = True
+            miss = a < 0
+        if not changed:
+            break
+    if (a < 0).all():
+        a[:] = 0
+    return a
+
+
+def render_planes(index: SegmentIndex, planes: F64,
+                  assign: npt.NDArray[np.integer]) -> npt.NDArray[np.float32]:
+    """Disparity map of a plane assignment.
+
+    Parameters
+    ----------
+    index : SegmentIndex
+    planes : (L, 3) float64 plane set.
+    assign : (K,) int
+        Plane index per segment (-1 = none -> NaN).
+
+    Returns
+    -------
+    (H, W) float32 disparity, ``a x + b y + c`` of the segment's plane at every pixel.
+    """
+    h, w = index.shape
+    seg = _segment_label_map(index)
+    pix = np.arange(h * w)
+    xs = (pix % w).astype(np.float64)
+    ys = (pix // w).astype(np.float64)
+    a = np.asarray(assign)[seg]
+    pl = np.where(a[:, None] >= 0, planes[np.clip(a, 0, None)], np.nan)
+    out = pl[:, 0] * xs + pl[:, 1] * ys + pl[:, 2]
+    return out.reshape(h, w).astype(np.float32)
