@@ -1,0 +1,93 @@
+"""One-call stereo matching: :func:`match` validates its inputs, then runs a registered method."""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import numpy as np
+
+from prismstereo.errors import ImageError, MatchingError
+from prismstereo.matching.registry import MatchResult, get_matcher
+
+log = logging.getLogger(__name__)
+
+__all__ = ["match", "validate_pair", "validate_range"]
+
+
+def _check_image(img: Any, name: str) -> np.ndarray:
+    arr = np.asarray(img)
+    if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] not in (1, 3)):
+        raise ImageError(f"expected {name} image of shape H×W or H×W×3, got shape {arr.shape}")
+    if arr.shape[0] < 1 or arr.shape[1] < 1:
+        raise ImageError(f"expected a non-empty {name} image, got shape {arr.shape}")
+    if arr.dtype == np.uint8:
+        return arr
+    if arr.dtype.kind not in "fiu" or arr.dtype == np.bool_:
+        raise ImageError(f"expected {name} image of dtype uint8 or float, got {arr.dtype}")
+    if not np.isfinite(arr).all():
+        raise ImageError(f"expected a finite {name} image, got NaN or inf values")
+    if arr.ndim == 3 and arr.shape[2] == 1:
+        arr = arr[:, :, 0]
+    return arr.astype(np.float32)
+
+
+def validate_pair(left: Any, right: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Check a stereo pair (same size, H×W or H×W×3, uint8 or finite float) and return it as arrays."""
+    lt, rt = _check_image(left, "left"), _check_image(right, "right")
+    if lt.shape[:2] != rt.shape[:2]:
+        raise ImageError(f"expected left and right images of the same size, got {lt.shape[1]}×{lt.shape[0]} "
+                         f"and {rt.shape[1]}×{rt.shape[0]} (W×H)")
+    if lt.ndim != rt.ndim:
+        lt = lt if lt.ndim == 3 else np.repeat(lt[:, :, None], 3, axis=2)
+        rt = rt if rt.ndim == 3 else np.repeat(rt[:, :, None], 3, axis=2)
+    return lt, rt
+
+
+def validate_range(width: int, *, max_disp: Any, min_disp: Any = 0) -> tuple[int, int]:
+    """Check ``0 <= min_disp <= max_disp < width`` (integers) and return them."""
+    for name, v in (("max_disp", max_disp), ("min_disp", min_disp)):
+        if isinstance(v, bool) or not isinstance(v, int | np.integer):
+            raise MatchingError(f"expected an integer {name}, got {v!r}")
+    lo, hi = int(min_disp), int(max_disp)
+    if lo < 0:
+        raise MatchingError(f"expected min_disp >= 0, got {lo}")
+    if hi < lo:
+        raise MatchingError(f"expected max_disp >= min_disp ({lo}), got {hi}")
+    if hi >= width:
+        raise MatchingError(f"expected max_disp < image width ({width}), got {hi}")
+    return lo, hi
+
+
+def match(left: Any, right: Any, *, max_disp: int, min_disp: int = 0, method: str = "bpasw",
+          **params: Any) -> MatchResult:
+    """Disparity of ``left`` against ``right`` with a registered method.
+
+    Inputs are validated before any work.
+
+    Parameters
+    ----------
+    left, right : ndarray, (H, W) or (H, W, 3)
+        Rectified pair, RGB, uint8 or float on the 0..255 scale; ``d = x_left - x_right >= 0``.
+    max_disp, min_disp : int
+        Inclusive search range, ``0 <= min_disp <= max_disp < W`` (a single level is allowed, so a
+        1-pixel-wide image is matched with ``max_disp=0``).
+    method : str
+        A name from :func:`~prismstereo.matching.registry.available_matchers`.
+    **params
+        The method's keyword tuning parameters.
+
+    Returns
+    -------
+    MatchResult
+        ``disparity`` float32 (H, W), NaN invalid; ``valid``; ``timings``; ...
+
+    Raises
+    ------
+    ImageError, MatchingError, ConfigError
+    """
+    lt, rt = validate_pair(left, right)
+    lo, hi = validate_range(lt.shape[1], max_disp=max_disp, min_disp=min_disp)
+    matcher = get_matcher(method, **params)
+    log.debug("match %s: %dx%d, d in [%d, %d]", method, lt.shape[1], lt.shape[0], lo, hi)
+    return matcher.compute(lt, rt, max_disp=hi, min_disp=lo)

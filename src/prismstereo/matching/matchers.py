@@ -1,0 +1,169 @@
+"""Local matchers of thesis Table 5.1 (SAD, SSD, NCC, SHD, BPASW) behind the registry.
+
+Each builds an aggregated cost volume, selects the winner (thesis Eq. 5.15), and — unless switched
+off — checks left–right consistency (Eq. 6.7, the right view's disparity read along the diagonals of
+the same volume), refines to subpixel and fills the invalid pixels for a dense output.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from prismstereo.matching import aggregation, costs, selection
+from prismstereo.matching.registry import MatchResult, register_matcher
+
+log = logging.getLogger(__name__)
+
+__all__ = ["BPASWMatcher", "LocalMatcher", "NCCMatcher", "SADMatcher", "SHDMatcher", "SSDMatcher"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class LocalMatcher:
+    """Common post-processing of the local matchers.
+
+    Parameters
+    ----------
+    cross_check : bool
+        Left–right check (thesis Eq. 6.7); failing pixels are invalid.
+    tolerance : float
+        Cross-check tolerance in pixels.
+    subpixel : bool
+        Parabola subpixel refinement.
+    fill : bool
+        Fill invalid pixels (scanline background fill + weighted median) for a dense map.
+    keep_cost : bool
+        Return the aggregated cost volume in ``extras["cost"]``.
+    """
+
+    cross_check: bool = True
+    tolerance: float = 1.0
+    subpixel: bool = True
+    fill: bool = True
+    keep_cost: bool = False
+
+    def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
+                    min_disp: int) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def compute(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
+                min_disp: int = 0) -> MatchResult:
+        """Disparity of ``left`` (float32 H×W, NaN invalid) for ``min_disp <= d <= max_disp``."""
+        timings: dict[str, float] = {}
+        t = time.perf_counter()
+        vol = self.cost_volume(left, right, max_disp=max_disp, min_disp=min_disp)
+        timings["cost+aggregation"] = time.perf_counter() - t
+        t = time.perf_counter()
+        disp = selection.winner_take_all(vol, min_disp=min_disp)
+        if self.cross_check:
+            disp_r = selection.right_disparity(vol, min_disp=min_disp)
+            valid = selection.cross_check(disp, disp_r, tolerance=self.tolerance)
+        else:
+            valid = np.ones(disp.shape, dtype=bool)
+        if self.subpixel:
+            disp = selection.subpixel_refine(vol, disp, min_disp=min_disp)
+        timings["selection"] = time.perf_counter() - t
+        raw = np.where(valid, disp, np.float32(np.nan)).astype(np.float32)
+        extras: dict[str, object] = {"cost": vol} if self.keep_cost else {}
+        if self.fill and self.cross_check and not valid.all():
+            t = time.perf_counter()
+            dense = selection.fill_holes(raw, valid, image=left)
+            timings["fill"] = time.perf_counter() - t
+            return MatchResult(dense, valid, raw, timings, extras)
+        return MatchResult(raw, valid, None, timings, extras)
+
+
+@register_matcher("sad")
+@dataclass(frozen=True, kw_only=True)
+class SADMatcher(LocalMatcher):
+    """Sum of absolute differences over a ``(2·radius+1)²`` box window (thesis §2.6, Table 5.1)."""
+
+    radius: int = 4
+
+    def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
+                    min_disp: int) -> np.ndarray:
+        return costs.cost_sad_window(left, right, max_disp=max_disp, min_disp=min_disp, radius=self.radius)
+
+
+@register_matcher("ssd")
+@dataclass(frozen=True, kw_only=True)
+class SSDMatcher(LocalMatcher):
+    """Sum of squared differences over a box window (thesis §2.6, Table 5.1)."""
+
+    radius: int = 4
+
+    def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
+                    min_disp: int) -> np.ndarray:
+        return costs.cost_ssd(left, right, max_disp=max_disp, min_disp=min_disp, radius=self.radius)
+
+
+@register_matcher("ncc")
+@dataclass(frozen=True, kw_only=True)
+class NCCMatcher(LocalMatcher):
+    """Zero-mean normalised cross-correlation over a box window, cost ``1 - ZNCC`` (Table 5.1)."""
+
+    radius: int = 4
+
+    def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
+                    min_disp: int) -> np.ndarray:
+        return costs.cost_ncc(left, right, max_disp=max_disp, min_disp=min_disp, radius=self.radius)
+
+
+@register_matcher("shd")
+@dataclass(frozen=True, kw_only=True)
+class SHDMatcher(LocalMatcher):
+    """Sum of census Hamming distances over a box window (Table 5.1)."""
+
+    radius: int = 4
+    census_window: tuple[int, int] = (7, 9)
+
+    def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
+                    min_disp: int) -> np.ndarray:
+        vol = costs.cost_census(left, right, max_disp=max_disp, min_disp=min_disp,
+                                window=self.census_window)
+        return aggregation.aggregate_box(vol, radius=self.radius)
+
+
+@register_matcher("bpasw")
+@dataclass(frozen=True, kw_only=True)
+class BPASWMatcher(LocalMatcher):
+    """BPASW: S_AD cost (thesis Eq. 5.6) aggregated with symmetric Weber–Fechner weights (Eqs. 5.7–5.14).
+
+    See :func:`prismstereo.matching.aggregation.aggregate_bpasw` for the weights and the reading of the
+    Weber–Fechner law. ``continuity=True`` runs a second pass with the continuity law (Eqs. 5.9, 5.12)
+    using the first pass's winners as the neighbours' disparities.
+    """
+
+    radius: int = 16
+    dilation: int = 2
+    omega: float = 0.5
+    tau_color: float | None = 20.0
+    tau_gradient: float | None = 8.0
+    census_weight: float = 0.0
+    kernel: Literal["weber", "exp"] = "weber"
+    similarity_s0: float = 28.0
+    gamma_color: float = 7.0
+    gamma_proximity: float = 17.5
+    continuity: bool = False
+    continuity_weight: float = 0.2
+
+    def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
+                    min_disp: int) -> np.ndarray:
+        vol = costs.cost_s_ad(left, right, max_disp=max_disp, min_disp=min_disp, omega=self.omega,
+                              tau_color=self.tau_color, tau_gradient=self.tau_gradient)
+        if self.census_weight > 0:
+            cen = costs.cost_census(left, right, max_disp=max_disp, min_disp=min_disp)
+            vol += np.float32(self.census_weight) * cen
+        kw = dict(radius=self.radius, dilation=self.dilation, min_disp=min_disp, kernel=self.kernel,
+                  similarity_s0=self.similarity_s0, gamma_color=self.gamma_color,
+                  gamma_proximity=self.gamma_proximity)
+        agg = aggregation.aggregate_bpasw(vol, left, right, **kw)  # type: ignore[arg-type]
+        if self.continuity:
+            prior = np.argmin(agg, axis=2)
+            agg = aggregation.aggregate_bpasw(vol, left, right, prior=prior,  # type: ignore[arg-type]
+                                              continuity_weight=self.continuity_weight, **kw)
+        return agg

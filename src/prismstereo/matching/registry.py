@@ -1,0 +1,119 @@
+"""Registry of stereo matchers by name, and the :class:`MatchResult` they return.
+
+A matcher is a class whose constructor takes its tuning parameters as keyword-only arguments with
+defaults, and whose ``compute(left, right, *, max_disp, min_disp=0)`` returns a :class:`MatchResult`.
+Matchers register with :func:`register_matcher`; :func:`get_matcher` imports the modules that define the
+built-in ones lazily (so importing :mod:`prismstereo.matching` stays light).
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol, TypeVar
+
+import numpy as np
+
+from prismstereo.errors import ConfigError
+
+__all__ = ["MatchResult", "Matcher", "available_matchers", "get_matcher", "register_matcher"]
+
+
+@dataclass(frozen=True)
+class MatchResult:
+    """Output of a matcher.
+
+    Attributes
+    ----------
+    disparity : ndarray, float32, (H, W)
+        Disparity of the left image in pixels, ``d = x_left - x_right``; NaN = invalid.
+    valid : ndarray, bool, (H, W)
+        True where the left–right check passed (thesis Eq. 6.7); all True when no check was run.
+    disparity_raw : ndarray, float32, (H, W) or None
+        The map before hole filling (invalid pixels NaN), or None when no filling was done.
+    timings : dict[str, float]
+        Seconds per stage.
+    extras : dict[str, Any]
+        Debug arrays and values (e.g. ``"cost"``: the aggregated cost volume when asked to keep it).
+    """
+
+    disparity: np.ndarray
+    valid: np.ndarray
+    disparity_raw: np.ndarray | None = None
+    timings: dict[str, float] = field(default_factory=dict)
+    extras: dict[str, Any] = field(default_factory=dict)
+
+
+class Matcher(Protocol):
+    def compute(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
+                min_disp: int = 0) -> MatchResult: ...
+
+
+_REGISTRY: dict[str, Callable[..., Matcher]] = {}
+#: modules that register built-in matchers when imported
+_BUILTIN_MODULES = ("prismstereo.matching.matchers", "prismstereo.matching.sgbm")
+#: optional modules (other issues) that may not exist yet
+_OPTIONAL_MODULES = ("prismstereo.matching.coop",)
+_loaded = False
+
+T = TypeVar("T")
+
+
+def register_matcher(name: str) -> Callable[[T], T]:
+    """Class decorator registering a matcher factory under ``name`` (lower case)."""
+    key = name.lower()
+
+    def deco(factory: T) -> T:
+        _REGISTRY[key] = factory  # type: ignore[assignment]
+        return factory
+
+    return deco
+
+
+def _load_builtins() -> None:
+    global _loaded
+    if _loaded:
+        return
+    for mod in _BUILTIN_MODULES:
+        importlib.import_module(mod)
+    for mod in _OPTIONAL_MODULES:
+        try:
+            importlib.import_module(mod)
+        except ModuleNotFoundError as exc:
+            if exc.name != mod:
+                raise
+    _loaded = True
+
+
+def available_matchers() -> list[str]:
+    """Sorted names of the registered matchers."""
+    _load_builtins()
+    return sorted(_REGISTRY)
+
+
+def get_matcher(name: str, **params: Any) -> Matcher:
+    """Build the matcher registered as ``name`` with its keyword tuning parameters.
+
+    Raises
+    ------
+    ConfigError
+        Unknown name, or a parameter the matcher does not take.
+    """
+    _load_builtins()
+    key = str(name).lower()
+    if key not in _REGISTRY:
+        raise ConfigError(f"expected a method among {', '.join(sorted(_REGISTRY))}, got {name!r}")
+    factory = _REGISTRY[key]
+    try:
+        sig = inspect.signature(factory)
+        accepts_any = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in sig.parameters.values())
+        if not accepts_any:
+            unknown = sorted(set(params) - set(sig.parameters))
+            if unknown:
+                allowed = ", ".join(p for p in sig.parameters if p != "self")
+                raise ConfigError(f"expected parameters of method {key!r} among {allowed}, got {unknown}")
+    except (TypeError, ValueError):
+        pass
+    return factory(**params)

@@ -1,0 +1,272 @@
+"""Disparity selection and post-processing: WTA, left–right check, subpixel, hole filling.
+
+Disparity maps are float32 ``H×W`` in pixels (``d = x_left - x_right``), NaN = invalid.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from prismstereo.errors import MatchingError
+
+__all__ = [
+    "cross_check",
+    "fill_holes",
+    "right_cost_volume",
+    "right_disparity",
+    "subpixel_refine",
+    "weighted_median_filter",
+    "winner_take_all",
+]
+
+
+def _check_volume(cost: np.ndarray) -> np.ndarray:
+    vol = np.asarray(cost)
+    if vol.ndim != 3 or vol.shape[2] < 1:
+        raise MatchingError(f"expected a cost volume of shape (H, W, D), got shape {vol.shape}")
+    return vol
+
+
+def winner_take_all(cost: np.ndarray, *, min_disp: int = 0) -> np.ndarray:
+    """Winner-take-all disparity ``D(x, y) = argmin_d C(x, y, d)`` (thesis Eq. 5.15).
+
+    Parameters
+    ----------
+    cost : ndarray, (H, W, D)
+        Slice ``i`` is disparity ``min_disp + i``. NaN entries are never selected.
+
+    Returns
+    -------
+    ndarray, float32, (H, W)
+        Integer-valued disparities; NaN where every entry of the pixel is NaN.
+    """
+    vol = _check_volume(cost)
+    if np.isnan(vol).any():
+        filled = np.where(np.isnan(vol), np.inf, vol)
+        idx = np.argmin(filled, axis=2)
+        disp = (idx + min_disp).astype(np.float32)
+        disp[np.all(np.isnan(vol), axis=2)] = np.nan
+        return disp
+    return (np.argmin(vol, axis=2) + min_disp).astype(np.float32)
+
+
+@njit(cache=True, parallel=True)
+def _diagonal_volume(cost: np.ndarray, min_disp: int, fill: float) -> np.ndarray:  # pragma: no cover
+    h, w, nd = cost.shape
+    out = np.empty((h, w, nd), dtype=np.float32)
+    for y in prange(h):
+        for xr in range(w):
+            for i in range(nd):
+                xl = xr + min_disp + i
+                out[y, xr, i] = cost[y, xl, i] if xl < w else fill
+    return out
+
+
+def right_cost_volume(cost: np.ndarray, *, min_disp: int = 0) -> np.ndarray:
+    """The right view's cost volume read along the diagonals of the left one: ``C_R(x, d) = C_L(x + d, d)``.
+
+    Exact for pixel-wise costs and for symmetric aggregation (box windows, BPASW with both-image weights);
+    entries with ``x + d >= W`` get the volume's maximum (never preferred).
+    """
+    vol = np.ascontiguousarray(_check_volume(cost), dtype=np.float32)
+    fill = float(np.nanmax(vol)) if vol.size else 0.0
+    return _diagonal_volume(vol, int(min_disp), np.float32(fill))
+
+
+def right_disparity(cost: np.ndarray, *, min_disp: int = 0) -> np.ndarray:
+    """WTA disparity of the RIGHT view from the LEFT cost volume (see :func:`right_cost_volume`).
+
+    Returns float32 ``(H, W)``: for right pixel ``x`` the match is left pixel ``x + d``.
+    """
+    return winner_take_all(right_cost_volume(cost, min_disp=min_disp), min_disp=min_disp)
+
+
+@njit(cache=True, parallel=True)
+def _cross_check(dl: np.ndarray, dr: np.ndarray, tol: float) -> np.ndarray:  # pragma: no cover
+    h, w = dl.shape
+    ok = np.zeros((h, w), dtype=np.bool_)
+    for y in prange(h):
+        for x in range(w):
+            d = dl[y, x]
+            if not np.isfinite(d):
+                continue
+            xr = int(np.floor(x - d + 0.5))
+            if xr < 0 or xr >= w:
+                continue
+            e = dr[y, xr]
+            if np.isfinite(e) and abs(d - e) <= tol:
+                ok[y, x] = True
+    return ok
+
+
+def cross_check(disp_left: np.ndarray, disp_right: np.ndarray, *, tolerance: float = 1.0) -> np.ndarray:
+    """Left–right consistency check (thesis Eq. 6.7).
+
+    A left pixel ``x`` with disparity ``d_L`` is valid when ``|d_L(x) - d_R(x - round(d_L))| <= tolerance``.
+
+    Parameters
+    ----------
+    disp_left, disp_right : ndarray, (H, W)
+        Disparities of the left and of the right view (both positive, ``d = x_left - x_right``).
+    tolerance : float
+        Pixels.
+
+    Returns
+    -------
+    ndarray, bool, (H, W)
+    """
+    dl = np.asarray(disp_left, dtype=np.float32)
+    dr = np.asarray(disp_right, dtype=np.float32)
+    if dl.shape != dr.shape or dl.ndim != 2:
+        raise MatchingError(f"expected two disparity maps of the same (H, W) shape, got {dl.shape} "
+                            f"and {dr.shape}")
+    return _cross_check(np.ascontiguousarray(dl), np.ascontiguousarray(dr), float(tolerance))
+
+
+def subpixel_refine(cost: np.ndarray, disp: np.ndarray, *, min_disp: int = 0) -> np.ndarray:
+    """Parabola fit through the cost at ``d-1, d, d+1`` around each integer disparity.
+
+    The offset ``(c₋ - c₊) / (2 (c₋ - 2c₀ + c₊))`` is clipped to ±0.5; pixels at the ends of the range,
+    with a non-convex fit or NaN disparity are left unchanged.
+
+    Returns
+    -------
+    ndarray, float32, (H, W)
+    """
+    vol = _check_volume(cost)
+    d = np.asarray(disp, dtype=np.float32)
+    out = d.copy()
+    nd = vol.shape[2]
+    finite = np.isfinite(d)
+    idx = np.zeros(d.shape, dtype=np.int64)
+    idx[finite] = np.rint(d[finite]).astype(np.int64) - min_disp
+    inner = finite & (idx >= 1) & (idx <= nd - 2)
+    if not inner.any():
+        return out
+    ys, xs = np.nonzero(inner)
+    i = idx[ys, xs]
+    c0 = vol[ys, xs, i].astype(np.float64)
+    cm = vol[ys, xs, i - 1].astype(np.float64)
+    cp = vol[ys, xs, i + 1].astype(np.float64)
+    denom = cm - 2.0 * c0 + cp
+    good = denom > 1e-12
+    offset = np.zeros_like(c0)
+    offset[good] = np.clip((cm[good] - cp[good]) / (2.0 * denom[good]), -0.5, 0.5)
+    out[ys, xs] = (d[ys, xs] + offset).astype(np.float32)
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _scanline_fill(disp: np.ndarray, valid: np.ndarray) -> np.ndarray:  # pragma: no cover - numba
+    h, w = disp.shape
+    out = disp.copy()
+    for y in prange(h):
+        last = np.nan
+        left_val = np.empty(w, dtype=np.float32)
+        for x in range(w):
+            if valid[y, x]:
+                last = disp[y, x]
+            left_val[x] = last
+        nxt = np.nan
+        for x in range(w - 1, -1, -1):
+            if valid[y, x]:
+                nxt = disp[y, x]
+                continue
+            a = left_val[x]
+            if np.isnan(a):
+                out[y, x] = nxt
+            elif np.isnan(nxt):
+                out[y, x] = a
+            else:
+                out[y, x] = min(a, nxt)
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _wmf(disp: np.ndarray, mask: np.ndarray, lab: np.ndarray, radius: int, gamma_c: float,
+         gamma_d: float, dmin: float, nbins: int) -> np.ndarray:  # pragma: no cover - numba
+    h, w = disp.shape
+    out = disp.copy()
+    for y in prange(h):
+        hist = np.zeros(nbins, dtype=np.float64)
+        for x in range(w):
+            if not mask[y, x]:
+                continue
+            hist[:] = 0.0
+            total = 0.0
+            for yy in range(max(0, y - radius), min(h, y + radius + 1)):
+                for xx in range(max(0, x - radius), min(w, x + radius + 1)):
+                    v = disp[yy, xx]
+                    if not np.isfinite(v):
+                        continue
+                    a = lab[y, x, 0] - lab[yy, xx, 0]
+                    b = lab[y, x, 1] - lab[yy, xx, 1]
+                    c = lab[y, x, 2] - lab[yy, xx, 2]
+                    dc = np.sqrt(a * a + b * b + c * c)
+                    ds = np.sqrt(float((y - yy) ** 2 + (x - xx) ** 2))
+                    wt = np.exp(-dc / gamma_c - ds / gamma_d)
+                    bi = int(np.floor(v - dmin + 0.5))
+                    bi = min(max(bi, 0), nbins - 1)
+                    hist[bi] += wt
+                    total += wt
+            if total <= 0.0:
+                continue
+            acc = 0.0
+            for bi in range(nbins):
+                acc += hist[bi]
+                if acc >= 0.5 * total:
+                    out[y, x] = dmin + bi
+                    break
+    return out
+
+
+def weighted_median_filter(disp: np.ndarray, image: np.ndarray, *, mask: np.ndarray | None = None,
+                           radius: int = 9, gamma_color: float = 10.0,
+                           gamma_distance: float = 9.0) -> np.ndarray:
+    """Bilateral weighted median of a disparity map (integer bins), guided by ``image``.
+
+    Weights ``exp(-ΔE_Lab/γ_c - ‖Δp‖/γ_d)``; only pixels where ``mask`` is True are changed (all if None).
+
+    Returns float32 ``(H, W)``.
+    """
+    from prismstereo.matching.aggregation import to_lab
+
+    d = np.ascontiguousarray(disp, dtype=np.float32)
+    m = np.ones(d.shape, dtype=bool) if mask is None else np.ascontiguousarray(mask, dtype=bool)
+    if not np.isfinite(d).any():
+        return d.copy()
+    dmin = float(np.floor(np.nanmin(d)))
+    nbins = int(np.ceil(np.nanmax(d))) - int(dmin) + 2
+    return _wmf(d, m, to_lab(image), int(radius), float(gamma_color), float(gamma_distance), dmin, nbins)
+
+
+def fill_holes(disp: np.ndarray, valid: np.ndarray | None = None, *, image: np.ndarray | None = None,
+               median_radius: int = 9) -> np.ndarray:
+    """Dense disparity from a sparse one: background scanline fill, then a weighted median.
+
+    Each invalid pixel takes the *lower* (background, as occlusions belong to the farther surface) of
+    the nearest valid disparities to its left and right on the scanline; when ``image`` is given the
+    filled pixels are then smoothed by :func:`weighted_median_filter` guided by it.
+
+    Parameters
+    ----------
+    disp : ndarray, (H, W)
+    valid : ndarray, bool, (H, W), optional
+        Defaults to ``isfinite(disp)``.
+    image : ndarray, (H, W, 3) or (H, W), optional
+        Guidance image of the same view.
+
+    Returns
+    -------
+    ndarray, float32, (H, W)
+        Finite wherever the row holds at least one valid pixel (NaN only for rows with none).
+    """
+    d = np.ascontiguousarray(disp, dtype=np.float32)
+    v = np.isfinite(d) if valid is None else (np.asarray(valid, dtype=bool) & np.isfinite(d))
+    if d.shape != v.shape or d.ndim != 2:
+        raise MatchingError(f"expected disp and valid of the same (H, W) shape, got {d.shape} and {v.shape}")
+    filled = _scanline_fill(d, np.ascontiguousarray(v))
+    if image is not None and median_radius > 0 and (~v).any():
+        filled = weighted_median_filter(filled, image, mask=~v, radius=median_radius)
+    return filled
