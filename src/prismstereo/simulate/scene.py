@@ -1,0 +1,293 @@
+"""Scene model for the prism-capture simulator: textured primitives in the world frame (mm).
+
+Every object has a pose (centre + rotation), a size, and a texture mapped in the object's own surface
+coordinates (s, t) in mm:
+
+* :class:`Rectangle` — a flat panel. In its local frame it lies in the XY plane, faces −Z (toward the
+  camera at identity rotation); s runs along local +X from the left edge, t along local +Y (down, as image
+  rows) from the top edge, so an image texture appears upright and unmirrored when seen from the front.
+* :class:`Box` — six rectangles; each face has its own (s, t) from one of its corners and a different
+  ``salt`` so procedural textures differ from face to face.
+* :class:`Sphere` — s = R·(longitude + π) with longitude 0 toward local −Z, t = R·colatitude from the
+  local −Y pole (the top).
+* :class:`Plane` — an infinite plane (e.g. a background wall); s, t measured from its centre.
+
+Rotations are given as extrinsic XYZ Euler angles in degrees (``R = Rz·Ry·Rx``, local-to-world), or built
+from a facing normal with :func:`rotation_from_normal`.
+
+Textures: :class:`SolidTexture`, :class:`CheckerTexture` (exact square edges, optional finite board with
+white margin), :class:`NoiseTexture` (seeded multi-octave colour value noise) and :class:`ImageTexture`.
+Colours are RGB floats in [0, 1].
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from prismstereo.errors import ConfigError
+
+Vec3 = tuple[float, float, float]
+Color = tuple[float, float, float]
+
+_IDENTITY: Vec3 = (0.0, 0.0, 0.0)
+
+
+# --------------------------------------------------------------------------- rotations
+def euler_to_matrix(rotation: Vec3 | np.ndarray) -> np.ndarray:
+    """Local-to-world rotation matrix from extrinsic XYZ Euler angles in degrees.
+
+    Parameters
+    ----------
+    rotation : (3,) (rx, ry, rz), degrees; ``R = Rz(rz) · Ry(ry) · Rx(rx)``.
+
+    Returns
+    -------
+    (3, 3) float64 rotation matrix; its columns are the object's local axes in the world.
+    """
+    return np.asarray(Rotation.from_euler("xyz", np.asarray(rotation, dtype=np.float64), degrees=True).as_matrix())
+
+
+def matrix_to_euler(matrix: np.ndarray) -> Vec3:
+    """Inverse of :func:`euler_to_matrix`: (3, 3) rotation → (rx, ry, rz) degrees."""
+    e = Rotation.from_matrix(np.asarray(matrix, dtype=np.float64)).as_euler("xyz", degrees=True)
+    return (float(e[0]), float(e[1]), float(e[2]))
+
+
+def rotation_from_normal(normal: Vec3 | np.ndarray, *, spin: float = 0.0) -> Vec3:
+    """Euler angles (degrees) that turn a rectangle so its front faces along ``normal``.
+
+    The front of a rectangle faces local −Z; its texture's t axis (image rows) is kept as close as possible
+    to world +Y (down), or world +Z when the normal is vertical; ``spin`` (degrees) then turns the surface
+    about the normal.
+
+    Parameters
+    ----------
+    normal : (3,) direction the front face looks toward (e.g. (0, 0, −1) = at the camera).
+    spin : float, degrees.
+
+    Returns
+    -------
+    (rx, ry, rz) Euler angles in degrees for :func:`euler_to_matrix`.
+    """
+    n = np.asarray(normal, dtype=np.float64)
+    norm = float(np.linalg.norm(n))
+    if not math.isfinite(norm) or norm < 1e-12:
+        raise ConfigError(f"normal: expected a non-zero finite 3-vector, got {list(map(float, n))}")
+    e3 = -n / norm
+    down = np.array([0.0, 1.0, 0.0])
+    if abs(float(e3 @ down)) > 0.999:
+        down = np.array([0.0, 0.0, 1.0])
+    e2 = down - (down @ e3) * e3
+    e2 /= np.linalg.norm(e2)
+    e1 = np.cross(e2, e3)
+    R = np.stack([e1, e2, e3], axis=1)
+    if spin:
+        R = R @ euler_to_matrix((0.0, 0.0, spin))
+    return matrix_to_euler(R)
+
+
+# --------------------------------------------------------------------------- textures
+@dataclass(frozen=True)
+class SolidTexture:
+    """A uniform colour."""
+
+    color: Color = (0.5, 0.5, 0.5)
+
+
+@dataclass(frozen=True)
+class CheckerTexture:
+    """A checkerboard with exact square edges.
+
+    Attributes
+    ----------
+    square : float
+        Square side, mm.
+    colors : pair of RGB
+        Colour of square (0, 0) (the one touching the pattern's origin) and of its neighbours.
+    squares : (nx, ny) or None
+        Finite board of nx × ny squares whose top-left corner is at (margin, margin) in the surface's
+        (s, t); outside it the surface has ``border_color``. ``None`` tiles the whole surface.
+        The board's inner corners (OpenCV's pattern size (nx − 1, ny − 1)) are at
+        (margin + i·square, margin + j·square), i = 1 … nx − 1, j = 1 … ny − 1.
+    margin : float
+        Offset of the pattern from the surface's (s, t) origin, mm.
+    border_color : RGB
+    """
+
+    square: float = 20.0
+    colors: tuple[Color, Color] = ((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
+    squares: tuple[int, int] | None = None
+    margin: float = 0.0
+    border_color: Color = (1.0, 1.0, 1.0)
+
+
+@dataclass(frozen=True)
+class NoiseTexture:
+    """Seeded multi-octave colour value noise: strong texture at several scales, for stereo matching.
+
+    Each RGB channel is an independent fractal sum of ``octaves`` value-noise layers; layer k has feature
+    size ``scale / 2**k`` mm and weight ``persistence**k``; the sum is stretched by ``contrast`` about 0.5
+    and clipped to [0, 1].
+
+    Attributes
+    ----------
+    scale : float
+        Feature size of the coarsest octave, mm.
+    octaves : int
+    persistence : float
+        Weight ratio between successive octaves, in (0, 1].
+    contrast : float
+    seed : int
+    """
+
+    scale: float = 50.0
+    octaves: int = 6
+    persistence: float = 0.7
+    contrast: float = 2.5
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class ImageTexture:
+    """An RGB image mapped onto the surface.
+
+    Attributes
+    ----------
+    path : str
+        Where the image came from (kept for the resolved scene file); may be empty for in-memory images.
+    image : (H, W, 3) uint8 or float array
+        The pixels (uint8 are scaled to [0, 1]).
+    size : (w, h) or None
+        Size of one copy of the image on the surface, mm; it repeats beyond. ``None`` stretches it over
+        each face (required for planes, which have no extent).
+    """
+
+    path: str = ""
+    image: np.ndarray = field(default_factory=lambda: np.zeros((1, 1, 3)), compare=False, repr=False)
+    size: tuple[float, float] | None = None
+
+    def as_float(self) -> np.ndarray:
+        """(H, W, 3) float32 RGB in [0, 1]."""
+        img = np.asarray(self.image)
+        if img.ndim == 2:
+            img = np.repeat(img[:, :, None], 3, axis=2)
+        if img.dtype == np.uint8:
+            return (img[:, :, :3].astype(np.float32) / np.float32(255.0)).copy()
+        if img.dtype == np.uint16:
+            return (img[:, :, :3].astype(np.float32) / np.float32(65535.0)).copy()
+        return np.clip(img[:, :, :3].astype(np.float32), 0.0, 1.0)
+
+
+Texture = SolidTexture | CheckerTexture | NoiseTexture | ImageTexture
+
+
+# --------------------------------------------------------------------------- objects
+@dataclass(frozen=True)
+class _Posed:
+    center: Vec3
+    rotation: Vec3
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """(3, 3) local-to-world rotation; columns are the local axes."""
+        return euler_to_matrix(self.rotation)
+
+    def to_world(self, local: np.ndarray) -> np.ndarray:
+        """Local points (..., 3) in mm → world points (..., 3)."""
+        return np.asarray(local, dtype=np.float64) @ self.matrix.T + np.asarray(self.center, dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class Rectangle(_Posed):
+    """A textured flat rectangle of ``size`` = (width, height) mm centred at ``center``.
+
+    The surface coordinates of a world point p are ``(s, t) = (R[:,0]·(p − c) + w/2, R[:,1]·(p − c) + h/2)``.
+    """
+
+    center: Vec3 = (0.0, 0.0, 1000.0)
+    size: tuple[float, float] = (100.0, 100.0)
+    rotation: Vec3 = _IDENTITY
+    texture: Texture = field(default_factory=NoiseTexture)
+    name: str = ""
+
+    def surface_to_world(self, st: np.ndarray) -> np.ndarray:
+        """Surface coordinates (..., 2) in mm → world points (..., 3) on the rectangle's plane."""
+        st = np.asarray(st, dtype=np.float64)
+        local = np.stack(
+            [st[..., 0] - self.size[0] / 2.0, st[..., 1] - self.size[1] / 2.0, np.zeros(st.shape[:-1])], axis=-1
+        )
+        return self.to_world(local)
+
+    @property
+    def normal(self) -> np.ndarray:
+        """(3,) unit normal of the front face (local −Z in the world)."""
+        return -self.matrix[:, 2]
+
+
+@dataclass(frozen=True)
+class Box(_Posed):
+    """A box of ``size`` = (sx, sy, sz) mm along its local axes, centred at ``center``."""
+
+    center: Vec3 = (0.0, 0.0, 1000.0)
+    size: Vec3 = (100.0, 100.0, 100.0)
+    rotation: Vec3 = _IDENTITY
+    texture: Texture = field(default_factory=NoiseTexture)
+    name: str = ""
+
+
+@dataclass(frozen=True)
+class Sphere(_Posed):
+    """A sphere of ``radius`` mm."""
+
+    center: Vec3 = (0.0, 0.0, 1000.0)
+    radius: float = 50.0
+    rotation: Vec3 = _IDENTITY
+    texture: Texture = field(default_factory=NoiseTexture)
+    name: str = ""
+
+
+@dataclass(frozen=True)
+class Plane(_Posed):
+    """An infinite plane through ``center`` facing local −Z (e.g. a background wall)."""
+
+    center: Vec3 = (0.0, 0.0, 3000.0)
+    rotation: Vec3 = _IDENTITY
+    texture: Texture = field(default_factory=NoiseTexture)
+    name: str = ""
+
+
+SceneObject = Rectangle | Box | Sphere | Plane
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Objects plus render settings.
+
+    Attributes
+    ----------
+    objects : tuple of SceneObject
+        Object ids in every output are indices into this tuple.
+    background : RGB
+        Colour of rays that pass the prism and hit nothing.
+    shading : float
+        Strength in [0, 1] of a fixed Lambertian light (view-independent, so both virtual views see the
+        same radiance); 0 renders pure albedo.
+    noise : float
+        Standard deviation of additive Gaussian sensor noise, grey levels (0 = none).
+    seed : int
+        Seed of the sensor noise.
+    supersample : int
+        Default samples per pixel side.
+    name : str
+    """
+
+    objects: tuple[SceneObject, ...] = ()
+    background: Color = (0.0, 0.0, 0.0)
+    shading: float = 0.0
+    noise: float = 0.0
+    seed: int = 0
+    supersample: int = 2
+    name: str = "scene"
