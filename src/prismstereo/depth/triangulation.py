@@ -1,0 +1,278 @@
+"""Triangulation: 3D points from correspondences (thesis §7.2, Eqs. 7.19–7.23, Appendix A).
+
+Four ways to turn a match into a point, all pure functions on arrays:
+
+- :func:`triangulate_midpoint` — midpoint of the common perpendicular of two rays (thesis Eq. 7.19 and
+  Appendix A, the "mid-point theorem"); works for any rays, pinhole or not.
+- :func:`triangulate_dlt` — linear (DLT) triangulation from two 3×4 projection matrices.
+- :func:`reproject_disparity` / :func:`depth_from_disparity` — the rectified-pair shortcut with the
+  reprojection matrix Q (thesis Eqs. 7.21–7.23).
+- :func:`triangulate_exact` — exact refractive triangulation: the two REAL-image pixels of a match are
+  traced through the prism (vector Snell's law, :func:`~prismstereo.optics.trace_pixels`) and the point
+  is the midpoint of the two exact rays. No pinhole approximation is involved, so with exact
+  correspondences it recovers the scene point to machine precision.
+
+Conventions (DESIGN.md §3): world frame = real camera frame, mm; pixels (u, v) with centres at integers;
+disparity ``d = x_left − x_right`` in pixels, NaN = invalid.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from prismstereo.config import Rig
+from prismstereo.optics import trace_pixels
+
+__all__ = [
+    "Triangulation",
+    "depth_from_disparity",
+    "rectified_to_world",
+    "reproject_disparity",
+    "triangulate_dlt",
+    "triangulate_exact",
+    "triangulate_midpoint",
+]
+
+
+@dataclass(frozen=True)
+class Triangulation:
+    """Triangulated points with their quality.
+
+    Attributes
+    ----------
+    points : (*S, 3) float64
+        Points in the world frame, mm; NaN where invalid.
+    gaps : (*S,) float64
+        Length of the common perpendicular between the two rays, mm (0 for rays that meet; NaN where
+        invalid). A large gap means the two pixels do not see one point (a bad match, or a vertical
+        rectification error).
+    valid : (*S,) bool
+        Both rays exist (no total internal reflection, inside the glass), they are not parallel, and the
+        point lies in front of both ray origins.
+    """
+
+    points: np.ndarray
+    gaps: np.ndarray
+    valid: np.ndarray
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.einsum("...k,...k->...", a, b)
+
+
+def triangulate_midpoint(
+    origins_a: np.ndarray,
+    directions_a: np.ndarray,
+    origins_b: np.ndarray,
+    directions_b: np.ndarray,
+) -> Triangulation:
+    """Midpoint of the common perpendicular of two rays (thesis Eq. 7.19, Appendix A).
+
+    Solves ``a·d_a − b·d_b + c·(d_a × d_b) = o_b − o_a`` (Eq. 7.19 written for arbitrary origins) in closed
+    form; the point is the middle of the segment joining ``o_a + a·d_a`` and ``o_b + b·d_b``.
+
+    Parameters
+    ----------
+    origins_a, directions_a : (*S, 3) array
+        Ray origins (mm) and directions (any length) of the first view.
+    origins_b, directions_b : (*S, 3) array
+        Same for the second view. All four broadcast together.
+
+    Returns
+    -------
+    Triangulation
+        ``valid`` is False for parallel rays, non-finite inputs and points behind either origin
+        (a, b ≤ 0).
+    """
+    oa = np.asarray(origins_a, dtype=np.float64)
+    da = np.asarray(directions_a, dtype=np.float64)
+    ob = np.asarray(origins_b, dtype=np.float64)
+    db = np.asarray(directions_b, dtype=np.float64)
+    oa, da, ob, db = np.broadcast_arrays(oa, da, ob, db)
+    w = oa - ob
+    a = _dot(da, da)
+    b = _dot(da, db)
+    c = _dot(db, db)
+    d = _dot(da, w)
+    e = _dot(db, w)
+    den = a * c - b * b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sa = (b * e - c * d) / den
+        sb = (a * e - b * d) / den
+    ok = np.isfinite(sa) & np.isfinite(sb) & (np.abs(den) > 1e-14 * np.maximum(a * c, 1e-300))
+    ok &= (sa > 0) & (sb > 0)
+    qa = oa + sa[..., None] * da
+    qb = ob + sb[..., None] * db
+    pts = 0.5 * (qa + qb)
+    gaps = np.linalg.norm(qa - qb, axis=-1)
+    nan3 = np.full(3, np.nan)
+    return Triangulation(
+        points=np.where(ok[..., None], pts, nan3),
+        gaps=np.where(ok, gaps, np.nan),
+        valid=ok,
+    )
+
+
+def triangulate_dlt(
+    P_a: np.ndarray,
+    P_b: np.ndarray,
+    pixels_a: np.ndarray,
+    pixels_b: np.ndarray,
+) -> np.ndarray:
+    """Linear (DLT) triangulation of pixel pairs from two pinhole cameras.
+
+    For each pair the homogeneous point X minimises ``‖A X‖`` with ``‖X‖ = 1``, where A stacks
+    ``u·P₃ − P₁`` and ``v·P₃ − P₂`` of both views (Hartley & Zisserman, §12.2); each row of A is
+    normalised first for conditioning. Distortion is not modelled: undistort the pixels first.
+
+    Parameters
+    ----------
+    P_a, P_b : (3, 4) array
+        Projection matrices ``K [R | −R C]`` (DESIGN.md §3).
+    pixels_a, pixels_b : (*S, 2) array
+        Matching pixels (u, v) in each view.
+
+    Returns
+    -------
+    (*S, 3) float64 world points, mm; NaN for non-finite pixels or points at infinity.
+    """
+    Pa = np.asarray(P_a, dtype=np.float64)
+    Pb = np.asarray(P_b, dtype=np.float64)
+    xa = np.asarray(pixels_a, dtype=np.float64)
+    xb = np.asarray(pixels_b, dtype=np.float64)
+    xa, xb = np.broadcast_arrays(xa, xb)
+    shape = xa.shape[:-1]
+    xa = xa.reshape(-1, 2)
+    xb = xb.reshape(-1, 2)
+    out = np.full((xa.shape[0], 3), np.nan)
+    ok = np.all(np.isfinite(xa), axis=1) & np.all(np.isfinite(xb), axis=1)
+    if np.any(ok):
+        ua, ub = xa[ok], xb[ok]
+        A = np.stack(
+            [
+                ua[:, 0:1] * Pa[2] - Pa[0],
+                ua[:, 1:2] * Pa[2] - Pa[1],
+                ub[:, 0:1] * Pb[2] - Pb[0],
+                ub[:, 1:2] * Pb[2] - Pb[1],
+            ],
+            axis=1,
+        )  # M×4×4
+        A /= np.linalg.norm(A, axis=2, keepdims=True)
+        # Smallest right singular vector = eigenvector of AᵀA with the smallest eigenvalue.
+        _, vecs = np.linalg.eigh(np.einsum("mki,mkj->mij", A, A))
+        X = vecs[:, :, 0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            pts = X[:, :3] / X[:, 3:4]
+        out[ok] = np.where(np.abs(X[:, 3:4]) > 1e-15, pts, np.nan)
+    return out.reshape(shape + (3,))
+
+
+def depth_from_disparity(
+    disparity: np.ndarray, *, focal_px: float, baseline_mm: float
+) -> np.ndarray:
+    """Depth along the rectified optical axis, ``Z = λ f / d`` (thesis Eq. 7.21).
+
+    Parameters
+    ----------
+    disparity : (H, W) array
+        ``d = x_left − x_right`` in pixels; NaN or d ≤ 0 give NaN.
+    focal_px : float
+        Focal length of the rectified cameras in pixels.
+    baseline_mm : float
+        Distance λ between the rectified optical centres, mm.
+
+    Returns
+    -------
+    (H, W) float64 depth in mm in the rectified left camera's frame (not the world Z).
+    """
+    d = np.asarray(disparity, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = focal_px * baseline_mm / d
+    return np.where(d > 0, z, np.nan)
+
+
+def reproject_disparity(disparity: np.ndarray, Q: np.ndarray, *, origin: tuple[float, float] = (0.0, 0.0)
+                        ) -> np.ndarray:
+    """3D points of a disparity map with the reprojection matrix Q (thesis Eq. 7.23).
+
+    ``[X, Y, Z, W]ᵀ = Q [x, y, d, 1]ᵀ`` and the point is ``(X, Y, Z) / W``. With the thesis's
+    ``Q = [[1, 0, 0, −cx], [0, 1, 0, −cy], [0, 0, 0, f], [0, 0, 1/λ, 0]]`` this is ``Z = λ f / d``
+    (Eq. 7.22); OpenCV's Q (``cv2.stereoRectify``, with its sign of 1/Tx) works the same.
+
+    Parameters
+    ----------
+    disparity : (H, W) array
+        Disparity of the rectified left image, pixels; NaN = invalid.
+    Q : (4, 4) array
+    origin : (x0, y0)
+        Rectified-image coordinates of ``disparity[0, 0]`` (for a cropped region of interest).
+
+    Returns
+    -------
+    (H, W, 3) float64 points in the rectified LEFT camera frame, mm; NaN where d is invalid or ≤ 0.
+    Use :func:`rectified_to_world` to express them in the world frame.
+    """
+    d = np.asarray(disparity, dtype=np.float64)
+    Qm = np.asarray(Q, dtype=np.float64)
+    h, w = d.shape
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    hom = np.stack([xs + origin[0], ys + origin[1], d, np.ones_like(d)], axis=-1)
+    out = hom @ Qm.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pts = out[..., :3] / out[..., 3:4]
+    ok = np.isfinite(d) & (d > 0) & np.all(np.isfinite(pts), axis=-1)
+    return np.where(ok[..., None], pts, np.nan)
+
+
+def rectified_to_world(points: np.ndarray, R: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """Points in a rectified camera frame → world frame: ``X_w = Rᵀ x + C`` (R world-to-rectified).
+
+    Parameters
+    ----------
+    points : (..., 3) array, mm.
+    R : (3, 3) world-to-rectified rotation; C : (3,) that camera's optical centre, mm.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    return pts @ np.asarray(R, dtype=np.float64) + np.asarray(C, dtype=np.float64)
+
+
+def triangulate_exact(rig: Rig, pixels_a: np.ndarray, pixels_b: np.ndarray, *,
+                      faces: tuple[int, int] | None = None) -> Triangulation:
+    """Exact refractive triangulation of real-image pixel pairs.
+
+    Each pixel's ray is traced through the prism exactly (vector Snell's law at the face and at the back
+    plane, :func:`~prismstereo.optics.trace_pixels`), and the point is the midpoint of the common
+    perpendicular of the two exit rays (thesis Eq. 7.19 / Appendix A, applied to the true rays instead of
+    the rays of approximate virtual pinholes).
+
+    Parameters
+    ----------
+    rig : Rig
+    pixels_a, pixels_b : (*S, 2) array
+        Matching pixels (u, v) of the REAL image, one seen through each face (fractional allowed).
+    faces : (face_a, face_b), optional
+        If given, a pixel whose ray goes through another face (or no face) is invalid: it cannot be
+        the match it claims to be.
+
+    Returns
+    -------
+    Triangulation
+    """
+    xa = np.asarray(pixels_a, dtype=np.float64)
+    xb = np.asarray(pixels_b, dtype=np.float64)
+    xa, xb = np.broadcast_arrays(xa, xb)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        ra = trace_pixels(rig, np.nan_to_num(xa, nan=-1e6))
+        rb = trace_pixels(rig, np.nan_to_num(xb, nan=-1e6))
+    tri = triangulate_midpoint(ra.origins, ra.directions, rb.origins, rb.directions)
+    ok = tri.valid & ra.valid & rb.valid
+    ok &= np.all(np.isfinite(xa), axis=-1) & np.all(np.isfinite(xb), axis=-1)
+    if faces is not None:
+        ok &= (ra.face == faces[0]) & (rb.face == faces[1])
+    return Triangulation(
+        points=np.where(ok[..., None], tri.points, np.nan),
+        gaps=np.where(ok, tri.gaps, np.nan),
+        valid=ok,
+    )
