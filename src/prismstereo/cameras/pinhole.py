@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 
 from prismstereo.optics.refraction import normalize
@@ -55,6 +54,22 @@ def project_points(
     return np.stack([u, v], axis=-1)
 
 
+def undistort_normalized(xy_distorted: np.ndarray, dist: np.ndarray, *, iterations: int = 8) -> np.ndarray:
+    """Invert :func:`distort_normalized` (..., 2) with Newton's method (finite-difference Jacobian)."""
+    target = np.asarray(xy_distorted, dtype=np.float64)
+    xy = target.copy()
+    h = 1e-7
+    for _ in range(iterations):
+        r = distort_normalized(xy, dist) - target
+        jx = (distort_normalized(xy + [h, 0.0], dist) - distort_normalized(xy - [h, 0.0], dist)) / (2 * h)
+        jy = (distort_normalized(xy + [0.0, h], dist) - distort_normalized(xy - [0.0, h], dist)) / (2 * h)
+        det = jx[..., 0] * jy[..., 1] - jy[..., 0] * jx[..., 1]
+        dx = (jy[..., 1] * r[..., 0] - jy[..., 0] * r[..., 1]) / det
+        dy = (-jx[..., 1] * r[..., 0] + jx[..., 0] * r[..., 1]) / det
+        xy = xy - np.stack([dx, dy], axis=-1)
+    return xy
+
+
 @dataclass(frozen=True)
 class PinholeCamera:
     """A (virtual) pinhole camera.
@@ -91,16 +106,19 @@ class PinholeCamera:
         return project_points(points_in_world, self.K, self.R, self.C, self.dist)
 
     def undistort_pixels(self, pixels: np.ndarray) -> np.ndarray:
-        """(..., 2) distorted pixels → normalised undistorted coordinates (..., 2)."""
+        """(..., 2) distorted pixels → normalised undistorted coordinates (..., 2).
+
+        Inverts the distortion with fixed-point iterations refined by Newton steps, to 1e-12 in
+        normalised coordinates for the mild distortions of virtual prism cameras.
+        """
         px = np.asarray(pixels, dtype=np.float64)
-        flat = px.reshape(-1, 1, 2)
-        if len(self.dist):
-            xy = cv2.undistortPointsIter(
-                flat, self.K, self.dist, None, None, (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
-            )
-        else:
-            xy = cv2.undistortPoints(flat, self.K, None)
-        return xy.reshape(px.shape)
+        K = self.K
+        y = (px[..., 1] - K[1, 2]) / K[1, 1]
+        x = (px[..., 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
+        target = np.stack([x, y], axis=-1)
+        if not len(self.dist) or not np.any(self.dist):
+            return target
+        return undistort_normalized(target, self.dist)
 
     def unproject(self, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rays of pixels: origins (..., 3) = C and unit directions (..., 3) in the world frame."""
