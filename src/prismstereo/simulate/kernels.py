@@ -152,16 +152,16 @@ def compile_scene(scene: Scene) -> CompiledScene:
 
 # --------------------------------------------------------------------------- numba helpers
 @numba.njit(cache=True, inline="always")
-def _hash01(ix: int, iy: int, seed: int) -> float:
+def _hash32(ix: int, iy: int, seed: int) -> int:
     h = (ix * 374761393 + iy * 668265263 + seed * 1274126177) & 0xFFFFFFFF
     h = (((h >> 16) ^ h) * 0x45D9F3B) & 0xFFFFFFFF
     h = (((h >> 16) ^ h) * 0x45D9F3B) & 0xFFFFFFFF
-    h = (h >> 16) ^ h
-    return h / 4294967296.0
+    return (h >> 16) ^ h
 
 
 @numba.njit(cache=True, inline="always")
-def _value_noise(x: float, y: float, seed: int) -> float:
+def _value_noise3(x: float, y: float, seed: int) -> tuple[float, float, float]:
+    """Three independent value-noise channels in [0, 1] at (x, y) (one 30-bit hash per lattice node)."""
     fx = math.floor(x)
     fy = math.floor(y)
     ix = np.int64(fx)
@@ -170,31 +170,47 @@ def _value_noise(x: float, y: float, seed: int) -> float:
     ty = y - fy
     sx = tx * tx * tx * (tx * (tx * 6.0 - 15.0) + 10.0)
     sy = ty * ty * ty * (ty * (ty * 6.0 - 15.0) + 10.0)
-    a = _hash01(ix, iy, seed)
-    b = _hash01(ix + 1, iy, seed)
-    c = _hash01(ix, iy + 1, seed)
-    d = _hash01(ix + 1, iy + 1, seed)
-    return a + (b - a) * sx + (c - a) * sy + (a - b - c + d) * sx * sy
+    w00 = (1.0 - sx) * (1.0 - sy)
+    w01 = sx * (1.0 - sy)
+    w10 = (1.0 - sx) * sy
+    w11 = sx * sy
+    ha = _hash32(ix, iy, seed)
+    hb = _hash32(ix + 1, iy, seed)
+    hc = _hash32(ix, iy + 1, seed)
+    hd = _hash32(ix + 1, iy + 1, seed)
+    r = (ha & 1023) * w00 + (hb & 1023) * w01 + (hc & 1023) * w10 + (hd & 1023) * w11
+    g = ((ha >> 10) & 1023) * w00 + ((hb >> 10) & 1023) * w01 + ((hc >> 10) & 1023) * w10 \
+        + ((hd >> 10) & 1023) * w11
+    b = ((ha >> 20) & 1023) * w00 + ((hb >> 20) & 1023) * w01 + ((hc >> 20) & 1023) * w10 \
+        + ((hd >> 20) & 1023) * w11
+    return r / 1023.0, g / 1023.0, b / 1023.0
 
 
 @numba.njit(cache=True)
-def _fbm(s: float, t: float, scale: float, octaves: int, persistence: float, seed: int) -> float:
-    # Each octave is rotated by ~40° and doubled in frequency, which hides lattice-aligned artefacts.
+def _fbm3(s: float, t: float, scale: float, octaves: int, persistence: float,
+          seed: int) -> tuple[float, float, float]:
+    """Fractal sum of value-noise octaves, three channels, normalised to [0, 1]."""
+    # Each octave is rotated by 40° and doubled in frequency, which hides lattice-aligned artefacts.
     cr = 0.7660444431189780
     sr = 0.6427876096865393
     x = s / scale
     y = t / scale
-    total = 0.0
+    r = 0.0
+    g = 0.0
+    b = 0.0
     norm = 0.0
     amp = 1.0
     for k in range(octaves):
-        total += amp * _value_noise(x + 17.31 * k, y - 9.73 * k, seed * 64 + k)
+        vr, vg, vb = _value_noise3(x + 17.31 * k, y - 9.73 * k, seed * 64 + k)
+        r += amp * vr
+        g += amp * vg
+        b += amp * vb
         norm += amp
         amp *= persistence
         xr = cr * x - sr * y
         y = 2.0 * (sr * x + cr * y)
         x = 2.0 * xr
-    return total / norm
+    return r / norm, g / norm, b / norm
 
 
 @numba.njit(cache=True)
@@ -220,10 +236,10 @@ def _texture(tex: np.ndarray, pixels: np.ndarray, s: float, t: float, ext_s: flo
         octaves = int(tex[2])
         pers = tex[3]
         contrast = tex[4]
-        seed = np.int64(tex[5]) * 8 + salt
-        r = 0.5 + (_fbm(s, t, scale, octaves, pers, seed * 4) - 0.5) * contrast
-        g = 0.5 + (_fbm(s, t, scale, octaves, pers, seed * 4 + 1) - 0.5) * contrast
-        b = 0.5 + (_fbm(s, t, scale, octaves, pers, seed * 4 + 2) - 0.5) * contrast
+        nr, ng, nb = _fbm3(s, t, scale, octaves, pers, np.int64(tex[5]) * 8 + salt)
+        r = 0.5 + (nr - 0.5) * contrast
+        g = 0.5 + (ng - 0.5) * contrast
+        b = 0.5 + (nb - 0.5) * contrast
         return min(1.0, max(0.0, r)), min(1.0, max(0.0, g)), min(1.0, max(0.0, b))
     off = np.int64(tex[1])
     w = np.int64(tex[2])
@@ -368,3 +384,44 @@ def trace_scene_kernel(origins: np.ndarray, directions: np.ndarray, prims: np.nd
         colors[r, 0] = np.float32(cr * f)
         colors[r, 1] = np.float32(cg * f)
         colors[r, 2] = np.float32(cb * f)
+
+
+@numba.njit(cache=True, parallel=True)
+def average_samples_kernel(colors: np.ndarray, valid: np.ndarray, n_samples: int, background: np.ndarray,
+                           out: np.ndarray) -> None:
+    """Average the colours of each pixel's valid samples.
+
+    Parameters
+    ----------
+    colors : (P·S, 3) float32, NaN rows = valid ray that hit nothing (→ ``background``).
+    valid : (P·S,) bool, False = the ray did not pass the prism (excluded).
+    n_samples : S.
+    background : (3,) float32.
+    out : (P, 3) float32 out; black where no sample is valid.
+    """
+    n_pix = out.shape[0]
+    for i in numba.prange(n_pix):
+        r = 0.0
+        g = 0.0
+        b = 0.0
+        cnt = 0
+        for k in range(i * n_samples, (i + 1) * n_samples):
+            if not valid[k]:
+                continue
+            cnt += 1
+            if math.isnan(colors[k, 0]):
+                r += background[0]
+                g += background[1]
+                b += background[2]
+            else:
+                r += colors[k, 0]
+                g += colors[k, 1]
+                b += colors[k, 2]
+        if cnt == 0:
+            out[i, 0] = 0.0
+            out[i, 1] = 0.0
+            out[i, 2] = 0.0
+        else:
+            out[i, 0] = r / cnt
+            out[i, 1] = g / cnt
+            out[i, 2] = b / cnt

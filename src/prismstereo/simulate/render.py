@@ -17,13 +17,20 @@ import numpy as np
 from prismstereo.config import Rig
 from prismstereo.errors import ConfigError
 from prismstereo.optics import rays_from_pixels, trace_pixels
-from prismstereo.simulate.kernels import LIGHT, CompiledScene, compile_scene, trace_scene_kernel
+from prismstereo.simulate.kernels import (
+    LIGHT,
+    CompiledScene,
+    average_samples_kernel,
+    compile_scene,
+    trace_scene_kernel,
+)
 from prismstereo.simulate.scene import Scene
 
 log = logging.getLogger(__name__)
 
 NO_FACE = 255
-_RAYS_PER_CHUNK = 1 << 17
+_RAYS_PER_CHUNK = 1 << 13
+_RAYS_PER_BLOCK = 1 << 18
 
 
 @dataclass(frozen=True)
@@ -209,30 +216,38 @@ def render_capture(
     points = np.empty((H, W, 3))
     object_ids = np.empty((H, W), dtype=np.int16)
 
-    rows = max(1, _RAYS_PER_CHUNK // (W * (n_samp + 1)))
+    # Rays are traced in small chunks (numpy is fastest in cache) into blocks of ~256k rays that go to the
+    # parallel numba kernels in one call each (few parallel launches).
+    per_row = W * (n_samp + 1)
+    block_rows = max(1, _RAYS_PER_BLOCK // per_row)
+    chunk_rays = max(1, _RAYS_PER_CHUNK // per_row) * per_row
     us = np.arange(W, dtype=np.float64)
-    for r0 in range(0, H, rows):
-        r1 = min(H, r0 + rows)
+    for r0 in range(0, H, block_rows):
+        r1 = min(H, r0 + block_rows)
+        h = r1 - r0
+        nc = h * W
         vv, uu = np.meshgrid(np.arange(r0, r1, dtype=np.float64), us, indexing="ij")
         centres = np.stack([uu, vv], axis=-1)  # (h, W, 2)
         samples = centres[:, :, None, :] + offsets[None, None, :, :]  # (h, W, S, 2)
         px = np.concatenate([centres.reshape(-1, 2), samples.reshape(-1, 2)])
-        origins, dirs, face, valid = _trace(rig, px, prism)
+        n = px.shape[0]
+        origins = np.empty((n, 3))
+        dirs = np.empty((n, 3))
+        face = np.empty(n, dtype=np.int64)
+        valid = np.empty(n, dtype=bool)
+        for c0 in range(0, n, chunk_rays):
+            c1 = min(n, c0 + chunk_rays)
+            origins[c0:c1], dirs[c0:c1], face[c0:c1], valid[c0:c1] = _trace(rig, px[c0:c1], prism)
         hits = intersect_scene(origins, dirs, compiled, shading=scene.shading)
-        h = r1 - r0
-        nc = h * W
         # pixel-centre ground truth
         faces[r0:r1] = np.where(valid[:nc], face[:nc], NO_FACE).reshape(h, W).astype(np.uint8)
         points[r0:r1] = hits.points[:nc].reshape(h, W, 3)
         depth[r0:r1] = hits.points[:nc, 2].reshape(h, W)
         object_ids[r0:r1] = hits.object_id[:nc].reshape(h, W)
         # colour: average of the valid samples; valid rays that hit nothing see the background
-        col = hits.colors[nc:].reshape(h, W, n_samp, 3)
-        ok = valid[nc:].reshape(h, W, n_samp)
-        col = np.where(np.isnan(col[..., :1]), background, col)
-        col = np.where(ok[..., None], col, np.float32(0.0))
-        cnt = ok.sum(axis=2, dtype=np.float32)
-        image[r0:r1] = col.sum(axis=2) / np.maximum(cnt, 1.0)[..., None]
+        avg = np.empty((nc, 3), dtype=np.float32)
+        average_samples_kernel(hits.colors[nc:], np.ascontiguousarray(valid[nc:]), n_samp, background, avg)
+        image[r0:r1] = avg.reshape(h, W, 3)
 
     out = image * np.float32(255.0)
     if sigma > 0:
