@@ -17,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit, prange
 
-__all__ = ["CostParams", "aggregated_costs", "guided_filter_volume"]
+__all__ = ["CostParams", "aggregated_costs", "guided_filter_volume", "raw_cost"]
 
 F32 = npt.NDArray[np.float32]
 
@@ -124,7 +124,8 @@ def _box(a: F32, r: int) -> F32:
     k = 2 * r + 1
     if a.ndim == 3 and a.shape[2] > 512:
         return np.concatenate([_box(a[:, :, i:i + 512], r) for i in range(0, a.shape[2], 512)], axis=2)
-    out = cv2.boxFilter(a, -1, (k, k), normalize=True, borderType=cv2.BORDER_REFLECT)
+    out = np.asarray(cv2.boxFilter(a, -1, (k, k), normalize=True, borderType=cv2.BORDER_REFLECT),
+                     dtype=np.float32)
     if a.ndim == 3 and out.ndim == 2:
         out = out[:, :, None]
     return out
@@ -179,8 +180,33 @@ def guided_filter_volume(guide: npt.NDArray[np.generic], vol: F32, *, radius: in
     return out.astype(np.float32)
 
 
+def raw_cost(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, max_disp: int,
+             min_disp: int = 0, params: CostParams | None = None) -> F32:
+    """Pixel-wise left-view cost volume before aggregation, (H, W, D) float32 in [0, 2].
+
+    ``(1 - exp(-(min(AD, τ_c) + min(|∇x|, τ_g)) / λ_ad)) + (1 - exp(-census / λ_census))``; slice k holds
+    d = min_disp + k; pixels with x - d < 0 get the maximum 2.
+    """
+    p = params or CostParams()
+    lf = np.asarray(left, dtype=np.float32)
+    rf = np.asarray(right, dtype=np.float32)
+    if lf.ndim == 2:
+        lf = np.repeat(lf[:, :, None], 3, axis=2)
+        rf = np.repeat(rf[:, :, None], 3, axis=2)
+    gray_l = np.asarray(cv2.cvtColor(lf, cv2.COLOR_RGB2GRAY), dtype=np.float32)
+    gray_r = np.asarray(cv2.cvtColor(rf, cv2.COLOR_RGB2GRAY), dtype=np.float32)
+    gxl = np.asarray(cv2.Sobel(gray_l, cv2.CV_32F, 1, 0, ksize=3) / 4.0, dtype=np.float32)
+    gxr = np.asarray(cv2.Sobel(gray_r, cv2.CV_32F, 1, 0, ksize=3) / 4.0, dtype=np.float32)
+    cl = _census(gray_l, p.census_ry, p.census_rx)
+    cr = _census(gray_r, p.census_ry, p.census_rx)
+    nd = max_disp - min_disp + 1
+    return _raw_cost(np.ascontiguousarray(lf), np.ascontiguousarray(rf), gxl, gxr, cl, cr, int(min_disp), nd,
+                     p.tau_color, p.tau_grad, p.lambda_ad, p.lambda_census)
+
+
 def aggregated_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, max_disp: int,
-                     min_disp: int = 0, params: CostParams | None = None) -> tuple[F32, F32]:
+                     min_disp: int = 0, params: CostParams | None = None,
+                     raw: F32 | None = None) -> tuple[F32, F32]:
     """Aggregated cost volumes of the left and the right view.
 
     Parameters
@@ -202,18 +228,9 @@ def aggregated_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generi
     if lf.ndim == 2:
         lf = np.repeat(lf[:, :, None], 3, axis=2)
         rf = np.repeat(rf[:, :, None], 3, axis=2)
-    gray_l = cv2.cvtColor(lf, cv2.COLOR_RGB2GRAY)
-    gray_r = cv2.cvtColor(rf, cv2.COLOR_RGB2GRAY)
-    gxl = cv2.Sobel(gray_l, cv2.CV_32F, 1, 0, ksize=3) / 8.0 * 2.0
-    gxr = cv2.Sobel(gray_r, cv2.CV_32F, 1, 0, ksize=3) / 8.0 * 2.0
-    cl = _census(gray_l, p.census_ry, p.census_rx)
-    cr = _census(gray_r, p.census_ry, p.census_rx)
-    nd = max_disp - min_disp + 1
-    raw = _raw_cost(np.ascontiguousarray(lf), np.ascontiguousarray(rf), gxl, gxr, cl, cr, int(min_disp), nd,
-                    p.tau_color, p.tau_grad, p.lambda_ad, p.lambda_census)
+    if raw is None:
+        raw = raw_cost(left, right, max_disp=max_disp, min_disp=min_disp, params=p)
     raw_r = _left_to_right(raw, int(min_disp))
-    gl_img = lf if np.asarray(left).ndim == 3 else lf
-    agg_l = guided_filter_volume(gl_img, raw, radius=p.radius, eps=p.eps)
-    del raw
+    agg_l = guided_filter_volume(lf, raw, radius=p.radius, eps=p.eps)
     agg_r = guided_filter_volume(rf, raw_r, radius=p.radius, eps=p.eps)
     return agg_l, agg_r

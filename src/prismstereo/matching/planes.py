@@ -120,9 +120,9 @@ def _fit_one(xs: F64, ys: F64, ds: F64, t_out: float, eps: float, max_iter: int,
              trials: int, max_slope: float, seed: int) -> tuple[float, float, float, int]:
     """Robust plane of one segment's reliable pixels; returns (a, b, c_centred, n_inliers)."""
     n = xs.size
-    cx = np.mean(xs)
-    cy = np.mean(ys)
-    full = n >= 3 * min_pix and (np.max(xs) - np.min(xs)) >= 2 and (np.max(ys) - np.min(ys)) >= 2
+    cx = float(np.mean(xs))
+    cy = float(np.mean(ys))
+    full = bool(n >= 3 * min_pix and (np.max(xs) - np.min(xs)) >= 2 and (np.max(ys) - np.min(ys)) >= 2)
     # seed: median constant, then the best random triple (inlier count within t_outlier)
     a = 0.0
     b = 0.0
@@ -176,7 +176,7 @@ def _fit_one(xs: F64, ys: F64, ds: F64, t_out: float, eps: float, max_iter: int,
         xi = xs[mask]
         yi = ys[mask]
         di = ds[mask]
-        ok_full = full and ninl >= 3 * min_pix
+        ok_full = bool(full and ninl >= 3 * min_pix)
         a2, b2, c2 = _lsq(xi, yi, di, cx, cy, ok_full)
         if abs(a2) > max_slope or abs(b2) > max_slope:
             a2, b2, c2 = _lsq(xi, yi, di, cx, cy, False)
@@ -184,7 +184,7 @@ def _fit_one(xs: F64, ys: F64, ds: F64, t_out: float, eps: float, max_iter: int,
         a, b, c = a2, b2, c2
         if conv:
             break
-    return a, b, c - a * cx - b * cy, ninl
+    return a, b, float(c - a * cx - b * cy), ninl
 
 
 @njit(cache=True)

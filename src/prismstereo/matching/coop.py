@@ -1,0 +1,247 @@
+"""``coop``: segment-based stereo with cooperative optimisation (thesis chapters 5-6), the flagship matcher.
+
+Stages (each callable on its own, and all kept in :class:`CoopResult`):
+
+1. mean-shift segmentation of the left image (§5.1)          -> ``labels``
+2. initial disparity map: adaptive-weight aggregated cost, WTA, parabola subpixel, left-right
+   cross-check (§5.2, Eq. 6.7)                                -> ``initial``, ``reliable``
+3. robust plane per segment (Eqs. 6.1-6.10) and merging of similar neighbours (Eqs. 6.14-6.17); segments
+   without a plane take their most similar neighbour's       -> ``plane_map`` (thesis Table 6.1)
+4. cooperative optimisation of the plane labels (Eqs. 6.18-6.25) -> ``disparity`` (thesis Table 6.2)
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from prismstereo.errors import ImageError
+from prismstereo.matching.coopcost import CostParams, aggregated_costs, raw_cost
+from prismstereo.matching.cooperative import CoopParams, build_segment_graph, cooperative_optimize
+from prismstereo.matching.planes import (
+    PlaneParams,
+    build_segment_index,
+    fill_missing_planes,
+    fit_planes,
+    merge_planes,
+    render_planes,
+)
+from prismstereo.matching.registry import MatchResult, register_matcher
+from prismstereo.matching.segmentation import SegmentationParams, mean_shift_segment, segment_adjacency
+
+log = logging.getLogger(__name__)
+
+__all__ = ["CoopMatcher", "CoopResult", "coop_match", "initial_disparity"]
+
+F32 = npt.NDArray[np.float32]
+
+
+@dataclass(frozen=True)
+class CoopResult:
+    """Every stage of the ``coop`` pipeline.
+
+    Attributes
+    ----------
+    labels : (H, W) int32           mean-shift segments (§5.1).
+    initial : (H, W) float32        initial subpixel WTA map (§5.2), every pixel.
+    reliable : (H, W) bool          pixels passing the cross-check (Eq. 6.7).
+    plane_map : (H, W) float32      disparity of the fitted and merged planes (§6.1, Table 6.1).
+    disparity : (H, W) float32      final map after cooperative optimisation (§6.2, Table 6.2).
+    planes : (L, 3) float64         plane set ``(a, b, c)``, ``d = a x + b y + c``.
+    assign_initial, assign : (K,) int32   plane index per segment before / after §6.2.
+    info : dict                     energies before/after, sweeps, counts.
+    timings : dict                  seconds per stage.
+    """
+
+    labels: npt.NDArray[np.int32]
+    initial: F32
+    reliable: npt.NDArray[np.bool_]
+    plane_map: F32
+    disparity: F32
+    planes: npt.NDArray[np.float64]
+    assign_initial: npt.NDArray[np.int32]
+    assign: npt.NDArray[np.int32]
+    info: dict[str, float] = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def _as_rgb8(image: npt.NDArray[np.generic], name: str) -> npt.NDArray[np.uint8]:
+    img = np.asarray(image)
+    if img.ndim == 2:
+        img = np.repeat(img[:, :, None], 3, axis=2)
+    if img.ndim != 3 or img.shape[2] not in (3, 4):
+        raise ImageError(f"expected {name} as an H×W or H×W×3 image, got shape {img.shape}")
+    img = img[:, :, :3]
+    if img.dtype != np.uint8:
+        f = img.astype(np.float32)
+        if f.size and float(np.nanmax(f)) <= 1.0 + 1e-6:
+            f = f * 255.0
+        img = np.clip(np.rint(np.nan_to_num(f)), 0, 255).astype(np.uint8)
+    return np.ascontiguousarray(img)
+
+
+def initial_disparity(cost_left: F32, cost_right: F32, *, min_disp: int = 0,
+                      tolerance: float = 0.0) -> tuple[F32, npt.NDArray[np.bool_]]:
+    """WTA (Eq. 5.15) with parabola subpixel refinement and the left-right cross-check (Eq. 6.7).
+
+    Parameters
+    ----------
+    cost_left, cost_right : (H, W, D) float32
+        Aggregated costs of the left and right views (slice k = disparity ``min_disp + k``).
+    min_disp : int, keyword-only
+    tolerance : float, keyword-only
+        Integer WTA disparities must agree within this (0: exactly; Eq. 6.7 reads ``< 1``).
+
+    Returns
+    -------
+    disparity : (H, W) float32   subpixel left disparity at every pixel.
+    reliable : (H, W) bool       cross-check passed (and the match lands inside the right image).
+    """
+    h, w, nd = cost_left.shape
+    dl = cost_left.argmin(axis=2)
+    dr = cost_right.argmin(axis=2)
+    xr = np.arange(w)[None, :] - (dl + min_disp)
+    inside = xr >= 0
+    back = np.take_along_axis(dr, np.clip(xr, 0, w - 1), axis=1)
+    reliable = inside & (np.abs(back - dl) <= tolerance)
+    k = np.clip(dl, 1, max(nd - 2, 1))
+    if nd >= 3:
+        c0 = np.take_along_axis(cost_left, (k - 1)[..., None], 2)[..., 0]
+        c1 = np.take_along_axis(cost_left, k[..., None], 2)[..., 0]
+        c2 = np.take_along_axis(cost_left, (k + 1)[..., None], 2)[..., 0]
+        den = c0 - 2.0 * c1 + c2
+        off = np.where(den > 1e-6, (c0 - c2) / (2.0 * np.maximum(den, 1e-6)), 0.0)
+        interior = (dl > 0) & (dl < nd - 1)
+        sub = np.where(interior, dl + np.clip(off, -0.5, 0.5), dl)
+    else:
+        sub = dl.astype(np.float64)
+    return (sub + min_disp).astype(np.float32), reliable
+
+
+def _box3(vol: F32, r: int) -> F32:
+    if r <= 0:
+        return vol
+    k = 2 * r + 1
+    out = np.empty_like(vol)
+    for i in range(0, vol.shape[2], 512):
+        out[:, :, i:i + 512] = cv2.boxFilter(vol[:, :, i:i + 512], -1, (k, k), borderType=cv2.BORDER_REFLECT)
+    return out
+
+
+def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, max_disp: int,
+               min_disp: int = 0, segmentation: SegmentationParams | None = None,
+               cost: CostParams | None = None, planes: PlaneParams | None = None,
+               coop: CoopParams | None = None, data_radius: int = 1) -> CoopResult:
+    """Run the whole segment-based cooperative pipeline (thesis §5.1, §5.2, §6.1, §6.2).
+
+    Parameters
+    ----------
+    left, right : (H, W, 3) uint8 RGB or (H, W) grey
+        Rectified pair; disparity ``d = x_left - x_right`` in ``[min_disp, max_disp]``.
+    max_disp, min_disp : int, keyword-only
+    segmentation, cost, planes, coop : parameter dataclasses, keyword-only
+        ``hs, hr, M``; cost/aggregation; ``γ_segment, t_outlier, ε, δ``; ``κ, μ, ω_occ, γ``.
+    data_radius : int, keyword-only
+        Box radius of the pixel cost summed in the segment data term (Eq. 6.21); the segment itself is the
+        aggregation window there, so only a light pre-smoothing is used (0 = raw pixel cost).
+
+    Returns
+    -------
+    CoopResult with every intermediate map.
+    """
+    lft = _as_rgb8(left, "left")
+    rgt = _as_rgb8(right, "right")
+    if lft.shape != rgt.shape:
+        raise ImageError(f"expected left and right of the same shape, got {lft.shape} and {rgt.shape}")
+    if int(max_disp) < int(min_disp):
+        raise ImageError(f"expected max_disp >= min_disp, got {max_disp} < {min_disp}")
+    sp = segmentation or SegmentationParams()
+    cp = cost or CostParams()
+    pp = planes or PlaneParams()
+    op = coop or CoopParams()
+    tm: dict[str, float] = {}
+
+    t = time.perf_counter()
+    labels = mean_shift_segment(lft, params=sp)
+    tm["segmentation"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    raw = raw_cost(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=cp)
+    agg_l, agg_r = aggregated_costs(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=cp, raw=raw)
+    initial, reliable = initial_disparity(agg_l, agg_r, min_disp=min_disp)
+    del agg_r
+    tm["initial"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    index = build_segment_index(labels)
+    fitted, _ = fit_planes(index, initial, reliable, params=pp)
+    pairs, _length, contrast = segment_adjacency(labels, lft)
+    cluster, cplanes = merge_planes(index, fitted, pairs, initial, reliable, params=pp)
+    k = fitted.shape[0]
+    fin = np.flatnonzero(np.isfinite(fitted[:, 0]))
+    plane_set = np.concatenate([fitted[fin], cplanes]) if fin.size else np.array([[0.0, 0.0, float(min_disp)]])
+    own = np.full((k, 2), -1, np.int64)
+    own[fin, 0] = np.arange(fin.size)
+    own[cluster >= 0, 1] = cluster[cluster >= 0] + fin.size
+    assign0 = fill_missing_planes(np.where(cluster >= 0, cluster + fin.size, -1).astype(np.int32), pairs,
+                                  contrast)
+    if (assign0 < 0).any():  # isolated segment without any plane in its component
+        assign0 = assign0.copy()
+        assign0[assign0 < 0] = 0
+    plane_map = render_planes(index, plane_set, assign0)
+    tm["planes"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    graph = build_segment_graph(labels, lft)
+    data_cost = _box3(raw, data_radius)
+    del raw
+    assign, info = cooperative_optimize(assign0, plane_set, index, graph, data_cost, reliable, own=own,
+                                        min_disp=min_disp, params=op)
+    final = render_planes(index, plane_set, assign)
+    final = np.clip(final, min_disp, max_disp).astype(np.float32)
+    tm["cooperative"] = time.perf_counter() - t
+    info = {**info, "segments": float(k), "planes_fitted": float(fin.size), "planes": float(len(plane_set)),
+            "reliable_fraction": float(reliable.mean())}
+    log.info("coop: %d segments, %d planes, E %.0f -> %.0f", k, len(plane_set), info["energy_before"],
+             info["energy_after"])
+    return CoopResult(labels=labels, initial=initial, reliable=reliable, plane_map=plane_map, disparity=final,
+                      planes=plane_set, assign_initial=assign0, assign=assign, info=info, timings=tm)
+
+
+@register_matcher("coop")
+class CoopMatcher:
+    """Segment-based stereo with cooperative optimisation (thesis ch. 5-6) as a registry matcher.
+
+    Parameters (keyword-only)
+    -------------------------
+    segmentation, cost, planes, coop : parameter dataclasses (defaults: the values used for all scenes).
+    data_radius : int
+        Pre-smoothing radius of the pixel cost in the segment data term.
+
+    ``compute`` returns a :class:`MatchResult` whose ``extras`` hold the stage maps: ``labels``,
+    ``initial``, ``reliable``, ``plane_map``, ``planes``, ``assign`` and ``info``.
+    """
+
+    def __init__(self, *, segmentation: SegmentationParams | None = None, cost: CostParams | None = None,
+                 planes: PlaneParams | None = None, coop: CoopParams | None = None, data_radius: int = 1):
+        self.segmentation = segmentation
+        self.cost = cost
+        self.planes = planes
+        self.coop = coop
+        self.data_radius = int(data_radius)
+
+    def compute(self, left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int = 0) -> MatchResult:
+        res = coop_match(left, right, max_disp=max_disp, min_disp=min_disp, segmentation=self.segmentation,
+                         cost=self.cost, planes=self.planes, coop=self.coop, data_radius=self.data_radius)
+        raw = np.where(res.reliable, res.initial, np.nan).astype(np.float32)
+        extras: dict[str, Any] = {"labels": res.labels, "initial": res.initial, "reliable": res.reliable,
+                                  "plane_map": res.plane_map, "planes": res.planes, "assign": res.assign,
+                                  "assign_initial": res.assign_initial, "info": res.info, "initial_raw": raw}
+        return MatchResult(disparity=res.disparity, valid=np.isfinite(res.disparity), disparity_raw=None,
+                           timings=dict(res.timings), extras=extras)
