@@ -1,0 +1,312 @@
+"""Multi-baseline building blocks: views with signed baseline ratios, per-pair cost volumes, and their
+resampling onto the disparity grid of the unit baseline (thesis §7.1.1, Eqs. 7.3–7.8).
+
+Conventions
+-----------
+All images are rectified with collinear horizontal baselines (thesis Fig. 7.1). The *reference* image is
+matched against every other view ``i``; the view's signed baseline ratio is ``δᵢ = λᵢ / λ_unit`` (Eq. 7.6),
+positive for a view to the RIGHT of the reference. For a unit-baseline disparity ``d`` (the disparity of the
+reference against a view at ratio +1, ``d = x_ref - x_right >= 0``), reference pixel ``x`` matches view
+pixel ``x - δᵢ d`` (Eq. 7.7): a view on the right (``δ > 0``) at ``x - |δ| d``, a view on the LEFT
+(``δ < 0``) at ``x + |δ| d``.
+
+Every pair is matched with the project's two-view costs over its own non-negative pair disparity
+``s = |δᵢ| d``; a view on the left is handled by mirroring both images (then it *is* a right view of the
+mirrored reference), and the volume is mirrored back into the reference frame. The pair volume is then
+sampled at ``s = |δᵢ| d`` for every unit disparity ``d`` with linear interpolation along ``s`` (fractional
+ratios such as Cones' ±0.25 need it) and the views are summed (Eq. 7.8).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from prismstereo.errors import ConfigError, ImageError, MatchingError
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "CostName",
+    "PairCost",
+    "check_views",
+    "fuse_costs",
+    "pair_cost",
+    "parse_ratio",
+    "parse_view_spec",
+    "resample_to_unit",
+]
+
+F32 = npt.NDArray[np.float32]
+CostName = Literal["bpasw", "guided"]
+
+
+def parse_ratio(text: str) -> float:
+    """A signed baseline ratio from text: a decimal (``-2``, ``0.25``) or a fraction (``-1/4``).
+
+    Raises
+    ------
+    ConfigError
+        Not a finite non-zero number.
+    """
+    t = str(text).strip()
+    try:
+        if "/" in t:
+            num, den = t.split("/", 1)
+            value = float(num) / float(den)
+        else:
+            value = float(t)
+    except (ValueError, ZeroDivisionError):
+        raise ConfigError(f"expected a baseline ratio like -2, 0.25 or -1/4, got {text!r}") from None
+    if not math.isfinite(value) or value == 0.0:
+        raise ConfigError(f"expected a finite, non-zero baseline ratio, got {text!r}")
+    return value
+
+
+def parse_view_spec(text: str) -> tuple[str, float]:
+    """Split ``IMG:RATIO`` (the CLI's ``--view``) into the path and the signed ratio.
+
+    The ratio follows the LAST colon, so paths with colons (``C:/x.png:2``) work.
+
+    Raises
+    ------
+    ConfigError
+        No colon, an empty path, or a bad ratio.
+    """
+    if ":" not in text:
+        raise ConfigError(f"--view: expected IMG:RATIO like col4.png:1 or col1.png:-2, got {text!r}")
+    path, ratio = text.rsplit(":", 1)
+    if not path:
+        raise ConfigError(f"--view: expected an image path before ':', got {text!r}")
+    return path, parse_ratio(ratio)
+
+
+def _as_image(img: Any, name: str) -> np.ndarray:
+    arr = np.asarray(img)
+    if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] not in (1, 3)):
+        raise ImageError(f"expected {name} of shape H×W or H×W×3, got shape {arr.shape}")
+    if arr.dtype != np.uint8 and (arr.dtype.kind not in "fiu" or not np.isfinite(arr).all()):
+        raise ImageError(f"expected {name} as uint8 or finite float, got dtype {arr.dtype}")
+    if arr.ndim == 3 and arr.shape[2] == 1:
+        arr = arr[:, :, 0]
+    if arr.ndim == 2:
+        arr = np.repeat(arr[:, :, None], 3, axis=2)
+    return arr if arr.dtype == np.uint8 else arr.astype(np.float32)
+
+
+def check_views(reference: Any, views: Sequence[Any], ratios: Sequence[float], *,
+                max_disp: Any) -> tuple[np.ndarray, list[np.ndarray], list[float], int]:
+    """Validate a multi-baseline input set.
+
+    Parameters
+    ----------
+    reference : (H, W, 3) or (H, W) image
+    views : sequence of images of the reference's size
+    ratios : sequence of float
+        Signed baseline ratios, one per view, non-zero, distinct.
+    max_disp : int
+        Largest disparity of the UNIT baseline, ``0 <= max_disp < W``.
+
+    Returns
+    -------
+    reference (H, W, 3), views (list of (H, W, 3)), ratios (list of float), max_disp (int)
+
+    Raises
+    ------
+    ImageError, ConfigError, MatchingError
+    """
+    ref = _as_image(reference, "reference image")
+    if len(views) == 0:
+        raise ConfigError("expected at least one view besides the reference, got none")
+    if len(views) != len(ratios):
+        raise ConfigError(f"expected one baseline ratio per view, got {len(views)} views and "
+                          f"{len(ratios)} ratios")
+    vs = []
+    for i, v in enumerate(views):
+        arr = _as_image(v, f"view {i}")
+        if arr.shape[:2] != ref.shape[:2]:
+            raise ImageError(f"expected view {i} of the reference's size {ref.shape[1]}×{ref.shape[0]}, "
+                             f"got {arr.shape[1]}×{arr.shape[0]}")
+        vs.append(arr)
+    rs = [float(r) for r in ratios]
+    for r in rs:
+        if not math.isfinite(r) or r == 0.0:
+            raise ConfigError(f"expected finite, non-zero baseline ratios, got {r}")
+    if len(set(rs)) != len(rs):
+        raise ConfigError(f"expected distinct baseline ratios, got {rs}")
+    if isinstance(max_disp, bool) or not isinstance(max_disp, int | np.integer):
+        raise MatchingError(f"expected an integer max_disp, got {max_disp!r}")
+    md = int(max_disp)
+    if md < 0 or md >= ref.shape[1]:
+        raise MatchingError(f"expected 0 <= max_disp < image width ({ref.shape[1]}), got {md}")
+    return ref, vs, rs, md
+
+
+@dataclass(frozen=True)
+class PairCost:
+    """Cost volumes of the reference against one view, in the REFERENCE frame.
+
+    Attributes
+    ----------
+    ratio : float
+        Signed baseline ratio ``δ`` of the view.
+    cost : (H, W, S + 1) float32
+        ``cost[y, x, s]``: reference pixel ``(x, y)`` against view pixel ``(x - sign(δ) s, y)``, for the
+        integer pair disparity ``s = 0 .. S``. Lower is better.
+    disparity : (H, W) float32
+        The pair's own WTA + subpixel disparity, converted to the UNIT baseline (``s / |δ|``); NaN where the
+        pair's left–right check failed (thesis Eq. 6.7).
+    reliable : (H, W) bool
+        Pixels that passed the pair's left–right check.
+    """
+
+    ratio: float
+    cost: F32
+    disparity: F32
+    reliable: npt.NDArray[np.bool_]
+
+
+def _pair_volumes(left: np.ndarray, right: np.ndarray, max_s: int, cost: CostName,
+                  cost_params: dict[str, Any]) -> tuple[F32, F32]:
+    """Left volume and right-view volume (indexed by the right pixel) of one pair, ``d = 0 .. max_s``."""
+    if cost == "guided":
+        from prismstereo.matching.coopcost import CostParams, aggregated_costs
+
+        return aggregated_costs(left, right, max_disp=max_s, min_disp=0, params=CostParams(**cost_params))
+    if cost == "bpasw":
+        from prismstereo.matching.matchers import BPASWMatcher
+        from prismstereo.matching.selection import right_cost_volume
+
+        vol = BPASWMatcher(**cost_params).cost_volume(left, right, max_disp=max_s, min_disp=0)
+        return vol, right_cost_volume(vol, min_disp=0)
+    raise ConfigError(f"expected cost 'bpasw' or 'guided', got {cost!r}")
+
+
+def pair_cost(reference: np.ndarray, view: np.ndarray, ratio: float, *, max_disp: int,
+              cost: CostName = "guided", cost_params: dict[str, Any] | None = None,
+              tolerance: float = 1.0) -> PairCost:
+    """Aggregated cost of the reference against one view (thesis Eq. 7.9), in the reference frame.
+
+    Parameters
+    ----------
+    reference, view : (H, W, 3) images, 0..255
+    ratio : float
+        Signed baseline ratio δ of ``view`` (+ = right of the reference).
+    max_disp : int
+        Largest UNIT-baseline disparity; the pair is searched over ``s = 0 .. ceil(|δ| max_disp) + 1``
+        (clipped to ``W - 1``).
+    cost : {"guided", "bpasw"}
+        ``"bpasw"``: S_AD aggregated with symmetric Weber–Fechner weights (thesis Eqs. 5.6–5.14,
+        :class:`~prismstereo.matching.matchers.BPASWMatcher`); ``"guided"``: the ``coop`` matcher's cost
+        (truncated AD + gradient + census aggregated with a colour guided filter,
+        :func:`~prismstereo.matching.coopcost.aggregated_costs`), the same adaptive-support idea at O(1)
+        per pixel and disparity.
+    cost_params : dict, optional
+        Keyword parameters of that cost (``BPASWMatcher`` fields or ``CostParams`` fields).
+    tolerance : float
+        Left–right check tolerance in pair pixels.
+
+    Returns
+    -------
+    PairCost
+    """
+    from prismstereo.matching.selection import cross_check, subpixel_refine, winner_take_all
+
+    w = reference.shape[1]
+    a = abs(float(ratio))
+    max_s = int(min(w - 1, math.ceil(a * max_disp) + 1))
+    params = dict(cost_params or {})
+    if ratio > 0:
+        vol, vol_r = _pair_volumes(reference, view, max_s, cost, params)
+    else:
+        # mirror both images: the left view becomes a right view of the mirrored reference
+        vm, vm_r = _pair_volumes(np.ascontiguousarray(reference[:, ::-1]), np.ascontiguousarray(view[:, ::-1]),
+                                 max_s, cost, params)
+        vol = np.ascontiguousarray(vm[:, ::-1])
+        vol_r = vm_r  # stays mirrored: only used for the check below, in the mirrored frame
+        vm_d = winner_take_all(vm)
+        vm_dr = winner_take_all(vm_r)
+        ok = cross_check(vm_d, vm_dr, tolerance=tolerance)[:, ::-1]
+        d = subpixel_refine(vol, winner_take_all(vol))
+        disp = np.where(ok, d / np.float32(a), np.float32(np.nan)).astype(np.float32)
+        return PairCost(float(ratio), vol, disp, np.ascontiguousarray(ok))
+    d0 = winner_take_all(vol)
+    ok = cross_check(d0, winner_take_all(vol_r), tolerance=tolerance)
+    d = subpixel_refine(vol, d0)
+    disp = np.where(ok, d / np.float32(a), np.float32(np.nan)).astype(np.float32)
+    return PairCost(float(ratio), vol, disp, ok)
+
+
+def resample_to_unit(pc: PairCost, *, max_disp: int) -> tuple[F32, npt.NDArray[np.bool_]]:
+    """Sample a pair volume on the unit-baseline grid ``d = 0 .. max_disp`` (thesis Eq. 7.8).
+
+    ``C_i(x, y, d) = (1 - f) cost[y, x, ⌊s⌋] + f cost[y, x, ⌊s⌋ + 1]`` with ``s = |δ| d`` and
+    ``f = s - ⌊s⌋`` (linear interpolation along the disparity axis; exact for integer ratios).
+
+    Returns
+    -------
+    cost : (H, W, max_disp + 1) float32
+    seen : (H, W, max_disp + 1) bool
+        True where the matching view pixel ``x - δ d`` lies inside the view (the view sees the match).
+    """
+    h, w, ns = pc.cost.shape
+    nd = max_disp + 1
+    out = np.empty((h, w, nd), np.float32)
+    seen = np.empty((h, w, nd), np.bool_)
+    xs = np.arange(w, dtype=np.float64)
+    a = abs(pc.ratio)
+    for k in range(nd):  # loop over disparities, not pixels
+        s = min(a * k, ns - 1.0)
+        s0 = int(math.floor(s))
+        f = np.float32(s - s0)
+        s1 = min(s0 + 1, ns - 1)
+        if f == 0.0:
+            out[:, :, k] = pc.cost[:, :, s0]
+        else:
+            out[:, :, k] = (np.float32(1.0) - f) * pc.cost[:, :, s0] + f * pc.cost[:, :, s1]
+        xv = xs - pc.ratio * k
+        seen[:, :, k] = ((xv >= -0.5) & (xv <= w - 0.5))[None, :]
+    return out, seen
+
+
+def fuse_costs(pairs: Sequence[PairCost], *, max_disp: int,
+               weights: Sequence[float] | None = None) -> tuple[F32, npt.NDArray[np.int32]]:
+    """Sum of the views' costs on the unit-baseline grid (thesis Eq. 7.8), normalised by the views that see.
+
+    ``C(x, y, d) = Σᵢ wᵢ sᵢ Cᵢ(x, y, d) / Σᵢ wᵢ sᵢ`` where ``sᵢ`` is 1 when view ``i`` sees the match
+    (its pixel ``x - δᵢ d`` is inside the image). Away from the borders every view sees and this is the
+    thesis's sum divided by the constant ``Σ wᵢ`` (the same argmin); at the borders a view that cannot see
+    the match neither votes for nor against it. Entries no view sees get the largest cost.
+
+    Returns
+    -------
+    cost : (H, W, max_disp + 1) float32
+    count : (H, W, max_disp + 1) int32
+        Number of views that see each match.
+    """
+    if not pairs:
+        raise ConfigError("expected at least one pair cost to fuse, got none")
+    ws = [1.0] * len(pairs) if weights is None else [float(v) for v in weights]
+    acc: F32 | None = None
+    den: F32 | None = None
+    cnt: npt.NDArray[np.int32] | None = None
+    for pc, wgt in zip(pairs, ws, strict=True):
+        c, s = resample_to_unit(pc, max_disp=max_disp)
+        sw = s.astype(np.float32) * np.float32(wgt)
+        if acc is None or den is None or cnt is None:
+            acc, den, cnt = c * sw, sw, s.astype(np.int32)
+        else:
+            acc += c * sw
+            den += sw
+            cnt += s
+    assert acc is not None and den is not None and cnt is not None
+    top = float(acc.max()) if acc.size else 0.0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        fused = np.where(den > 0, acc / np.maximum(den, np.float32(1e-12)), np.float32(top))
+    return fused.astype(np.float32), cnt

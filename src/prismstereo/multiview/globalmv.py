@@ -1,0 +1,257 @@
+"""Global multi-view matching (thesis §7.1.2, Eqs. 7.9–7.18).
+
+The steps are the two-view ``coop`` pipeline of thesis chapter 6, with every data-dependent step extended
+to all views, and they reuse the ``coop`` building blocks of :mod:`prismstereo.matching`:
+
+1. **Initial maps** (Eq. 7.9): the reference against each view ``i`` (pair cost of
+   :func:`~prismstereo.multiview.baseline.pair_cost`), WTA + left–right check + subpixel, converted to the
+   unit baseline (``d = s / |δᵢ|``) — the disparity sets ``d^(1) … d^(n)``.
+2. **Segmentation** of the reference (:func:`~prismstereo.matching.segmentation.mean_shift_segment`).
+3. **One plane per segment fitted jointly to all views** (Eqs. 7.10–7.14): the reliable pixels of every
+   disparity set are stacked into one least-squares system ``A [a b c]ᵀ = B`` (Eq. 7.11) solved with the
+   pseudo-inverse (Eqs. 7.12–7.13), with the outlier rules of §6.1.2 (cross-check, the reliable-region
+   rule Eq. 6.8 over all views' pixels, the distance rule Eq. 6.9 with the Eq. 6.10 iteration) — the
+   robust solver :func:`prismstereo.matching.planes._fit_one` run on the stacked observations.
+4. **Merging** of similar neighbouring planes (§6.1.3, :func:`~prismstereo.matching.planes.merge_planes`)
+   on the per-pixel mean of the views' reliable disparities (the normal equations of Eq. 7.14 only see
+   that mean, weighted by the number of views).
+5. **Cooperative optimisation** (Eqs. 7.15–7.18 with 6.18–6.25,
+   :func:`~prismstereo.matching.cooperative.cooperative_optimize`) of ``E = Σᵢ E_data^(i) + E_occ + E_smooth``:
+   the data term is the views' costs summed on the unit-baseline grid
+   (:func:`~prismstereo.multiview.baseline.fuse_costs`, each view's cost at ``δᵢ d``), truncated per view
+   and weighted per view by that view's reliability before summing, so ``Σᵢ c_data(x, y, d^(i, j))`` of
+   Eq. 7.16 is what the optimiser reads. Occlusion (Eq. 7.17) is charged by the optimiser where the plane
+   leaves the search range; a view that cannot see a match (out of its image) does not vote.
+
+Deviation, stated: the per-view truncation and reliability weighting are applied to each view's volume
+before the sum (``cooperative_optimize`` takes one data volume); the optimiser then sees a volume that is
+already truncated and weighted, and is called with ``data_trunc`` above its range and
+``unreliable_weight = 1``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from numba import njit
+
+from prismstereo.matching.cooperative import CoopParams, build_segment_graph, cooperative_optimize
+from prismstereo.matching.planes import (
+    PlaneParams,
+    SegmentIndex,
+    _fit_one,
+    build_segment_index,
+    fill_missing_planes,
+    merge_planes,
+    render_planes,
+)
+from prismstereo.matching.registry import MatchResult
+from prismstereo.matching.segmentation import SegmentationParams, mean_shift_segment, segment_adjacency
+from prismstereo.multiview.baseline import CostName, PairCost, check_views, pair_cost, resample_to_unit
+
+log = logging.getLogger(__name__)
+
+__all__ = ["GlobalMultiViewParams", "fit_planes_joint", "match_multiview_global"]
+
+F32 = npt.NDArray[np.float32]
+F64 = npt.NDArray[np.float64]
+I32 = npt.NDArray[np.int32]
+
+
+@dataclass(frozen=True, kw_only=True)
+class GlobalMultiViewParams:
+    """Parameters of the global multi-view method.
+
+    Attributes
+    ----------
+    cost : {"guided", "bpasw"}
+        Pair cost (see :func:`~prismstereo.multiview.baseline.pair_cost`); ``"guided"`` is the ``coop``
+        matcher's cost, on whose scale ``coop`` defaults (``CoopParams``) are set.
+    cost_params : dict
+        Keyword parameters of that cost.
+    segmentation, planes, coop : the ``coop`` building blocks' parameter sets.
+    unreliable_weight : float
+        Weight of a view's data cost at pixels where that view's pair failed the left–right check
+        (thesis: only reliable pixels ``N_r`` count; the ``coop`` default keeps a fraction).
+    """
+
+    cost: CostName = "guided"
+    cost_params: dict[str, Any] = field(default_factory=dict)
+    segmentation: SegmentationParams = field(default_factory=SegmentationParams)
+    planes: PlaneParams = field(default_factory=PlaneParams)
+    coop: CoopParams = field(default_factory=CoopParams)
+    unreliable_weight: float = 0.3
+
+
+@njit(cache=True)
+def _fit_all_joint(order: npt.NDArray[np.int64], starts: npt.NDArray[np.int64], w: int, disp: F64,
+                   reliable: npt.NDArray[np.bool_], gamma: float, t_out: float, eps: float, max_iter: int,
+                   min_pix: int, trials: int, max_slope: float) -> tuple[F64, I32]:  # pragma: no cover
+    """Stacked (Eq. 7.11) robust plane fit per segment; ``disp``/``reliable`` are (V, H·W)."""
+    nv = disp.shape[0]
+    k = starts.size - 1
+    planes = np.full((k, 3), np.nan)
+    ninl = np.zeros(k, np.int32)
+    for j in range(k):
+        s0 = starts[j]
+        s1 = starts[j + 1]
+        nseg = (s1 - s0) * nv
+        nrel = 0
+        for v in range(nv):
+            for t in range(s0, s1):
+                if reliable[v, order[t]]:
+                    nrel += 1
+        # Eq. 6.8 over all views' pixels: too many unreliable -> no plane
+        if nrel < min_pix or (nseg - nrel) > gamma * nseg:
+            continue
+        xs = np.empty(nrel)
+        ys = np.empty(nrel)
+        ds = np.empty(nrel)
+        q = 0
+        for v in range(nv):
+            for t in range(s0, s1):
+                p = order[t]
+                if reliable[v, p]:
+                    xs[q] = p % w
+                    ys[q] = p // w
+                    ds[q] = disp[v, p]
+                    q += 1
+        a, b, c, n_in = _fit_one(xs, ys, ds, t_out, eps, max_iter, min_pix, trials, max_slope, j + 1)
+        if n_in >= min_pix:
+            planes[j, 0] = a
+            planes[j, 1] = b
+            planes[j, 2] = c
+            ninl[j] = n_in
+    return planes, ninl
+
+
+def fit_planes_joint(index: SegmentIndex, disparities: npt.NDArray[np.floating],
+                     reliable: npt.NDArray[np.bool_], *, params: PlaneParams | None = None) -> tuple[F64, I32]:
+    """One disparity plane per segment fitted to ALL views' disparity sets at once (thesis Eqs. 7.10–7.14).
+
+    The reliable pixels of the ``n`` unit-baseline disparity sets ``d^(1, j) … d^(n, j)`` of segment ``j``
+    are stacked into ``A [a, b, c]ᵀ = B`` (Eq. 7.11) and solved by the SVD pseudo-inverse
+    (Eqs. 7.12–7.13) inside the outlier iteration of §6.1.2 (Eqs. 6.8–6.10), seeded robustly.
+
+    Parameters
+    ----------
+    index : SegmentIndex
+    disparities : (V, H, W) float
+        Each view's disparity converted to the unit baseline; NaN where unknown.
+    reliable : (V, H, W) bool
+        Each view's left–right check (Eq. 6.7).
+    params : PlaneParams, keyword-only
+
+    Returns
+    -------
+    planes : (K, 3) float64, ``(a, b, c)`` with ``d = a x + b y + c``; NaN rows for segments without one.
+    inliers : (K,) int32, stacked observations within ``t_outlier`` of the plane.
+    """
+    p = params or PlaneParams()
+    d = np.asarray(disparities, dtype=np.float64)
+    v = d.shape[0]
+    rel = np.asarray(reliable, dtype=np.bool_).reshape(v, -1) & np.isfinite(d.reshape(v, -1))
+    dd = np.nan_to_num(d.reshape(v, -1), nan=0.0)
+    return _fit_all_joint(index.order, index.starts, index.shape[1], np.ascontiguousarray(dd),
+                          np.ascontiguousarray(rel), p.gamma_segment, p.t_outlier, p.epsilon, p.max_iter,
+                          p.min_pixels, p.ransac_trials, p.max_slope)
+
+
+def _data_volume(pcs: Sequence[PairCost], *, max_disp: int, trunc: float, wu: float) -> F32:
+    """Σᵢ of each view's truncated, reliability-weighted cost on the unit grid, / number of views that see."""
+    acc: F32 | None = None
+    den: F32 | None = None
+    for pc in pcs:
+        c, seen = resample_to_unit(pc, max_disp=max_disp)
+        np.minimum(c, np.float32(trunc), out=c)
+        wgt = np.where(pc.reliable, np.float32(1.0), np.float32(wu))[:, :, None] * seen
+        if acc is None or den is None:
+            acc, den = c * wgt, wgt.astype(np.float32)
+        else:
+            acc += c * wgt
+            den += wgt
+    assert acc is not None and den is not None
+    n = np.float32(len(pcs))
+    # normalise to one view's scale where fewer views see (borders); no view sees -> the truncation
+    out = np.where(den > 0, acc / np.maximum(den, np.float32(1e-6)) * np.minimum(den, n) / n,
+                   np.float32(trunc))
+    return np.ascontiguousarray(out, dtype=np.float32)
+
+
+def match_multiview_global(reference: Any, views: Sequence[Any], *, ratios: Sequence[float], max_disp: int,
+                           params: GlobalMultiViewParams | None = None) -> MatchResult:
+    """Global multi-view disparity of the reference for the unit baseline (thesis §7.1.2).
+
+    Parameters
+    ----------
+    reference : (H, W, 3) or (H, W) image, 0..255
+    views : sequence of images of the reference's size (rectified, collinear horizontal baselines)
+    ratios : sequence of float, keyword-only
+        Signed baseline ratio of each view (+ = right of the reference; ``+1`` = the unit baseline).
+    max_disp : int, keyword-only
+        Largest disparity of the unit baseline.
+    params : GlobalMultiViewParams, keyword-only
+
+    Returns
+    -------
+    MatchResult
+        ``disparity`` (H, W) float32 (dense, one plane per segment); ``valid``: pixels that at least one
+        view's pair found reliable; ``disparity_raw``: the plane map before optimisation;
+        ``extras``: ``labels`` (H, W), ``planes`` (L, 3), ``assign`` (K,), ``energy_before/after``,
+        ``pair_disparities`` (V, H, W).
+    """
+    p = params or GlobalMultiViewParams()
+    ref, vs, rs, md = check_views(reference, views, ratios, max_disp=max_disp)
+    timings: dict[str, float] = {}
+    t = time.perf_counter()
+    pcs = [pair_cost(ref, v, r, max_disp=md, cost=p.cost, cost_params=p.cost_params)
+           for v, r in zip(vs, rs, strict=True)]
+    timings["pair costs"] = time.perf_counter() - t
+    t = time.perf_counter()
+    data = _data_volume(pcs, max_disp=md, trunc=p.coop.data_trunc, wu=p.unreliable_weight)
+    timings["fusion"] = time.perf_counter() - t
+    t = time.perf_counter()
+    labels = mean_shift_segment(ref, params=p.segmentation)
+    index = build_segment_index(labels)
+    pairs, _length, contrast = segment_adjacency(labels, ref)
+    timings["segmentation"] = time.perf_counter() - t
+    t = time.perf_counter()
+    disps = np.stack([pc.disparity for pc in pcs])
+    rels = np.stack([pc.reliable for pc in pcs]) & np.isfinite(disps)
+    planes, _inl = fit_planes_joint(index, disps, rels, params=p.planes)
+    with np.errstate(invalid="ignore"):
+        n_rel = rels.sum(axis=0)
+        mean_d = np.where(n_rel > 0, np.nansum(np.where(rels, disps, 0.0), axis=0) / np.maximum(n_rel, 1),
+                          np.nan).astype(np.float32)
+    any_rel = n_rel > 0
+    cluster, cplanes = merge_planes(index, planes, pairs, mean_d, any_rel, params=p.planes)
+    k = index.n_segments
+    has = np.isfinite(planes[:, 0])
+    own_idx = np.full(k, -1, np.int64)
+    own_idx[has] = cplanes.shape[0] + np.arange(int(has.sum()))
+    plane_set = np.concatenate([cplanes, planes[has]], axis=0) if has.any() else cplanes
+    if plane_set.shape[0] == 0:
+        plane_set = np.array([[0.0, 0.0, float(np.nanmedian(mean_d)) if any_rel.any() else 0.0]])
+    assign = fill_missing_planes(cluster.astype(np.int32), pairs, contrast)
+    assign = np.where(assign < 0, 0, assign).astype(np.int32)
+    own = np.stack([own_idx, cluster.astype(np.int64)], axis=1)
+    timings["planes"] = time.perf_counter() - t
+    t = time.perf_counter()
+    graph = build_segment_graph(labels, ref)
+    cp = replace(p.coop, data_trunc=float(np.float32(data.max())) + 1.0, unreliable_weight=1.0)
+    initial = render_planes(index, plane_set, assign)
+    assign2, info = cooperative_optimize(assign, plane_set, index, graph, data, np.ones(labels.shape, bool),
+                                         own=own, min_disp=0, params=cp)
+    disp = render_planes(index, plane_set, assign2)
+    timings["optimisation"] = time.perf_counter() - t
+    extras: dict[str, Any] = {"labels": labels, "planes": plane_set, "assign": assign2,
+                              "pair_disparities": disps, **info}
+    log.debug("global multiview: %d views, %d segments, %d planes, E %.1f -> %.1f", len(vs), k,
+              plane_set.shape[0], info["energy_before"], info["energy_after"])
+    return MatchResult(disp.astype(np.float32), any_rel, initial, timings, extras)
