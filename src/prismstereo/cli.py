@@ -98,7 +98,119 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
-_ADDERS: list[Callable[[argparse._SubParsersAction], None]] = [_add_simulate, _add_calibrate, _add_reproduce]
+# --------------------------------------------------------------------------- match
+def _parse_params(items: Sequence[str] | None) -> dict[str, object]:
+    """``-p key=value`` tuning parameters; values parsed as JSON when possible (numbers, true, null)."""
+    import json
+
+    params: dict[str, object] = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError(f"--param: expected key=value, got {item!r}")
+        try:
+            params[key.strip()] = json.loads(value)
+        except ValueError:
+            params[key.strip()] = value
+    return params
+
+
+def _add_match(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("match", help="disparity of a rectified pair -> PFM (+ colourised PNG)")
+    p.add_argument("left", help="rectified left image")
+    p.add_argument("right", help="rectified right image")
+    p.add_argument("-o", "--output", required=True, help="output disparity .pfm (a .png beside it)")
+    p.add_argument("--max-disp", type=int, required=True, help="largest disparity searched (px)")
+    p.add_argument("--min-disp", type=int, default=0, help="smallest disparity searched (px)")
+    p.add_argument("--method", default="bpasw", help="matcher name (sad, ssd, ncc, shd, bpasw, sgbm, ...)")
+    p.add_argument("-p", "--param", action="append", metavar="KEY=VALUE", help="matcher tuning parameter")
+    p.set_defaults(handler=_cmd_match)
+
+
+def _cmd_match(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    import numpy as np
+
+    from prismstereo.io import read_image, write_image, write_pfm
+    from prismstereo.matching import get_matcher, match
+    from prismstereo.viz.colorize import colorize_disparity
+
+    params = _parse_params(args.param)
+    get_matcher(args.method, **params)  # method and parameters checked before reading images
+    out = Path(args.output)
+    if out.suffix.lower() != ".pfm":
+        raise ConfigError(f"-o: expected a .pfm file name, got {args.output!r}")
+    if args.max_disp < 0 or args.min_disp < 0 or args.min_disp > args.max_disp:
+        raise ConfigError(f"expected 0 <= --min-disp <= --max-disp, got {args.min_disp} and {args.max_disp}")
+    left, right = read_image(args.left), read_image(args.right)
+    res = match(left, right, max_disp=args.max_disp, min_disp=args.min_disp, method=args.method, **params)
+    write_pfm(out, res.disparity)
+    png = out.with_suffix(".png")
+    write_image(png, colorize_disparity(res.disparity, vmin=float(args.min_disp), vmax=float(args.max_disp)))
+    d = res.disparity
+    fin = np.isfinite(d)
+    print(f"{args.method}: {d.shape[1]}x{d.shape[0]}, valid (cross-check) {100.0 * res.valid.mean():.1f} %, "
+          f"d in [{np.nanmin(d) if fin.any() else float('nan'):.2f}, "
+          f"{np.nanmax(d) if fin.any() else float('nan'):.2f}], "
+          f"{sum(res.timings.values()):.2f} s")
+    print(f"wrote {out} and {png}")
+    return 0
+
+
+# --------------------------------------------------------------------------- evaluate
+def _add_evaluate(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("evaluate", help="evaluate a matcher on a benchmark (middlebury)")
+    p.add_argument("benchmark", choices=["middlebury"], help="benchmark name")
+    p.add_argument("--data", default=None, help="Middlebury folder (default ../shared/data/middlebury)")
+    p.add_argument("--method", default="bpasw", help="matcher name")
+    p.add_argument("-o", "--output", required=True, help="output folder")
+    p.add_argument("--scenes", default=None, help="comma-separated subset of tsukuba,venus,teddy,cones")
+    p.add_argument("-p", "--param", action="append", metavar="KEY=VALUE", help="matcher tuning parameter")
+    p.set_defaults(handler=_cmd_evaluate)
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from prismstereo.evaluation.middlebury import SCENES, evaluate_method, format_results_table
+    from prismstereo.matching import get_matcher
+
+    params = _parse_params(args.param)
+    get_matcher(args.method, **params)
+    scenes = tuple(s.strip().lower() for s in args.scenes.split(",")) if args.scenes else SCENES
+    res = evaluate_method(args.method, data_dir=args.data, out_dir=args.output, scenes=scenes, **params)
+    print(format_results_table(res, title=f"{args.method} on Middlebury v2 (bad % at 1.0 px unless noted)"))
+    print(f"wrote {args.output}/results.json")
+    return 0
+
+
+_ADDERS: list[Callable[[argparse._SubParsersAction], None]] = [_add_simulate, _add_calibrate, _add_reproduce,
+                                                               _add_match, _add_evaluate]
+
+
+
+# --------------------------------------------------------------------------- rectify
+def _add_rectify(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("rectify", help="rectify a capture's views -> left/right (or view_<k>) images + JSON")
+    p.add_argument("rig", help="rig TOML (DESIGN.md §4)")
+    p.add_argument("image", help="the capture (the rig's sensor size)")
+    p.add_argument("-o", "--output", required=True, help="output folder")
+    p.add_argument("--views", default=None, help="faces to rectify: I,J for a pair, I,J,K or 'all' for more")
+    p.add_argument("--method", choices=["fit", "thesis"], default="fit", help="virtual camera model")
+    p.add_argument("--remap", choices=["model", "exact"], default="model",
+                   help="remap through the camera model or through exact refraction at a reference depth")
+    p.set_defaults(handler=_cmd_rectify)
+
+
+def _cmd_rectify(args: argparse.Namespace) -> int:
+    from prismstereo.rectify.folder import rectify_to_folder
+
+    res = rectify_to_folder(args.rig, args.image, args.output, views=_parse_views(args.views), method=args.method,
+                            remap=args.remap)
+    print(res.summary())
+    return 0
+
+
+_ADDERS.append(_add_rectify)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from prismstereo.matching.api import match, validate_pair, validate_range
 from prismstereo.matching.registry import (
-    MatchResult,
     Matcher,
+    MatchResult,
     available_matchers,
     get_matcher,
     register_matcher,

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from numba import njit, prange
 
 __all__ = [
     "census_transform",
@@ -58,23 +57,18 @@ def _ndisp(max_disp: int, min_disp: int) -> int:
     return int(max_disp) - int(min_disp) + 1
 
 
-@njit(cache=True, parallel=True)
 def _shifted_abs_diff(left: np.ndarray, right: np.ndarray, min_disp: int, ndisp: int,
-                      invalid: float) -> np.ndarray:  # pragma: no cover - numba
+                      invalid: float) -> np.ndarray:
+    """Mean over channels of ``|left(y, x) - right(y, x - d)|``, vectorised per disparity slice."""
     h, w, c = left.shape
-    out = np.empty((h, w, ndisp), dtype=np.float32)
+    out = np.full((h, w, ndisp), np.float32(invalid), dtype=np.float32)
     inv_c = np.float32(1.0 / c)
-    for y in prange(h):
-        for x in range(w):
-            for i in range(ndisp):
-                xr = x - (min_disp + i)
-                if xr < 0 or xr >= w:
-                    out[y, x, i] = invalid
-                else:
-                    s = np.float32(0.0)
-                    for k in range(c):
-                        s += abs(left[y, x, k] - right[y, xr, k])
-                    out[y, x, i] = s * inv_c
+    for i in range(ndisp):  # loop over disparities, not pixels
+        d = min_disp + i
+        if d >= w:
+            break
+        diff = np.abs(left[:, d:, :] - right[:, : w - d, :])
+        out[:, d:, i] = diff[:, :, 0] if c == 1 else diff.sum(axis=2) * inv_c
     return out
 
 
@@ -233,49 +227,29 @@ def cost_ncc(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: in
 
 
 # ----------------------------------------------------------------------------------------- census
-@njit(cache=True, parallel=True)
-def _census(gray: np.ndarray, ry: int, rx: int) -> np.ndarray:  # pragma: no cover - numba
+def _census(gray: np.ndarray, ry: int, rx: int) -> np.ndarray:
+    """Census codes, one vectorised compare per window offset (replicated border)."""
     h, w = gray.shape
-    out = np.zeros((h, w), dtype=np.uint64)
-    for y in prange(h):
-        for x in range(w):
-            c = gray[y, x]
-            code = np.uint64(0)
-            for dy in range(-ry, ry + 1):
-                yy = min(max(y + dy, 0), h - 1)
-                for dx in range(-rx, rx + 1):
-                    if dy == 0 and dx == 0:
-                        continue
-                    xx = min(max(x + dx, 0), w - 1)
-                    code = code << np.uint64(1)
-                    if gray[yy, xx] < c:
-                        code = code | np.uint64(1)
-            out[y, x] = code
-    return out
+    pad = np.pad(gray, ((ry, ry), (rx, rx)), mode="edge")
+    code = np.zeros((h, w), dtype=np.uint64)
+    for dy in range(-ry, ry + 1):  # loop over window offsets, not pixels
+        for dx in range(-rx, rx + 1):
+            if dy == 0 and dx == 0:
+                continue
+            nb = pad[ry + dy: ry + dy + h, rx + dx: rx + dx + w]
+            code = (code << np.uint64(1)) | (nb < gray).astype(np.uint64)
+    return code
 
 
-@njit(cache=True, inline="always")
-def _popcount(v: np.uint64) -> int:  # pragma: no cover - numba
-    v = v - ((v >> np.uint64(1)) & np.uint64(0x5555555555555555))
-    v = (v & np.uint64(0x3333333333333333)) + ((v >> np.uint64(2)) & np.uint64(0x3333333333333333))
-    v = (v + (v >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
-    return int((v * np.uint64(0x0101010101010101)) >> np.uint64(56))
-
-
-@njit(cache=True, parallel=True)
 def _hamming_volume(cl: np.ndarray, cr: np.ndarray, min_disp: int, ndisp: int,
-                    invalid: float) -> np.ndarray:  # pragma: no cover - numba
+                    invalid: float) -> np.ndarray:
     h, w = cl.shape
-    out = np.empty((h, w, ndisp), dtype=np.float32)
-    for y in prange(h):
-        for x in range(w):
-            a = cl[y, x]
-            for i in range(ndisp):
-                xr = x - (min_disp + i)
-                if xr < 0 or xr >= w:
-                    out[y, x, i] = invalid
-                else:
-                    out[y, x, i] = np.float32(_popcount(a ^ cr[y, xr]))
+    out = np.full((h, w, ndisp), np.float32(invalid), dtype=np.float32)
+    for i in range(ndisp):  # loop over disparities, not pixels
+        d = min_disp + i
+        if d >= w:
+            break
+        out[:, d:, i] = np.bitwise_count(cl[:, d:] ^ cr[:, : w - d])
     return out
 
 

@@ -14,7 +14,7 @@ from typing import Literal
 
 import numpy as np
 
-from prismstereo.matching import aggregation, costs, selection
+from prismstereo.matching import costs, selection
 from prismstereo.matching.registry import MatchResult, register_matcher
 
 log = logging.getLogger(__name__)
@@ -36,6 +36,8 @@ class LocalMatcher:
         Parabola subpixel refinement.
     fill : bool
         Fill invalid pixels (scanline background fill + weighted median) for a dense map.
+    weighted_median : bool
+        Smooth the filled pixels with a colour-weighted median (numba) instead of a plain 5×5 median.
     keep_cost : bool
         Return the aggregated cost volume in ``extras["cost"]``.
     """
@@ -44,6 +46,7 @@ class LocalMatcher:
     tolerance: float = 1.0
     subpixel: bool = True
     fill: bool = True
+    weighted_median: bool = False
     keep_cost: bool = False
 
     def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
@@ -71,7 +74,7 @@ class LocalMatcher:
         extras: dict[str, object] = {"cost": vol} if self.keep_cost else {}
         if self.fill and self.cross_check and not valid.all():
             t = time.perf_counter()
-            dense = selection.fill_holes(raw, valid, image=left)
+            dense = selection.fill_holes(raw, valid, image=left if self.weighted_median else None)
             timings["fill"] = time.perf_counter() - t
             return MatchResult(dense, valid, raw, timings, extras)
         return MatchResult(raw, valid, None, timings, extras)
@@ -125,7 +128,7 @@ class SHDMatcher(LocalMatcher):
                     min_disp: int) -> np.ndarray:
         vol = costs.cost_census(left, right, max_disp=max_disp, min_disp=min_disp,
                                 window=self.census_window)
-        return aggregation.aggregate_box(vol, radius=self.radius)
+        return costs._box_volume(vol, self.radius)
 
 
 @register_matcher("bpasw")
@@ -135,17 +138,26 @@ class BPASWMatcher(LocalMatcher):
 
     See :func:`prismstereo.matching.aggregation.aggregate_bpasw` for the weights and the reading of the
     Weber–Fechner law. ``continuity=True`` runs a second pass with the continuity law (Eqs. 5.9, 5.12)
-    using the first pass's winners as the neighbours' disparities.
+    using the first pass's winners as the neighbours' disparities (off by default: on Middlebury it
+    raised the error, 3.19 -> 3.71 % nonocc average).
+
+    Defaults (measured on the four Middlebury v2 scenes, bad > 1 px after cross-check and filling):
+    a 33×33 window sampled every 2 px, S_AD with ω = 0.5 and truncations 20 / 8 grey levels, plus
+    ``census_weight`` × the census Hamming distance (7×9), Weber–Fechner colour threshold S0 = 50 ΔE.
+    ``subpixel`` is off by default because the parabola fit did not lower the 1-px error here; switch
+    it on for depth.
     """
 
+    subpixel: bool = False
+    weighted_median: bool = True
     radius: int = 16
     dilation: int = 2
     omega: float = 0.5
     tau_color: float | None = 20.0
     tau_gradient: float | None = 8.0
-    census_weight: float = 0.0
+    census_weight: float = 0.5
     kernel: Literal["weber", "exp"] = "weber"
-    similarity_s0: float = 28.0
+    similarity_s0: float = 50.0
     gamma_color: float = 7.0
     gamma_proximity: float = 17.5
     continuity: bool = False
@@ -153,6 +165,8 @@ class BPASWMatcher(LocalMatcher):
 
     def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
                     min_disp: int) -> np.ndarray:
+        from prismstereo.matching import aggregation
+
         vol = costs.cost_s_ad(left, right, max_disp=max_disp, min_disp=min_disp, omega=self.omega,
                               tau_color=self.tau_color, tau_gradient=self.tau_gradient)
         if self.census_weight > 0:

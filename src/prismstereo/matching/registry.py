@@ -57,6 +57,7 @@ _BUILTIN_MODULES = ("prismstereo.matching.matchers", "prismstereo.matching.sgbm"
 #: optional modules (other issues) that may not exist yet
 _OPTIONAL_MODULES = ("prismstereo.matching.coop",)
 _loaded = False
+_optional_loaded = False
 
 T = TypeVar("T")
 
@@ -72,19 +73,21 @@ def register_matcher(name: str) -> Callable[[T], T]:
     return deco
 
 
-def _load_builtins() -> None:
-    global _loaded
-    if _loaded:
-        return
-    for mod in _BUILTIN_MODULES:
-        importlib.import_module(mod)
-    for mod in _OPTIONAL_MODULES:
-        try:
+def _load_builtins(*, optional: bool = True) -> None:
+    """Import the modules that register matchers; the optional ones (other issues) only when needed."""
+    global _loaded, _optional_loaded
+    if not _loaded:
+        for mod in _BUILTIN_MODULES:
             importlib.import_module(mod)
-        except ModuleNotFoundError as exc:
-            if exc.name != mod:
-                raise
-    _loaded = True
+        _loaded = True
+    if optional and not _optional_loaded:
+        for mod in _OPTIONAL_MODULES:
+            try:
+                importlib.import_module(mod)
+            except ModuleNotFoundError as exc:
+                if exc.name != mod:
+                    raise
+        _optional_loaded = True
 
 
 def available_matchers() -> list[str]:
@@ -101,8 +104,10 @@ def get_matcher(name: str, **params: Any) -> Matcher:
     ConfigError
         Unknown name, or a parameter the matcher does not take.
     """
-    _load_builtins()
     key = str(name).lower()
+    _load_builtins(optional=False)
+    if key not in _REGISTRY:
+        _load_builtins()
     if key not in _REGISTRY:
         raise ConfigError(f"expected a method among {', '.join(sorted(_REGISTRY))}, got {name!r}")
     factory = _REGISTRY[key]

@@ -5,8 +5,8 @@ Disparity maps are float32 ``H×W`` in pixels (``d = x_left - x_right``), NaN = 
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
-from numba import njit, prange
 
 from prismstereo.errors import MatchingError
 
@@ -51,15 +51,14 @@ def winner_take_all(cost: np.ndarray, *, min_disp: int = 0) -> np.ndarray:
     return (np.argmin(vol, axis=2) + min_disp).astype(np.float32)
 
 
-@njit(cache=True, parallel=True)
-def _diagonal_volume(cost: np.ndarray, min_disp: int, fill: float) -> np.ndarray:  # pragma: no cover
+def _diagonal_volume(cost: np.ndarray, min_disp: int, fill: float) -> np.ndarray:
     h, w, nd = cost.shape
-    out = np.empty((h, w, nd), dtype=np.float32)
-    for y in prange(h):
-        for xr in range(w):
-            for i in range(nd):
-                xl = xr + min_disp + i
-                out[y, xr, i] = cost[y, xl, i] if xl < w else fill
+    out = np.full((h, w, nd), np.float32(fill), dtype=np.float32)
+    for i in range(nd):  # loop over disparities, not pixels
+        d = min_disp + i
+        if d >= w:
+            break
+        out[:, : w - d, i] = cost[:, d:, i]
     return out
 
 
@@ -82,22 +81,16 @@ def right_disparity(cost: np.ndarray, *, min_disp: int = 0) -> np.ndarray:
     return winner_take_all(right_cost_volume(cost, min_disp=min_disp), min_disp=min_disp)
 
 
-@njit(cache=True, parallel=True)
-def _cross_check(dl: np.ndarray, dr: np.ndarray, tol: float) -> np.ndarray:  # pragma: no cover
+def _cross_check(dl: np.ndarray, dr: np.ndarray, tol: float) -> np.ndarray:
     h, w = dl.shape
-    ok = np.zeros((h, w), dtype=np.bool_)
-    for y in prange(h):
-        for x in range(w):
-            d = dl[y, x]
-            if not np.isfinite(d):
-                continue
-            xr = int(np.floor(x - d + 0.5))
-            if xr < 0 or xr >= w:
-                continue
-            e = dr[y, xr]
-            if np.isfinite(e) and abs(d - e) <= tol:
-                ok[y, x] = True
-    return ok
+    finite = np.isfinite(dl)
+    xs = np.arange(w)[None, :]
+    xr = np.floor(xs - np.where(finite, dl, 0.0) + 0.5).astype(np.int64)
+    inside = finite & (xr >= 0) & (xr < w)
+    rows = np.broadcast_to(np.arange(h)[:, None], (h, w))
+    e = dr[rows, np.clip(xr, 0, w - 1)]
+    with np.errstate(invalid="ignore"):
+        return inside & np.isfinite(e) & (np.abs(dl - e) <= tol)
 
 
 def cross_check(disp_left: np.ndarray, disp_right: np.ndarray, *, tolerance: float = 1.0) -> np.ndarray:
@@ -157,68 +150,17 @@ def subpixel_refine(cost: np.ndarray, disp: np.ndarray, *, min_disp: int = 0) ->
     return out
 
 
-@njit(cache=True, parallel=True)
-def _scanline_fill(disp: np.ndarray, valid: np.ndarray) -> np.ndarray:  # pragma: no cover - numba
+def _scanline_fill(disp: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Each invalid pixel: min of the nearest valid values to its left and right on the row."""
     h, w = disp.shape
-    out = disp.copy()
-    for y in prange(h):
-        last = np.nan
-        left_val = np.empty(w, dtype=np.float32)
-        for x in range(w):
-            if valid[y, x]:
-                last = disp[y, x]
-            left_val[x] = last
-        nxt = np.nan
-        for x in range(w - 1, -1, -1):
-            if valid[y, x]:
-                nxt = disp[y, x]
-                continue
-            a = left_val[x]
-            if np.isnan(a):
-                out[y, x] = nxt
-            elif np.isnan(nxt):
-                out[y, x] = a
-            else:
-                out[y, x] = min(a, nxt)
-    return out
-
-
-@njit(cache=True, parallel=True)
-def _wmf(disp: np.ndarray, mask: np.ndarray, lab: np.ndarray, radius: int, gamma_c: float,
-         gamma_d: float, dmin: float, nbins: int) -> np.ndarray:  # pragma: no cover - numba
-    h, w = disp.shape
-    out = disp.copy()
-    for y in prange(h):
-        hist = np.zeros(nbins, dtype=np.float64)
-        for x in range(w):
-            if not mask[y, x]:
-                continue
-            hist[:] = 0.0
-            total = 0.0
-            for yy in range(max(0, y - radius), min(h, y + radius + 1)):
-                for xx in range(max(0, x - radius), min(w, x + radius + 1)):
-                    v = disp[yy, xx]
-                    if not np.isfinite(v):
-                        continue
-                    a = lab[y, x, 0] - lab[yy, xx, 0]
-                    b = lab[y, x, 1] - lab[yy, xx, 1]
-                    c = lab[y, x, 2] - lab[yy, xx, 2]
-                    dc = np.sqrt(a * a + b * b + c * c)
-                    ds = np.sqrt(float((y - yy) ** 2 + (x - xx) ** 2))
-                    wt = np.exp(-dc / gamma_c - ds / gamma_d)
-                    bi = int(np.floor(v - dmin + 0.5))
-                    bi = min(max(bi, 0), nbins - 1)
-                    hist[bi] += wt
-                    total += wt
-            if total <= 0.0:
-                continue
-            acc = 0.0
-            for bi in range(nbins):
-                acc += hist[bi]
-                if acc >= 0.5 * total:
-                    out[y, x] = dmin + bi
-                    break
-    return out
+    xs = np.broadcast_to(np.arange(w)[None, :], (h, w))
+    rows = np.broadcast_to(np.arange(h)[:, None], (h, w))
+    li = np.maximum.accumulate(np.where(valid, xs, -1), axis=1)
+    ri = np.minimum.accumulate(np.where(valid, xs, w)[:, ::-1], axis=1)[:, ::-1]
+    lv = np.where(li >= 0, disp[rows, np.clip(li, 0, w - 1)], np.nan)
+    rv = np.where(ri < w, disp[rows, np.clip(ri, 0, w - 1)], np.nan)
+    fill = np.fmin(lv, rv).astype(np.float32)
+    return np.where(valid, disp, fill).astype(np.float32)
 
 
 def weighted_median_filter(disp: np.ndarray, image: np.ndarray, *, mask: np.ndarray | None = None,
@@ -230,6 +172,7 @@ def weighted_median_filter(disp: np.ndarray, image: np.ndarray, *, mask: np.ndar
 
     Returns float32 ``(H, W)``.
     """
+    from prismstereo.matching._wmf import wmf_kernel
     from prismstereo.matching.aggregation import to_lab
 
     d = np.ascontiguousarray(disp, dtype=np.float32)
@@ -238,7 +181,7 @@ def weighted_median_filter(disp: np.ndarray, image: np.ndarray, *, mask: np.ndar
         return d.copy()
     dmin = float(np.floor(np.nanmin(d)))
     nbins = int(np.ceil(np.nanmax(d))) - int(dmin) + 2
-    return _wmf(d, m, to_lab(image), int(radius), float(gamma_color), float(gamma_distance), dmin, nbins)
+    return wmf_kernel(d, m, to_lab(image), int(radius), float(gamma_color), float(gamma_distance), dmin, nbins)
 
 
 def fill_holes(disp: np.ndarray, valid: np.ndarray | None = None, *, image: np.ndarray | None = None,
@@ -247,7 +190,8 @@ def fill_holes(disp: np.ndarray, valid: np.ndarray | None = None, *, image: np.n
 
     Each invalid pixel takes the *lower* (background, as occlusions belong to the farther surface) of
     the nearest valid disparities to its left and right on the scanline; when ``image`` is given the
-    filled pixels are then smoothed by :func:`weighted_median_filter` guided by it.
+    filled pixels are then smoothed by :func:`weighted_median_filter` guided by it (numba); without
+    ``image`` they get a plain 5×5 median instead (OpenCV, no compilation to load).
 
     Parameters
     ----------
@@ -267,6 +211,11 @@ def fill_holes(disp: np.ndarray, valid: np.ndarray | None = None, *, image: np.n
     if d.shape != v.shape or d.ndim != 2:
         raise MatchingError(f"expected disp and valid of the same (H, W) shape, got {d.shape} and {v.shape}")
     filled = _scanline_fill(d, np.ascontiguousarray(v))
-    if image is not None and median_radius > 0 and (~v).any():
-        filled = weighted_median_filter(filled, image, mask=~v, radius=median_radius)
+    holes = ~v
+    if median_radius > 0 and holes.any() and np.isfinite(filled).all():
+        if image is not None:
+            filled = weighted_median_filter(filled, image, mask=holes, radius=median_radius)
+        else:
+            med = cv2.medianBlur(filled, 5)
+            filled = np.where(holes, med, filled).astype(np.float32)
     return filled
