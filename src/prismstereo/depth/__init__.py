@@ -1,0 +1,43 @@
+"""Depth recovery: triangulation (thesis §7.2) and the end-to-end pipeline behind ``prismstereo depth``."""
+
+from __future__ import annotations
+
+from prismstereo.depth.pipeline import (
+    STAGES,
+    TRIANGULATIONS,
+    DepthConfig,
+    DepthResult,
+    default_views,
+    run_depth,
+    triangulate_matches,
+    validate_image,
+    validate_inputs,
+)
+from prismstereo.depth.triangulation import (
+    Triangulation,
+    depth_from_disparity,
+    rectified_to_world,
+    reproject_disparity,
+    triangulate_dlt,
+    triangulate_exact,
+    triangulate_midpoint,
+)
+
+__all__ = [
+    "STAGES",
+    "TRIANGULATIONS",
+    "DepthConfig",
+    "DepthResult",
+    "Triangulation",
+    "default_views",
+    "depth_from_disparity",
+    "rectified_to_world",
+    "reproject_disparity",
+    "run_depth",
+    "triangulate_dlt",
+    "triangulate_exact",
+    "triangulate_matches",
+    "triangulate_midpoint",
+    "validate_image",
+    "validate_inputs",
+]

@@ -1,0 +1,61 @@
+"""Files of a depth run (DESIGN.md §5–6), written together through a staging folder.
+
+``disparity.pfm`` (px, inf = invalid), ``disparity.png`` (colourised), ``depth.pfm`` (world Z in mm on the
+rectified left grid, inf = invalid), ``points.ply`` (valid points, mm, world frame, RGB), ``report.png``
+and ``run.json``. If anything fails, the output folder is left as it was.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+from prismstereo.depth.pipeline import DepthResult
+from prismstereo.io import output_dir, write_image, write_json, write_pfm, write_ply
+
+__all__ = ["OUTPUT_FILES", "write_depth_outputs"]
+
+OUTPUT_FILES = ("disparity.pfm", "disparity.png", "depth.pfm", "points.ply", "report.png", "run.json")
+
+
+def write_depth_outputs(result: DepthResult, out_dir: str | os.PathLike[str], *, report: bool = True,
+                        extra: dict[str, Any] | None = None) -> dict[str, Path]:
+    """Write the outputs of ``result`` into ``out_dir`` (created if needed) all-or-nothing.
+
+    Parameters
+    ----------
+    result : DepthResult
+    out_dir : folder
+    report : bool
+        Also render ``report.png`` (about a second).
+    extra : dict, optional
+        Merged into ``run.json`` (e.g. the input paths).
+
+    Returns
+    -------
+    dict file name -> final path.
+    """
+    from prismstereo.viz.colorize import colorize_disparity
+
+    assert result.disparity is not None and result.depth is not None and result.left is not None
+    summary = result.summary()
+    if extra:
+        summary.update(extra)
+    pts, cols = result.point_cloud()
+    target = Path(out_dir)
+    with output_dir(target) as stage:
+        write_pfm(stage / "disparity.pfm", result.disparity)
+        write_image(stage / "disparity.png", colorize_disparity(result.disparity))
+        write_pfm(stage / "depth.pfm", result.depth)
+        write_ply(stage / "points.ply", pts, cols)
+        if report:
+            from prismstereo.viz.report import write_depth_report
+
+            assert result.right is not None
+            write_depth_report(stage / "report.png", capture=result.image, left=result.left, right=result.right,
+                               disparity=result.disparity, depth=result.depth, points=pts, colors=cols,
+                               summary=summary)
+        write_json(stage / "run.json", summary)
+    names = [n for n in OUTPUT_FILES if report or n != "report.png"]
+    return {n: target / n for n in names}

@@ -1,0 +1,523 @@
+"""The end-to-end depth pipeline: capture → virtual cameras → rectify → match → triangulate.
+
+``run_depth(rig, image, config=DepthConfig(...))`` runs a registry of named stages (pandora style) over
+one shared state and returns a :class:`DepthResult`; :func:`write_depth_outputs` writes the files of
+DESIGN.md §5 (``disparity.pfm``, ``disparity.png``, ``depth.pfm``, ``points.ply``, ``report.png``,
+``run.json``) through a staging folder, so a failed run leaves nothing behind.
+
+Everything the user can get wrong (image size, views, depth range, region of interest, method) is checked
+in :func:`validate_inputs` before any heavy work.
+
+The depth map is the world Z (mm, real camera frame) of the point triangulated at each pixel of the
+RECTIFIED LEFT view; the point cloud holds the same points (valid ones only) in the world frame.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import platform
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from prismstereo import __version__
+from prismstereo.config import Rig
+from prismstereo.depth.triangulation import (
+    Triangulation,
+    rectified_to_world,
+    triangulate_dlt,
+    triangulate_exact,
+    triangulate_midpoint,
+)
+from prismstereo.errors import ConfigError, GeometryError, ImageError
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "STAGES",
+    "TRIANGULATIONS",
+    "DepthConfig",
+    "DepthResult",
+    "default_views",
+    "run_depth",
+    "validate_inputs",
+]
+
+#: triangulation methods: exact refractive rays, midpoint / DLT of the virtual pinholes, Q of the pair
+TRIANGULATIONS = ("exact", "midpoint", "dlt", "q")
+DEFAULT_DEPTH_RANGE_MM = (800.0, 5000.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class DepthConfig:
+    """Resolved configuration of one depth run (all of it goes into ``run.json``).
+
+    Attributes
+    ----------
+    method : str
+        Matcher name (any of :func:`prismstereo.matching.available_matchers`).
+    matcher_params : dict
+        Keyword tuning parameters of the matcher.
+    depth_range : (min, max)
+        World depths to search, mm; the disparity search range follows from it (clipped to what the
+        common view of the two sub-images allows).
+    roi : (x, y, w, h) or None
+        Region of interest in the rectified left image, pixels; None = the whole view.
+    views : (i, j) or None
+        Faces to pair; None = the default pair (:func:`default_views`).
+    triangulation : str
+        ``exact`` (default; exact refractive rays), ``midpoint`` (virtual pinhole rays, thesis Eq. 7.19),
+        ``dlt`` (linear, virtual pinholes' P) or ``q`` (rectified Q reprojection, thesis Eq. 7.23).
+    calibration : str
+        Virtual camera model used for rectification and the pinhole triangulations: ``fit`` or ``thesis``.
+    use_filled : bool
+        Triangulate the hole-filled disparity too (dense but with guessed values). False (default) keeps
+        only the matches that passed the matcher's left–right check.
+    max_gap_mm : float or None
+        Reject points whose two rays pass farther apart than this (exact / midpoint), mm. None = keep all.
+    refine : bool
+        Refine the matcher's disparities to sub-pixel precision (:func:`~prismstereo.depth.refine.
+        refine_disparity`) before triangulating.
+    refine_radius : int
+        Half-size of the refinement window, px.
+    """
+
+    method: str = "bpasw"
+    matcher_params: dict[str, Any] = field(default_factory=dict)
+    depth_range: tuple[float, float] = DEFAULT_DEPTH_RANGE_MM
+    roi: tuple[int, int, int, int] | None = None
+    views: tuple[int, int] | None = None
+    triangulation: str = "exact"
+    calibration: str = "fit"
+    use_filled: bool = False
+    max_gap_mm: float | None = None
+    refine: bool = True
+    refine_radius: int = 3
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["depth_range"] = list(self.depth_range)
+        d["roi"] = list(self.roi) if self.roi is not None else None
+        d["views"] = list(self.views) if self.views is not None else None
+        return d
+
+
+@dataclass
+class DepthResult:
+    """Everything a depth run produced (arrays in the rectified LEFT view unless said otherwise).
+
+    Attributes
+    ----------
+    config : DepthConfig
+        With ``views`` resolved.
+    rig : Rig
+    image : (H, W, 3) uint8
+        The capture.
+    pair : RectifiedPair
+        The rectification of the two views (see :mod:`prismstereo.rectify`).
+    left, right : (h, w, 3) uint8
+        Rectified sub-images.
+    disparity : (h, w) float32
+        Disparity used for triangulation, px, NaN invalid (outside the ROI too).
+    disparity_filled : (h, w) float32
+        The matcher's dense output (NaN outside the ROI).
+    points : (h, w, 3) float64
+        Triangulated world points, mm, NaN invalid.
+    depth : (h, w) float32
+        World Z of ``points``, mm, NaN invalid.
+    gaps : (h, w) float32
+        Ray gap of each point, mm (NaN for ``dlt``/``q`` and invalid).
+    valid : (h, w) bool
+    disparity_range : (min, max)
+        Integer search range used.
+    timings : dict
+        Seconds per stage.
+    accuracy : dict or None
+        Filled by :func:`prismstereo.evaluation.depth_metrics.evaluate_depth` when ground truth is known.
+    """
+
+    config: DepthConfig
+    rig: Rig
+    image: np.ndarray
+    pair: Any = None
+    views: list[Any] = field(default_factory=list)
+    left: np.ndarray | None = None
+    right: np.ndarray | None = None
+    disparity: np.ndarray | None = None
+    disparity_filled: np.ndarray | None = None
+    points: np.ndarray | None = None
+    depth: np.ndarray | None = None
+    gaps: np.ndarray | None = None
+    valid: np.ndarray | None = None
+    roi_mask: np.ndarray | None = None
+    disparity_range: tuple[int, int] = (0, 0)
+    timings: dict[str, float] = field(default_factory=dict)
+    match_timings: dict[str, float] = field(default_factory=dict)
+    accuracy: dict[str, Any] | None = None
+    ground_truth: Any = None
+
+    @property
+    def faces(self) -> tuple[int, int]:
+        """(left face, right face) of the rectified pair."""
+        return (int(self.pair.left_face), int(self.pair.right_face))
+
+    def point_cloud(self) -> tuple[np.ndarray, np.ndarray]:
+        """Valid points (N, 3) mm (world frame) and their colours (N, 3) uint8 from the rectified left view."""
+        assert self.points is not None and self.valid is not None and self.left is not None
+        pts = self.points[self.valid]
+        cols = self.left[self.valid] if self.left.ndim == 3 else np.repeat(self.left[self.valid][:, None], 3, 1)
+        return pts, cols.astype(np.uint8)
+
+    def counts(self) -> dict[str, int]:
+        assert self.valid is not None and self.roi_mask is not None and self.disparity_filled is not None
+        region = self.roi_mask & self.pair_valid_left()
+        return {
+            "rectified_pixels": int(self.valid.size),
+            "region_pixels": int(region.sum()),
+            "matched_pixels": int(np.isfinite(self.disparity).sum()) if self.disparity is not None else 0,
+            "points": int(self.valid.sum()),
+        }
+
+    def pair_valid_left(self) -> np.ndarray:
+        masks = self.pair.valid_masks()
+        return np.asarray(masks[0], dtype=bool)
+
+    def summary(self) -> dict[str, Any]:
+        """The JSON-able summary written to ``run.json``."""
+        return {
+            "prismstereo": __version__,
+            "versions": _versions(),
+            "rig": self.rig.to_dict(),
+            "config": self.config.to_dict(),
+            "faces": {"left": self.faces[0], "right": self.faces[1]},
+            "image_size": [int(self.image.shape[1]), int(self.image.shape[0])],
+            "rectified_size": [int(self.left.shape[1]), int(self.left.shape[0])] if self.left is not None else None,
+            "disparity_range": list(self.disparity_range),
+            "baseline_mm": float(getattr(self.pair, "baseline_mm", float("nan"))),
+            "timings_s": {k: round(v, 4) for k, v in self.timings.items()},
+            "matcher_timings_s": {k: round(v, 4) for k, v in self.match_timings.items()},
+            "counts": self.counts(),
+            "accuracy": self.accuracy,
+        }
+
+
+def _versions() -> dict[str, str]:
+    import cv2
+    import numba
+    import scipy
+
+    return {"python": platform.python_version(), "numpy": np.__version__, "scipy": scipy.__version__,
+            "opencv": cv2.__version__, "numba": numba.__version__}
+
+
+# --------------------------------------------------------------------------- validation
+def default_views(rig: Rig) -> tuple[int, int]:
+    """The pair of faces used when none is given: (1, 0) for a bi-prism (left, right), else (0, 1)."""
+    return (1, 0) if rig.prism.faces == 2 else (0, 1)
+
+
+def validate_image(rig: Rig, image: Any) -> np.ndarray:
+    """Check that ``image`` is a capture of ``rig``: H×W or H×W×3 of the rig's size; returns RGB uint8."""
+    img = np.asarray(image)
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
+    if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3):
+        raise ImageError(f"expected an H×W or H×W×3 capture, got shape {img.shape}")
+    w, h = rig.camera.width, rig.camera.height
+    if img.shape[0] != h or img.shape[1] != w:
+        raise ImageError(f"expected a {w}×{h} capture (the rig's camera), got {img.shape[1]}×{img.shape[0]}")
+    if img.dtype == np.uint16:
+        img = (img // 257).astype(np.uint8)
+    elif img.dtype != np.uint8:
+        if img.dtype.kind != "f" or not np.isfinite(img).all():
+            raise ImageError(f"expected a uint8 or finite float capture, got dtype {img.dtype}")
+        img = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    if img.ndim == 2:
+        img = np.repeat(img[:, :, None], 3, axis=2)
+    return np.ascontiguousarray(img)
+
+
+def validate_inputs(rig: Rig, image: Any, config: DepthConfig) -> tuple[np.ndarray, DepthConfig]:
+    """Check everything a user can get wrong before any heavy work; return the image and resolved config.
+
+    Raises
+    ------
+    ImageError, ConfigError, GeometryError
+        One-line "expected …, got …" messages.
+    """
+    from prismstereo.matching import available_matchers
+
+    img = validate_image(rig, image)
+    if config.method.lower() not in available_matchers():
+        raise ConfigError(f"--method: expected one of {', '.join(available_matchers())}, got {config.method!r}")
+    if config.triangulation not in TRIANGULATIONS:
+        raise ConfigError(f"--triangulation: expected one of {', '.join(TRIANGULATIONS)}, "
+                          f"got {config.triangulation!r}")
+    if config.calibration not in ("fit", "thesis"):
+        raise ConfigError(f"calibration: expected 'fit' or 'thesis', got {config.calibration!r}")
+    zmin, zmax = (float(v) for v in config.depth_range)
+    back = rig.prism.back_distance
+    if not (math.isfinite(zmin) and math.isfinite(zmax)) or zmin <= back or zmax <= zmin:
+        raise ConfigError(f"--depth-range: expected MIN,MAX mm with {back:g} (the prism's back plane) < MIN "
+                          f"< MAX, got {zmin:g},{zmax:g}")
+    views = config.views if config.views is not None else default_views(rig)
+    if len(views) != 2:
+        raise ConfigError(f"--views: expected two face indices I,J, got {list(views)}")
+    n = rig.prism.faces
+    for v in views:
+        if not 0 <= int(v) < n:
+            raise ConfigError(f"--views: expected face indices in 0..{n - 1}, got {list(views)}")
+    if int(views[0]) == int(views[1]):
+        raise ConfigError(f"--views: expected two different faces, got {list(views)}")
+    if config.roi is not None:
+        x, y, w, h = config.roi
+        if w <= 0 or h <= 0 or x < 0 or y < 0:
+            raise ConfigError(f"--roi: expected x,y,w,h with x, y >= 0 and w, h > 0, got {list(config.roi)}")
+    if config.max_gap_mm is not None and not config.max_gap_mm > 0:
+        raise ConfigError(f"max_gap_mm: expected a positive number, got {config.max_gap_mm!r}")
+    resolved = DepthConfig(**{**asdict(config), "views": (int(views[0]), int(views[1])),
+                              "method": config.method.lower(), "depth_range": (zmin, zmax)})
+    return img, resolved
+
+
+# --------------------------------------------------------------------------- stages
+Stage = Callable[[DepthResult], None]
+#: ordered registry of pipeline stages: name -> function(state)
+STAGES: dict[str, Stage] = {}
+
+
+def register_stage(name: str) -> Callable[[Stage], Stage]:
+    def deco(fn: Stage) -> Stage:
+        STAGES[name] = fn
+        return fn
+
+    return deco
+
+
+@register_stage("cameras")
+def _stage_cameras(st: DepthResult) -> None:
+    from prismstereo.cameras import calibrate_rig
+
+    st.views = calibrate_rig(st.rig, method=st.config.calibration)
+
+
+@register_stage("rectify")
+def _stage_rectify(st: DepthResult) -> None:
+    try:
+        from prismstereo.rectify import disparity_range, rectify_pair
+    except ImportError:  # the package may not re-export them
+        from prismstereo.rectify.rectification import disparity_range, rectify_pair
+
+    assert st.config.views is not None
+    by_face = {v.face: v for v in st.views}
+    a, b = st.config.views
+    st.pair = rectify_pair(st.rig, by_face[a], by_face[b])
+    left, right = st.pair.rectify_images(st.image)
+    st.left, st.right = np.asarray(left), np.asarray(right)
+    zmin, zmax = st.config.depth_range
+    lo, hi = disparity_range(st.pair, zmin, zmax)
+    lo, hi = max(0, int(math.floor(lo))), int(math.ceil(hi))
+    width = st.left.shape[1]
+    hi = min(hi, width - 1)
+    vl, vr = (np.asarray(m, dtype=bool) for m in st.pair.valid_masks())
+    if hi < lo or not vl.any() or not vr.any():
+        raise GeometryError(f"expected views {a} and {b} to share a common view at {zmin:g}–{zmax:g} mm, "
+                            "got none (choose other --views or --depth-range)")
+    st.disparity_range = (lo, hi)
+    h = st.left.shape[0]
+    mask = np.zeros((h, width), dtype=bool)
+    if st.config.roi is not None:
+        x, y, w_, h_ = st.config.roi
+        if x >= width or y >= h:
+            raise ConfigError(f"--roi: expected a region inside the {width}×{h} rectified left view, "
+                              f"got {list(st.config.roi)}")
+        mask[y:y + h_, x:x + w_] = True
+    else:
+        mask[:] = True
+    st.roi_mask = mask & vl
+
+
+def _roi_box(mask: np.ndarray) -> tuple[int, int, int, int]:
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    if rows.size == 0:
+        raise GeometryError("expected a non-empty region of the rectified left view to match, got none")
+    return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+
+
+@register_stage("match")
+def _stage_match(st: DepthResult) -> None:
+    from prismstereo.matching import match
+
+    assert st.left is not None and st.right is not None and st.roi_mask is not None
+    lo, hi = st.disparity_range
+    r0, r1, c0, c1 = _roi_box(st.roi_mask)
+    # the right image must reach hi pixels to the left of the region
+    ca = max(0, c0 - hi)
+    left = st.left[r0:r1, ca:c1]
+    right = st.right[r0:r1, ca:c1]
+    hi_eff = min(hi, left.shape[1] - 1)
+    lo_eff = min(lo, hi_eff)
+    params = dict(st.config.matcher_params)
+    res = match(left, right, max_disp=hi_eff, min_disp=lo_eff, method=st.config.method, **params)
+    raw = res.disparity_raw if res.disparity_raw is not None else np.where(res.valid, res.disparity, np.nan)
+    h, w = st.left.shape[:2]
+    disp = np.full((h, w), np.nan, dtype=np.float32)
+    dense = np.full((h, w), np.nan, dtype=np.float32)
+    disp[r0:r1, ca:c1] = raw
+    dense[r0:r1, ca:c1] = res.disparity
+    out = ~st.roi_mask
+    disp[out] = np.nan
+    dense[out] = np.nan
+    # a match must land inside the right view's valid region
+    vr = np.asarray(st.pair.valid_masks()[1], dtype=bool)
+    st.disparity_filled = dense
+    src = dense if st.config.use_filled else disp
+    ys, xs = np.nonzero(np.isfinite(src))
+    xr = np.rint(xs - src[ys, xs]).astype(np.int64)
+    inside = (xr >= 0) & (xr < w)
+    inside[inside] &= vr[ys[inside], xr[inside]]
+    bad = np.zeros((h, w), dtype=bool)
+    bad[ys[~inside], xs[~inside]] = True
+    src = src.copy()
+    src[bad] = np.nan
+    st.disparity = src
+    st.match_timings = dict(res.timings)
+
+
+def _real_pixels(st: DepthResult, ys: np.ndarray, xs: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    left_px = np.stack([xs, ys], axis=1).astype(np.float64)
+    right_px = np.stack([xs - d, ys], axis=1).astype(np.float64)
+    return st.pair.rectified_to_real(left_px, "left"), st.pair.rectified_to_real(right_px, "right")
+
+
+def triangulate_matches(st: DepthResult, method: str, ys: np.ndarray, xs: np.ndarray, d: np.ndarray,
+                        *, views: list[Any] | None = None) -> Triangulation:
+    """Triangulate rectified-left matches (x, y) ↔ (x − d, y) of a finished run with ``method``.
+
+    ``views`` overrides the virtual cameras used by ``midpoint`` and ``dlt`` (e.g. the thesis's
+    construction while the rectification used the fitted model).
+    """
+    n = ys.size
+    if method == "q":
+        # thesis Eq. 7.23 on the listed (x, y, d), then from the rectified left frame to the world
+        Q = np.asarray(st.pair.Q, dtype=np.float64)
+        hom = np.stack([xs.astype(np.float64), ys.astype(np.float64), d, np.ones(n)], axis=1) @ Q.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            pts_rect = hom[:, :3] / hom[:, 3:4]
+        pts = rectified_to_world(pts_rect, st.pair.R_left, st.pair.C_left)
+        ok = np.all(np.isfinite(pts), axis=1) & (d > 0)
+        return Triangulation(np.where(ok[:, None], pts, np.nan), np.full(n, np.nan), ok)
+    pl, pr = _real_pixels(st, ys, xs, d)
+    fl, fr = st.faces
+    if method == "exact":
+        return triangulate_exact(st.rig, pl, pr, faces=(fl, fr))
+    by_face = {v.face: v for v in (views if views is not None else st.views)}
+    cam_l, cam_r = by_face[fl].camera, by_face[fr].camera
+    finite = np.all(np.isfinite(pl), axis=1) & np.all(np.isfinite(pr), axis=1)
+    pl0, pr0 = np.where(finite[:, None], pl, 0.0), np.where(finite[:, None], pr, 0.0)
+    if method == "midpoint":
+        ol, dl = cam_l.unproject(pl0)
+        orr, dr = cam_r.unproject(pr0)
+        tri = triangulate_midpoint(ol, dl, orr, dr)
+        ok = tri.valid & finite
+        return Triangulation(np.where(ok[:, None], tri.points, np.nan), np.where(ok, tri.gaps, np.nan), ok)
+    if method == "dlt":
+        ul = cam_l.undistort_pixels(pl0) @ cam_l.K[:2, :2].T + cam_l.K[:2, 2]
+        ur = cam_r.undistort_pixels(pr0) @ cam_r.K[:2, :2].T + cam_r.K[:2, 2]
+        pts = triangulate_dlt(cam_l.P, cam_r.P, ul, ur)
+        ok = finite & np.all(np.isfinite(pts), axis=1)
+        return Triangulation(np.where(ok[:, None], pts, np.nan), np.full(n, np.nan), ok)
+    raise ConfigError(f"triangulation: expected one of {', '.join(TRIANGULATIONS)}, got {method!r}")
+
+
+@register_stage("refine")
+def _stage_refine(st: DepthResult) -> None:
+    from prismstereo.depth.refine import refine_disparity
+
+    if not st.config.refine:
+        return
+    assert st.left is not None and st.right is not None and st.disparity is not None
+    vl, vr = st.pair.valid_masks()
+    st.disparity = refine_disparity(st.left, st.right, st.disparity, radius=st.config.refine_radius,
+                                    valid_left=vl, valid_right=vr)
+
+
+@register_stage("triangulate")
+def _stage_triangulate(st: DepthResult) -> None:
+    assert st.disparity is not None and st.left is not None
+    h, w = st.disparity.shape
+    ys, xs = np.nonzero(np.isfinite(st.disparity))
+    d = st.disparity[ys, xs].astype(np.float64)
+    tri = triangulate_matches(st, st.config.triangulation, ys, xs, d)
+    ok = tri.valid.copy()
+    if st.config.max_gap_mm is not None:
+        ok &= ~(tri.gaps > st.config.max_gap_mm)
+    ok &= tri.points[:, 2] > st.rig.prism.back_distance
+    points = np.full((h, w, 3), np.nan)
+    gaps = np.full((h, w), np.nan, dtype=np.float32)
+    points[ys[ok], xs[ok]] = tri.points[ok]
+    gaps[ys[ok], xs[ok]] = tri.gaps[ok]
+    valid = np.zeros((h, w), dtype=bool)
+    valid[ys[ok], xs[ok]] = True
+    st.points, st.gaps, st.valid = points, gaps, valid
+    st.depth = np.where(valid, points[..., 2], np.nan).astype(np.float32)
+
+
+def _progress(total: int) -> Any:
+    if not sys.stderr.isatty():
+        return None
+    try:
+        from tqdm import tqdm
+    except ImportError:  # pragma: no cover
+        return None
+    return tqdm(total=total, desc="depth", unit="stage", leave=False)
+
+
+def run_depth(rig: Rig, image: Any, *, config: DepthConfig | None = None,
+              progress: bool | None = None) -> DepthResult:
+    """Recover depth from one prism capture.
+
+    Parameters
+    ----------
+    rig : Rig
+    image : (H, W) or (H, W, 3) array
+        The capture (RGB); its size must be the rig camera's.
+    config : DepthConfig, optional
+    progress : bool, optional
+        Show a progress bar per stage; default: only when stderr is a terminal.
+
+    Returns
+    -------
+    DepthResult
+
+    Raises
+    ------
+    ImageError, ConfigError, GeometryError, MatchingError
+        Bad input, found before any heavy work where possible.
+    """
+    t0 = time.perf_counter()
+    img, cfg = validate_inputs(rig, image, config or DepthConfig())
+    st = DepthResult(config=cfg, rig=rig, image=img)
+    st.timings["validate"] = time.perf_counter() - t0
+    bar = _progress(len(STAGES)) if progress is not False else None
+    try:
+        for name, stage in STAGES.items():
+            if bar is not None:
+                bar.set_description(f"depth: {name}")
+            t = time.perf_counter()
+            stage(st)
+            st.timings[name] = time.perf_counter() - t
+            log.info("stage %s: %.2f s", name, st.timings[name])
+            if bar is not None:
+                bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
+    st.timings["total"] = time.perf_counter() - t0
+    return st
