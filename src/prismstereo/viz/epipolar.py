@@ -45,7 +45,7 @@ def pick_points(rig: Rig, face_a: int, face_b: int, *, n: int = 3, depth_mm: flo
                                     seed=seed)
     px = corr.pixels_a
     order = np.argsort(px[:, 1])
-    picks = order[np.linspace(0.15, 0.85, n) * (order.size - 1) // 1].astype(int) if order.size >= n else order
+    picks = order[(np.linspace(0.15, 0.85, n) * (order.size - 1)).astype(int)] if order.size >= n else order
     return px[picks]
 
 
