@@ -157,40 +157,73 @@ class PairCost:
     ratio : float
         Signed baseline ratio ``δ`` of the view.
     cost : (H, W, S + 1) float32
-        ``cost[y, x, s]``: reference pixel ``(x, y)`` against view pixel ``(x - sign(δ) s, y)``, for the
-        integer pair disparity ``s = 0 .. S``. Lower is better.
+        Aggregated cost: ``cost[y, x, s]`` compares reference pixel ``(x, y)`` with view pixel
+        ``(x - sign(δ) s, y)`` for the integer pair disparity ``s = 0 .. S``. Lower is better.
     disparity : (H, W) float32
-        The pair's own WTA + subpixel disparity, converted to the UNIT baseline (``s / |δ|``); NaN where the
-        pair's left–right check failed (thesis Eq. 6.7).
+        The pair's own WTA + subpixel disparity converted to the UNIT baseline (``s / |δ|``), every pixel.
     reliable : (H, W) bool
-        Pixels that passed the pair's left–right check.
+        Pixels that passed the pair's left–right check (thesis Eq. 6.7).
+    raw : (H, W, S + 1) float32 or None
+        The pixel-wise cost before aggregation (lightly box-smoothed), the data term of the global
+        method (Eq. 7.16), same indexing as ``cost``.
     """
 
     ratio: float
     cost: F32
     disparity: F32
     reliable: npt.NDArray[np.bool_]
+    raw: F32 | None = None
 
 
-def _pair_volumes(left: np.ndarray, right: np.ndarray, max_s: int, cost: CostName,
-                  cost_params: dict[str, Any]) -> tuple[F32, F32]:
-    """Left volume and right-view volume (indexed by the right pixel) of one pair, ``d = 0 .. max_s``."""
+def _box3(vol: F32, r: int) -> F32:
+    if r <= 0:
+        return vol
+    import cv2
+
+    k = 2 * r + 1
+    out = np.empty_like(vol)
+    for i in range(0, vol.shape[2], 512):
+        out[:, :, i:i + 512] = cv2.boxFilter(vol[:, :, i:i + 512], -1, (k, k), borderType=cv2.BORDER_REFLECT)
+    return out
+
+
+def _pair_volumes(left: np.ndarray, right: np.ndarray, max_s: int, cost: CostName, cost_params: dict[str, Any],
+                  keep_raw: bool, data_radius: int) -> tuple[F32, F32, npt.NDArray[np.bool_], F32 | None]:
+    """Left aggregated volume, subpixel left disparity, left–right check and (optionally) the raw volume."""
     if cost == "guided":
-        from prismstereo.matching.coopcost import CostParams, aggregated_costs
+        from prismstereo.matching.coop import initial_disparity
+        from prismstereo.matching.coopcost import CostParams, aggregated_costs, raw_cost
 
-        return aggregated_costs(left, right, max_disp=max_s, min_disp=0, params=CostParams(**cost_params))
+        cp = CostParams(**cost_params)
+        raw = raw_cost(left, right, max_disp=max_s, min_disp=0, params=cp)
+        agg_l, agg_r = aggregated_costs(left, right, max_disp=max_s, min_disp=0, params=cp, raw=raw)
+        disp, ok = initial_disparity(agg_l, agg_r, min_disp=0)
+        return agg_l, disp, ok, (_box3(raw, data_radius) if keep_raw else None)
     if cost == "bpasw":
+        from prismstereo.matching import costs
         from prismstereo.matching.matchers import BPASWMatcher
-        from prismstereo.matching.selection import right_cost_volume
+        from prismstereo.matching.selection import (
+            cross_check,
+            right_disparity,
+            subpixel_refine,
+            winner_take_all,
+        )
 
-        vol = BPASWMatcher(**cost_params).cost_volume(left, right, max_disp=max_s, min_disp=0)
-        return vol, right_cost_volume(vol, min_disp=0)
+        m = BPASWMatcher(**cost_params)
+        vol = m.cost_volume(left, right, max_disp=max_s, min_disp=0)
+        d0 = winner_take_all(vol)
+        ok = cross_check(d0, right_disparity(vol), tolerance=0.0)
+        raw = None
+        if keep_raw:
+            raw = _box3(costs.cost_s_ad(left, right, max_disp=max_s, min_disp=0, omega=m.omega,
+                                        tau_color=m.tau_color, tau_gradient=m.tau_gradient), data_radius)
+        return vol, subpixel_refine(vol, d0), ok, raw
     raise ConfigError(f"expected cost 'bpasw' or 'guided', got {cost!r}")
 
 
 def pair_cost(reference: np.ndarray, view: np.ndarray, ratio: float, *, max_disp: int,
-              cost: CostName = "guided", cost_params: dict[str, Any] | None = None,
-              tolerance: float = 1.0) -> PairCost:
+              cost: CostName = "guided", cost_params: dict[str, Any] | None = None, keep_raw: bool = False,
+              data_radius: int = 1) -> PairCost:
     """Aggregated cost of the reference against one view (thesis Eq. 7.9), in the reference frame.
 
     Parameters
@@ -209,42 +242,35 @@ def pair_cost(reference: np.ndarray, view: np.ndarray, ratio: float, *, max_disp
         per pixel and disparity.
     cost_params : dict, optional
         Keyword parameters of that cost (``BPASWMatcher`` fields or ``CostParams`` fields).
-    tolerance : float
-        Left–right check tolerance in pair pixels.
+    keep_raw : bool
+        Also return the pixel-wise cost (box radius ``data_radius``) for a data term.
 
     Returns
     -------
     PairCost
     """
-    from prismstereo.matching.selection import cross_check, subpixel_refine, winner_take_all
-
     w = reference.shape[1]
     a = abs(float(ratio))
     max_s = int(min(w - 1, math.ceil(a * max_disp) + 1))
     params = dict(cost_params or {})
     if ratio > 0:
-        vol, vol_r = _pair_volumes(reference, view, max_s, cost, params)
+        vol, d, ok, raw = _pair_volumes(reference, view, max_s, cost, params, keep_raw, data_radius)
     else:
-        # mirror both images: the left view becomes a right view of the mirrored reference
-        vm, vm_r = _pair_volumes(np.ascontiguousarray(reference[:, ::-1]), np.ascontiguousarray(view[:, ::-1]),
-                                 max_s, cost, params)
-        vol = np.ascontiguousarray(vm[:, ::-1])
-        vol_r = vm_r  # stays mirrored: only used for the check below, in the mirrored frame
-        vm_d = winner_take_all(vm)
-        vm_dr = winner_take_all(vm_r)
-        ok = cross_check(vm_d, vm_dr, tolerance=tolerance)[:, ::-1]
-        d = subpixel_refine(vol, winner_take_all(vol))
-        disp = np.where(ok, d / np.float32(a), np.float32(np.nan)).astype(np.float32)
-        return PairCost(float(ratio), vol, disp, np.ascontiguousarray(ok))
-    d0 = winner_take_all(vol)
-    ok = cross_check(d0, winner_take_all(vol_r), tolerance=tolerance)
-    d = subpixel_refine(vol, d0)
-    disp = np.where(ok, d / np.float32(a), np.float32(np.nan)).astype(np.float32)
-    return PairCost(float(ratio), vol, disp, ok)
+        # mirror both images: the left view becomes a right view of the mirrored reference; mirror back
+        vol, d, ok, raw = _pair_volumes(np.ascontiguousarray(reference[:, ::-1]),
+                                        np.ascontiguousarray(view[:, ::-1]), max_s, cost, params, keep_raw,
+                                        data_radius)
+        vol, d, ok = (np.ascontiguousarray(vol[:, ::-1]), np.ascontiguousarray(d[:, ::-1]),
+                      np.ascontiguousarray(ok[:, ::-1]))
+        raw = None if raw is None else np.ascontiguousarray(raw[:, ::-1])
+    disp = (np.asarray(d, np.float32) / np.float32(a)).astype(np.float32)
+    return PairCost(float(ratio), vol, disp, np.asarray(ok, bool), raw)
 
 
-def resample_to_unit(pc: PairCost, *, max_disp: int) -> tuple[F32, npt.NDArray[np.bool_]]:
+def resample_to_unit(pc: PairCost, *, max_disp: int, raw: bool = False) -> tuple[F32, npt.NDArray[np.bool_]]:
     """Sample a pair volume on the unit-baseline grid ``d = 0 .. max_disp`` (thesis Eq. 7.8).
+
+    ``raw=True`` samples the pixel-wise volume ``pc.raw`` instead of the aggregated ``pc.cost``.
 
     ``C_i(x, y, d) = (1 - f) cost[y, x, ⌊s⌋] + f cost[y, x, ⌊s⌋ + 1]`` with ``s = |δ| d`` and
     ``f = s - ⌊s⌋`` (linear interpolation along the disparity axis; exact for integer ratios).
@@ -255,7 +281,10 @@ def resample_to_unit(pc: PairCost, *, max_disp: int) -> tuple[F32, npt.NDArray[n
     seen : (H, W, max_disp + 1) bool
         True where the matching view pixel ``x - δ d`` lies inside the view (the view sees the match).
     """
-    h, w, ns = pc.cost.shape
+    src = pc.raw if raw and pc.raw is not None else pc.cost
+    if raw and pc.raw is None:
+        raise ConfigError("expected a pair cost computed with keep_raw=True, got one without its raw volume")
+    h, w, ns = src.shape
     nd = max_disp + 1
     out = np.empty((h, w, nd), np.float32)
     seen = np.empty((h, w, nd), np.bool_)
@@ -267,9 +296,9 @@ def resample_to_unit(pc: PairCost, *, max_disp: int) -> tuple[F32, npt.NDArray[n
         f = np.float32(s - s0)
         s1 = min(s0 + 1, ns - 1)
         if f == 0.0:
-            out[:, :, k] = pc.cost[:, :, s0]
+            out[:, :, k] = src[:, :, s0]
         else:
-            out[:, :, k] = (np.float32(1.0) - f) * pc.cost[:, :, s0] + f * pc.cost[:, :, s1]
+            out[:, :, k] = (np.float32(1.0) - f) * src[:, :, s0] + f * src[:, :, s1]
         xv = xs - pc.ratio * k
         seen[:, :, k] = ((xv >= -0.5) & (xv <= w - 0.5))[None, :]
     return out, seen

@@ -41,6 +41,7 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit
 
+from prismstereo.errors import ConfigError
 from prismstereo.matching.cooperative import CoopParams, build_segment_graph, cooperative_optimize
 from prismstereo.matching.planes import (
     PlaneParams,
@@ -57,7 +58,7 @@ from prismstereo.multiview.baseline import CostName, PairCost, check_views, pair
 
 log = logging.getLogger(__name__)
 
-__all__ = ["GlobalMultiViewParams", "fit_planes_joint", "match_multiview_global"]
+__all__ = ["GlobalMultiViewParams", "data_volume", "fit_planes_joint", "match_multiview_global"]
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
@@ -76,6 +77,10 @@ class GlobalMultiViewParams:
     cost_params : dict
         Keyword parameters of that cost.
     segmentation, planes, coop : the ``coop`` building blocks' parameter sets.
+    occlusion : {"sides", "sum"}
+        How the views' data costs combine (:func:`data_volume`); ``"sum"`` is the thesis's plain sum.
+    data_radius : int
+        Box radius of the pixel cost summed in the data term (as ``coop``).
     unreliable_weight : float
         Weight of a view's data cost at pixels where that view's pair failed the left–right check
         (thesis: only reliable pixels ``N_r`` count; the ``coop`` default keeps a fraction).
@@ -86,7 +91,9 @@ class GlobalMultiViewParams:
     segmentation: SegmentationParams = field(default_factory=SegmentationParams)
     planes: PlaneParams = field(default_factory=PlaneParams)
     coop: CoopParams = field(default_factory=CoopParams)
-    unreliable_weight: float = 0.3
+    unreliable_weight: float = 1.0
+    data_radius: int = 1
+    occlusion: str = "sides"
 
 
 @njit(cache=True)
@@ -163,12 +170,12 @@ def fit_planes_joint(index: SegmentIndex, disparities: npt.NDArray[np.floating],
                           p.min_pixels, p.ransac_trials, p.max_slope)
 
 
-def _data_volume(pcs: Sequence[PairCost], *, max_disp: int, trunc: float, wu: float) -> F32:
-    """Σᵢ of each view's truncated, reliability-weighted cost on the unit grid, / number of views that see."""
+def _side_mean(pcs: Sequence[PairCost], *, max_disp: int, trunc: float, wu: float) -> tuple[F32, F32]:
+    """Σ of truncated, reliability-weighted raw costs of ``pcs`` on the unit grid, and Σ of the weights."""
     acc: F32 | None = None
     den: F32 | None = None
     for pc in pcs:
-        c, seen = resample_to_unit(pc, max_disp=max_disp)
+        c, seen = resample_to_unit(pc, max_disp=max_disp, raw=True)
         np.minimum(c, np.float32(trunc), out=c)
         wgt = np.where(pc.reliable, np.float32(1.0), np.float32(wu))[:, :, None] * seen
         if acc is None or den is None:
@@ -177,10 +184,37 @@ def _data_volume(pcs: Sequence[PairCost], *, max_disp: int, trunc: float, wu: fl
             acc += c * wgt
             den += wgt
     assert acc is not None and den is not None
-    n = np.float32(len(pcs))
-    # normalise to one view's scale where fewer views see (borders); no view sees -> the truncation
-    out = np.where(den > 0, acc / np.maximum(den, np.float32(1e-6)) * np.minimum(den, n) / n,
-                   np.float32(trunc))
+    return acc, den
+
+
+def data_volume(pcs: Sequence[PairCost], *, max_disp: int, trunc: float, wu: float = 1.0,
+                occlusion: str = "sides") -> F32:
+    """Multi-view data term on the unit-baseline grid (thesis Eq. 7.16), per pixel and disparity.
+
+    Each view's pixel cost at ``δᵢ d`` is truncated at ``trunc`` (Eq. 6.21) and weighted by 1 where that
+    view's pair passed the left–right check, ``wu`` elsewhere; views that cannot see the match do not vote.
+
+    ``occlusion="sum"``: the mean over all views (Eq. 7.16's sum over ``i`` divided by ``n``).
+    ``occlusion="sides"``: the lower of the mean over the views on the left and the mean over the views on
+    the right of the reference (where both sides see the match): a point occluded on one side is still
+    seen from the other (Kang, Szeliski & Chai, CVPR 2001), so occlusion no longer charges the true
+    disparity. With views on one side only the two options coincide.
+
+    Returns
+    -------
+    (H, W, max_disp + 1) float32, on the scale of one view's cost; ``trunc`` where no view sees.
+    """
+    if occlusion not in ("sum", "sides"):
+        raise ConfigError(f"expected occlusion 'sum' or 'sides', got {occlusion!r}")
+    groups = ([[pc for pc in pcs if pc.ratio < 0], [pc for pc in pcs if pc.ratio > 0]]
+              if occlusion == "sides" else [list(pcs)])
+    groups = [g for g in groups if g]
+    means = []
+    for g in groups:
+        acc, den = _side_mean(g, max_disp=max_disp, trunc=trunc, wu=wu)
+        means.append(np.where(den > 0, acc / np.maximum(den, np.float32(1e-6)), np.float32(np.inf)))
+    out = means[0] if len(means) == 1 else np.minimum(means[0], means[1])
+    out = np.where(np.isfinite(out), out, np.float32(trunc))
     return np.ascontiguousarray(out, dtype=np.float32)
 
 
@@ -210,11 +244,13 @@ def match_multiview_global(reference: Any, views: Sequence[Any], *, ratios: Sequ
     ref, vs, rs, md = check_views(reference, views, ratios, max_disp=max_disp)
     timings: dict[str, float] = {}
     t = time.perf_counter()
-    pcs = [pair_cost(ref, v, r, max_disp=md, cost=p.cost, cost_params=p.cost_params)
+    pcs = [pair_cost(ref, v, r, max_disp=md, cost=p.cost, cost_params=p.cost_params, keep_raw=True,
+                     data_radius=p.data_radius)
            for v, r in zip(vs, rs, strict=True)]
     timings["pair costs"] = time.perf_counter() - t
     t = time.perf_counter()
-    data = _data_volume(pcs, max_disp=md, trunc=p.coop.data_trunc, wu=p.unreliable_weight)
+    data = data_volume(pcs, max_disp=md, trunc=p.coop.data_trunc, wu=p.unreliable_weight,
+                       occlusion=p.occlusion)
     timings["fusion"] = time.perf_counter() - t
     t = time.perf_counter()
     labels = mean_shift_segment(ref, params=p.segmentation)
@@ -232,15 +268,15 @@ def match_multiview_global(reference: Any, views: Sequence[Any], *, ratios: Sequ
     any_rel = n_rel > 0
     cluster, cplanes = merge_planes(index, planes, pairs, mean_d, any_rel, params=p.planes)
     k = index.n_segments
-    has = np.isfinite(planes[:, 0])
-    own_idx = np.full(k, -1, np.int64)
-    own_idx[has] = cplanes.shape[0] + np.arange(int(has.sum()))
-    plane_set = np.concatenate([cplanes, planes[has]], axis=0) if has.any() else cplanes
-    if plane_set.shape[0] == 0:
-        plane_set = np.array([[0.0, 0.0, float(np.nanmedian(mean_d)) if any_rel.any() else 0.0]])
-    assign = fill_missing_planes(cluster.astype(np.int32), pairs, contrast)
+    fin = np.flatnonzero(np.isfinite(planes[:, 0]))
+    plane_set = (np.concatenate([planes[fin], cplanes]) if fin.size
+                 else np.array([[0.0, 0.0, float(np.nanmedian(mean_d)) if any_rel.any() else 0.0]]))
+    own = np.full((k, 2), -1, np.int64)
+    own[fin, 0] = np.arange(fin.size)
+    own[cluster >= 0, 1] = cluster[cluster >= 0] + fin.size
+    assign = fill_missing_planes(np.where(cluster >= 0, cluster + fin.size, -1).astype(np.int32), pairs,
+                                 contrast)
     assign = np.where(assign < 0, 0, assign).astype(np.int32)
-    own = np.stack([own_idx, cluster.astype(np.int64)], axis=1)
     timings["planes"] = time.perf_counter() - t
     t = time.perf_counter()
     graph = build_segment_graph(labels, ref)
@@ -248,7 +284,7 @@ def match_multiview_global(reference: Any, views: Sequence[Any], *, ratios: Sequ
     initial = render_planes(index, plane_set, assign)
     assign2, info = cooperative_optimize(assign, plane_set, index, graph, data, np.ones(labels.shape, bool),
                                          own=own, min_disp=0, params=cp)
-    disp = render_planes(index, plane_set, assign2)
+    disp = np.clip(render_planes(index, plane_set, assign2), 0, md).astype(np.float32)
     timings["optimisation"] = time.perf_counter() - t
     extras: dict[str, Any] = {"labels": labels, "planes": plane_set, "assign": assign2,
                               "pair_disparities": disps, **info}

@@ -95,7 +95,7 @@ def match_multibaseline(reference: Any, views: Sequence[Any], *, ratios: Sequenc
     t = time.perf_counter()
     d0 = winner_take_all(fused)
     disp = subpixel_refine(fused, d0) if p.subpixel else d0
-    pair_d = np.stack([pc.disparity for pc in pcs])
+    pair_d = np.stack([np.where(pc.reliable, pc.disparity, np.float32(np.nan)) for pc in pcs])
     with np.errstate(invalid="ignore"):
         support = (np.abs(pair_d - disp[None]) <= p.support_tolerance).sum(axis=0)
     valid = support > 0
