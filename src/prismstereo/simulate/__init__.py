@@ -2,6 +2,14 @@
 
 from __future__ import annotations
 
+from prismstereo.simulate.checkerboard import (
+    BoardPose,
+    board_corners,
+    board_rectangle,
+    board_visible,
+    checkerboard_poses,
+)
+from prismstereo.simulate.folder import SimulationResult, simulate_to_folder, write_capture
 from prismstereo.simulate.render import Capture, SceneHits, intersect_scene, render_capture, sample_offsets
 from prismstereo.simulate.scene import (
     Box,
@@ -19,8 +27,21 @@ from prismstereo.simulate.scene import (
     matrix_to_euler,
     rotation_from_normal,
 )
+from prismstereo.simulate.scene_toml import load_scene, scene_from_dict, scene_to_dict, scene_to_toml
 
 __all__ = [
+    "BoardPose",
+    "SimulationResult",
+    "board_corners",
+    "board_rectangle",
+    "board_visible",
+    "checkerboard_poses",
+    "load_scene",
+    "scene_from_dict",
+    "scene_to_dict",
+    "scene_to_toml",
+    "simulate_to_folder",
+    "write_capture",
     "Box",
     "Capture",
     "CheckerTexture",

@@ -164,8 +164,8 @@ def _value_noise3(x: float, y: float, seed: int) -> tuple[float, float, float]:
     """Three independent value-noise channels in [0, 1] at (x, y) (one 30-bit hash per lattice node)."""
     fx = math.floor(x)
     fy = math.floor(y)
-    ix = np.int64(fx)
-    iy = np.int64(fy)
+    ix = int(fx)
+    iy = int(fy)
     tx = x - fx
     ty = y - fy
     sx = tx * tx * tx * (tx * (tx * 6.0 - 15.0) + 10.0)
@@ -236,7 +236,7 @@ def _texture(tex: np.ndarray, pixels: np.ndarray, s: float, t: float, ext_s: flo
         octaves = int(tex[2])
         pers = tex[3]
         contrast = tex[4]
-        nr, ng, nb = _fbm3(s, t, scale, octaves, pers, np.int64(tex[5]) * 8 + salt)
+        nr, ng, nb = _fbm3(s, t, scale, octaves, pers, int(tex[5]) * 8 + salt)
         r = 0.5 + (nr - 0.5) * contrast
         g = 0.5 + (ng - 0.5) * contrast
         b = 0.5 + (nb - 0.5) * contrast
@@ -376,7 +376,7 @@ def trace_scene_kernel(origins: np.ndarray, directions: np.ndarray, prims: np.nd
                 ny = -ny
                 nz = -nz
         cr, cg, cb = _texture(textures[np.int64(prims[p, 15])], pixels, s, tt, prims[p, 18], prims[p, 19],
-                              np.int64(prims[p, 17]))
+                              int(prims[p, 17]))
         f = 1.0
         if shading > 0.0:
             lam = max(0.0, nx * light[0] + ny * light[1] + nz * light[2])

@@ -1,0 +1,322 @@
+"""Scene files: a rig (DESIGN.md §4 [camera] and [prism]) plus ``[render]`` and ``[[objects]]`` tables.
+
+Example::
+
+    [camera]
+    width = 1024
+    height = 768
+    focal_length = 25.0
+    pixel_size = 0.00465
+
+    [prism]
+    faces = 2
+    corner_angle = 6.4
+    refractive_index = 1.5
+    apex_distance = 210.0
+    back_distance = 215.6
+
+    [render]                      # every key optional
+    supersample = 2               # samples per pixel side (1..16)
+    seed = 0                      # sensor-noise seed; default seed of noise textures (seed + object index)
+    background = [0.0, 0.0, 0.0]  # RGB in [0, 1] of rays that pass the prism and hit nothing
+    shading = 0.3                 # Lambertian light strength in [0, 1] (view-independent)
+    noise = 0.0                   # sensor noise std, grey levels
+
+    [[objects]]
+    type = "box"                  # "rectangle" | "box" | "sphere" | "plane"
+    name = "torso"                # optional
+    center = [0.0, 0.0, 1500.0]   # mm, world frame (+X right, +Y down, +Z forward)
+    size = [60.0, 80.0, 40.0]     # rectangle: [w, h]; box: [sx, sy, sz]; sphere: radius = R instead
+    rotation = [0.0, 25.0, 0.0]   # extrinsic XYZ Euler angles, degrees (optional) ...
+    # normal = [0.0, 0.0, -1.0]   # ... or the direction the front faces, with optional spin = degrees
+    [objects.texture]
+    type = "noise"                # "noise" | "checker" | "image" | "solid"
+    scale = 30.0                  # mm, coarsest feature; octaves = 6, persistence = 0.7, contrast = 2.5, seed
+    # checker: square = 10.0, colors = [[0,0,0],[1,1,1]], squares = [9, 7], margin = 10.0, border_color
+    # image:   path = "textures/robot.png" (relative to the scene file), size = [w_mm, h_mm] (optional)
+    # solid:   color = [0.8, 0.2, 0.1]
+
+Everything is validated before rendering; problems raise :class:`~prismstereo.errors.ConfigError` with
+one line naming the table and key.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import tomli_w
+
+from prismstereo.config import Rig, read_toml, rig_from_dict
+from prismstereo.errors import ConfigError, ImageError
+from prismstereo.io import read_image
+from prismstereo.simulate.scene import (
+    Box,
+    CheckerTexture,
+    Color,
+    ImageTexture,
+    NoiseTexture,
+    Plane,
+    Rectangle,
+    Scene,
+    SceneObject,
+    SolidTexture,
+    Sphere,
+    Texture,
+    Vec3,
+    rotation_from_normal,
+)
+
+_RENDER_KEYS = {"supersample", "seed", "background", "shading", "noise"}
+_OBJECT_KEYS = {
+    "rectangle": {"type", "name", "center", "size", "rotation", "normal", "spin", "texture"},
+    "box": {"type", "name", "center", "size", "rotation", "normal", "spin", "texture"},
+    "sphere": {"type", "name", "center", "radius", "rotation", "normal", "spin", "texture"},
+    "plane": {"type", "name", "center", "rotation", "normal", "spin", "texture"},
+}
+_TEXTURE_KEYS = {
+    "solid": {"type", "color"},
+    "checker": {"type", "square", "colors", "squares", "margin", "border_color"},
+    "noise": {"type", "scale", "octaves", "persistence", "contrast", "seed"},
+    "image": {"type", "path", "size"},
+}
+
+
+# --------------------------------------------------------------------------- checked readers
+def _is_num(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+def _num(where: str, key: str, v: Any, *, positive: bool = False, lo: float | None = None,
+         hi: float | None = None) -> float:
+    if not _is_num(v) or not math.isfinite(float(v)):
+        raise ConfigError(f"{where} {key}: expected a finite number, got {v!r}")
+    x = float(v)
+    if positive and x <= 0:
+        raise ConfigError(f"{where} {key}: expected a positive number, got {v!r}")
+    if (lo is not None and x < lo) or (hi is not None and x > hi):
+        raise ConfigError(f"{where} {key}: expected a number in [{lo:g}, {hi:g}], got {v!r}")
+    return x
+
+
+def _int(where: str, key: str, v: Any, *, lo: int | None = None, hi: int | None = None) -> int:
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise ConfigError(f"{where} {key}: expected an integer, got {v!r}")
+    if (lo is not None and v < lo) or (hi is not None and v > hi):
+        rng = f">= {lo}" if hi is None else f"in {lo}..{hi}"
+        raise ConfigError(f"{where} {key}: expected an integer {rng}, got {v!r}")
+    return int(v)
+
+
+def _vec(where: str, key: str, v: Any, n: int, *, positive: bool = False) -> tuple[float, ...]:
+    what = f"{n} positive numbers" if positive else f"{n} finite numbers"
+    if not isinstance(v, list | tuple) or len(v) != n or not all(_is_num(x) for x in v):
+        raise ConfigError(f"{where} {key}: expected a list of {what}, got {v!r}")
+    out = tuple(float(x) for x in v)
+    if not all(math.isfinite(x) for x in out) or (positive and not all(x > 0 for x in out)):
+        raise ConfigError(f"{where} {key}: expected a list of {what}, got {v!r}")
+    return out
+
+
+def _color(where: str, key: str, v: Any) -> Color:
+    c = _vec(where, key, v, 3)
+    if not all(0.0 <= x <= 1.0 for x in c):
+        raise ConfigError(f"{where} {key}: expected an RGB colour [r, g, b] with values in [0, 1], got {v!r}")
+    return (c[0], c[1], c[2])
+
+
+def _keys(where: str, table: Any, allowed: set[str], required: set[str] | None = None) -> Mapping[str, Any]:
+    if not isinstance(table, Mapping):
+        raise ConfigError(f"{where}: expected a table, got {table!r}")
+    unknown = sorted(set(table) - allowed)
+    if unknown:
+        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}; expected only {', '.join(sorted(allowed))}")
+    missing = sorted((required or set()) - set(table))
+    if missing:
+        raise ConfigError(f"{where}: missing key(s) {', '.join(missing)}")
+    return table
+
+
+# --------------------------------------------------------------------------- parsing
+def _texture(where: str, t: Any, *, default_seed: int, base_dir: Path, obj_type: str) -> Texture:
+    if t is None:
+        return NoiseTexture(seed=default_seed)
+    if not isinstance(t, Mapping):
+        raise ConfigError(f"{where}: expected a table, got {t!r}")
+    kind = t.get("type")
+    if kind not in _TEXTURE_KEYS:
+        raise ConfigError(f"{where} type: expected one of {', '.join(sorted(_TEXTURE_KEYS))}, got {kind!r}")
+    required = {"solid": {"color"}, "checker": {"square"}, "noise": set(), "image": {"path"}}[kind]
+    _keys(where, t, _TEXTURE_KEYS[kind], required | {"type"})
+    if kind == "solid":
+        return SolidTexture(color=_color(where, "color", t["color"]))
+    if kind == "checker":
+        colors = t.get("colors", [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
+        if not isinstance(colors, list | tuple) or len(colors) != 2:
+            raise ConfigError(f"{where} colors: expected two RGB colours [[r,g,b],[r,g,b]], got {colors!r}")
+        squares = t.get("squares")
+        sq: tuple[int, int] | None = None
+        if squares is not None:
+            if not isinstance(squares, list | tuple) or len(squares) != 2:
+                raise ConfigError(f"{where} squares: expected [nx, ny] (integers >= 2), got {squares!r}")
+            sq = (_int(where, "squares", squares[0], lo=2), _int(where, "squares", squares[1], lo=2))
+        return CheckerTexture(
+            square=_num(where, "square", t["square"], positive=True),
+            colors=(_color(where, "colors", colors[0]), _color(where, "colors", colors[1])),
+            squares=sq,
+            margin=_num(where, "margin", t.get("margin", 0.0), lo=0.0, hi=math.inf),
+            border_color=_color(where, "border_color", t.get("border_color", [1.0, 1.0, 1.0])),
+        )
+    if kind == "noise":
+        return NoiseTexture(
+            scale=_num(where, "scale", t.get("scale", 50.0), positive=True),
+            octaves=_int(where, "octaves", t.get("octaves", 6), lo=1, hi=16),
+            persistence=_num(where, "persistence", t.get("persistence", 0.7), lo=0.0, hi=1.0),
+            contrast=_num(where, "contrast", t.get("contrast", 2.5), positive=True),
+            seed=_int(where, "seed", t.get("seed", default_seed), lo=0),
+        )
+    # image
+    path = t["path"]
+    if not isinstance(path, str) or not path:
+        raise ConfigError(f"{where} path: expected an image file name, got {path!r}")
+    full = Path(path) if os.path.isabs(path) else base_dir / path
+    try:
+        img = read_image(full)
+    except ImageError as exc:
+        raise ConfigError(f"{where} path: {exc}") from None
+    size = t.get("size")
+    if size is None and obj_type == "plane":
+        raise ConfigError(f"{where} size: expected [w, h] in mm for an image on an infinite plane, got none")
+    sz = None if size is None else _vec(where, "size", size, 2, positive=True)
+    return ImageTexture(path=str(full.resolve()), image=img, size=None if sz is None else (sz[0], sz[1]))
+
+
+def _object(i: int, o: Any, *, seed: int, base_dir: Path) -> SceneObject:
+    where = f"[[objects]] #{i}"
+    if not isinstance(o, Mapping):
+        raise ConfigError(f"{where}: expected a table, got {o!r}")
+    kind = o.get("type")
+    if kind not in _OBJECT_KEYS:
+        raise ConfigError(f"{where} type: expected one of {', '.join(sorted(_OBJECT_KEYS))}, got {kind!r}")
+    name = o.get("name", f"{kind}{i}")
+    if not isinstance(name, str):
+        raise ConfigError(f"{where} name: expected a string, got {name!r}")
+    where = f"[[objects]] #{i} ({kind} {name!r})"
+    required = {"type", "center"} | {"rectangle": {"size"}, "box": {"size"}, "sphere": {"radius"}, "plane": set()}[kind]
+    _keys(where, o, _OBJECT_KEYS[kind], required)
+    c = _vec(where, "center", o["center"], 3)
+    center: Vec3 = (c[0], c[1], c[2])
+    if "rotation" in o and ("normal" in o or "spin" in o):
+        raise ConfigError(f"{where}: expected either rotation or normal (+ spin), got both")
+    if "rotation" in o:
+        r = _vec(where, "rotation", o["rotation"], 3)
+        rotation: Vec3 = (r[0], r[1], r[2])
+    else:
+        normal = _vec(where, "normal", o.get("normal", [0.0, 0.0, -1.0]), 3)
+        if math.hypot(*normal) < 1e-12:
+            raise ConfigError(f"{where} normal: expected a non-zero vector, got {list(normal)}")
+        rotation = rotation_from_normal((normal[0], normal[1], normal[2]), spin=_num(where, "spin", o.get("spin", 0.0)))
+    texture = _texture(f"{where} texture", o.get("texture"), default_seed=seed + i, base_dir=base_dir,
+                       obj_type=kind)
+    if kind == "rectangle":
+        s = _vec(where, "size", o["size"], 2, positive=True)
+        return Rectangle(center=center, size=(s[0], s[1]), rotation=rotation, texture=texture, name=name)
+    if kind == "box":
+        s = _vec(where, "size", o["size"], 3, positive=True)
+        return Box(center=center, size=(s[0], s[1], s[2]), rotation=rotation, texture=texture, name=name)
+    if kind == "sphere":
+        rad = _num(where, "radius", o["radius"], positive=True)
+        return Sphere(center=center, radius=rad, rotation=rotation, texture=texture, name=name)
+    return Plane(center=center, rotation=rotation, texture=texture, name=name)
+
+
+def scene_from_dict(data: Mapping[str, Any], *, base_dir: str | os.PathLike[str] = ".",
+                    name: str = "scene") -> tuple[Rig, Scene]:
+    """Validate a parsed scene file and build its rig and scene.
+
+    Parameters
+    ----------
+    data : mapping
+        Parsed TOML: [camera], [prism], optional [render], [[objects]].
+    base_dir : path
+        Folder that relative image-texture paths are resolved against (the scene file's folder).
+
+    Returns
+    -------
+    (Rig, Scene)
+
+    Raises
+    ------
+    ConfigError
+        On unknown tables/keys/types, missing keys, non-positive sizes, NaN or out-of-range values.
+    """
+    rig = rig_from_dict(data, name=name, extra_sections={"render", "objects"})
+    render = _keys("[render]", data.get("render", {}), _RENDER_KEYS)
+    seed = _int("[render]", "seed", render.get("seed", 0), lo=0)
+    ss = _int("[render]", "supersample", render.get("supersample", 2), lo=1, hi=16)
+    background = _color("[render]", "background", render.get("background", [0.0, 0.0, 0.0]))
+    shading = _num("[render]", "shading", render.get("shading", 0.0), lo=0.0, hi=1.0)
+    noise = _num("[render]", "noise", render.get("noise", 0.0), lo=0.0, hi=255.0)
+    objs = data.get("objects", [])
+    if not isinstance(objs, list) or not objs:
+        raise ConfigError(f"[[objects]]: expected at least one [[objects]] table, got {objs!r}")
+    base = Path(base_dir)
+    objects = tuple(_object(i, o, seed=seed, base_dir=base) for i, o in enumerate(objs))
+    scene = Scene(objects=objects, background=background, shading=shading, noise=noise, seed=seed,
+                  supersample=ss, name=name)
+    return rig, scene
+
+
+def load_scene(path: str | os.PathLike[str]) -> tuple[Rig, Scene]:
+    """Read and validate a scene TOML file → (Rig, Scene). Image paths are relative to the file."""
+    p = Path(path)
+    return scene_from_dict(read_toml(p), base_dir=p.parent, name=p.stem)
+
+
+# --------------------------------------------------------------------------- writing
+def _texture_dict(t: Texture) -> dict[str, Any]:
+    if isinstance(t, SolidTexture):
+        return {"type": "solid", "color": list(t.color)}
+    if isinstance(t, CheckerTexture):
+        d: dict[str, Any] = {"type": "checker", "square": t.square, "colors": [list(c) for c in t.colors],
+                             "margin": t.margin, "border_color": list(t.border_color)}
+        if t.squares is not None:
+            d["squares"] = list(t.squares)
+        return d
+    if isinstance(t, NoiseTexture):
+        return {"type": "noise", "scale": t.scale, "octaves": t.octaves, "persistence": t.persistence,
+                "contrast": t.contrast, "seed": t.seed}
+    d = {"type": "image", "path": t.path}
+    if t.size is not None:
+        d["size"] = list(t.size)
+    return d
+
+
+def object_to_dict(obj: SceneObject) -> dict[str, Any]:
+    """The ``[[objects]]`` table of an object (resolved: rotation as Euler angles, full texture)."""
+    kind = {Rectangle: "rectangle", Box: "box", Sphere: "sphere", Plane: "plane"}[type(obj)]
+    d: dict[str, Any] = {"type": kind, "name": obj.name, "center": list(obj.center)}
+    if isinstance(obj, Rectangle | Box):
+        d["size"] = list(obj.size)
+    if isinstance(obj, Sphere):
+        d["radius"] = obj.radius
+    d["rotation"] = list(obj.rotation)
+    d["texture"] = _texture_dict(obj.texture)
+    return d
+
+
+def scene_to_dict(rig: Rig, scene: Scene) -> dict[str, Any]:
+    """The resolved scene file (every default filled in) as a TOML-ready mapping."""
+    data = rig.to_dict()
+    data["render"] = {"supersample": scene.supersample, "seed": scene.seed, "background": list(scene.background),
+                      "shading": scene.shading, "noise": scene.noise}
+    data["objects"] = [object_to_dict(o) for o in scene.objects]
+    return data
+
+
+def scene_to_toml(rig: Rig, scene: Scene) -> str:
+    """TOML text of :func:`scene_to_dict`; it loads back to the same rig and scene."""
+    return tomli_w.dumps(scene_to_dict(rig, scene))
