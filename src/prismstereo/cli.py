@@ -213,6 +213,29 @@ def _cmd_rectify(args: argparse.Namespace) -> int:
 _ADDERS.append(_add_rectify)
 
 
+# --------------------------------------------------------------------------- multiview (issue 7)
+def _add_multiview(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("multiview", help="disparity of a reference image from several collinear views")
+    p.add_argument("--reference", required=True, help="reference image (rectified with the views)")
+    p.add_argument("--view", action="append", required=True, metavar="IMG:RATIO",
+                   help="a view and its signed baseline ratio (+ = right of the reference, 1 = unit baseline); "
+                        "repeat for every view")
+    p.add_argument("--max-disp", type=int, required=True, help="largest disparity of the unit baseline")
+    p.add_argument("--method", default="global", help="local (Eq. 7.8) or global (§7.1.2; default)")
+    p.add_argument("-o", "--output", required=True, help="disparity PFM to write (a colourised .png beside it)")
+    p.set_defaults(handler=_cmd_multiview)
+
+
+def _cmd_multiview(args: argparse.Namespace) -> int:
+    from prismstereo.multiview.api import multiview_command
+
+    print(multiview_command(args.reference, args.view, args.output, max_disp=args.max_disp, method=args.method))
+    return 0
+
+
+_ADDERS.append(_add_multiview)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="prismstereo",

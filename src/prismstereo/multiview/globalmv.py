@@ -170,13 +170,15 @@ def fit_planes_joint(index: SegmentIndex, disparities: npt.NDArray[np.floating],
                           p.min_pixels, p.ransac_trials, p.max_slope)
 
 
-def _side_mean(pcs: Sequence[PairCost], *, max_disp: int, trunc: float, wu: float) -> tuple[F32, F32]:
-    """Σ of truncated, reliability-weighted raw costs of ``pcs`` on the unit grid, and Σ of the weights."""
+def _side_mean(pcs: Sequence[PairCost], *, max_disp: int, trunc: float, wu: float,
+               raw: bool) -> tuple[F32, F32]:
+    """Σ of truncated, reliability-weighted costs of ``pcs`` on the unit grid, and Σ of the weights."""
     acc: F32 | None = None
     den: F32 | None = None
     for pc in pcs:
-        c, seen = resample_to_unit(pc, max_disp=max_disp, raw=True)
-        np.minimum(c, np.float32(trunc), out=c)
+        c, seen = resample_to_unit(pc, max_disp=max_disp, raw=raw)
+        if raw:
+            np.minimum(c, np.float32(trunc), out=c)
         wgt = np.where(pc.reliable, np.float32(1.0), np.float32(wu))[:, :, None] * seen
         if acc is None or den is None:
             acc, den = c * wgt, wgt.astype(np.float32)
@@ -187,6 +189,10 @@ def _side_mean(pcs: Sequence[PairCost], *, max_disp: int, trunc: float, wu: floa
     return acc, den
 
 
+def _mean(acc: F32, den: F32) -> F32:
+    return np.where(den > 0, acc / np.maximum(den, np.float32(1e-6)), np.float32(np.inf)).astype(np.float32)
+
+
 def data_volume(pcs: Sequence[PairCost], *, max_disp: int, trunc: float, wu: float = 1.0,
                 occlusion: str = "sides") -> F32:
     """Multi-view data term on the unit-baseline grid (thesis Eq. 7.16), per pixel and disparity.
@@ -195,10 +201,11 @@ def data_volume(pcs: Sequence[PairCost], *, max_disp: int, trunc: float, wu: flo
     view's pair passed the left–right check, ``wu`` elsewhere; views that cannot see the match do not vote.
 
     ``occlusion="sum"``: the mean over all views (Eq. 7.16's sum over ``i`` divided by ``n``).
-    ``occlusion="sides"``: the lower of the mean over the views on the left and the mean over the views on
-    the right of the reference (where both sides see the match): a point occluded on one side is still
-    seen from the other (Kang, Szeliski & Chai, CVPR 2001), so occlusion no longer charges the true
-    disparity. With views on one side only the two options coincide.
+    ``occlusion="sides"``: for every pixel and disparity, the views on the left of the reference or those on
+    its right, whichever side's mean AGGREGATED cost is lower (where both sides see the match), supply the
+    data cost: a point occluded on one side is still seen from the other (Kang, Szeliski & Chai,
+    CVPR 2001), so occlusion no longer charges the true disparity. Deciding the side on the aggregated cost
+    keeps the choice from following pixel noise. With views on one side only both options coincide.
 
     Returns
     -------
@@ -206,14 +213,16 @@ def data_volume(pcs: Sequence[PairCost], *, max_disp: int, trunc: float, wu: flo
     """
     if occlusion not in ("sum", "sides"):
         raise ConfigError(f"expected occlusion 'sum' or 'sides', got {occlusion!r}")
-    groups = ([[pc for pc in pcs if pc.ratio < 0], [pc for pc in pcs if pc.ratio > 0]]
-              if occlusion == "sides" else [list(pcs)])
-    groups = [g for g in groups if g]
-    means = []
-    for g in groups:
-        acc, den = _side_mean(g, max_disp=max_disp, trunc=trunc, wu=wu)
-        means.append(np.where(den > 0, acc / np.maximum(den, np.float32(1e-6)), np.float32(np.inf)))
-    out = means[0] if len(means) == 1 else np.minimum(means[0], means[1])
+    left = [pc for pc in pcs if pc.ratio < 0]
+    right = [pc for pc in pcs if pc.ratio > 0]
+    if occlusion == "sum" or not left or not right:
+        out = _mean(*_side_mean(pcs, max_disp=max_disp, trunc=trunc, wu=wu, raw=True))
+    else:
+        agg_l = _mean(*_side_mean(left, max_disp=max_disp, trunc=trunc, wu=wu, raw=False))
+        agg_r = _mean(*_side_mean(right, max_disp=max_disp, trunc=trunc, wu=wu, raw=False))
+        raw_l = _mean(*_side_mean(left, max_disp=max_disp, trunc=trunc, wu=wu, raw=True))
+        raw_r = _mean(*_side_mean(right, max_disp=max_disp, trunc=trunc, wu=wu, raw=True))
+        out = np.where(agg_l <= agg_r, raw_l, raw_r)
     out = np.where(np.isfinite(out), out, np.float32(trunc))
     return np.ascontiguousarray(out, dtype=np.float32)
 
