@@ -213,6 +213,67 @@ def _cmd_rectify(args: argparse.Namespace) -> int:
 _ADDERS.append(_add_rectify)
 
 
+# --------------------------------------------------------------------------- depth (issue 6)
+def _parse_roi(text: str | None) -> tuple[int, int, int, int] | None:
+    if text is None:
+        return None
+    try:
+        x, y, w, h = (int(v) for v in text.split(","))
+    except ValueError:
+        raise ConfigError(f"--roi: expected x,y,w,h (integers, rectified left pixels), got {text!r}") from None
+    return x, y, w, h
+
+
+def _add_depth(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("depth", help="depth from one prism capture -> disparity, depth, points.ply, report")
+    p.add_argument("rig", help="rig TOML (DESIGN.md §4)")
+    p.add_argument("image", help="the capture (the rig's sensor size)")
+    p.add_argument("-o", "--output", required=True, help="output folder")
+    p.add_argument("--method", default="bpasw", help="matcher name (any registered: bpasw, sad, sgbm, coop, ...)")
+    p.add_argument("-p", "--param", action="append", metavar="KEY=VALUE", help="matcher tuning parameter")
+    p.add_argument("--depth-range", default="800,5000", metavar="MIN,MAX",
+                   help="scene depths to search, mm (default 800,5000); sets the disparity range")
+    p.add_argument("--roi", default=None, metavar="X,Y,W,H", help="region of the rectified left view")
+    p.add_argument("--views", default=None, metavar="I,J", help="faces to pair (default: 1,0 for a bi-prism)")
+    p.add_argument("--triangulation", default="exact", choices=["exact", "midpoint", "dlt", "q"],
+                   help="exact refractive rays (default), virtual-pinhole midpoint or DLT, or Q (Eq. 7.23)")
+    p.add_argument("--calibration", default="fit", choices=["fit", "thesis"],
+                   help="virtual camera model for rectification and pinhole triangulation")
+    p.add_argument("--gt", default=None, metavar="DEPTH_GT.pfm",
+                   help="ground-truth depth per real pixel (simulate's depth_gt.pfm): adds accuracy to run.json")
+    p.add_argument("--no-refine", action="store_true", help="skip the sub-pixel disparity refinement")
+    p.set_defaults(handler=_cmd_depth)
+
+
+def _cmd_depth(args: argparse.Namespace) -> int:
+    from prismstereo.depth.cli_support import depth_command
+
+    views = _parse_views(args.views)
+    lo, hi = _parse_pair(args.depth_range, "--depth-range")
+    print(depth_command(args.rig, args.image, args.output, method=args.method, params=_parse_params(args.param),
+                        depth_range=(lo, hi), roi=_parse_roi(args.roi), views=views,
+                        triangulation=args.triangulation, calibration=args.calibration, gt=args.gt,
+                        refine=not args.no_refine))
+    return 0
+
+
+def _add_demo(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("demo", help="simulate the built-in bi-prism scene, recover its depth, print accuracy")
+    p.add_argument("-o", "--output", default="demo_out", help="output folder (default demo_out)")
+    p.add_argument("--method", default="bpasw", help="matcher name")
+    p.set_defaults(handler=_cmd_demo)
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from prismstereo.depth.cli_support import demo_command
+
+    print(demo_command(args.output, method=args.method))
+    return 0
+
+
+_ADDERS.extend([_add_depth, _add_demo])
+
+
 # --------------------------------------------------------------------------- multiview (issue 7)
 def _add_multiview(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("multiview", help="disparity of a reference image from several collinear views")

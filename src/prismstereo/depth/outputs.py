@@ -8,6 +8,7 @@ and ``run.json``. If anything fails, the output folder is left as it was.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +21,8 @@ OUTPUT_FILES = ("disparity.pfm", "disparity.png", "depth.pfm", "points.ply", "re
 
 
 def write_depth_outputs(result: DepthResult, out_dir: str | os.PathLike[str], *, report: bool = True,
-                        extra: dict[str, Any] | None = None) -> dict[str, Path]:
+                        extra: dict[str, Any] | None = None,
+                        also: Callable[[Path], None] | None = None) -> dict[str, Path]:
     """Write the outputs of ``result`` into ``out_dir`` (created if needed) all-or-nothing.
 
     Parameters
@@ -31,6 +33,9 @@ def write_depth_outputs(result: DepthResult, out_dir: str | os.PathLike[str], *,
         Also render ``report.png`` (about a second).
     extra : dict, optional
         Merged into ``run.json`` (e.g. the input paths).
+    also : callable, optional
+        Called with the staging folder to write more files that must appear together with the rest
+        (the demo's capture and ground truth).
 
     Returns
     -------
@@ -56,6 +61,8 @@ def write_depth_outputs(result: DepthResult, out_dir: str | os.PathLike[str], *,
             write_depth_report(stage / "report.png", capture=result.image, left=result.left, right=result.right,
                                disparity=result.disparity, depth=result.depth, points=pts, colors=cols,
                                summary=summary)
+        if also is not None:
+            also(stage)
         write_json(stage / "run.json", summary)
     names = [n for n in OUTPUT_FILES if report or n != "report.png"]
     return {n: target / n for n in names}

@@ -14,8 +14,8 @@ def render_point_cloud(
     colors: np.ndarray,
     *,
     size: tuple[int, int] = (480, 360),
-    yaw_deg: float = -30.0,
-    pitch_deg: float = -20.0,
+    yaw_deg: float = -25.0,
+    pitch_deg: float = -12.0,
     point_size: int = 2,
     background: tuple[int, int, int] = (255, 255, 255),
     max_points: int = 300_000,
@@ -23,9 +23,9 @@ def render_point_cloud(
 ) -> np.ndarray:
     """Render a point cloud seen from a virtual camera orbiting its centre.
 
-    The virtual camera looks at the median of the points from the real camera's side, turned by
-    ``yaw_deg`` about the vertical axis and ``pitch_deg`` about the horizontal one, at a distance that
-    frames the cloud; points are splatted as ``point_size``-pixel squares, nearest on top.
+    An orthographic view from the real camera's side, turned by ``yaw_deg`` about the vertical axis and
+    ``pitch_deg`` about the horizontal one, framed on the cloud; points are splatted as
+    ``point_size``-pixel squares, nearest on top.
 
     Parameters
     ----------
@@ -59,20 +59,18 @@ def render_point_cloud(
         idx = np.random.default_rng(seed).choice(pts.shape[0], max_points, replace=False)
         pts, cols = pts[idx], cols[idx]
     centre = np.median(pts, axis=0)
-    lo, hi = np.percentile(pts, [2, 98], axis=0)
-    extent = float(np.max(hi - lo)) or 1.0
     yaw, pitch = np.radians(yaw_deg), np.radians(pitch_deg)
-    # viewing direction: +Z turned by yaw about Y, then by pitch about X
+    # viewing direction: +Z turned by yaw about Y, then by pitch about X; orthographic view fitted to the
+    # 1–99 % extent of the projected cloud
     view = np.array([np.sin(yaw) * np.cos(pitch), -np.sin(pitch), np.cos(yaw) * np.cos(pitch)])
     R = rotation_from_axis(view)
-    f = 0.9 * min(w, h)
-    dist = 1.2 * extent * f / min(w, h) + extent
-    eye = centre - view * dist
-    xc = (pts - eye) @ R.T
-    front = xc[:, 2] > 1e-6
-    xc, cols = xc[front], cols[front]
-    u = np.rint(f * xc[:, 0] / xc[:, 2] + w / 2.0).astype(np.int64)
-    v = np.rint(f * xc[:, 1] / xc[:, 2] + h / 2.0).astype(np.int64)
+    xc = (pts - centre) @ R.T
+    lo, hi = np.percentile(xc[:, :2], [1, 99], axis=0)
+    span = np.maximum(hi - lo, 1e-9)
+    scale = 0.9 * min(w / span[0], h / span[1])
+    mid = (lo + hi) / 2.0
+    u = np.rint((xc[:, 0] - mid[0]) * scale + w / 2.0).astype(np.int64)
+    v = np.rint((xc[:, 1] - mid[1]) * scale + h / 2.0).astype(np.int64)
     order = np.argsort(-xc[:, 2])  # far first, near last (near wins)
     u, v, cols = u[order], v[order], cols[order]
     r = max(1, int(point_size))

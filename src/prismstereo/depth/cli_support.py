@@ -1,0 +1,98 @@
+"""What ``prismstereo depth`` and ``prismstereo demo`` do, kept out of cli.py (no algorithm code there).
+
+Input checks happen before any heavy work, in this order: the rig file, the output folder (must be
+creatable and writable), the image file (exists, non-empty, decodable), the image size against the rig,
+the options; the geometry (views that do not overlap) is checked by rectification before matching.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from prismstereo.errors import ConfigError, OutputError
+
+__all__ = ["check_output_dir", "demo_command", "depth_command"]
+
+
+def check_output_dir(path: str | os.PathLike[str]) -> None:
+    """Fail early (OutputError) if ``path`` cannot become a writable folder; creates nothing."""
+    p = Path(path).absolute()
+    if p.exists() and not p.is_dir():
+        raise OutputError(f"expected an output folder, got {str(path)!r} (an existing file)")
+    probe = p
+    while not probe.exists():
+        probe = probe.parent
+    if not probe.is_dir():
+        raise OutputError(f"expected a writable output folder, got {str(path)!r} ({str(probe)!r} is a file)")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise OutputError(f"expected a writable output folder, got {str(path)!r} (permission denied)")
+
+
+def _resolve_views(views: Any, faces: int) -> tuple[int, int] | None:
+    if views is None:
+        return None
+    if views == "all":
+        if faces == 2:
+            return None
+        raise ConfigError(f"--views: expected a pair I,J for depth with a {faces}-face prism, got 'all' "
+                          "(multi-view matching of all faces: prismstereo multiview)")
+    if len(views) != 2:
+        raise ConfigError(f"--views: expected two faces I,J, got {','.join(map(str, views))}")
+    return int(views[0]), int(views[1])
+
+
+def depth_command(rig_path: str, image_path: str, out_dir: str, *, method: str = "bpasw",
+                  params: dict[str, Any] | None = None, depth_range: tuple[float, float] = (800.0, 5000.0),
+                  roi: tuple[int, int, int, int] | None = None, views: Any = None,
+                  triangulation: str = "exact", calibration: str = "fit", gt: str | None = None,
+                  refine: bool = True) -> str:
+    """Run ``prismstereo depth`` and return the lines to print."""
+    from prismstereo.config import load_rig
+    from prismstereo.depth.outputs import write_depth_outputs
+    from prismstereo.depth.pipeline import DepthConfig, run_depth, validate_inputs
+    from prismstereo.evaluation.depth_metrics import evaluate_depth, format_accuracy
+    from prismstereo.io import read_image, read_pfm
+    from prismstereo.matching import get_matcher
+
+    rig = load_rig(rig_path)
+    check_output_dir(out_dir)
+    image = read_image(image_path)
+    config = DepthConfig(method=method, matcher_params=dict(params or {}), depth_range=depth_range, roi=roi,
+                         views=_resolve_views(views, rig.prism.faces), triangulation=triangulation,
+                         calibration=calibration, refine=refine)
+    validate_inputs(rig, image, config)
+    get_matcher(config.method, **config.matcher_params)  # parameters checked before the heavy work
+    depth_gt = None
+    if gt is not None:
+        depth_gt = read_pfm(gt)
+        if depth_gt.shape != (rig.camera.height, rig.camera.width):
+            raise ConfigError(f"--gt: expected a {rig.camera.width}×{rig.camera.height} depth map, got "
+                              f"{depth_gt.shape[1]}×{depth_gt.shape[0]}")
+    res = run_depth(rig, image, config=config)
+    lines = []
+    if depth_gt is not None:
+        acc = evaluate_depth(res, depth_gt=np.asarray(depth_gt, dtype=np.float64))
+        lines.append(format_accuracy(acc))
+    outputs = write_depth_outputs(res, out_dir, extra={"inputs": {"rig": str(rig_path), "image": str(image_path),
+                                                                 "gt": gt}})
+    c = res.counts()
+    t = res.timings
+    lines.insert(0, f"depth: faces {res.faces[0]} (left) and {res.faces[1]} (right), "
+                    f"d in [{res.disparity_range[0]}, {res.disparity_range[1]}] px, {c['points']} points "
+                    f"({100.0 * c['points'] / max(c['region_pixels'], 1):.1f} % of the view), {t['total']:.1f} s "
+                    f"(" + ", ".join(f"{k} {v:.1f}" for k, v in t.items() if k not in ("total", "validate")) + ")")
+    lines.append(f"wrote {', '.join(p.name for p in outputs.values())} to {out_dir}")
+    return "\n".join(lines)
+
+
+def demo_command(out_dir: str, *, method: str = "bpasw") -> str:
+    """Run ``prismstereo demo`` and return the lines to print."""
+    from prismstereo.depth.demo import run_demo
+    from prismstereo.depth.pipeline import DepthConfig
+
+    check_output_dir(out_dir)
+    return run_demo(out_dir, config=DepthConfig(method=method)).summary()
