@@ -93,8 +93,8 @@ def to_lab(image: np.ndarray) -> np.ndarray:
 def window_offsets(radius: int, dilation: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Offsets ``(dy, dx)`` of a square window sampled every ``dilation`` pixels, and their distances."""
     steps = np.arange(-(radius // dilation), radius // dilation + 1) * dilation
-    dy, dx = np.meshgrid(steps, steps, indexing="ij")
-    dy, dx = dy.ravel().astype(np.int64), dx.ravel().astype(np.int64)
+    gy, gx = np.meshgrid(steps, steps, indexing="ij")
+    dy, dx = gy.ravel().astype(np.int64), gx.ravel().astype(np.int64)
     return dy, dx, np.sqrt(dy.astype(np.float64) ** 2 + dx**2)
 
 

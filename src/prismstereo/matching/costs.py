@@ -92,7 +92,7 @@ def cost_ad(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int
     """
     invalid = 255.0 if truncation is None else float(truncation)
     vol = _shifted_abs_diff(_channels(left), _channels(right), int(min_disp), _ndisp(max_disp, min_disp),
-                            np.float32(invalid))
+                            float(invalid))
     if truncation is not None:
         np.minimum(vol, np.float32(truncation), out=vol)
     return vol
@@ -118,7 +118,7 @@ def cost_gradient(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_dis
     rg = np.stack([rx, ry], axis=2)
     invalid = 255.0 if truncation is None else float(truncation)
     # _shifted_abs_diff averages over channels; the measure is the sum of the two terms
-    vol = _shifted_abs_diff(lg, rg, int(min_disp), _ndisp(max_disp, min_disp), np.float32(invalid / 2.0))
+    vol = _shifted_abs_diff(lg, rg, int(min_disp), _ndisp(max_disp, min_disp), float(invalid / 2.0))
     vol *= np.float32(2.0)
     if truncation is not None:
         np.minimum(vol, np.float32(truncation), out=vol)
@@ -202,9 +202,8 @@ def cost_ncc(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: in
     def blur(a: np.ndarray) -> np.ndarray:
         return cv2.blur(a, k, borderType=border)
 
-    ml, mr = blur(lg), blur(rg)
+    ml = blur(lg)
     vl = np.maximum(blur(lg * lg) - ml * ml, 0.0) + eps
-    vr = np.maximum(blur(rg * rg) - mr * mr, 0.0) + eps
     nd = _ndisp(max_disp, min_disp)
     out = np.full((h, w, nd), 2.0, dtype=np.float32)
     for i in range(nd):  # loop over disparities, not pixels
@@ -214,14 +213,11 @@ def cost_ncc(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: in
         rs = np.empty_like(rg)
         rs[:, d:] = rg[:, : w - d]
         rs[:, :d] = rg[:, :1]
-        mrs = np.empty_like(mr)
-        mrs[:, d:] = mr[:, : w - d]
-        mrs[:, :d] = mr[:, :1]
-        vrs = np.empty_like(vr)
-        vrs[:, d:] = vr[:, : w - d]
-        vrs[:, :d] = vr[:, :1]
+        # statistics of the shifted image computed on it (consistent borders with the cross term)
+        mrs = blur(rs)
+        vrs = np.maximum(blur(rs * rs) - mrs * mrs, 0.0) + eps
         cross = blur(lg * rs) - ml * mrs
-        zncc = cross / np.sqrt(vl * vrs)
+        zncc = np.clip(cross / np.sqrt(vl * vrs), -1.0, 1.0)
         out[:, d:, i] = (1.0 - zncc[:, d:]).astype(np.float32)
     return out
 
@@ -283,7 +279,7 @@ def cost_census(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp:
     cl = census_transform(left, window=window)
     cr = census_transform(right, window=window)
     nbits = window[0] * window[1] - 1
-    return _hamming_volume(cl, cr, int(min_disp), _ndisp(max_disp, min_disp), np.float32(nbits))
+    return _hamming_volume(cl, cr, int(min_disp), _ndisp(max_disp, min_disp), float(nbits))
 
 
 def invalid_cost_value(kind: str) -> float:

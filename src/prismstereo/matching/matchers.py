@@ -10,7 +10,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -172,12 +172,12 @@ class BPASWMatcher(LocalMatcher):
         if self.census_weight > 0:
             cen = costs.cost_census(left, right, max_disp=max_disp, min_disp=min_disp)
             vol += np.float32(self.census_weight) * cen
-        kw = dict(radius=self.radius, dilation=self.dilation, min_disp=min_disp, kernel=self.kernel,
+        kw: dict[str, Any] = dict(radius=self.radius, dilation=self.dilation, min_disp=min_disp, kernel=self.kernel,
                   similarity_s0=self.similarity_s0, gamma_color=self.gamma_color,
                   gamma_proximity=self.gamma_proximity)
-        agg = aggregation.aggregate_bpasw(vol, left, right, **kw)  # type: ignore[arg-type]
+        agg = aggregation.aggregate_bpasw(vol, left, right, **kw)
         if self.continuity:
             prior = np.argmin(agg, axis=2)
-            agg = aggregation.aggregate_bpasw(vol, left, right, prior=prior,  # type: ignore[arg-type]
+            agg = aggregation.aggregate_bpasw(vol, left, right, prior=prior,
                                               continuity_weight=self.continuity_weight, **kw)
         return agg

@@ -112,13 +112,12 @@ def get_matcher(name: str, **params: Any) -> Matcher:
         raise ConfigError(f"expected a method among {', '.join(sorted(_REGISTRY))}, got {name!r}")
     factory = _REGISTRY[key]
     try:
-        sig = inspect.signature(factory)
-        accepts_any = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in sig.parameters.values())
-        if not accepts_any:
-            unknown = sorted(set(params) - set(sig.parameters))
-            if unknown:
-                allowed = ", ".join(p for p in sig.parameters if p != "self")
-                raise ConfigError(f"expected parameters of method {key!r} among {allowed}, got {unknown}")
+        sig: inspect.Signature | None = inspect.signature(factory)
     except (TypeError, ValueError):
-        pass
+        sig = None
+    if sig is not None and not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in sig.parameters.values()):
+        unknown = sorted(set(params) - set(sig.parameters))
+        if unknown:
+            allowed = ", ".join(p for p in sig.parameters if p != "self")
+            raise ConfigError(f"expected parameters of method {key!r} among {allowed}, got {unknown}")
     return factory(**params)

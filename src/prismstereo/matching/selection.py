@@ -70,7 +70,7 @@ def right_cost_volume(cost: np.ndarray, *, min_disp: int = 0) -> np.ndarray:
     """
     vol = np.ascontiguousarray(_check_volume(cost), dtype=np.float32)
     fill = float(np.nanmax(vol)) if vol.size else 0.0
-    return _diagonal_volume(vol, int(min_disp), np.float32(fill))
+    return _diagonal_volume(vol, int(min_disp), fill)
 
 
 def right_disparity(cost: np.ndarray, *, min_disp: int = 0) -> np.ndarray:

@@ -63,7 +63,7 @@ class SGBMMatcher:
         b = self.block_size
         modes = {"hh": cv2.STEREO_SGBM_MODE_HH, "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
                  "3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY, "hh4": cv2.STEREO_SGBM_MODE_HH4}
-        sgbm = cv2.StereoSGBM_create(
+        sgbm = cv2.StereoSGBM_create(  # type: ignore[attr-defined]
             minDisparity=int(min_disp), numDisparities=ndisp, blockSize=b,
             P1=self.p1_factor * cn * b * b, P2=self.p2_factor * cn * b * b,
             disp12MaxDiff=self.disp12_max_diff, preFilterCap=self.pre_filter_cap,
