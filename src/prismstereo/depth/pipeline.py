@@ -85,6 +85,10 @@ class DepthConfig:
         refine_disparity`) before triangulating.
     refine_radius : int
         Half-size of the refinement window, px.
+    min_confidence : float or None
+        With ``refine``: keep only matches that the refinement could refine (textured window, inside
+        both views, within a pixel of the matcher's value) and whose windows then correlate (ZNCC) at
+        least this much. None keeps every match.
     """
 
     method: str = "bpasw"
@@ -98,6 +102,7 @@ class DepthConfig:
     max_gap_mm: float | None = None
     refine: bool = True
     refine_radius: int = 3
+    min_confidence: float | None = 0.8
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -154,12 +159,13 @@ class DepthResult:
     depth: np.ndarray | None = None
     gaps: np.ndarray | None = None
     valid: np.ndarray | None = None
-    roi_mask: np.ndarray | None = None
+    roi_mask: np.ndarray | None = None  # pixels matched: ROI ∩ common view of the two faces
     disparity_range: tuple[int, int] = (0, 0)
     timings: dict[str, float] = field(default_factory=dict)
     match_timings: dict[str, float] = field(default_factory=dict)
     accuracy: dict[str, Any] | None = None
     ground_truth: Any = None
+    confidence: np.ndarray | None = None
 
     @property
     def faces(self) -> tuple[int, int]:
@@ -306,28 +312,78 @@ def _stage_cameras(st: DepthResult) -> None:
     st.views = calibrate_rig(st.rig, method=st.config.calibration)
 
 
+def common_view(pair: Any, depth_min_mm: float, depth_max_mm: float, *, n_depths: int = 12
+                ) -> tuple[np.ndarray, tuple[int, int]]:
+    """Where the two rectified views of a pair overlap for world depths in a range, and its disparities.
+
+    The ray of every valid rectified-left pixel is followed to ``n_depths`` world depths between the
+    bounds (geometric steps); a sample counts where its point projects into the valid region of the
+    rectified right image (thesis Eq. 7.22: d = f λ / Z along the rectified axis).
+
+    Returns
+    -------
+    mask : (h, w) bool
+        Left pixels that see a point of the right view at some depth in the range.
+    (min_disp, max_disp) : ints
+        Floor / ceil of the disparities of those samples: the search range clipped to the common view.
+
+    Raises
+    ------
+    GeometryError
+        If no sample is seen by both views: the views do not overlap at these depths.
+    """
+    vl, vr = (np.asarray(m, dtype=bool) for m in pair.valid_masks())
+    ys, xs = np.nonzero(vl)
+    mask = np.zeros(vl.shape, dtype=bool)
+    if ys.size == 0:
+        raise GeometryError("expected a rectified left view with valid pixels, got none")
+    px = np.stack([xs, ys], axis=1).astype(np.float64)
+    K = np.asarray(pair.K, dtype=np.float64)
+    R = np.asarray(pair.R_left, dtype=np.float64)
+    C = np.asarray(pair.C_left, dtype=np.float64)
+    rays = np.concatenate([px, np.ones((px.shape[0], 1))], axis=1) @ np.linalg.inv(K).T @ R  # world dirs
+    seen = np.zeros(ys.size, dtype=bool)
+    lo, hi = np.inf, -np.inf
+    for z in np.geomspace(depth_min_mm, depth_max_mm, n_depths):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = (z - C[2]) / rays[:, 2]
+        X = C + np.where(s > 0, s, np.nan)[:, None] * rays
+        xr = np.asarray(pair.project(X, "right"), dtype=np.float64)
+        ok = np.all(np.isfinite(xr), axis=1)
+        ci = np.rint(np.where(ok, xr[:, 0], -1)).astype(np.int64)
+        ri = np.rint(np.where(ok, xr[:, 1], -1)).astype(np.int64)
+        ok &= (ci >= 0) & (ci < vr.shape[1]) & (ri >= 0) & (ri < vr.shape[0])
+        ok[ok] &= vr[ri[ok], ci[ok]]
+        if ok.any():
+            d = px[ok, 0] - xr[ok, 0]
+            lo, hi = min(lo, float(d.min())), max(hi, float(d.max()))
+        seen |= ok
+    if not seen.any():
+        raise GeometryError(f"expected faces {pair.left_face} and {pair.right_face} to see a common part of the "
+                            f"scene at {depth_min_mm:g}–{depth_max_mm:g} mm, got views that do not overlap "
+                            "(choose other --views or --depth-range)")
+    mask[ys[seen], xs[seen]] = True
+    return mask, (max(0, int(np.floor(lo))), int(np.ceil(hi)))
+
+
 @register_stage("rectify")
 def _stage_rectify(st: DepthResult) -> None:
     try:
-        from prismstereo.rectify import disparity_range, rectify_pair
-    except ImportError:  # the package may not re-export them
-        from prismstereo.rectify.rectification import disparity_range, rectify_pair
+        from prismstereo.rectify import rectify_pair
+    except ImportError:  # the package may not re-export it
+        from prismstereo.rectify.rectification import rectify_pair
 
     assert st.config.views is not None
     by_face = {v.face: v for v in st.views}
     a, b = st.config.views
     st.pair = rectify_pair(st.rig, by_face[a], by_face[b])
+    zmin, zmax = st.config.depth_range
+    common, (lo, hi) = common_view(st.pair, zmin, zmax)
     left, right = st.pair.rectify_images(st.image)
     st.left, st.right = np.asarray(left), np.asarray(right)
-    zmin, zmax = st.config.depth_range
-    lo, hi = disparity_range(st.pair, zmin, zmax)
-    lo, hi = max(0, int(math.floor(lo))), int(math.ceil(hi))
     width = st.left.shape[1]
     hi = min(hi, width - 1)
-    vl, vr = (np.asarray(m, dtype=bool) for m in st.pair.valid_masks())
-    if hi < lo or not vl.any() or not vr.any():
-        raise GeometryError(f"expected views {a} and {b} to share a common view at {zmin:g}–{zmax:g} mm, "
-                            "got none (choose other --views or --depth-range)")
+    lo = min(lo, hi)
     st.disparity_range = (lo, hi)
     h = st.left.shape[0]
     mask = np.zeros((h, width), dtype=bool)
@@ -339,7 +395,7 @@ def _stage_rectify(st: DepthResult) -> None:
         mask[y:y + h_, x:x + w_] = True
     else:
         mask[:] = True
-    st.roi_mask = mask & vl
+    st.roi_mask = mask & common
 
 
 def _roi_box(mask: np.ndarray) -> tuple[int, int, int, int]:
@@ -444,8 +500,13 @@ def _stage_refine(st: DepthResult) -> None:
         return
     assert st.left is not None and st.right is not None and st.disparity is not None
     vl, vr = st.pair.valid_masks()
-    st.disparity = refine_disparity(st.left, st.right, st.disparity, radius=st.config.refine_radius,
-                                    valid_left=vl, valid_right=vr)
+    disp, conf = refine_disparity(st.left, st.right, st.disparity, radius=st.config.refine_radius,
+                                  valid_left=vl, valid_right=vr)
+    st.confidence = conf
+    if st.config.min_confidence is not None:
+        with np.errstate(invalid="ignore"):
+            disp = np.where(conf >= st.config.min_confidence, disp, np.float32(np.nan))
+    st.disparity = disp
 
 
 @register_stage("triangulate")

@@ -39,7 +39,7 @@ def refine_disparity(
     min_texture: float = 1.0,
     valid_left: np.ndarray | None = None,
     valid_right: np.ndarray | None = None,
-) -> np.ndarray:
+) -> tuple[np.ndarray, np.ndarray]:
     """Refine a disparity map to sub-pixel precision (module docstring).
 
     Parameters
@@ -61,13 +61,19 @@ def refine_disparity(
 
     Returns
     -------
-    (H, W) float32 refined disparity, NaN where the input was NaN.
+    disparity : (H, W) float32
+        Refined disparity; the input value where it could not be refined, NaN where the input was NaN.
+    confidence : (H, W) float32
+        Zero-mean normalised cross-correlation of the two windows at the refined disparity, in [−1, 1];
+        NaN where the pixel was not refined (border, no texture, invalid region, or the update hit the
+        ±``max_shift`` bound, i.e. the matcher's disparity was more than a pixel off).
     """
     L = _gray(left)
     R = _gray(right)
     d0 = np.asarray(disparity, dtype=np.float32)
     h, w = d0.shape
     out = d0.copy()
+    conf = np.full(d0.shape, np.nan, dtype=np.float32)
     finite = np.isfinite(d0)
     k = 2 * radius + 1
     ok = finite.copy()
@@ -79,7 +85,7 @@ def refine_disparity(
     ok[:, :radius] = ok[:, w - radius:] = False
     ys, xs = np.nonzero(ok)
     if ys.size == 0:
-        return out
+        return out, conf
     Rx = cv2.Sobel(R, cv2.CV_32F, 1, 0, ksize=3, scale=1.0 / 8.0)
     oy, ox = np.mgrid[-radius:radius + 1, -radius:radius + 1]
     ox = ox.ravel().astype(np.float32)
@@ -109,7 +115,14 @@ def refine_disparity(
                 step = np.where(textured, num / den, 0.0).astype(np.float32)
             # r = L − R(x − d): dr/dd = +R_x, so the Gauss–Newton step is −Σ r J / Σ J²
             d = np.clip(d - np.clip(step, -0.5, 0.5), init - max_shift, init + max_shift)
-        keep = textured & np.isfinite(d)
+        # final correlation of the windows
+        Xm = (x[:, None].astype(np.float32) + ox[None, :]) - d[:, None]
+        Rw = cv2.remap(R, Xm, Ym, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        Rz = Rw - Rw.mean(axis=1, keepdims=True)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            zncc = np.einsum("nm,nm->n", Lw, Rz) / np.sqrt(np.einsum("nm,nm->n", Lw, Lw) *
+                                                             np.einsum("nm,nm->n", Rz, Rz))
+        keep = textured & np.isfinite(d) & (np.abs(d - init) < max_shift - 1e-3)
         if bad_r is not None:
             xr = np.rint(x - d).astype(np.int64)
             inside = (xr >= 0) & (xr < w)
@@ -117,4 +130,5 @@ def refine_disparity(
             hit[inside] = bad_r[y[inside], xr[inside]]
             keep &= ~hit
         out[y[keep], x[keep]] = d[keep]
-    return out
+        conf[y[keep], x[keep]] = zncc[keep]
+    return out, conf
