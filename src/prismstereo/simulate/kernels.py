@@ -27,8 +27,9 @@ from prismstereo.simulate.scene import (
     Texture,
 )
 
-# primitive kinds
-RECT, SPHERE, PLANE = 0, 1, 2
+# primitive kinds; BOUND is a bounding sphere (centre, radius at column 13) that guards the next
+# ``int(row[14])`` primitives: a ray that misses it skips them (the six faces of a box).
+RECT, SPHERE, PLANE, BOUND = 0, 1, 2, 3
 # texture kinds
 T_SOLID, T_CHECKER, T_NOISE, T_IMAGE = 0, 1, 2, 3
 
@@ -131,6 +132,9 @@ def compile_scene(scene: Scene) -> CompiledScene:
             a, b = obj.size[0] / 2.0, obj.size[1] / 2.0
             prims.append(_prim(RECT, c, obj.matrix, a, b, obj_id, 0, (2 * a, 2 * b), (a, b)))
         elif isinstance(obj, Box):
+            bound = _prim(BOUND, c, np.eye(3), 0.5 * math.hypot(*obj.size) * (1 + 1e-9), 6, obj_id, 0,
+                          (0.0, 0.0), (0.0, 0.0))
+            prims.append(bound)
             for k, (fc, axes, a, b) in enumerate(_box_faces(obj)):
                 prims.append(_prim(RECT, fc, axes, a, b, obj_id, k, (2 * a, 2 * b), (a, b)))
         elif isinstance(obj, Sphere):
@@ -140,10 +144,9 @@ def compile_scene(scene: Scene) -> CompiledScene:
             prims.append(_prim(PLANE, c, obj.matrix, math.inf, math.inf, obj_id, 0, (0.0, 0.0), (0, 0)))
         else:  # pragma: no cover
             raise TypeError(f"unknown scene object {obj!r}")
-        prims[-1][15] = tex_id
-        if isinstance(obj, Box):
-            for p in prims[-6:]:
-                p[15] = tex_id
+        n_rows = 7 if isinstance(obj, Box) else 1
+        for row in prims[-n_rows:]:
+            row[15] = tex_id
     prim_arr = np.stack(prims) if prims else np.zeros((0, PRIM_WIDTH))
     tex_arr = np.stack(tex_rows) if tex_rows else np.zeros((0, TEX_WIDTH))
     pix = np.concatenate(chunks).astype(np.float32) if chunks else np.zeros(1, np.float32)
@@ -298,11 +301,21 @@ def trace_scene_kernel(origins: np.ndarray, directions: np.ndarray, prims: np.nd
         best_p = -1
         if math.isfinite(ox + oy + oz + dx + dy + dz):
             dd = dx * dx + dy * dy + dz * dz
-            for p in range(n_prims):
+            p = -1
+            while p + 1 < n_prims:
+                p += 1
                 kind = prims[p, 0]
                 cx = prims[p, 1] - ox
                 cy = prims[p, 2] - oy
                 cz = prims[p, 3] - oz
+                if kind == 3:
+                    # bounding sphere: skip the guarded primitives unless the ray meets it before best_t
+                    b = dx * cx + dy * cy + dz * cz
+                    cc = cx * cx + cy * cy + cz * cz - prims[p, 13] * prims[p, 13]
+                    disc = b * b - dd * cc
+                    if disc < 0.0 or (b + math.sqrt(disc)) <= 0.0 or (b - math.sqrt(disc)) / dd >= best_t:
+                        p += int(prims[p, 14])
+                    continue
                 if kind == 1:
                     # |o + t d − c|² = R²  with  w = c − o
                     b = dx * cx + dy * cy + dz * cz
