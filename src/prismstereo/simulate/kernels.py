@@ -273,7 +273,7 @@ def _texture(tex: np.ndarray, pixels: np.ndarray, s: float, t: float, ext_s: flo
     return r, g, b
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, parallel=True, nogil=True)
 def trace_scene_kernel(origins: np.ndarray, directions: np.ndarray, prims: np.ndarray, textures: np.ndarray,
                        pixels: np.ndarray, shading: float, light: np.ndarray, distance: np.ndarray,
                        object_id: np.ndarray, points: np.ndarray, colors: np.ndarray) -> None:
@@ -399,7 +399,7 @@ def trace_scene_kernel(origins: np.ndarray, directions: np.ndarray, prims: np.nd
         colors[r, 2] = np.float32(cb * f)
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, parallel=True, nogil=True)
 def average_samples_kernel(colors: np.ndarray, valid: np.ndarray, n_samples: int, background: np.ndarray,
                            out: np.ndarray) -> None:
     """Average the colours of each pixel's valid samples.

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -216,16 +217,16 @@ def render_capture(
     points = np.empty((H, W, 3))
     object_ids = np.empty((H, W), dtype=np.int16)
 
-    # Rays are traced in small chunks (numpy is fastest in cache) into blocks of ~256k rays that go to the
-    # parallel numba kernels in one call each (few parallel launches).
+    # Rays are traced (numpy, prismstereo.optics) in small chunks, which is fastest in cache, into blocks of
+    # ~256k rays; each block then goes to the parallel numba kernels in one call. A helper thread traces
+    # the next block while the kernels (which release the GIL) shade the current one.
     per_row = W * (n_samp + 1)
     block_rows = max(1, _RAYS_PER_BLOCK // per_row)
     chunk_rays = max(1, _RAYS_PER_CHUNK // per_row) * per_row
     us = np.arange(W, dtype=np.float64)
-    for r0 in range(0, H, block_rows):
+
+    def trace_block(r0: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         r1 = min(H, r0 + block_rows)
-        h = r1 - r0
-        nc = h * W
         vv, uu = np.meshgrid(np.arange(r0, r1, dtype=np.float64), us, indexing="ij")
         centres = np.stack([uu, vv], axis=-1)  # (h, W, 2)
         samples = centres[:, :, None, :] + offsets[None, None, :, :]  # (h, W, S, 2)
@@ -238,16 +239,28 @@ def render_capture(
         for c0 in range(0, n, chunk_rays):
             c1 = min(n, c0 + chunk_rays)
             origins[c0:c1], dirs[c0:c1], face[c0:c1], valid[c0:c1] = _trace(rig, px[c0:c1], prism)
-        hits = intersect_scene(origins, dirs, compiled, shading=scene.shading)
-        # pixel-centre ground truth
-        faces[r0:r1] = np.where(valid[:nc], face[:nc], NO_FACE).reshape(h, W).astype(np.uint8)
-        points[r0:r1] = hits.points[:nc].reshape(h, W, 3)
-        depth[r0:r1] = hits.points[:nc, 2].reshape(h, W)
-        object_ids[r0:r1] = hits.object_id[:nc].reshape(h, W)
-        # colour: average of the valid samples; valid rays that hit nothing see the background
-        avg = np.empty((nc, 3), dtype=np.float32)
-        average_samples_kernel(hits.colors[nc:], np.ascontiguousarray(valid[nc:]), n_samp, background, avg)
-        image[r0:r1] = avg.reshape(h, W, 3)
+        return origins, dirs, face, valid
+
+    starts = list(range(0, H, block_rows))
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        pending = pool.submit(trace_block, starts[0])
+        for i, r0 in enumerate(starts):
+            origins, dirs, face, valid = pending.result()
+            if i + 1 < len(starts):
+                pending = pool.submit(trace_block, starts[i + 1])
+            r1 = min(H, r0 + block_rows)
+            h = r1 - r0
+            nc = h * W
+            hits = intersect_scene(origins, dirs, compiled, shading=scene.shading)
+            # pixel-centre ground truth
+            faces[r0:r1] = np.where(valid[:nc], face[:nc], NO_FACE).reshape(h, W).astype(np.uint8)
+            points[r0:r1] = hits.points[:nc].reshape(h, W, 3)
+            depth[r0:r1] = hits.points[:nc, 2].reshape(h, W)
+            object_ids[r0:r1] = hits.object_id[:nc].reshape(h, W)
+            # colour: average of the valid samples; valid rays that hit nothing see the background
+            avg = np.empty((nc, 3), dtype=np.float32)
+            average_samples_kernel(hits.colors[nc:], np.ascontiguousarray(valid[nc:]), n_samp, background, avg)
+            image[r0:r1] = avg.reshape(h, W, 3)
 
     out = image * np.float32(255.0)
     if sigma > 0:
