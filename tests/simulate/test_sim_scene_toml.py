@@ -126,3 +126,29 @@ def test_examples_load(name: str) -> None:
         pytest.skip(f"{name} not present")
     rig, scene = load_scene(path)
     assert len(scene.objects) >= 3
+
+
+def test_builtin_robot_scene_matches_the_example_file() -> None:
+    from prismstereo.io import read_image
+    from prismstereo.simulate import ImageTexture as ImgTex
+    from prismstereo.simulate import panel_texture_image, robot_scene
+
+    path = REPO / "examples" / "biprism_robot.toml"
+    if not path.exists():
+        pytest.skip("examples/ not present")
+    rig_f, scene_f = load_scene(path)
+    rig_b, scene_b = robot_scene(width=1024)
+    assert rig_b == rig_f
+    assert (scene_b.background, scene_b.shading, scene_b.supersample) == (
+        scene_f.background, scene_f.shading, scene_f.supersample)
+    for a, b in zip(scene_f.objects, scene_b.objects, strict=True):
+        assert (type(a), a.name, a.center) == (type(b), b.name, b.center)
+        assert getattr(a, "size", None) == getattr(b, "size", None)
+        assert getattr(a, "radius", None) == getattr(b, "radius", None)
+        np.testing.assert_allclose(a.matrix, b.matrix, atol=1e-12)
+        if isinstance(a.texture, ImgTex):
+            assert isinstance(b.texture, ImgTex)
+            np.testing.assert_array_equal(a.texture.image, b.texture.image)
+        else:
+            assert a.texture == b.texture
+    np.testing.assert_array_equal(read_image(REPO / "examples" / "textures" / "panel.png"), panel_texture_image())

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from prismstereo.simulate.builtin import panel_texture_image, robot_objects, robot_scene
 from prismstereo.simulate.checkerboard import (
     BoardPose,
     board_corners,
@@ -37,6 +38,9 @@ __all__ = [
     "board_visible",
     "checkerboard_poses",
     "load_scene",
+    "panel_texture_image",
+    "robot_objects",
+    "robot_scene",
     "scene_from_dict",
     "scene_to_dict",
     "scene_to_toml",
