@@ -103,8 +103,7 @@ def write_depth_report(
         dlo, dhi = np.percentile(disparity[finite_d], [1, 99])
     else:
         dlo, dhi = 0.0, 1.0
-    cmap = plt.get_cmap("turbo").copy()
-    cmap.set_bad("black")
+    cmap = plt.get_cmap("turbo").with_extremes(bad="black")
     im = ax[2].imshow(d_masked, cmap=cmap, vmin=dlo, vmax=dhi)
     ax[2].set_title("disparity (px), rectified left view")
     fig.colorbar(im, ax=ax[2], fraction=0.046, pad=0.04, label="px")
@@ -113,8 +112,7 @@ def write_depth_report(
         zlo, zhi = np.percentile(depth[finite_z], [1, 99])
     else:
         zlo, zhi = 0.0, 1.0
-    cmap_r = plt.get_cmap("turbo_r").copy()
-    cmap_r.set_bad("black")
+    cmap_r = plt.get_cmap("turbo_r").with_extremes(bad="black")
     im = ax[3].imshow(np.ma.masked_invalid(depth), cmap=cmap_r, vmin=zlo, vmax=zhi)
     ax[3].set_title("depth Z (mm), rectified left view")
     fig.colorbar(im, ax=ax[3], fraction=0.046, pad=0.04, label="mm")

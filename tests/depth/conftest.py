@@ -1,0 +1,29 @@
+"""Small simulated captures shared by the depth tests (half-resolution thesis bi-prism rig)."""
+
+from __future__ import annotations
+
+import pytest
+
+from prismstereo.depth.demo import demo_rig, plane_scene
+
+
+@pytest.fixture(scope="session")
+def plane_capture():
+    """(rig, scene, capture): a textured plane at 1.2 m turned 25°, seen by the demo rig (512×384)."""
+    from prismstereo.simulate import render_capture
+
+    rig = demo_rig()
+    scene = plane_scene(1200.0, tilt_deg=25.0)
+    return rig, scene, render_capture(rig, scene)
+
+
+@pytest.fixture(scope="session")
+def plane_run(plane_capture):
+    """The default depth run on :func:`plane_capture`, evaluated against the scene."""
+    from prismstereo.depth import DepthConfig, run_depth
+    from prismstereo.evaluation.depth_metrics import evaluate_depth
+
+    rig, scene, cap = plane_capture
+    res = run_depth(rig, cap.image, config=DepthConfig())
+    evaluate_depth(res, scene=scene)
+    return res
