@@ -49,9 +49,9 @@ def robot_objects(*, panel: np.ndarray | None = None) -> tuple[SceneObject, ...]
     img = panel_texture_image() if panel is None else panel
     return (
         Plane(center=(0.0, 0.0, 2200.0), rotation=rotation_from_normal((0.0, 0.0, -1.0)), name="wall",
-              texture=NoiseTexture(scale=90.0, octaves=7, persistence=0.7, contrast=2.5, seed=11)),
+              texture=NoiseTexture(scale=90.0, octaves=7, persistence=0.8, contrast=2.5, seed=11)),
         Rectangle(center=(0.0, 105.0, 1650.0), size=(700.0, 1100.0), rotation=rotation_from_normal((0.0, -1.0, 0.0)),
-                  name="floor", texture=NoiseTexture(scale=60.0, octaves=7, persistence=0.65, contrast=2.2, seed=12)),
+                  name="floor", texture=NoiseTexture(scale=60.0, octaves=7, persistence=0.75, contrast=2.2, seed=12)),
         Box(center=(0.0, 10.0, 1500.0), size=(56.0, 66.0, 40.0), rotation=(0.0, 20.0, 0.0), name="torso",
             texture=NoiseTexture(scale=25.0, octaves=6, seed=13)),
         Sphere(center=(0.0, -47.0, 1480.0), radius=21.0, rotation=(0.0, 30.0, 0.0), name="head",

@@ -146,7 +146,7 @@ class NoiseTexture:
 
     scale: float = 50.0
     octaves: int = 6
-    persistence: float = 0.7
+    persistence: float = 0.8
     contrast: float = 2.5
     seed: int = 0
 

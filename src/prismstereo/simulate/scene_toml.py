@@ -31,7 +31,7 @@ Example::
     # normal = [0.0, 0.0, -1.0]   # ... or the direction the front faces, with optional spin = degrees
     [objects.texture]
     type = "noise"                # "noise" | "checker" | "image" | "solid"
-    scale = 30.0                  # mm, coarsest feature; octaves = 6, persistence = 0.7, contrast = 2.5, seed
+    scale = 30.0                  # mm, coarsest feature; octaves = 6, persistence = 0.8, contrast = 2.5, seed
     # checker: square = 10.0, colors = [[0,0,0],[1,1,1]], squares = [9, 7], margin = 10.0, border_color
     # image:   path = "textures/robot.png" (relative to the scene file), size = [w_mm, h_mm] (optional)
     # solid:   color = [0.8, 0.2, 0.1]
@@ -174,7 +174,7 @@ def _texture(where: str, t: Any, *, default_seed: int, base_dir: Path, obj_type:
         return NoiseTexture(
             scale=_num(where, "scale", t.get("scale", 50.0), positive=True),
             octaves=_int(where, "octaves", t.get("octaves", 6), lo=1, hi=16),
-            persistence=_num(where, "persistence", t.get("persistence", 0.7), lo=0.0, hi=1.0),
+            persistence=_num(where, "persistence", t.get("persistence", 0.8), lo=0.0, hi=1.0),
             contrast=_num(where, "contrast", t.get("contrast", 2.5), positive=True),
             seed=_int(where, "seed", t.get("seed", default_seed), lo=0),
         )
