@@ -110,7 +110,7 @@ def _sim(d2: float, kernel: int, s0: float, s_min: float, log_norm: float) -> fl
     return np.exp(-s / s0)  # Yoon–Kweon exp kernel, s0 = gamma
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, fastmath=True)
 def _bpasw_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, dys: np.ndarray,
                   dxs: np.ndarray, prox: np.ndarray, min_disp: int, kernel: int, s0: float,
                   s_min: float, prior: np.ndarray, use_prior: bool, cont_w: float,
@@ -120,7 +120,8 @@ def _bpasw_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, dys: n
     log_norm = 1.0 / np.log(s0 / s_min) if kernel == 0 else 1.0
     out = np.empty((h, w, nd), dtype=np.float32)
     for y in prange(h):
-        # right-image similarity weights of this row: wr[k, xr] between (y, xr) and (y+dy, xr+dx)
+        # right-image similarity weights of this row between (y, xr) and (y+dy, xr+dx), stored reversed,
+        # wr[k, w-1-xr], so that the inner loop over disparities reads memory forwards (SIMD)
         wr = np.zeros((nk, w), dtype=np.float32)
         if symmetric:
             for k in range(nk):
@@ -134,7 +135,7 @@ def _bpasw_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, dys: n
                     a = lab_r[y, xr, 0] - lab_r[qy, qx, 0]
                     b = lab_r[y, xr, 1] - lab_r[qy, qx, 1]
                     c = lab_r[y, xr, 2] - lab_r[qy, qx, 2]
-                    wr[k, xr] = _sim(a * a + b * b + c * c, kernel, s0, s_min, log_norm) * prox[k]
+                    wr[k, w - 1 - xr] = _sim(a * a + b * b + c * c, kernel, s0, s_min, log_norm) * prox[k]
         num = np.empty(nd, dtype=np.float32)
         den = np.empty(nd, dtype=np.float32)
         for x in range(w):
@@ -142,6 +143,7 @@ def _bpasw_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, dys: n
             den[:] = 0.0
             # candidates i with x - d >= 0: d = min_disp + i <= x
             nvalid = min(nd, x - min_disp + 1)
+            base = w - 1 - x + min_disp  # wr column of candidate i is base + i
             for k in range(nk):
                 qy = y + dys[k]
                 qx = x + dxs[k]
@@ -158,15 +160,17 @@ def _bpasw_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, dys: n
                     for i in range(nvalid):
                         ww = wl
                         if symmetric:
-                            ww = ww * wr[k, x - min_disp - i]
+                            ww = ww * wr[k, base + i]
                         if pq >= 0 and abs(pq - i) > 1:
                             ww = ww * np.float32(cont_w)
                         num[i] += ww * cost[qy, qx, i]
                         den[i] += ww
                 elif symmetric:
+                    wrk = wr[k, base:base + nvalid]
+                    cq = cost[qy, qx, :nvalid]
                     for i in range(nvalid):
-                        ww = wl * wr[k, x - min_disp - i]
-                        num[i] += ww * cost[qy, qx, i]
+                        ww = wl * wrk[i]
+                        num[i] += ww * cq[i]
                         den[i] += ww
                 else:
                     for i in range(nvalid):
