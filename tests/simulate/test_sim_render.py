@@ -139,3 +139,20 @@ def test_bad_render_arguments(small_biprism: Rig) -> None:
         render_capture(small_biprism, scene, supersample=0)
     with pytest.raises(ConfigError, match="noise"):
         render_capture(small_biprism, scene, noise=-1.0)
+
+
+def test_dataclasses_validate_programmatic_scenes() -> None:
+    from prismstereo.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="Sphere radius"):
+        Sphere(radius=-1.0)
+    with pytest.raises(ConfigError, match="Rectangle size"):
+        Rectangle(size=(1.0, float("nan")))
+    with pytest.raises(ConfigError, match="Box center"):
+        Box(center=(0.0, 0.0))  # type: ignore[arg-type]
+    with pytest.raises(ConfigError, match="NoiseTexture scale"):
+        NoiseTexture(scale=0.0)
+    with pytest.raises(ConfigError, match="background"):
+        Scene(background=(2.0, 0.0, 0.0))
+    r = Rectangle(center=[0, 0, 5], size=[1, 2])  # type: ignore[arg-type]
+    assert r.center == (0.0, 0.0, 5.0) and r.size == (1.0, 2.0)

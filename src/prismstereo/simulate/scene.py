@@ -36,6 +36,36 @@ Color = tuple[float, float, float]
 _IDENTITY: Vec3 = (0.0, 0.0, 0.0)
 
 
+# --------------------------------------------------------------------------- validation helpers
+def _vec(obj: object, name: str, n: int, *, positive: bool = False, lo: float | None = None,
+         hi: float | None = None) -> None:
+    """Check attribute ``name`` of a frozen dataclass is n finite numbers; store it as a float tuple."""
+    v = getattr(obj, name)
+    what = f"{type(obj).__name__} {name}"
+    try:
+        t = tuple(float(x) for x in v)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{what}: expected {n} numbers, got {v!r}") from None
+    if len(t) != n or not all(math.isfinite(x) for x in t):
+        raise ConfigError(f"{what}: expected {n} finite numbers, got {v!r}")
+    if positive and not all(x > 0 for x in t):
+        raise ConfigError(f"{what}: expected {n} positive numbers, got {v!r}")
+    if (lo is not None and min(t) < lo) or (hi is not None and max(t) > hi):
+        raise ConfigError(f"{what}: expected values in [{lo}, {hi}], got {v!r}")
+    object.__setattr__(obj, name, t)
+
+
+def _scalar(obj: object, name: str, *, positive: bool = False, lo: float | None = None,
+            hi: float | None = None) -> None:
+    v = getattr(obj, name)
+    what = f"{type(obj).__name__} {name}"
+    if isinstance(v, bool) or not isinstance(v, int | float | np.integer | np.floating) or not math.isfinite(v):
+        raise ConfigError(f"{what}: expected a finite number, got {v!r}")
+    if (positive and v <= 0) or (lo is not None and v < lo) or (hi is not None and v > hi):
+        rng = "a positive number" if positive else f"a number in [{lo}, {hi}]"
+        raise ConfigError(f"{what}: expected {rng}, got {v!r}")
+
+
 # --------------------------------------------------------------------------- rotations
 def euler_to_matrix(rotation: Vec3 | np.ndarray) -> np.ndarray:
     """Local-to-world rotation matrix from extrinsic XYZ Euler angles in degrees.
@@ -97,6 +127,9 @@ class SolidTexture:
 
     color: Color = (0.5, 0.5, 0.5)
 
+    def __post_init__(self) -> None:
+        _vec(self, "color", 3, lo=0.0, hi=1.0)
+
 
 @dataclass(frozen=True)
 class CheckerTexture:
@@ -124,6 +157,21 @@ class CheckerTexture:
     margin: float = 0.0
     border_color: Color = (1.0, 1.0, 1.0)
 
+    def __post_init__(self) -> None:
+        _scalar(self, "square", positive=True)
+        _scalar(self, "margin", lo=0.0, hi=math.inf)
+        _vec(self, "border_color", 3, lo=0.0, hi=1.0)
+        if len(self.colors) != 2:
+            raise ConfigError(f"CheckerTexture colors: expected two RGB colours, got {self.colors!r}")
+        for c in self.colors:
+            if len(c) != 3 or not all(0.0 <= float(x) <= 1.0 for x in c):
+                raise ConfigError(f"CheckerTexture colors: expected RGB values in [0, 1], got {self.colors!r}")
+        object.__setattr__(self, "colors", tuple(tuple(float(x) for x in c) for c in self.colors))
+        if self.squares is not None:
+            if len(self.squares) != 2 or min(int(q) for q in self.squares) < 1:
+                raise ConfigError(f"CheckerTexture squares: expected (nx, ny) >= 1, got {self.squares!r}")
+            object.__setattr__(self, "squares", (int(self.squares[0]), int(self.squares[1])))
+
 
 @dataclass(frozen=True)
 class NoiseTexture:
@@ -150,6 +198,15 @@ class NoiseTexture:
     contrast: float = 2.5
     seed: int = 0
 
+    def __post_init__(self) -> None:
+        _scalar(self, "scale", positive=True)
+        _scalar(self, "persistence", lo=0.0, hi=1.0)
+        _scalar(self, "contrast", positive=True)
+        if not 1 <= int(self.octaves) <= 16 or int(self.octaves) != self.octaves:
+            raise ConfigError(f"NoiseTexture octaves: expected an integer in 1..16, got {self.octaves!r}")
+        if int(self.seed) != self.seed or self.seed < 0:
+            raise ConfigError(f"NoiseTexture seed: expected a non-negative integer, got {self.seed!r}")
+
 
 @dataclass(frozen=True)
 class ImageTexture:
@@ -169,6 +226,13 @@ class ImageTexture:
     path: str = ""
     image: np.ndarray = field(default_factory=lambda: np.zeros((1, 1, 3)), compare=False, repr=False)
     size: tuple[float, float] | None = None
+
+    def __post_init__(self) -> None:
+        img = np.asarray(self.image)
+        if img.ndim not in (2, 3) or img.size == 0 or (img.ndim == 3 and img.shape[2] < 3):
+            raise ConfigError(f"ImageTexture image: expected an H×W×3 (or H×W) array, got shape {img.shape}")
+        if self.size is not None:
+            _vec(self, "size", 2, positive=True)
 
     def as_float(self) -> np.ndarray:
         """(H, W, 3) float32 RGB in [0, 1]."""
@@ -190,6 +254,16 @@ Texture = SolidTexture | CheckerTexture | NoiseTexture | ImageTexture
 class _Posed:
     center: Vec3
     rotation: Vec3
+
+    def __post_init__(self) -> None:
+        _vec(self, "center", 3)
+        _vec(self, "rotation", 3)
+        if isinstance(self, Rectangle):
+            _vec(self, "size", 2, positive=True)
+        elif isinstance(self, Box):
+            _vec(self, "size", 3, positive=True)
+        elif isinstance(self, Sphere):
+            _scalar(self, "radius", positive=True)
 
     @property
     def matrix(self) -> np.ndarray:
@@ -292,3 +366,9 @@ class Scene:
     seed: int = 0
     supersample: int = 2
     name: str = "scene"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "objects", tuple(self.objects))
+        _vec(self, "background", 3, lo=0.0, hi=1.0)
+        _scalar(self, "shading", lo=0.0, hi=1.0)
+        _scalar(self, "noise", lo=0.0, hi=255.0)
