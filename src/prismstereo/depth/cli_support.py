@@ -8,6 +8,7 @@ the options; the geometry (views that do not overlap) is checked by rectificatio
 from __future__ import annotations
 
 import os
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +31,10 @@ def check_output_dir(path: str | os.PathLike[str]) -> None:
         raise OutputError(f"expected a writable output folder, got {str(path)!r} ({str(probe)!r} is a file)")
     if not os.access(probe, os.W_OK | os.X_OK):
         raise OutputError(f"expected a writable output folder, got {str(path)!r} (permission denied)")
+    try:  # a real test (root passes os.access everywhere, read-only mounts do not)
+        Path(tempfile.mkdtemp(prefix=".prismstereo-probe-", dir=probe)).rmdir()
+    except OSError as exc:
+        raise OutputError(f"expected a writable output folder, got {str(path)!r} ({exc.strerror})") from None
 
 
 def _resolve_views(views: Any, faces: int) -> tuple[int, int] | None:
