@@ -220,7 +220,10 @@ def render_capture(
     # Rays are traced (numpy, prismstereo.optics) in small chunks, which is fastest in cache, into blocks of
     # ~256k rays; each block then goes to the parallel numba kernels in one call. A helper thread traces
     # the next block while the kernels (which release the GIL) shade the current one.
-    per_row = W * (n_samp + 1)
+    # With odd s the middle sample is the pixel centre; with even s the centre ray is traced in addition.
+    extra = 0 if s % 2 else 1
+    mid = n_samp // 2
+    per_row = W * (n_samp + extra)
     block_rows = max(1, _RAYS_PER_BLOCK // per_row)
     chunk_rays = max(1, _RAYS_PER_CHUNK // per_row) * per_row
     us = np.arange(W, dtype=np.float64)
@@ -229,8 +232,8 @@ def render_capture(
         r1 = min(H, r0 + block_rows)
         vv, uu = np.meshgrid(np.arange(r0, r1, dtype=np.float64), us, indexing="ij")
         centres = np.stack([uu, vv], axis=-1)  # (h, W, 2)
-        samples = centres[:, :, None, :] + offsets[None, None, :, :]  # (h, W, S, 2)
-        px = np.concatenate([centres.reshape(-1, 2), samples.reshape(-1, 2)])
+        samples = (centres[:, :, None, :] + offsets[None, None, :, :]).reshape(-1, 2)  # (h·W·S, 2)
+        px = np.concatenate([centres.reshape(-1, 2), samples]) if extra else samples
         n = px.shape[0]
         origins = np.empty((n, 3))
         dirs = np.empty((n, 3))
@@ -253,13 +256,22 @@ def render_capture(
             nc = h * W
             hits = intersect_scene(origins, dirs, compiled, shading=scene.shading)
             # pixel-centre ground truth
-            faces[r0:r1] = np.where(valid[:nc], face[:nc], NO_FACE).reshape(h, W).astype(np.uint8)
-            points[r0:r1] = hits.points[:nc].reshape(h, W, 3)
-            depth[r0:r1] = hits.points[:nc, 2].reshape(h, W)
-            object_ids[r0:r1] = hits.object_id[:nc].reshape(h, W)
+            if extra:
+                c_valid, c_face = valid[:nc], face[:nc]
+                c_points, c_ids = hits.points[:nc], hits.object_id[:nc]
+            else:
+                c_valid = valid.reshape(nc, n_samp)[:, mid]
+                c_face = face.reshape(nc, n_samp)[:, mid]
+                c_points = hits.points.reshape(nc, n_samp, 3)[:, mid]
+                c_ids = hits.object_id.reshape(nc, n_samp)[:, mid]
+            faces[r0:r1] = np.where(c_valid, c_face, NO_FACE).reshape(h, W).astype(np.uint8)
+            points[r0:r1] = c_points.reshape(h, W, 3)
+            depth[r0:r1] = c_points[:, 2].reshape(h, W)
+            object_ids[r0:r1] = c_ids.reshape(h, W)
             # colour: average of the valid samples; valid rays that hit nothing see the background
+            k0 = nc * extra
             avg = np.empty((nc, 3), dtype=np.float32)
-            average_samples_kernel(hits.colors[nc:], np.ascontiguousarray(valid[nc:]), n_samp, background, avg)
+            average_samples_kernel(hits.colors[k0:], np.ascontiguousarray(valid[k0:]), n_samp, background, avg)
             image[r0:r1] = avg.reshape(h, W, 3)
 
     out = image * np.float32(255.0)
