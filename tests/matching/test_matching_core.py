@@ -201,11 +201,12 @@ def test_image_validation() -> None:
         match(np.zeros((4, 5), bool), np.zeros((4, 5), bool), max_disp=1, method="sad")
 
 
-def test_min_disp_offset_and_gray_input() -> None:
+@pytest.mark.parametrize("method", METHODS)
+def test_min_disp_offset_and_gray_input(method: str) -> None:
     left, right = _shifted_pair(9, h=40, w=72)
     gl = left.mean(axis=2).astype(np.float32)
     gr = right.mean(axis=2).astype(np.float32)
-    res = match(gl, gr, max_disp=14, min_disp=5, method="sad")
+    res = match(gl, gr, max_disp=14, min_disp=5, method=method, **FAST.get(method, {}))
     assert (np.abs(res.disparity[8:32, 25:65] - 9.0) <= 1.0).mean() > 0.95
     assert np.nanmin(res.disparity) >= 5.0
 
