@@ -29,6 +29,8 @@ def _check_image(img: Any, name: str) -> np.ndarray:
         raise ImageError(f"expected a finite {name} image, got NaN or inf values")
     if arr.ndim == 3 and arr.shape[2] == 1:
         arr = arr[:, :, 0]
+    if arr.dtype == np.uint16:  # 16-bit files: bring to the 0..255 scale the costs are tuned for
+        return (arr.astype(np.float32) / np.float32(257.0)).astype(np.float32)
     return arr.astype(np.float32)
 
 
@@ -68,7 +70,8 @@ def match(left: Any, right: Any, *, max_disp: int, min_disp: int = 0, method: st
     Parameters
     ----------
     left, right : ndarray, (H, W) or (H, W, 3)
-        Rectified pair, RGB, uint8 or float on the 0..255 scale; ``d = x_left - x_right >= 0``.
+        Rectified pair, RGB, uint8 or float on the 0..255 scale (uint16 is rescaled to it);
+        ``d = x_left - x_right >= 0``.
     max_disp, min_disp : int
         Inclusive search range, ``0 <= min_disp <= max_disp < W`` (a single level is allowed, so a
         1-pixel-wide image is matched with ``max_disp=0``).
