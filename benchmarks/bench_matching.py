@@ -6,6 +6,8 @@ timed in the same process, the peak traced memory (tracemalloc, numpy buffers in
 nonocc for context. Cold whole-command times are a separate matter: time ``prismstereo match`` itself.
 
     NUMBA_CACHE_DIR=.numba_cache .venv/bin/python benchmarks/bench_matching.py [--data DIR] [--repeat 3]
+    ... bench_matching.py --cold      # whole `prismstereo match` commands on Teddy, wall and CPU seconds
+    ... bench_matching.py --weights   # does the Weber–Fechner reading weight the right neighbours?
 """
 
 from __future__ import annotations
@@ -78,13 +80,44 @@ def weight_purity(data: str | None, *, samples: int = 3000, radius: int = 16, di
         print(f"| {r['scene']} | " + " | ".join(f"{r[k]:.3f}" for k in keys) + " |")
 
 
+def cold_commands(data: str | None, methods: list[str], scene: str = "teddy") -> None:
+    """Wall and CPU seconds of whole ``prismstereo match`` runs (new process each, numba disk cache warm)."""
+    import subprocess
+    import tempfile
+    from pathlib import Path
+
+    from prismstereo.evaluation.middlebury import _resolve
+
+    folder = _resolve(data) / scene
+    sc = load_scene(scene, data)
+    exe = Path(sys.executable).with_name("prismstereo")
+    print(f"whole `prismstereo match` runs on {scene} ({sc.left.shape[1]}x{sc.left.shape[0]}, "
+          f"{sc.max_disp + 1} disparities); load average before: {os.getloadavg()[0]:.1f}\n")
+    print("| method | wall s | CPU s (user+sys) |\n|---|---|---|")
+    with tempfile.TemporaryDirectory() as tmp:
+        for m in methods:
+            before = resource.getrusage(resource.RUSAGE_CHILDREN)
+            t = time.perf_counter()
+            subprocess.run([str(exe), "match", str(folder / "left.png"), str(folder / "right.png"), "-o",
+                            str(Path(tmp) / f"{m}.pfm"), "--max-disp", str(sc.max_disp), "--method", m],
+                           check=True, capture_output=True)
+            wall = time.perf_counter() - t
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+            print(f"| {m} | {wall:.2f} | {cpu:.2f} |")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", default=None, help="Middlebury folder")
     ap.add_argument("--methods", default=",".join(DEFAULT_METHODS))
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--weights", action="store_true", help="only the BPASW weight-purity check")
+    ap.add_argument("--cold", action="store_true", help="only whole-command timings on Teddy")
     args = ap.parse_args(argv)
+    if args.cold:
+        cold_commands(args.data, [m for m in args.methods.split(",") if m])
+        return 0
     if args.weights:
         weight_purity(args.data)
         return 0
