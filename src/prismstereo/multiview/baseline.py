@@ -213,7 +213,7 @@ def _pair_volumes(left: np.ndarray, right: np.ndarray, max_s: int, cost: CostNam
         vol = m.cost_volume(left, right, max_disp=max_s, min_disp=0)
         d0 = winner_take_all(vol)
         ok = cross_check(d0, right_disparity(vol), tolerance=0.0)
-        raw = None
+        raw: F32 | None = None
         if keep_raw:
             raw = _box3(costs.cost_s_ad(left, right, max_disp=max_s, min_disp=0, omega=m.omega,
                                         tau_color=m.tau_color, tau_gradient=m.tau_gradient), data_radius)

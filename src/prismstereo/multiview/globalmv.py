@@ -291,8 +291,13 @@ def match_multiview_global(reference: Any, views: Sequence[Any], *, ratios: Sequ
     graph = build_segment_graph(labels, ref)
     cp = replace(p.coop, data_trunc=float(np.float32(data.max())) + 1.0, unreliable_weight=1.0)
     initial = render_planes(index, plane_set, assign)
-    assign2, info = cooperative_optimize(assign, plane_set, index, graph, data, np.ones(labels.shape, bool),
-                                         own=own, min_disp=0, params=cp)
+    out = cooperative_optimize(assign, plane_set, index, graph, data, np.ones(labels.shape, bool),
+                               own=own, min_disp=0, params=cp)
+    # the optimiser returns (assign, info) or, with continuous refinement, (assign, extended planes, info)
+    if len(out) == 3:
+        assign2, plane_set, info = out
+    else:
+        assign2, info = out
     disp = np.clip(render_planes(index, plane_set, assign2), 0, md).astype(np.float32)
     timings["optimisation"] = time.perf_counter() - t
     extras: dict[str, Any] = {"labels": labels, "planes": plane_set, "assign": assign2,

@@ -146,13 +146,13 @@ def _pixel_cost(ref: F32, rgx: F32, rgy: F32, warped: F32, wgx: F32, wgy: F32, p
 def _box(a: F32, r: int) -> F32:
     if r <= 0:
         return a
-    return cv2.blur(a, (2 * r + 1, 2 * r + 1), borderType=cv2.BORDER_REFLECT)
+    return np.asarray(cv2.blur(a, (2 * r + 1, 2 * r + 1), borderType=cv2.BORDER_REFLECT), dtype=np.float32)
 
 
 def _sample(img: F32, uv: F32) -> F32:
     """Bilinear sample of ``img`` (H, W, C) at (h, w, 2) real pixels; outside -> 0."""
-    return cv2.remap(img, uv[..., 0], uv[..., 1], interpolation=cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return np.asarray(cv2.remap(img, uv[..., 0], uv[..., 1], interpolation=cv2.INTER_LINEAR,
+                                borderMode=cv2.BORDER_CONSTANT, borderValue=0), dtype=np.float32)
 
 
 def _inside(mask: npt.NDArray[np.bool_], uv: F32) -> npt.NDArray[np.bool_]:
@@ -356,10 +356,10 @@ def depth_all_views(rig: Rig, capture: Any, *, method: str = "sweep",
     use = [np.ones(sel.size, bool)]
     for v, uv, ok in zip(others, per_view_uv, per_view_ok, strict=True):
         okf = ok.ravel()[sel]
-        b = trace_pixels(rig, uv.reshape(-1, 2)[sel])
-        okf &= b.valid & (b.face == v)
-        origins.append(b.origins)
-        dirs.append(b.directions)
+        bundle = trace_pixels(rig, uv.reshape(-1, 2)[sel])
+        okf &= bundle.valid & (bundle.face == v)
+        origins.append(bundle.origins)
+        dirs.append(bundle.directions)
         use.append(okf)
     use_a = np.stack(use)
     pts = _multi_ray_point(np.stack(origins), np.stack(dirs), use_a)
