@@ -195,10 +195,10 @@ def _pair_volumes(left: np.ndarray, right: np.ndarray, max_s: int, cost: CostNam
         from prismstereo.matching.coopcost import CostParams, aggregated_costs, raw_cost
 
         cp = CostParams(**cost_params)
-        raw = raw_cost(left, right, max_disp=max_s, min_disp=0, params=cp)
-        agg_l, agg_r = aggregated_costs(left, right, max_disp=max_s, min_disp=0, params=cp, raw=raw)
+        pix = raw_cost(left, right, max_disp=max_s, min_disp=0, params=cp)
+        agg_l, agg_r = aggregated_costs(left, right, max_disp=max_s, min_disp=0, params=cp, raw=pix)
         disp, ok = initial_disparity(agg_l, agg_r, min_disp=0)
-        return agg_l, disp, ok, (_box3(raw, data_radius) if keep_raw else None)
+        return agg_l, disp, ok, (_box3(pix, data_radius) if keep_raw else None)
     if cost == "bpasw":
         from prismstereo.matching import costs
         from prismstereo.matching.matchers import BPASWMatcher
