@@ -166,6 +166,10 @@ class PairCost:
     raw : (H, W, S + 1) float32 or None
         The pixel-wise cost before aggregation (lightly box-smoothed), the data term of the global
         method (Eq. 7.16), same indexing as ``cost``.
+    step : int
+        Slice ``k`` of ``cost``/``raw`` holds the pair disparity ``s = step · k`` (``step = |δ|`` for an
+        integer ratio ≥ 2: only the pair disparities that a unit-baseline disparity can reach are
+        aggregated).
     """
 
     ratio: float
@@ -173,6 +177,7 @@ class PairCost:
     disparity: F32
     reliable: npt.NDArray[np.bool_]
     raw: F32 | None = None
+    step: int = 1
 
 
 def _box3(vol: F32, r: int) -> F32:
@@ -187,18 +192,59 @@ def _box3(vol: F32, r: int) -> F32:
     return out
 
 
+def _strided_check(agg_l: F32, agg_r: F32, step: int) -> tuple[F32, npt.NDArray[np.bool_]]:
+    """WTA + parabola + exact left–right check (Eq. 6.7) on volumes whose slice k is disparity ``step·k``."""
+    h, w, nd = agg_l.shape
+    dl = agg_l.argmin(axis=2)
+    dr = agg_r.argmin(axis=2)
+    xr = np.arange(w)[None, :] - step * dl
+    inside = xr >= 0
+    back = np.take_along_axis(dr, np.clip(xr, 0, w - 1), axis=1)
+    ok = inside & (back == dl)
+    if nd >= 3:
+        k = np.clip(dl, 1, nd - 2)
+        c0 = np.take_along_axis(agg_l, (k - 1)[..., None], 2)[..., 0]
+        c1 = np.take_along_axis(agg_l, k[..., None], 2)[..., 0]
+        c2 = np.take_along_axis(agg_l, (k + 1)[..., None], 2)[..., 0]
+        den = c0 - 2.0 * c1 + c2
+        off = np.where(den > 1e-6, (c0 - c2) / (2.0 * np.maximum(den, 1e-6)), 0.0)
+        sub = np.where((dl > 0) & (dl < nd - 1), dl + np.clip(off, -0.5, 0.5), dl)
+    else:
+        sub = dl.astype(np.float64)
+    return (step * sub).astype(np.float32), ok
+
+
 def _pair_volumes(left: np.ndarray, right: np.ndarray, max_s: int, cost: CostName, cost_params: dict[str, Any],
-                  keep_raw: bool, data_radius: int) -> tuple[F32, F32, npt.NDArray[np.bool_], F32 | None]:
-    """Left aggregated volume, subpixel left disparity, left–right check and (optionally) the raw volume."""
+                  keep_raw: bool, data_radius: int,
+                  step: int = 1) -> tuple[F32, F32, npt.NDArray[np.bool_], F32 | None]:
+    """Left aggregated volume, subpixel left disparity (pair px), left–right check and the raw volume.
+
+    With ``step > 1`` (guided cost only) slice ``k`` holds the pair disparity ``step · k``.
+    """
     if cost == "guided":
         from prismstereo.matching.coop import initial_disparity
-        from prismstereo.matching.coopcost import CostParams, aggregated_costs, raw_cost
+        from prismstereo.matching.coopcost import CostParams, aggregated_costs, guided_filter_volume, raw_cost
 
         cp = CostParams(**cost_params)
         pix = raw_cost(left, right, max_disp=max_s, min_disp=0, params=cp)
-        agg_l, agg_r = aggregated_costs(left, right, max_disp=max_s, min_disp=0, params=cp, raw=pix)
-        disp, ok = initial_disparity(agg_l, agg_r, min_disp=0)
-        return agg_l, disp, ok, (_box3(pix, data_radius) if keep_raw else None)
+        if step == 1:
+            agg_l, agg_r = aggregated_costs(left, right, max_disp=max_s, min_disp=0, params=cp, raw=pix)
+            disp, ok = initial_disparity(agg_l, agg_r, min_disp=0)
+            return agg_l, disp, ok, (_box3(pix, data_radius) if keep_raw else None)
+        sel = np.ascontiguousarray(pix[:, :, ::step])
+        del pix
+        w = sel.shape[1]
+        sel_r = np.full_like(sel, np.float32(2.0))
+        for k in range(sel.shape[2]):  # right view's volume, slice by slice: C_R(x, s) = C_L(x + s, s)
+            sk = step * k
+            if sk < w:
+                sel_r[:, : w - sk, k] = sel[:, sk:, k]
+        lf = np.asarray(left, dtype=np.float32)
+        rf = np.asarray(right, dtype=np.float32)
+        agg_l = guided_filter_volume(lf, sel, radius=cp.radius, eps=cp.eps)
+        agg_r = guided_filter_volume(rf, sel_r, radius=cp.radius, eps=cp.eps)
+        disp, ok = _strided_check(agg_l, agg_r, step)
+        return agg_l, disp, ok, (_box3(sel, data_radius) if keep_raw else None)
     if cost == "bpasw":
         from prismstereo.matching import costs
         from prismstereo.matching.matchers import BPASWMatcher
@@ -223,7 +269,7 @@ def _pair_volumes(left: np.ndarray, right: np.ndarray, max_s: int, cost: CostNam
 
 def pair_cost(reference: np.ndarray, view: np.ndarray, ratio: float, *, max_disp: int,
               cost: CostName = "guided", cost_params: dict[str, Any] | None = None, keep_raw: bool = False,
-              data_radius: int = 1) -> PairCost:
+              data_radius: int = 1, stride: bool = True) -> PairCost:
     """Aggregated cost of the reference against one view (thesis Eq. 7.9), in the reference frame.
 
     Parameters
@@ -244,6 +290,9 @@ def pair_cost(reference: np.ndarray, view: np.ndarray, ratio: float, *, max_disp
         Keyword parameters of that cost (``BPASWMatcher`` fields or ``CostParams`` fields).
     keep_raw : bool
         Also return the pixel-wise cost (box radius ``data_radius``) for a data term.
+    stride : bool
+        For the guided cost and an integer ``|δ| >= 2``, aggregate only the pair disparities
+        ``s = |δ| d`` that unit disparities reach (``|δ|`` times fewer slices; identical values there).
 
     Returns
     -------
@@ -251,20 +300,21 @@ def pair_cost(reference: np.ndarray, view: np.ndarray, ratio: float, *, max_disp
     """
     w = reference.shape[1]
     a = abs(float(ratio))
-    max_s = int(min(w - 1, math.ceil(a * max_disp) + 1))
+    step = int(round(a)) if (stride and cost == "guided" and a >= 2 and abs(a - round(a)) < 1e-9) else 1
+    max_s = int(min(w - 1, math.ceil(a * max_disp) + step))
     params = dict(cost_params or {})
     if ratio > 0:
-        vol, d, ok, raw = _pair_volumes(reference, view, max_s, cost, params, keep_raw, data_radius)
+        vol, d, ok, raw = _pair_volumes(reference, view, max_s, cost, params, keep_raw, data_radius, step)
     else:
         # mirror both images: the left view becomes a right view of the mirrored reference; mirror back
         vol, d, ok, raw = _pair_volumes(np.ascontiguousarray(reference[:, ::-1]),
                                         np.ascontiguousarray(view[:, ::-1]), max_s, cost, params, keep_raw,
-                                        data_radius)
+                                        data_radius, step)
         vol, d, ok = (np.ascontiguousarray(vol[:, ::-1]), np.ascontiguousarray(d[:, ::-1]),
                       np.ascontiguousarray(ok[:, ::-1]))
         raw = None if raw is None else np.ascontiguousarray(raw[:, ::-1])
     disp = (np.asarray(d, np.float32) / np.float32(a)).astype(np.float32)
-    return PairCost(float(ratio), vol, disp, np.asarray(ok, bool), raw)
+    return PairCost(float(ratio), vol, disp, np.asarray(ok, bool), raw, step)
 
 
 def resample_to_unit(pc: PairCost, *, max_disp: int, raw: bool = False) -> tuple[F32, npt.NDArray[np.bool_]]:
@@ -289,7 +339,7 @@ def resample_to_unit(pc: PairCost, *, max_disp: int, raw: bool = False) -> tuple
     out = np.empty((h, w, nd), np.float32)
     seen = np.empty((h, w, nd), np.bool_)
     xs = np.arange(w, dtype=np.float64)
-    a = abs(pc.ratio)
+    a = abs(pc.ratio) / pc.step
     for k in range(nd):  # loop over disparities, not pixels
         s = min(a * k, ns - 1.0)
         s0 = int(math.floor(s))
