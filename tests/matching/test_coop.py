@@ -76,7 +76,7 @@ def test_energy_never_increases_across_iterations() -> None:
     cost = raw_cost(left, right, max_disp=20)
     energies = [total_energy(a, pset, idx, graph, cost, rel)]
     for _ in range(6):
-        a, info = cooperative_optimize(a, pset, idx, graph, cost, rel, params=CoopParams(max_iter=1))
+        a, pset, info = cooperative_optimize(a, pset, idx, graph, cost, rel, params=CoopParams(max_iter=1))
         energies.append(info["energy_after"])
         assert info["energy_before"] == pytest.approx(energies[-2])
     assert all(e1 <= e0 + 1e-6 for e0, e1 in zip(energies, energies[1:], strict=False))

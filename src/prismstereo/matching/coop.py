@@ -201,8 +201,8 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     graph = build_segment_graph(labels, lft)
     data_cost = _box3(raw, data_radius)
     del raw
-    assign, info = cooperative_optimize(assign0, plane_set, index, graph, data_cost, reliable, own=own,
-                                        min_disp=min_disp, params=op)
+    assign, plane_set, info = cooperative_optimize(assign0, plane_set, index, graph, data_cost, reliable,
+                                                   own=own, min_disp=min_disp, params=op)
     final = render_planes(index, plane_set, assign)
     final = np.clip(final, min_disp, max_disp).astype(np.float32)
     tm["cooperative"] = time.perf_counter() - t

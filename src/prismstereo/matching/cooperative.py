@@ -64,6 +64,22 @@ class CoopParams:
         Weight of cross-check failures in the data term (thesis: 0, only reliable pixels ``N_r``).
     max_iter : int
         Cap on the sweeps over all segments.
+    visibility : bool
+        Count as occluded (Eq. 6.22) the pixels that another segment hides in the right view.
+    occ_margin : float
+        A pixel is hidden when another segment lands on its right-view pixel with a disparity larger by
+        more than this (px).
+    omega_border : float
+        Cost of a pixel that the plane sends left of the right image's border (x - d < 0): no evidence
+        either way, so a typical good-match cost rather than ``ω_occ`` (which would push segments at the
+        left border towards small disparities).
+    refine_rounds : int
+        Rounds of continuous per-segment refinement by Powell's method (Appendix E), each followed by
+        discrete sweeps in which neighbours may adopt the refined planes (0 = discrete labels only).
+    powell_cycles : int
+        Direction-set cycles of Powell's method per segment and round.
+    refine_min_size : int
+        Segments smaller than this (pixels) are not refined continuously.
     """
 
     kappa: float = 0.5
@@ -74,6 +90,12 @@ class CoopParams:
     data_trunc: float = 1.5
     unreliable_weight: float = 1.0
     max_iter: int = 30
+    visibility: bool = True
+    occ_margin: float = 1.0
+    refine_rounds: int = 0
+    omega_border: float = 1.0
+    powell_cycles: int = 2
+    refine_min_size: int = 1
 
 
 @dataclass(frozen=True)
@@ -154,9 +176,51 @@ def build_segment_graph(labels: npt.NDArray[np.integer], image: npt.NDArray[np.g
 
 
 @njit(cache=True)
+def _zbuffer(assign: I32, planes: F64, order: I64, starts: I64, h: int, w: int,
+             ) -> tuple[F64, I64, F64]:
+    """Right-view z-buffer of a plane assignment: largest disparity landing on each right pixel (z1, owner
+    segment o1) and the largest from any other segment (z2), for the visibility test of Eq. 6.22."""
+    z1 = np.full(h * w, -1e9)
+    z2 = np.full(h * w, -1e9)
+    o1 = np.full(h * w, -1, np.int64)
+    k = starts.size - 1
+    for j in range(k):
+        pl = planes[assign[j]]
+        for t in range(starts[j], starts[j + 1]):
+            p = order[t]
+            x = p % w
+            y = p // w
+            d = pl[0] * x + pl[1] * y + pl[2]
+            xr = int(np.floor(x - d + 0.5))
+            if xr < 0 or xr >= w:
+                continue
+            q = y * w + xr
+            if o1[q] == j:
+                if d > z1[q]:
+                    z1[q] = d
+            elif d > z1[q]:
+                z2[q] = z1[q]
+                z1[q] = d
+                o1[q] = j
+            elif d > z2[q]:
+                z2[q] = d
+    return z1, o1, z2
+
+
+@njit(cache=True)
 def _data(j: int, pl: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
-          reliable: npt.NDArray[np.bool_], omega_occ: float, trunc: float, wu: float) -> float:
-    """E_data + E_occ of segment j under plane pl (Eqs. 6.21-6.22)."""
+          reliable: npt.NDArray[np.bool_], prm: F64, z1: F64, o1: I64, z2: F64) -> float:
+    """E_data + E_occ of segment j under plane pl (Eqs. 6.21-6.22).
+
+    A pixel is occluded when its plane disparity sends it outside the right image or the search range, or
+    (visibility on) when another segment lands on the same right pixel with a disparity larger by more than
+    ``occ_margin``; it then costs ``ω_occ`` instead of its matching cost.
+    """
+    omega_occ = prm[2]
+    trunc = prm[3]
+    wu = prm[4]
+    margin = prm[7]
+    vis = prm[8] > 0.5
     nd = cost.shape[1]
     e = 0.0
     a, b, c = pl[0], pl[1], pl[2]
@@ -166,9 +230,20 @@ def _data(j: int, pl: F64, order: I64, starts: I64, w: int, cost: F32, min_disp:
         y = p // w
         d = a * x + b * y + c
         k = d - min_disp
-        if k < -0.5 or k > nd - 0.5 or x - d < -0.5:
+        if k < -0.5 or k > nd - 0.5:
             e += omega_occ
             continue
+        if x - d < -0.5:
+            e += prm[9]  # outside the right image: no evidence either way
+            continue
+        if vis:
+            xr = int(np.floor(x - d + 0.5))
+            if 0 <= xr < w:
+                q = y * w + xr
+                zo = z1[q] if o1[q] != j else z2[q]
+                if zo > d + margin:
+                    e += omega_occ
+                    continue
         k = min(max(k, 0.0), nd - 1.0)
         k0 = int(k)
         k1 = min(k0 + 1, nd - 1)
@@ -202,11 +277,15 @@ def _smooth(j: int, i: int, edge: int, plj: F64, pli: F64, pairs: I32, bstart: I
 @njit(cache=True)
 def _energy(assign: I32, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
             reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
-            omega_occ: float, trunc: float, wu: float, gamma: float, thr: float) -> float:
+            prm: F64) -> float:
     k = starts.size - 1
+    h = cost.shape[0] // w
+    z1, o1, z2 = _zbuffer(assign, planes, order, starts, h, w)
+    gamma = prm[5]
+    thr = prm[6]
     e = 0.0
     for j in range(k):
-        e += _data(j, planes[assign[j]], order, starts, w, cost, min_disp, reliable, omega_occ, trunc, wu)
+        e += _data(j, planes[assign[j]], order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2)
     for ed in range(pairs.shape[0]):
         lo = pairs[ed, 0]
         hi = pairs[ed, 1]
@@ -218,78 +297,211 @@ def _energy(assign: I32, planes: F64, order: I64, starts: I64, w: int, cost: F32
 
 
 @njit(cache=True)
-def _coop(assign: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
-          reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
-          nstart: I64, nbr: I64, nedge: I64, kappa: float, mu: float, omega_occ: float, trunc: float,
-          wu: float, gamma: float, thr: float, max_iter: int) -> tuple[I32, int, int]:
+def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
+           reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
+           nstart: I64, nbr: I64, nedge: I64, prm: F64) -> int:
+    """One cooperative sweep over all segments (Eq. 6.19), in place; returns the number of changes."""
     k = starts.size - 1
-    a = assign.copy()
+    h = cost.shape[0] // w
+    kappa = prm[0]
+    mu = prm[1]
+    gamma = prm[5]
+    thr = prm[6]
+    z1, o1, z2 = _zbuffer(a, planes, order, starts, h, w)
     cand = np.empty(64, np.int64)
-    sweeps = 0
-    changes_total = 0
-    for _sweep in range(max_iter):
-        sweeps += 1
-        changes = 0
-        for j in range(k):
-            # candidate planes: current, own fitted/merged planes, neighbours' current planes
-            nc = 0
-            cand[nc] = a[j]
-            nc += 1
-            for extra in (own[2 * j], own[2 * j + 1]):
-                if extra >= 0:
-                    dup = False
-                    for u in range(nc):
-                        if cand[u] == extra:
-                            dup = True
-                    if not dup and nc < 64:
-                        cand[nc] = extra
-                        nc += 1
-            for t in range(nstart[j], nstart[j + 1]):
-                lab = a[nbr[t]]
+    changes = 0
+    for j in range(k):
+        # candidate planes: current, own fitted/merged planes, neighbours' current planes
+        nc = 0
+        cand[nc] = a[j]
+        nc += 1
+        for extra in (own[2 * j], own[2 * j + 1]):
+            if extra >= 0:
                 dup = False
                 for u in range(nc):
-                    if cand[u] == lab:
+                    if cand[u] == extra:
                         dup = True
                 if not dup and nc < 64:
-                    cand[nc] = lab
+                    cand[nc] = extra
                     nc += 1
-            if nc == 1:
-                continue
-            cur_e = 0.0
-            best_f = 0.0
-            best = a[j]
+        for t in range(nstart[j], nstart[j + 1]):
+            lab = a[nbr[t]]
+            dup = False
             for u in range(nc):
-                lab = cand[u]
-                dj = _data(j, planes[lab], order, starts, w, cost, min_disp, reliable, omega_occ, trunc, wu)
-                sm_f = 0.0
-                sm = 0.0
-                for t in range(nstart[j], nstart[j + 1]):
-                    i = nbr[t]
-                    if a[i] == lab:
-                        continue
-                    s = gamma * _smooth(j, i, nedge[t], planes[lab], planes[a[i]], pairs, bstart, bp_lo, bp_hi,
-                                        bw, w, thr)
-                    sm += s
-                    sm_f += (1.0 - kappa + kappa * mu) * s
-                f = (1.0 - kappa) * dj + sm_f  # Eq. 6.19 as a function of l_j
-                e = dj + 2.0 * sm  # the part of E (Eq. 6.18) that depends on l_j
-                if u == 0:
-                    cur_e, best_f = e, f
-                elif f < best_f - 1e-9 and e <= cur_e + 1e-9:
-                    best_f = f
-                    best = lab
-            if best != a[j]:
-                a[j] = best
-                changes += 1
-        changes_total += changes
-        if changes == 0:
+                if cand[u] == lab:
+                    dup = True
+            if not dup and nc < 64:
+                cand[nc] = lab
+                nc += 1
+        if nc == 1:
+            continue
+        cur_e = 0.0
+        best_f = 0.0
+        best = a[j]
+        for u in range(nc):
+            lab = cand[u]
+            dj = _data(j, planes[lab], order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2)
+            sm_f = 0.0
+            sm = 0.0
+            for t in range(nstart[j], nstart[j + 1]):
+                i = nbr[t]
+                if a[i] == lab:
+                    continue
+                s = gamma * _smooth(j, i, nedge[t], planes[lab], planes[a[i]], pairs, bstart, bp_lo, bp_hi,
+                                    bw, w, thr)
+                sm += s
+                sm_f += (1.0 - kappa + kappa * mu) * s
+            f = (1.0 - kappa) * dj + sm_f  # Eq. 6.19 as a function of l_j
+            e = dj + 2.0 * sm  # the part of E (Eq. 6.18) that depends on l_j (visibility held fixed)
+            if u == 0:
+                cur_e, best_f = e, f
+            elif f < best_f - 1e-9 and e <= cur_e + 1e-9:
+                best_f = f
+                best = lab
+        if best != a[j]:
+            a[j] = best
+            changes += 1
+    return changes
+
+
+@njit(cache=True)
+def _local_f(j: int, pl: F64, a: I32, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
+             reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
+             nstart: I64, nbr: I64, nedge: I64, prm: F64, z1: F64, o1: I64, z2: F64) -> tuple[float, float]:
+    """Cooperative objective (Eq. 6.19) and local part of E (Eq. 6.18) of segment j under plane pl."""
+    kappa = prm[0]
+    mu = prm[1]
+    gamma = prm[5]
+    thr = prm[6]
+    dj = _data(j, pl, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2)
+    sm = 0.0
+    for t in range(nstart[j], nstart[j + 1]):
+        i = nbr[t]
+        sm += gamma * _smooth(j, i, nedge[t], pl, planes[a[i]], pairs, bstart, bp_lo, bp_hi, bw, w, thr)
+    return (1.0 - kappa) * dj + (1.0 - kappa + kappa * mu) * sm, dj + 2.0 * sm
+
+
+@njit(cache=True)
+def _powell(j: int, a: I32, planes: F64, n_used: int, order: I64, starts: I64, w: int, cost: F32,
+            min_disp: int, reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64,
+            bw: F64, nstart: I64, nbr: I64, nedge: I64, prm: F64, z1: F64, o1: I64, z2: F64,
+            cycles: int) -> tuple[F64, float, float]:
+    """Powell's direction-set minimisation (thesis Appendix E) of segment j's cooperative objective over its
+    plane (a, b, c), starting from its current plane; line minimisations by golden-section search."""
+    s0 = starts[j]
+    s1 = starts[j + 1]
+    cx = 0.0
+    cy = 0.0
+    sx = 1.0
+    sy = 1.0
+    n = s1 - s0
+    for t in range(s0, s1):
+        cx += order[t] % w
+        cy += order[t] // w
+    cx /= n
+    cy /= n
+    for t in range(s0, s1):
+        sx = max(sx, abs(order[t] % w - cx))
+        sy = max(sy, abs(order[t] // w - cy))
+    # parametrise by (slope_x, slope_y, disparity at the centroid): well-conditioned directions
+    p0 = planes[a[j]]
+    u = np.array([p0[0], p0[1], p0[0] * cx + p0[1] * cy + p0[2]])
+    dirs = np.zeros((3, 3))
+    dirs[0, 2] = 1.0        # disparity offset, px
+    dirs[1, 0] = 1.0 / sx   # slope change moving the segment's edge by 1 px
+    dirs[2, 1] = 1.0 / sy
+    pl = np.empty(3)
+
+    def to_plane(v: F64, out: F64) -> None:
+        out[0] = v[0]
+        out[1] = v[1]
+        out[2] = v[2] - v[0] * cx - v[1] * cy
+
+    to_plane(u, pl)
+    f0, e0 = _local_f(j, pl, a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo, bp_hi,
+                      bw, nstart, nbr, nedge, prm, z1, o1, z2)
+    fbest = f0
+    gr = 0.6180339887498949
+    for _c in range(cycles):
+        ustart = u.copy()
+        for k in range(3):
+            lo = -1.0
+            hi = 1.0
+            x1 = hi - gr * (hi - lo)
+            x2 = lo + gr * (hi - lo)
+            to_plane(u + x1 * dirs[k], pl)
+            f1, _ = _local_f(j, pl, a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo,
+                             bp_hi, bw, nstart, nbr, nedge, prm, z1, o1, z2)
+            to_plane(u + x2 * dirs[k], pl)
+            f2, _ = _local_f(j, pl, a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo,
+                             bp_hi, bw, nstart, nbr, nedge, prm, z1, o1, z2)
+            for _it in range(10):
+                if f1 < f2:
+                    hi = x2
+                    x2 = x1
+                    f2 = f1
+                    x1 = hi - gr * (hi - lo)
+                    to_plane(u + x1 * dirs[k], pl)
+                    f1, _ = _local_f(j, pl, a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart,
+                                     bp_lo, bp_hi, bw, nstart, nbr, nedge, prm, z1, o1, z2)
+                else:
+                    lo = x1
+                    x1 = x2
+                    f1 = f2
+                    x2 = lo + gr * (hi - lo)
+                    to_plane(u + x2 * dirs[k], pl)
+                    f2, _ = _local_f(j, pl, a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart,
+                                     bp_lo, bp_hi, bw, nstart, nbr, nedge, prm, z1, o1, z2)
+            xm = x1 if f1 < f2 else x2
+            fm = min(f1, f2)
+            if fm < fbest:
+                u = u + xm * dirs[k]
+                fbest = fm
+        # Powell's update: replace the first direction by the net displacement of the cycle
+        disp = u - ustart
+        nrm = np.sqrt((disp * disp).sum())
+        if nrm < 1e-6:
             break
-    return a, sweeps, changes_total
+        dirs[0] = dirs[1]
+        dirs[1] = dirs[2]
+        dirs[2] = disp
+    to_plane(u, pl)
+    fb, eb = _local_f(j, pl, a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo, bp_hi,
+                      bw, nstart, nbr, nedge, prm, z1, o1, z2)
+    return pl.copy(), fb - f0, eb - e0
+
+
+@njit(cache=True)
+def _refine_pass(a: I32, planes: F64, n_used: int, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
+                 reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
+                 nstart: I64, nbr: I64, nedge: I64, prm: F64, cycles: int, min_size: int) -> tuple[int, int]:
+    """Continuous refinement of every segment's plane by Powell's method; new planes are appended to
+    ``planes`` (capacity permitting) so that neighbours can adopt them in the next discrete sweep."""
+    k = starts.size - 1
+    h = cost.shape[0] // w
+    z1, o1, z2 = _zbuffer(a, planes, order, starts, h, w)
+    changed = 0
+    for j in range(k):
+        if starts[j + 1] - starts[j] < min_size or n_used >= planes.shape[0]:
+            continue
+        pl, df, de = _powell(j, a, planes, n_used, order, starts, w, cost, min_disp, reliable, pairs, bstart,
+                             bp_lo, bp_hi, bw, nstart, nbr, nedge, prm, z1, o1, z2, cycles)
+        if df < -1e-6 and de <= 1e-9:
+            planes[n_used] = pl
+            a[j] = n_used
+            n_used += 1
+            changed += 1
+    return n_used, changed
 
 
 def _flat_cost(cost: F32) -> F32:
     h, w, d = cost.shape
     return np.ascontiguousarray(cost.reshape(h * w, d), dtype=np.float32)
+
+
+def _prm(p: CoopParams) -> F64:
+    return np.array([p.kappa, p.mu, p.omega_occ, p.data_trunc, p.unreliable_weight, p.gamma, p.smooth_threshold,
+                     p.occ_margin, 1.0 if p.visibility else 0.0, p.omega_border], np.float64)
 
 
 def total_energy(assign: npt.NDArray[np.integer], planes: F64, index: SegmentIndex, graph: SegmentGraph,
@@ -302,21 +514,20 @@ def total_energy(assign: npt.NDArray[np.integer], planes: F64, index: SegmentInd
     assign : (K,) int, plane index per segment.
     planes : (L, 3) float64 plane set ``(a, b, c)``.
     index, graph : segment pixels and adjacency.
-    cost : (H, W, D) float32 aggregated cost of the left view, slice k = disparity ``min_disp + k``.
+    cost : (H, W, D) float32 pixel cost of the left view, slice k = disparity ``min_disp + k``.
     reliable : (H, W) bool cross-check mask (Eq. 6.7).
     """
     p = params or CoopParams()
     return float(_energy(np.asarray(assign, np.int32), np.asarray(planes, np.float64), index.order,
                          index.starts, index.shape[1], _flat_cost(cost), int(min_disp),
                          np.asarray(reliable, np.bool_).ravel(), graph.pairs, graph.bstart, graph.bp_lo,
-                         graph.bp_hi, graph.bw, p.omega_occ, p.data_trunc, p.unreliable_weight, p.gamma,
-                         p.smooth_threshold))
+                         graph.bp_hi, graph.bw, _prm(p)))
 
 
 def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: SegmentIndex,
                          graph: SegmentGraph, cost: F32, reliable: npt.NDArray[np.bool_], *,
                          own: npt.NDArray[np.integer] | None = None, min_disp: int = 0,
-                         params: CoopParams | None = None) -> tuple[I32, dict[str, float]]:
+                         params: CoopParams | None = None) -> tuple[I32, F64, dict[str, float]]:
     """Cooperative optimisation of the plane labels (thesis §6.2, Eqs. 6.18-6.25).
 
     Parameters
@@ -327,7 +538,7 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
         The plane set (fitted and merged planes).
     index, graph : SegmentIndex, SegmentGraph
     cost : (H, W, D) float32
-        Aggregated matching cost of the left view (slice k = disparity ``min_disp + k``).
+        Pixel matching cost of the left view (slice k = disparity ``min_disp + k``).
     reliable : (H, W) bool
         Cross-check mask (Eq. 6.7).
     own : (K, 2) int, optional
@@ -338,24 +549,63 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
     Returns
     -------
     assign : (K,) int32
-        Optimised plane index per segment.
+        Optimised plane index per segment, into ``planes_out``.
+    planes_out : (L', 3) float64
+        The plane set extended by the planes found by the continuous (Powell) refinement.
     info : dict
-        ``energy_before``, ``energy_after`` (Eq. 6.18), ``sweeps``, ``changes``.
+        ``energy_before``, ``energy_after`` (Eq. 6.18), ``sweeps``, ``changes``, ``refined``.
+
+    Notes
+    -----
+    Within a sweep the visibility (which pixels are occluded) is taken from the assignment at the start of
+    the sweep; after the sweep the total energy is recomputed with the new visibility and the sweep is
+    undone (and the iteration stopped) if it did not lower E, so E is non-increasing over iterations.
     """
     p = params or CoopParams()
-    a0 = np.asarray(assign, np.int32)
-    k = a0.size
+    a = np.asarray(assign, np.int32).copy()
+    k = a.size
     own_arr = np.full((k, 2), -1, np.int64) if own is None else np.asarray(own, np.int64).reshape(k, 2)
     fc = _flat_cost(cost)
     rel = np.asarray(reliable, np.bool_).ravel()
-    pl = np.ascontiguousarray(planes, np.float64)
+    n_used = int(planes.shape[0])
+    rounds = max(int(p.refine_rounds), 0)
+    pl = np.zeros((n_used + rounds * k, 3), np.float64)
+    pl[:n_used] = planes
+    prm = _prm(p)
     common = (index.order, index.starts, index.shape[1], fc, int(min_disp), rel, graph.pairs, graph.bstart,
               graph.bp_lo, graph.bp_hi, graph.bw)
-    e0 = _energy(a0, pl, *common, p.omega_occ, p.data_trunc, p.unreliable_weight, p.gamma, p.smooth_threshold)
-    a, sweeps, changes = _coop(a0, own_arr.ravel(), pl, *common, graph.nstart, graph.nbr, graph.nedge,
-                               p.kappa, p.mu, p.omega_occ, p.data_trunc, p.unreliable_weight, p.gamma,
-                               p.smooth_threshold, p.max_iter)
-    e1 = _energy(a, pl, *common, p.omega_occ, p.data_trunc, p.unreliable_weight, p.gamma, p.smooth_threshold)
-    log.debug("cooperative optimisation: E %.1f -> %.1f in %d sweeps (%d changes)", e0, e1, sweeps, changes)
-    return a, {"energy_before": float(e0), "energy_after": float(e1), "sweeps": float(sweeps),
-               "changes": float(changes)}
+    e0 = _energy(a, pl, *common, prm)
+    e_cur = e0
+    sweeps = 0
+    changes = 0
+    refined = 0
+    for rnd in range(rounds + 1):
+        for _ in range(p.max_iter):
+            prev = a.copy()
+            n = _sweep(a, own_arr.ravel(), pl, *common, graph.nstart, graph.nbr, graph.nedge, prm)
+            sweeps += 1
+            if n == 0:
+                break
+            e_new = _energy(a, pl, *common, prm)
+            if e_new > e_cur:
+                a = prev
+                break
+            e_cur = e_new
+            changes += n
+        if rnd == rounds:
+            break
+        prev = a.copy()
+        n_prev = n_used
+        n_used, n = _refine_pass(a, pl, n_used, *common, graph.nstart, graph.nbr, graph.nedge, prm,
+                                 int(p.powell_cycles), int(p.refine_min_size))
+        e_new = _energy(a, pl, *common, prm)
+        if n == 0 or e_new > e_cur:
+            a = prev
+            n_used = n_prev
+            break
+        e_cur = e_new
+        refined += n
+    planes_out = pl[:n_used]
+    log.debug("cooperative optimisation: E %.1f -> %.1f in %d sweeps (%d changes)", e0, e_cur, sweeps, changes)
+    return a, planes_out, {"energy_before": float(e0), "energy_after": float(e_cur), "sweeps": float(sweeps),
+                           "changes": float(changes), "refined": float(refined)}

@@ -58,7 +58,7 @@ class PlaneParams:
     min_pixels: int = 6
     ransac_trials: int = 48
     max_slope: float = 1.0
-    delta: float = 0.6
+    delta: float = 0.8
 
 
 @dataclass(frozen=True)

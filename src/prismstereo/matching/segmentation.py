@@ -44,7 +44,7 @@ class SegmentationParams:
     """
 
     hs: int = 5
-    hr: float = 5.0
+    hr: float = 4.0
     min_region: int = 20
     max_level: int = 0
     max_region: int = 0
