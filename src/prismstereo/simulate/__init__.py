@@ -1,4 +1,17 @@
-"""Prism-capture simulator: textured scenes, exact ray tracing through the prism, ground truth."""
+"""Prism-capture simulator: textured scenes, exact ray tracing through the prism, ground truth.
+
+* Scene model (:mod:`.scene`): :class:`Rectangle`, :class:`Box`, :class:`Sphere`, :class:`Plane` with
+  :class:`SolidTexture`, :class:`CheckerTexture`, :class:`NoiseTexture`, :class:`ImageTexture`, in a
+  :class:`Scene`; poses as Euler angles (:func:`euler_to_matrix`) or a facing normal
+  (:func:`rotation_from_normal`).
+* :func:`intersect_scene` — nearest hit, point, object and colour of N rays (numba).
+* :func:`render_capture` — the real camera's image through the prism with s × s supersampling, plus depth,
+  face map, hit points and object ids of the pixel-centre rays (:class:`Capture`).
+* Scene files (:mod:`.scene_toml`): :func:`load_scene`, :func:`scene_from_dict`, :func:`scene_to_toml`;
+  :func:`simulate_to_folder` writes the outputs of ``prismstereo simulate`` atomically.
+* :func:`checkerboard_poses` — boards seen whole through every face, with exact corners (:class:`BoardPose`).
+* :func:`robot_scene` — the built-in bi-prism scene of ``examples/biprism_robot.toml``.
+"""
 
 from __future__ import annotations
 
