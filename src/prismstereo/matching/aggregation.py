@@ -186,7 +186,7 @@ def _bpasw_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, dys: n
 
 def aggregate_bpasw(cost: np.ndarray, left: np.ndarray, right: np.ndarray | None = None, *,
                     radius: int = 16, dilation: int = 2, min_disp: int = 0,
-                    kernel: Literal["weber", "exp"] = "weber", similarity_s0: float = 50.0,
+                    kernel: Literal["weber", "exp"] = "weber", similarity_s0: float = 28.0,
                     similarity_s_min: float = 1.0, proximity_s0: float | None = None,
                     gamma_color: float = 7.0, gamma_proximity: float = 17.5,
                     prior: np.ndarray | None = None, continuity_weight: float = 0.2) -> np.ndarray:
