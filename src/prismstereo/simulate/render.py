@@ -17,7 +17,7 @@ import numpy as np
 
 from prismstereo.config import Rig
 from prismstereo.errors import ConfigError
-from prismstereo.optics import rays_from_pixels, trace_pixels
+from prismstereo.optics import trace_rays
 from prismstereo.simulate.kernels import (
     LIGHT,
     CompiledScene,
@@ -152,12 +152,20 @@ class Capture:
 
 
 def _trace(rig: Rig, pixels: np.ndarray, prism: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Rays of real pixels (N, 2): what :func:`prismstereo.optics.trace_pixels` gives, without its
+    per-call inverse of K (the pinhole direction K⁻¹[u, v, 1] is computed directly; trace_rays normalises)."""
+    f = rig.camera.focal_px
+    cx, cy = rig.camera.center
+    d = np.empty((pixels.shape[0], 3))
+    d[:, 0] = (pixels[:, 0] - cx) / f
+    d[:, 1] = (pixels[:, 1] - cy) / f
+    d[:, 2] = 1.0
     if prism:
-        b = trace_pixels(rig, pixels)
+        b = trace_rays(rig, d)
         return b.origins, b.directions, b.face, b.valid
-    d = rays_from_pixels(pixels, rig.camera.K)
-    shape = pixels.shape[:-1]
-    return np.zeros(shape + (3,)), d, np.zeros(shape, dtype=np.int64), np.ones(shape, dtype=bool)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    n = pixels.shape[0]
+    return np.zeros((n, 3)), d, np.zeros(n, dtype=np.int64), np.ones(n, dtype=bool)
 
 
 def sample_offsets(supersample: int) -> np.ndarray:
