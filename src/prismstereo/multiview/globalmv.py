@@ -79,6 +79,11 @@ class GlobalMultiViewParams:
     segmentation, planes, coop : the ``coop`` building blocks' parameter sets.
     occlusion : {"sides", "sum"}
         How the views' data costs combine (:func:`data_volume`); ``"sum"`` is the thesis's plain sum.
+    weight_by_baseline : bool
+        Weight each view's data cost by ``min(|δᵢ|, 1)`` (see :func:`data_volume`).
+    fit_min_ratio : float
+        Views with ``|δᵢ|`` below this give no disparity set to the plane fit (their unit-baseline
+        disparities are ``1/|δᵢ|`` times coarser); all views are used when none qualifies.
     data_radius : int
         Box radius of the pixel cost summed in the data term (as ``coop``).
     unreliable_weight : float
@@ -94,6 +99,8 @@ class GlobalMultiViewParams:
     unreliable_weight: float = 1.0
     data_radius: int = 1
     occlusion: str = "sides"
+    weight_by_baseline: bool = True
+    fit_min_ratio: float = 0.5
 
 
 @njit(cache=True)
@@ -171,7 +178,7 @@ def fit_planes_joint(index: SegmentIndex, disparities: npt.NDArray[np.floating],
 
 
 def _side_mean(pcs: Sequence[PairCost], *, max_disp: int, trunc: float, wu: float,
-               raw: bool) -> tuple[F32, F32]:
+               raw: bool, by_baseline: bool = False) -> tuple[F32, F32]:
     """Σ of truncated, reliability-weighted costs of ``pcs`` on the unit grid, and Σ of the weights."""
     acc: F32 | None = None
     den: F32 | None = None
@@ -179,7 +186,8 @@ def _side_mean(pcs: Sequence[PairCost], *, max_disp: int, trunc: float, wu: floa
         c, seen = resample_to_unit(pc, max_disp=max_disp, raw=raw)
         if raw:
             np.minimum(c, np.float32(trunc), out=c)
-        wgt = np.where(pc.reliable, np.float32(1.0), np.float32(wu))[:, :, None] * seen
+        wb = np.float32(min(abs(pc.ratio), 1.0) if by_baseline else 1.0)
+        wgt = np.where(pc.reliable, wb, wb * np.float32(wu))[:, :, None] * seen
         if acc is None or den is None:
             acc, den = c * wgt, wgt.astype(np.float32)
         else:
@@ -194,11 +202,14 @@ def _mean(acc: F32, den: F32) -> F32:
 
 
 def data_volume(pcs: Sequence[PairCost], *, max_disp: int, trunc: float, wu: float = 1.0,
-                occlusion: str = "sides") -> F32:
+                occlusion: str = "sides", weight_by_baseline: bool = True) -> F32:
     """Multi-view data term on the unit-baseline grid (thesis Eq. 7.16), per pixel and disparity.
 
     Each view's pixel cost at ``δᵢ d`` is truncated at ``trunc`` (Eq. 6.21) and weighted by 1 where that
     view's pair passed the left–right check, ``wu`` elsewhere; views that cannot see the match do not vote.
+
+    ``weight_by_baseline``: a view's weight is ``min(|δᵢ|, 1)`` — on the unit grid a view at ratio δ
+    resolves disparity |δ| times more coarsely, so short baselines (Cones' ±0.25) vote less.
 
     ``occlusion="sum"``: the mean over all views (Eq. 7.16's sum over ``i`` divided by ``n``).
     ``occlusion="sides"``: for every pixel and disparity, the views on the left of the reference or those on
@@ -216,12 +227,16 @@ def data_volume(pcs: Sequence[PairCost], *, max_disp: int, trunc: float, wu: flo
     left = [pc for pc in pcs if pc.ratio < 0]
     right = [pc for pc in pcs if pc.ratio > 0]
     if occlusion == "sum" or not left or not right:
-        out = _mean(*_side_mean(pcs, max_disp=max_disp, trunc=trunc, wu=wu, raw=True))
+        out = _mean(*_side_mean(pcs, max_disp=max_disp, trunc=trunc, wu=wu, raw=True, by_baseline=weight_by_baseline))
     else:
-        agg_l = _mean(*_side_mean(left, max_disp=max_disp, trunc=trunc, wu=wu, raw=False))
-        agg_r = _mean(*_side_mean(right, max_disp=max_disp, trunc=trunc, wu=wu, raw=False))
-        raw_l = _mean(*_side_mean(left, max_disp=max_disp, trunc=trunc, wu=wu, raw=True))
-        raw_r = _mean(*_side_mean(right, max_disp=max_disp, trunc=trunc, wu=wu, raw=True))
+        agg_l = _mean(*_side_mean(left, max_disp=max_disp, trunc=trunc, wu=wu, raw=False,
+                                      by_baseline=weight_by_baseline))
+        agg_r = _mean(*_side_mean(right, max_disp=max_disp, trunc=trunc, wu=wu, raw=False,
+                                      by_baseline=weight_by_baseline))
+        raw_l = _mean(*_side_mean(left, max_disp=max_disp, trunc=trunc, wu=wu, raw=True,
+                                      by_baseline=weight_by_baseline))
+        raw_r = _mean(*_side_mean(right, max_disp=max_disp, trunc=trunc, wu=wu, raw=True,
+                                      by_baseline=weight_by_baseline))
         out = np.where(agg_l <= agg_r, raw_l, raw_r)
     out = np.where(np.isfinite(out), out, np.float32(trunc))
     return np.ascontiguousarray(out, dtype=np.float32)
@@ -259,7 +274,7 @@ def match_multiview_global(reference: Any, views: Sequence[Any], *, ratios: Sequ
     timings["pair costs"] = time.perf_counter() - t
     t = time.perf_counter()
     data = data_volume(pcs, max_disp=md, trunc=p.coop.data_trunc, wu=p.unreliable_weight,
-                       occlusion=p.occlusion)
+                       occlusion=p.occlusion, weight_by_baseline=p.weight_by_baseline)
     timings["fusion"] = time.perf_counter() - t
     t = time.perf_counter()
     labels = mean_shift_segment(ref, params=p.segmentation)
@@ -269,6 +284,10 @@ def match_multiview_global(reference: Any, views: Sequence[Any], *, ratios: Sequ
     t = time.perf_counter()
     disps = np.stack([pc.disparity for pc in pcs])
     rels = np.stack([pc.reliable for pc in pcs]) & np.isfinite(disps)
+    fit_views = np.array([abs(pc.ratio) >= p.fit_min_ratio for pc in pcs])
+    if not fit_views.any():
+        fit_views[:] = True
+    disps, rels = disps[fit_views], rels[fit_views]
     planes, _inl = fit_planes_joint(index, disps, rels, params=p.planes)
     with np.errstate(invalid="ignore"):
         n_rel = rels.sum(axis=0)
