@@ -17,9 +17,9 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from prismstereo.optics import trace_pixels
 from prismstereo.simulate import intersect_scene, load_scene, render_capture, sample_offsets
 from prismstereo.simulate.kernels import compile_scene
+from prismstereo.simulate.render import _trace
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -35,8 +35,11 @@ def main() -> None:
     print(f"scene {args.scene}: {W}x{H}, {s}x{s} samples + 1 centre ray per pixel "
           f"({W * H * (s * s + 1) / 1e6:.2f} M rays), numba threads {numba.get_num_threads()}")
     t0 = time.perf_counter()
+    render_capture(rig, scene.__class__(objects=scene.objects[:1]), supersample=1)
+    print(f"warm-up (1 object, 1 sample; numba compile or cache load): {time.perf_counter() - t0:.2f} s")
+    t0 = time.perf_counter()
     render_capture(rig, scene, supersample=s)
-    print(f"first render (numba compile/cache load): {time.perf_counter() - t0:.2f} s")
+    print(f"first full render: {time.perf_counter() - t0:.2f} s")
     times, cpu = [], []
     for _ in range(args.repeat):
         c0 = time.process_time()
@@ -55,10 +58,10 @@ def main() -> None:
     px = (np.stack([uu, vv], -1)[:, :, None, :] + sample_offsets(s)).reshape(-1, 2)
     compiled = compile_scene(scene)
     t0 = time.perf_counter()
-    chunks = [trace_pixels(rig, px[i:i + 8192]) for i in range(0, len(px), 8192)]
+    chunks = [_trace(rig, px[i:i + 8192], True) for i in range(0, len(px), 8192)]
     t_trace = time.perf_counter() - t0
-    o = np.concatenate([c.origins for c in chunks])
-    d = np.concatenate([c.directions for c in chunks])
+    o = np.concatenate([c[0] for c in chunks])
+    d = np.concatenate([c[1] for c in chunks])
     t0 = time.perf_counter()
     intersect_scene(o, d, compiled, shading=scene.shading)
     t_kernel = time.perf_counter() - t0
