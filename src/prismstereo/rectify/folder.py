@@ -91,13 +91,12 @@ def rectify_to_folder(
             write_json(stage / "rectification.json", pair.to_json())
             written.append("rectification.json")
         else:
-            rv = rectify_views(rig, sel, remap=remap)  # type: ignore[arg-type]
+            a, b = _most_horizontal({f: cams[f].camera.C for f in faces}, faces)
+            pair = rectify_pair(rig, cams[a], cams[b], remap=remap, regions=regions)  # type: ignore[arg-type]
+            rv = rectify_views(rig, sel, remap=remap, reference=pair.left_face)  # type: ignore[arg-type]
             for f, img in zip(rv.faces, rv.rectify_images(image), strict=True):
                 write_image(stage / f"view_{f}.png", img)
                 written.append(f"view_{f}.png")
-            a, b = _most_horizontal({f: c for f, c in zip(rv.faces, rv.centres, strict=True)}, rv.faces)
-            pair = rv.pair(a, b) if (a, b) not in rv.horizontal_pairs and (b, a) not in rv.horizontal_pairs \
-                else rectify_pair(rig, cams[a], cams[b], remap=remap, regions=regions)  # type: ignore[arg-type]
             data = rv.to_json()
             data["pair"] = pair.to_json()
             write_json(stage / "rectification.json", data)
@@ -111,9 +110,7 @@ def rectify_to_folder(
         if len(faces) == 2:
             after = epipolar_after(left, right, pair, pts)
         else:
-            rv_ref = rv if rv.reference == pair.left_face else rectify_views(
-                rig, sel, reference=pair.left_face, remap=remap, pairs=False)  # type: ignore[arg-type]
-            after = epipolar_after_views(rv_ref.rectify_images(image), rv_ref, pts)
+            after = epipolar_after_views(rv.rectify_images(image), rv, pts)
             write_image(stage / "epipolar_after_pair.png", epipolar_after(left, right, pair, pts))
             written.append("epipolar_after_pair.png")
         write_image(stage / "epipolar_after.png", after)

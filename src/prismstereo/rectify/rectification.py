@@ -51,7 +51,7 @@ RemapKind = Literal["model", "exact"]
 REMAPS = ("model", "exact")
 #: reference depth (mm, world Z) of the ``exact`` remap
 REFERENCE_DEPTH_MM = 1500.0
-_EXACT_STEP = 8  # px: the exact remap is solved on this grid and interpolated bilinearly
+_MAP_STEP = 8  # px: the remap tables are solved on this grid and interpolated bilinearly
 
 
 # --------------------------------------------------------------------------- rotations
@@ -143,12 +143,9 @@ def _dirs_to_rect_pixels(dirs: np.ndarray, K: np.ndarray) -> np.ndarray:
 
 def _build_map(mapper: _ViewMapper, K: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """(H, W, 2) float32 remap table: rectified pixel → real pixel."""
+    # The map is smooth: solved on a grid of _MAP_STEP px and interpolated bilinearly (error ≪ 0.01 px).
     w, h = size
-    if mapper.remap == "model":
-        xs, ys = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-        dirs = _rect_pixels_to_dirs(np.stack([xs, ys], axis=-1), K)
-        return mapper.rect_dirs_to_real(dirs).reshape(h, w, 2).astype(np.float32)
-    step = _EXACT_STEP
+    step = _MAP_STEP
     gx = np.arange(0, w - 1 + step, step, dtype=np.float64)
     gy = np.arange(0, h - 1 + step, step, dtype=np.float64)
     xs, ys = np.meshgrid(gx, gy)
@@ -167,6 +164,28 @@ def _valid_from_map(map_xy: np.ndarray, region: np.ndarray) -> np.ndarray:
     ok = np.zeros(u.shape, dtype=bool)
     ok[inside] = region[v[inside], u[inside]]
     return ok
+
+
+def _roundtrip_valid(mapper: _ViewMapper, map_xy: np.ndarray, K: np.ndarray, valid: np.ndarray,
+                     *, tol_px: float = 0.5) -> np.ndarray:
+    """Drop rectified pixels whose real pixel does not map back to them (a distortion polynomial that
+    folds over far outside the region it was fitted on can send far-away rays into the face's region)."""
+    # checked on a grid of ``step`` px (folds are wide regions); a failing grid pixel drops its cell
+    step = 4
+    sub = valid[::step, ::step]
+    ys, xs = np.nonzero(sub)
+    if ys.size == 0:
+        return valid
+    ys, xs = ys * step, xs * step
+    back = _dirs_to_rect_pixels(mapper.real_to_rect_dirs(map_xy[ys, xs].astype(np.float64)), K)
+    bad_pts = ~(np.hypot(back[:, 0] - xs, back[:, 1] - ys) <= tol_px)
+    if not bad_pts.any():
+        return valid
+    bad = np.zeros(sub.shape, dtype=np.uint8)
+    bad[ys[bad_pts] // step, xs[bad_pts] // step] = 1
+    grown = np.asarray(cv2.dilate(bad, np.ones((3, 3), np.uint8)))
+    full = np.kron(grown, np.ones((step, step), np.uint8))[: valid.shape[0], : valid.shape[1]].astype(bool)
+    return valid & ~full
 
 
 def _footprint(mapper: _ViewMapper, region: ViewRegion, f: float) -> np.ndarray:
@@ -468,7 +487,8 @@ def rectify_pair(
                             "views that do not overlap")
     K, wh = _common_K(feet, f, size)
     maps = [_build_map(m, K, wh) for m in mappers]
-    valid = [_valid_from_map(mp, regions[v.face].mask) for mp, v in zip(maps, (left, right), strict=True)]
+    valid = [_roundtrip_valid(m, mp, K, _valid_from_map(mp, regions[v.face].mask))
+             for m, mp, v in zip(mappers, maps, (left, right), strict=True)]
     log.info("rectified faces %d (left) and %d (right): %dx%d, baseline %.2f mm", left.face, right.face, *wh,
              float(np.linalg.norm(right.camera.C - left.camera.C)))
     return RectifiedPair(left_face=left.face, right_face=right.face, K=K, R=R, C_left=left.camera.C.copy(),
@@ -635,7 +655,8 @@ def rectify_views(
     feet = [_footprint(m, regions[v.face], f) for m, v in zip(mappers, views, strict=True)]
     K, wh = _common_K(feet, f, size)
     maps = tuple(_build_map(m, K, wh) for m in mappers)
-    valid = tuple(_valid_from_map(mp, regions[v.face].mask) for mp, v in zip(maps, views, strict=True))
+    valid = tuple(_roundtrip_valid(m, mp, K, _valid_from_map(mp, regions[v.face].mask))
+                  for m, mp, v in zip(mappers, maps, views, strict=True))
     centres = np.stack([v.camera.C for v in views])
     faces = tuple(v.face for v in views)
     if reference is None:
