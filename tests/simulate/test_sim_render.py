@@ -156,3 +156,19 @@ def test_dataclasses_validate_programmatic_scenes() -> None:
         Scene(background=(2.0, 0.0, 0.0))
     r = Rectangle(center=[0, 0, 5], size=[1, 2])  # type: ignore[arg-type]
     assert r.center == (0.0, 0.0, 5.0) and r.size == (1.0, 2.0)
+
+
+def test_ground_truth_points_project_back_to_their_pixels(small_biprism: Rig) -> None:
+    from prismstereo.optics import project_exact
+
+    scene = Scene(objects=(Plane(center=(0.0, 0.0, 2000.0)),
+                           Sphere(center=(0.0, 0.0, 1400.0), radius=40.0),
+                           Box(center=(20.0, 30.0, 1200.0), size=(30.0, 30.0, 30.0), rotation=(20.0, 40.0, 0.0))))
+    cap = render_capture(small_biprism, scene, supersample=2)
+    rng = np.random.default_rng(0)
+    for face in (0, 1):
+        vs, us = np.nonzero((cap.faces == face) & np.isfinite(cap.depth))
+        pick = rng.choice(len(us), 40, replace=False)
+        px, ok = project_exact(cap.points[vs[pick], us[pick]], small_biprism, face)
+        assert ok.all()
+        np.testing.assert_allclose(px, np.stack([us[pick], vs[pick]], axis=1), atol=1e-3)
