@@ -57,3 +57,32 @@ def test_all_views_errors(small_capture: tuple[Rig, np.ndarray, np.ndarray, np.n
         depth_all_views(rig, image, depth_range=(400.0, 600.0), reference=0, views=[0])
     with pytest.raises(ImageError):
         depth_all_views(rig, image[:-1], depth_range=(400.0, 600.0))
+
+
+def test_all_views_command_writes_outputs(small_capture: tuple[Rig, np.ndarray, np.ndarray, np.ndarray],
+                                          tmp_path: object) -> None:
+    import json
+    from pathlib import Path
+
+    from prismstereo.io import read_pfm, read_ply, write_image, write_pfm
+    from prismstereo.multiview.prism import all_views_command
+
+    rig, image, depth, _ = small_capture
+    tmp = Path(str(tmp_path))
+    pr = rig.prism
+    (tmp / "rig.toml").write_text(
+        f"[camera]\nwidth = {rig.camera.width}\nheight = {rig.camera.height}\nfocal_length = 25.0\n"
+        f"pixel_size = 0.0186\n\n[prism]\nfaces = 3\ncorner_angle = {pr.corner_angle}\n"
+        f"refractive_index = {pr.refractive_index}\napex_distance = {pr.apex_distance}\n"
+        f"back_distance = {pr.back_distance}\nheight = {pr.height}\n")
+    write_image(tmp / "cap.png", image)
+    write_pfm(tmp / "gt.pfm", np.where(np.isfinite(depth), depth, np.inf).astype(np.float32))
+    text = all_views_command(tmp / "rig.toml", tmp / "cap.png", tmp / "out", depth_range=(420.0, 620.0),
+                             gt=tmp / "gt.pfm")
+    assert "coverage" in text
+    d = read_pfm(tmp / "out" / "depth.pfm")
+    assert d.shape == depth.shape
+    run = json.loads((tmp / "out" / "run.json").read_text())
+    assert run["accuracy"]["median_rel_err"] < 0.5
+    pts = read_ply(tmp / "out" / "points.ply")
+    assert len(pts[0]) == run["points"]
