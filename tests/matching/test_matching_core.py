@@ -225,3 +225,10 @@ def test_post_processing_switches() -> None:
     assert res2.disparity_raw is not None and np.isnan(res2.disparity_raw).any()
     assert np.isfinite(res2.disparity).all()
     assert np.all(np.isnan(res2.disparity_raw[~res2.valid]))
+
+
+def test_float_unit_range_is_rescaled() -> None:
+    left, right = _shifted_pair(6, h=48, w=80)
+    a = match(left, right, max_disp=15, method="bpasw", **FAST["bpasw"]).disparity
+    b = match(left / 255.0, right / 255.0, max_disp=15, method="bpasw", **FAST["bpasw"]).disparity
+    assert (np.abs(a - b) <= 1.0).mean() > 0.99

@@ -35,11 +35,19 @@ def _check_image(img: Any, name: str) -> np.ndarray:
 
 
 def validate_pair(left: Any, right: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Check a stereo pair (same size, H×W or H×W×3, uint8 or finite float) and return it as arrays."""
+    """Check a stereo pair (same size, H×W or H×W×3, uint8 or finite float) and return it as arrays.
+
+    Float pairs whose values all lie in [0, 1] (scikit-image convention) are rescaled to 0..255, the
+    scale the matching costs are tuned for.
+    """
     lt, rt = _check_image(left, "left"), _check_image(right, "right")
     if lt.shape[:2] != rt.shape[:2]:
         raise ImageError(f"expected left and right images of the same size, got {lt.shape[1]}×{lt.shape[0]} "
                          f"and {rt.shape[1]}×{rt.shape[0]} (W×H)")
+    if lt.dtype != np.uint8 and rt.dtype != np.uint8:
+        top = max(float(lt.max()), float(rt.max()))
+        if top <= 1.0:  # scikit-image convention: float images in [0, 1]
+            lt, rt = lt * np.float32(255.0), rt * np.float32(255.0)
     if lt.ndim != rt.ndim:
         lt = lt if lt.ndim == 3 else np.repeat(lt[:, :, None], 3, axis=2)
         rt = rt if rt.ndim == 3 else np.repeat(rt[:, :, None], 3, axis=2)
@@ -70,7 +78,8 @@ def match(left: Any, right: Any, *, max_disp: int, min_disp: int = 0, method: st
     Parameters
     ----------
     left, right : ndarray, (H, W) or (H, W, 3)
-        Rectified pair, RGB, uint8 or float on the 0..255 scale (uint16 is rescaled to it);
+        Rectified pair, RGB, uint8 or float on the 0..255 scale (uint16 and float pairs within
+        [0, 1] are rescaled to it);
         ``d = x_left - x_right >= 0``.
     max_disp, min_disp : int
         Inclusive search range, ``0 <= min_disp <= max_disp < W`` (a single level is allowed, so a
