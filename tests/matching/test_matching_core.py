@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from prismstereo.errors import ConfigError, ImageError, MatchingError
 from prismstereo.matching import available_matchers, costs, get_matcher, match, selection
@@ -232,3 +234,13 @@ def test_float_unit_range_is_rescaled() -> None:
     a = match(left, right, max_disp=15, method="bpasw", **FAST["bpasw"]).disparity
     b = match(left / 255.0, right / 255.0, max_disp=15, method="bpasw", **FAST["bpasw"]).disparity
     assert (np.abs(a - b) <= 1.0).mean() > 0.99
+
+
+@settings(max_examples=12, deadline=None)
+@given(d=st.integers(min_value=0, max_value=10), seed=st.integers(min_value=0, max_value=10_000),
+       method=st.sampled_from(["sad", "ncc", "shd", "sgbm"]))
+def test_any_shift_is_recovered(d: int, seed: int, method: str) -> None:
+    left, right = _shifted_pair(d, h=32, w=56, seed=seed)
+    res = match(left, right, max_disp=12, method=method)
+    inner = res.disparity[6:26, 14:50]
+    assert (np.abs(inner - d) <= 1.0).mean() > 0.9
