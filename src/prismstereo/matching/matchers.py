@@ -14,6 +14,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from prismstereo.errors import ConfigError
 from prismstereo.matching import costs, selection
 from prismstereo.matching.registry import MatchResult, register_matcher
 
@@ -52,6 +53,12 @@ class LocalMatcher:
     weighted_median: bool = False
     final_median: bool = False
     keep_cost: bool = False
+
+    def __post_init__(self) -> None:
+        radius = getattr(self, "radius", 0)
+        if radius < 0 or self.tolerance < 0:
+            raise ConfigError(f"expected radius >= 0 and tolerance >= 0, got radius={radius}, "
+                              f"tolerance={self.tolerance}")
 
     def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
                     min_disp: int) -> np.ndarray:  # pragma: no cover - abstract
@@ -133,7 +140,7 @@ class SHDMatcher(LocalMatcher):
     def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
                     min_disp: int) -> np.ndarray:
         vol = costs.cost_census(left, right, max_disp=max_disp, min_disp=min_disp,
-                                window=self.census_window)
+                                window=(int(self.census_window[0]), int(self.census_window[1])))
         return costs._box_volume(vol, self.radius)
 
 

@@ -8,6 +8,7 @@ built-in ones lazily (so importing :mod:`prismstereo.matching` stays light).
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import inspect
 from collections.abc import Callable
@@ -120,4 +121,32 @@ def get_matcher(name: str, **params: Any) -> Matcher:
         if unknown:
             allowed = ", ".join(p for p in sig.parameters if p != "self")
             raise ConfigError(f"expected parameters of method {key!r} among {allowed}, got {unknown}")
-    return factory(**params)
+    _check_param_types(key, factory, params)
+    try:
+        return factory(**params)
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, ConfigError):
+            raise
+        raise ConfigError(f"expected valid parameters for method {key!r}, got {params} ({exc})") from None
+
+
+def _check_param_types(key: str, factory: Callable[..., Matcher], params: dict[str, Any]) -> None:
+    """For dataclass matchers: each value must have the type of the field's default (int for float ok)."""
+    if not dataclasses.is_dataclass(factory):
+        return
+    defaults = {f.name: f.default for f in dataclasses.fields(factory)
+                if f.default is not dataclasses.MISSING}
+    for name, value in params.items():
+        if name not in defaults or defaults[name] is None:
+            continue
+        want = type(defaults[name])
+        ok = isinstance(value, want)
+        if want is float:
+            ok = isinstance(value, int | float) and not isinstance(value, bool)
+        elif want is int:
+            ok = isinstance(value, int) and not isinstance(value, bool)
+        elif want is tuple:
+            ok = isinstance(value, tuple | list)
+        if not ok:
+            raise ConfigError(f"expected parameter {name!r} of method {key!r} to be {want.__name__}, "
+                              f"got {value!r}")
