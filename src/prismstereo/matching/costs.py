@@ -59,17 +59,30 @@ def _ndisp(max_disp: int, min_disp: int) -> int:
 
 def _shifted_abs_diff(left: np.ndarray, right: np.ndarray, min_disp: int, ndisp: int,
                       invalid: float) -> np.ndarray:
-    """Mean over channels of ``|left(y, x) - right(y, x - d)|``, vectorised per disparity slice."""
+    """Mean over channels of ``|left(y, x) - right(y, x - d)|``, vectorised per disparity slice.
+
+    Slices are built contiguous in a (D, H, W) array from channel-first images, then transposed once.
+    """
     h, w, c = left.shape
-    out = np.full((h, w, ndisp), np.float32(invalid), dtype=np.float32)
-    inv_c = np.float32(1.0 / c)
+    lc = np.ascontiguousarray(left.transpose(2, 0, 1))
+    rc = np.ascontiguousarray(right.transpose(2, 0, 1))
+    vol = np.full((ndisp, h, w), np.float32(invalid), dtype=np.float32)
+    tmp = np.empty((h, w), dtype=np.float32)
     for i in range(ndisp):  # loop over disparities, not pixels
         d = min_disp + i
         if d >= w:
             break
-        diff = np.abs(left[:, d:, :] - right[:, : w - d, :])
-        out[:, d:, i] = diff[:, :, 0] if c == 1 else diff.sum(axis=2) * inv_c
-    return out
+        acc = vol[i, :, d:]
+        np.subtract(lc[0, :, d:], rc[0, :, : w - d], out=acc)
+        np.abs(acc, out=acc)
+        t = tmp[:, d:]
+        for k in range(1, c):
+            np.subtract(lc[k, :, d:], rc[k, :, : w - d], out=t)
+            np.abs(t, out=t)
+            acc += t
+        if c > 1:
+            acc *= np.float32(1.0 / c)
+    return np.ascontiguousarray(vol.transpose(1, 2, 0))
 
 
 def cost_ad(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int = 0,
