@@ -5,37 +5,53 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+#: colour-distance lookup resolution (entries per ΔE unit) and range (ΔE)
+_LUT_STEP = 4.0
+_LUT_MAX = 256.0
 
-@njit(cache=True, parallel=True)
+
+@njit(cache=True, parallel=True, fastmath=True)
 def wmf_kernel(disp: np.ndarray, mask: np.ndarray, lab: np.ndarray, radius: int, gamma_c: float,
-         gamma_d: float, dmin: float, nbins: int) -> np.ndarray:  # pragma: no cover - numba
+               gamma_d: float, dmin: float, nbins: int) -> np.ndarray:  # pragma: no cover - numba
+    """Weighted median over integer bins, weights exp(-ΔE/γc - ‖Δp‖/γd) from lookup tables."""
     h, w = disp.shape
     out = disp.copy()
+    side = 2 * radius + 1
+    spatial = np.empty((side, side), dtype=np.float32)
+    for i in range(side):
+        for j in range(side):
+            spatial[i, j] = np.exp(-np.sqrt(float((i - radius) ** 2 + (j - radius) ** 2)) / gamma_d)
+    nlut = int(_LUT_MAX * _LUT_STEP) + 1
+    lut = np.empty(nlut, dtype=np.float32)
+    for i in range(nlut):
+        lut[i] = np.exp(-(i / _LUT_STEP) / gamma_c)
     for y in prange(h):
-        hist = np.zeros(nbins, dtype=np.float64)
+        hist = np.zeros(nbins, dtype=np.float32)
         for x in range(w):
             if not mask[y, x]:
                 continue
             hist[:] = 0.0
-            total = 0.0
+            total = np.float32(0.0)
+            l0, l1, l2 = lab[y, x, 0], lab[y, x, 1], lab[y, x, 2]
             for yy in range(max(0, y - radius), min(h, y + radius + 1)):
                 for xx in range(max(0, x - radius), min(w, x + radius + 1)):
                     v = disp[yy, xx]
                     if not np.isfinite(v):
                         continue
-                    a = lab[y, x, 0] - lab[yy, xx, 0]
-                    b = lab[y, x, 1] - lab[yy, xx, 1]
-                    c = lab[y, x, 2] - lab[yy, xx, 2]
-                    dc = np.sqrt(a * a + b * b + c * c)
-                    ds = np.sqrt(float((y - yy) ** 2 + (x - xx) ** 2))
-                    wt = np.exp(-dc / gamma_c - ds / gamma_d)
+                    a = l0 - lab[yy, xx, 0]
+                    b = l1 - lab[yy, xx, 1]
+                    c = l2 - lab[yy, xx, 2]
+                    k = int(np.sqrt(a * a + b * b + c * c) * _LUT_STEP + 0.5)
+                    if k >= nlut:
+                        continue
+                    wt = lut[k] * spatial[yy - y + radius, xx - x + radius]
                     bi = int(np.floor(v - dmin + 0.5))
                     bi = min(max(bi, 0), nbins - 1)
                     hist[bi] += wt
                     total += wt
             if total <= 0.0:
                 continue
-            acc = 0.0
+            acc = np.float32(0.0)
             for bi in range(nbins):
                 acc += hist[bi]
                 if acc >= 0.5 * total:
