@@ -89,6 +89,9 @@ class DepthConfig:
         With ``refine``: keep only matches that the refinement could refine (textured window, inside
         both views, within a pixel of the matcher's value) and whose windows then correlate (ZNCC) at
         least this much. None keeps every match.
+    speckle_fraction : float or None
+        Remove connected patches of disparity (neighbours within 1 px) smaller than this fraction of the
+        matched region (at least 20 px): isolated wrong matches (OpenCV ``filterSpeckles``). None keeps them.
     """
 
     method: str = "bpasw"
@@ -103,6 +106,7 @@ class DepthConfig:
     refine: bool = True
     refine_radius: int = 3
     min_confidence: float | None = 0.8
+    speckle_fraction: float | None = 0.001
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -507,6 +511,23 @@ def _stage_refine(st: DepthResult) -> None:
         with np.errstate(invalid="ignore"):
             disp = np.where(conf >= st.config.min_confidence, disp, np.float32(np.nan))
     st.disparity = disp
+
+
+@register_stage("speckles")
+def _stage_speckles(st: DepthResult) -> None:
+    import cv2
+
+    if st.config.speckle_fraction is None:
+        return
+    assert st.disparity is not None and st.roi_mask is not None
+    disp = st.disparity
+    finite = np.isfinite(disp)
+    if not finite.any() or float(np.nanmax(disp)) * 16 > 32000:
+        return
+    size = max(20, int(st.config.speckle_fraction * int(st.roi_mask.sum())))
+    d16 = np.where(finite, np.rint(disp * 16.0), -16).astype(np.int16)
+    cv2.filterSpeckles(d16, -16, size, 16)
+    st.disparity = np.where(d16 == -16, np.float32(np.nan), disp).astype(np.float32)
 
 
 @register_stage("triangulate")
