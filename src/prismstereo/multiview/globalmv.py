@@ -32,6 +32,7 @@ already truncated and weighted, and is called with ``data_trunc`` above its rang
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -78,12 +79,22 @@ class GlobalMultiViewParams:
         Keyword parameters of that cost.
     segmentation, planes, coop : the ``coop`` building blocks' parameter sets.
     occlusion : {"sides", "sum"}
-        How the views' data costs combine (:func:`data_volume`); ``"sum"`` is the thesis's plain sum.
+        How the views' data costs combine (:func:`data_volume`); ``"sum"`` is the thesis's plain sum. With
+        ``"sides"`` and views on both sides the optimiser's right-view visibility test is switched off
+        (the side selection already keeps occluded views from voting).
+    scale_smoothness : bool
+        Divide the smoothness weight γ (Eq. 6.24) by ``√n_eff``, ``n_eff = (Σ wᵢ)² / Σ wᵢ²`` the effective
+        number of views of the data term: the data term is a mean over views whose noise falls as
+        ``1/√n_eff``, so the two-view balance of data and smoothness (``coop``'s γ, tuned for one view)
+        is kept at equal noise. ``n_eff = 1`` for one view, so one view reproduces ``coop``.
     weight_by_baseline : bool
         Weight each view's data cost by ``min(|δᵢ|, 1)`` (see :func:`data_volume`).
     fit_min_ratio : float
         Views with ``|δᵢ|`` below this give no disparity set to the plane fit (their unit-baseline
         disparities are ``1/|δᵢ|`` times coarser); all views are used when none qualifies.
+    fit_source : {"pairs", "fused", "both"}
+        Disparity sets of the joint plane fit: every pair's checked map (Eq. 7.11, the thesis), the map of
+        the fused aggregated costs (the local method's winner, reliable where a pair agrees), or both.
     data_radius : int
         Box radius of the pixel cost summed in the data term (as ``coop``).
     unreliable_weight : float
@@ -99,8 +110,10 @@ class GlobalMultiViewParams:
     unreliable_weight: float = 1.0
     data_radius: int = 1
     occlusion: str = "sides"
+    scale_smoothness: bool = True
     weight_by_baseline: bool = True
     fit_min_ratio: float = 0.5
+    fit_source: str = "both"
 
 
 @njit(cache=True)
@@ -242,6 +255,36 @@ def data_volume(pcs: Sequence[PairCost], *, max_disp: int, trunc: float, wu: flo
     return np.ascontiguousarray(out, dtype=np.float32)
 
 
+def _fused_initial(pcs: Sequence[PairCost], *, max_disp: int, wu: float, occlusion: str,
+                   weight_by_baseline: bool) -> tuple[F32, npt.NDArray[np.bool_]]:
+    """WTA + parabola on the views' AGGREGATED costs fused on the unit grid (the local method's map, with
+    the same side selection and weights as the data term); reliable where a pair's checked map agrees (±1)."""
+    left = [pc for pc in pcs if pc.ratio < 0]
+    right = [pc for pc in pcs if pc.ratio > 0]
+    def side(group: Sequence[PairCost]) -> F32:
+        return _mean(*_side_mean(group, max_disp=max_disp, trunc=np.inf, wu=wu, raw=False,
+                                 by_baseline=weight_by_baseline))
+
+    vol = np.minimum(side(left), side(right)) if occlusion == "sides" and left and right else side(pcs)
+    vol = np.where(np.isfinite(vol), vol, np.float32(np.nanmax(np.where(np.isfinite(vol), vol, 0.0)) + 1.0))
+    nd = vol.shape[2]
+    k = vol.argmin(axis=2)
+    kc = np.clip(k, 1, max(nd - 2, 1))
+    if nd >= 3:
+        c0 = np.take_along_axis(vol, (kc - 1)[..., None], 2)[..., 0]
+        c1 = np.take_along_axis(vol, kc[..., None], 2)[..., 0]
+        c2 = np.take_along_axis(vol, (kc + 1)[..., None], 2)[..., 0]
+        den = c0 - 2.0 * c1 + c2
+        off = np.where(den > 1e-6, (c0 - c2) / (2.0 * np.maximum(den, 1e-6)), 0.0)
+        d = np.where((k > 0) & (k < nd - 1), k + np.clip(off, -0.5, 0.5), k).astype(np.float32)
+    else:
+        d = k.astype(np.float32)
+    agree = np.zeros(d.shape, bool)
+    for pc in pcs:
+        agree |= pc.reliable & (np.abs(pc.disparity - d) <= 1.0)
+    return d, agree
+
+
 def match_multiview_global(reference: Any, views: Sequence[Any], *, ratios: Sequence[float], max_disp: int,
                            params: GlobalMultiViewParams | None = None) -> MatchResult:
     """Global multi-view disparity of the reference for the unit baseline (thesis §7.1.2).
@@ -288,6 +331,15 @@ def match_multiview_global(reference: Any, views: Sequence[Any], *, ratios: Sequ
     if not fit_views.any():
         fit_views[:] = True
     disps, rels = disps[fit_views], rels[fit_views]
+    if p.fit_source in ("fused", "both"):
+        fd, frel = _fused_initial(pcs, max_disp=md, wu=p.unreliable_weight, occlusion=p.occlusion,
+                                  weight_by_baseline=p.weight_by_baseline)
+        if p.fit_source == "fused":
+            disps, rels = fd[None], frel[None]
+        else:
+            disps, rels = np.concatenate([disps, fd[None]]), np.concatenate([rels, frel[None]])
+    elif p.fit_source != "pairs":
+        raise ConfigError(f"expected fit_source 'pairs', 'fused' or 'both', got {p.fit_source!r}")
     planes, _inl = fit_planes_joint(index, disps, rels, params=p.planes)
     with np.errstate(invalid="ignore"):
         n_rel = rels.sum(axis=0)
@@ -308,7 +360,16 @@ def match_multiview_global(reference: Any, views: Sequence[Any], *, ratios: Sequ
     timings["planes"] = time.perf_counter() - t
     t = time.perf_counter()
     graph = build_segment_graph(labels, ref)
-    cp = replace(p.coop, data_trunc=float(np.float32(data.max())) + 1.0, unreliable_weight=1.0)
+    gamma = p.coop.gamma
+    if p.scale_smoothness:
+        wv = np.array([min(abs(r), 1.0) if p.weight_by_baseline else 1.0 for r in rs])
+        n_eff = float(wv.sum() ** 2 / np.square(wv).sum())  # Kish effective number of views
+        gamma = p.coop.gamma / math.sqrt(n_eff)
+    cp = replace(p.coop, data_trunc=float(np.float32(data.max())) + 1.0, unreliable_weight=1.0, gamma=gamma)
+    if p.occlusion == "sides" and min(rs) < 0 < max(rs) and hasattr(cp, "visibility"):
+        # views on both sides: the side selection of the data term already lets the unoccluded side vote;
+        # the optimiser's right-view visibility test would charge occlusion the left views do not see
+        cp = replace(cp, visibility=False)
     initial = render_planes(index, plane_set, assign)
     out = cooperative_optimize(assign, plane_set, index, graph, data, np.ones(labels.shape, bool),
                                own=own, min_disp=0, params=cp)
