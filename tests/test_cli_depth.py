@@ -161,3 +161,20 @@ def test_demo(tmp_path, capsys):
     assert names >= set(OUTPUT_FILES) | {"capture.png", "depth_gt.pfm", "rig.toml"}
     acc = json.loads((out / "run.json").read_text())["accuracy"]
     assert acc["median_rel"] <= 0.0025 and acc["within_1pct"] >= 0.9 and acc["coverage"] >= 0.7
+
+
+def test_all_views_of_a_triprism(tmp_path, capsys):
+    """``--views all`` with N >= 3 faces runs the all-view sweep (multiview) and writes its outputs."""
+    from prismstereo.config import thesis_triprism
+    from prismstereo.simulate import render_capture
+
+    rig = scaled_rig(thesis_triprism(), 4)
+    cap = render_capture(rig, plane_scene(500.0, tilt_deg=15.0), supersample=1)
+    rig.save(tmp_path / "rig.toml")
+    write_image(tmp_path / "capture.png", cap.image)
+    out = tmp_path / "out"
+    code, text, err = _run(["depth", str(tmp_path / "rig.toml"), str(tmp_path / "capture.png"), "-o", str(out),
+                            "--views", "all", "--depth-range", "400,700"], capsys)
+    assert code == 0, err
+    assert "all views" in text
+    assert {"depth.pfm", "points.ply", "run.json"} <= {p.name for p in out.iterdir()}

@@ -234,7 +234,8 @@ def _add_depth(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--depth-range", default="800,5000", metavar="MIN,MAX",
                    help="scene depths to search, mm (default 800,5000); sets the disparity range")
     p.add_argument("--roi", default=None, metavar="X,Y,W,H", help="region of the rectified left view")
-    p.add_argument("--views", default=None, metavar="I,J", help="faces to pair (default: 1,0 for a bi-prism)")
+    p.add_argument("--views", default=None, metavar="I,J|all",
+                   help="faces to pair (default: 1,0 for a bi-prism, else 0,1); 'all' uses every face (N >= 3)")
     p.add_argument("--triangulation", default="exact", choices=["exact", "midpoint", "dlt", "q"],
                    help="exact refractive rays (default), virtual-pinhole midpoint or DLT, or Q (Eq. 7.23)")
     p.add_argument("--calibration", default="fit", choices=["fit", "thesis"],

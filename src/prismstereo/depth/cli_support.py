@@ -38,13 +38,8 @@ def check_output_dir(path: str | os.PathLike[str]) -> None:
 
 
 def _resolve_views(views: Any, faces: int) -> tuple[int, int] | None:
-    if views is None:
+    if views is None or views == "all":  # "all" with N >= 3 faces is handled before (all-view sweep)
         return None
-    if views == "all":
-        if faces == 2:
-            return None
-        raise ConfigError(f"--views: expected a pair I,J for depth with a {faces}-face prism, got 'all' "
-                          "(multi-view matching of all faces: prismstereo multiview)")
     if len(views) != 2:
         raise ConfigError(f"--views: expected two faces I,J, got {','.join(map(str, views))}")
     return int(views[0]), int(views[1])
@@ -66,6 +61,16 @@ def depth_command(rig_path: str, image_path: str, out_dir: str, *, method: str =
     rig = load_rig(rig_path)
     check_output_dir(out_dir)
     image = read_image(image_path)
+    if views == "all" and rig.prism.faces >= 3:
+        # every face at once: plane sweep in a reference view + exact multi-ray triangulation (multiview)
+        from prismstereo.depth.pipeline import validate_image
+        from prismstereo.multiview.prism import all_views_command
+
+        validate_image(rig, image)
+        if not 0 < depth_range[0] < depth_range[1]:
+            raise ConfigError(f"--depth-range: expected 0 < MIN < MAX mm, got {depth_range[0]:g},{depth_range[1]:g}")
+        return all_views_command(rig_path, image_path, out_dir, depth_range=depth_range, calibration=calibration,
+                                 gt=gt)
     config = DepthConfig(method=method, matcher_params=dict(params or {}), depth_range=depth_range, roi=roi,
                          views=_resolve_views(views, rig.prism.faces), triangulation=triangulation,
                          calibration=calibration, refine=refine)
