@@ -31,6 +31,7 @@ from prismstereo.matching.planes import (
     fit_planes,
     merge_planes,
     render_planes,
+    segment_label_map,
 )
 from prismstereo.matching.registry import MatchResult, register_matcher
 from prismstereo.matching.segmentation import SegmentationParams, mean_shift_segment, segment_adjacency
@@ -137,7 +138,7 @@ def _box3(vol: F32, r: int) -> F32:
 def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, max_disp: int,
                min_disp: int = 0, segmentation: SegmentationParams | None = None,
                cost: CostParams | None = None, planes: PlaneParams | None = None,
-               coop: CoopParams | None = None, data_radius: int = 1) -> CoopResult:
+               coop: CoopParams | None = None, data_radius: int = 1, refit_rounds: int = 1) -> CoopResult:
     """Run the whole segment-based cooperative pipeline (thesis §5.1, §5.2, §6.1, §6.2).
 
     Parameters
@@ -150,6 +151,10 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     data_radius : int, keyword-only
         Box radius of the pixel cost summed in the segment data term (Eq. 6.21); the segment itself is the
         aggregation window there, so only a light pre-smoothing is used (0 = raw pixel cost).
+    refit_rounds : int, keyword-only
+        After the cooperative optimisation, segments sharing a plane are refitted together (Eqs. 6.2-6.10
+        on their union), the refitted planes offered as candidates, and the optimisation resumed; this many
+        times (0 = off).
 
     Returns
     -------
@@ -168,15 +173,15 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     tm: dict[str, float] = {}
 
     t = time.perf_counter()
-    labels = mean_shift_segment(lft, params=sp)
-    tm["segmentation"] = time.perf_counter() - t
-
-    t = time.perf_counter()
     raw = raw_cost(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=cp)
     agg_l, agg_r = aggregated_costs(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=cp, raw=raw)
     initial, reliable = initial_disparity(agg_l, agg_r, min_disp=min_disp)
-    del agg_r
+    del agg_r, agg_l
     tm["initial"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    labels = mean_shift_segment(lft, params=sp, disparity=initial if sp.depth_tau > 0 else None)
+    tm["segmentation"] = time.perf_counter() - t
 
     t = time.perf_counter()
     index = build_segment_index(labels)
@@ -203,6 +208,24 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     del raw
     assign, plane_set, info = cooperative_optimize(assign0, plane_set, index, graph, data_cost, reliable,
                                                    own=own, min_disp=min_disp, params=op)
+    e_first = info["energy_before"]
+    for _ in range(refit_rounds):
+        # refit one plane per group of segments sharing a label (wider support), offer it as a candidate
+        groups = assign[segment_label_map(index)].reshape(index.shape)
+        gidx = build_segment_index(groups)
+        gpl, _ = fit_planes(gidx, initial, reliable, params=pp)
+        used = np.unique(assign)
+        ok = np.isfinite(gpl[used, 0])
+        if not ok.any():
+            break
+        new_ids = np.full(plane_set.shape[0], -1, np.int64)
+        new_ids[used[ok]] = plane_set.shape[0] + np.arange(int(ok.sum()))
+        plane_set = np.concatenate([plane_set, gpl[used[ok]]])
+        own2 = own.copy()
+        own2[:, 1] = new_ids[assign]
+        assign, plane_set, info2 = cooperative_optimize(assign, plane_set, index, graph, data_cost, reliable,
+                                                        own=own2, min_disp=min_disp, params=op)
+        info = {**info2, "energy_before": e_first}
     final = render_planes(index, plane_set, assign)
     final = np.clip(final, min_disp, max_disp).astype(np.float32)
     tm["cooperative"] = time.perf_counter() - t

@@ -46,7 +46,7 @@ class CostParams:
 
     tau_color: float = 20.0
     tau_grad: float = 6.0
-    lambda_census: float = 20.0
+    lambda_census: float = 30.0
     lambda_ad: float = 10.0
     census_rx: int = 4
     census_ry: int = 3

@@ -85,7 +85,7 @@ class CoopParams:
     kappa: float = 0.5
     mu: float = 1.0
     omega_occ: float = 1.0
-    gamma: float = 1.0
+    gamma: float = 0.5
     smooth_threshold: float = 1.0
     data_trunc: float = 1.5
     unreliable_weight: float = 1.0

@@ -20,7 +20,7 @@ from numba import njit
 
 log = logging.getLogger(__name__)
 
-__all__ = ["PlaneParams", "SegmentIndex", "build_segment_index", "fit_planes", "merge_planes",
+__all__ = ["PlaneParams", "SegmentIndex", "build_segment_index", "fit_planes", "merge_planes", "segment_label_map",
            "plane_similarity", "render_planes", "fill_missing_planes"]
 
 F64 = npt.NDArray[np.float64]
@@ -344,7 +344,7 @@ def merge_planes(index: SegmentIndex, planes: F64, pairs: I32, disparity: npt.ND
     roots[~has] = -1
     # refit every multi-segment cluster on the union of its members' reliable pixels
     relabel = np.where(has, roots, k)  # label map over clusters, k = none
-    cl_lab = relabel[np.asarray(_segment_label_map(index))]
+    cl_lab = relabel[np.asarray(segment_label_map(index))]
     cidx = build_segment_index(cl_lab.reshape(h, w))
     merged, _ = fit_planes(cidx, disparity, reliable, params=p)
     cluster = np.full(k, -1, np.int32)
@@ -378,7 +378,8 @@ def merge_planes(index: SegmentIndex, planes: F64, pairs: I32, disparity: npt.ND
     return cluster, cplanes
 
 
-def _segment_label_map(index: SegmentIndex) -> npt.NDArray[np.int64]:
+def segment_label_map(index: SegmentIndex) -> npt.NDArray[np.int64]:
+    """Flat (H*W,) segment label of every pixel, rebuilt from the index."""
     k = index.n_segments
     lab = np.empty(index.order.size, np.int64)
     lab[index.order] = np.repeat(np.arange(k), np.diff(index.starts))
@@ -440,7 +441,7 @@ def render_planes(index: SegmentIndex, planes: F64,
     (H, W) float32 disparity, ``a x + b y + c`` of the segment's plane at every pixel.
     """
     h, w = index.shape
-    seg = _segment_label_map(index)
+    seg = segment_label_map(index)
     pix = np.arange(h * w)
     xs = (pix % w).astype(np.float64)
     ys = (pix // w).astype(np.float64)

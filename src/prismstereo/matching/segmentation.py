@@ -41,6 +41,9 @@ class SegmentationParams:
     max_region : int
         Optional cap on the size of a region (0 = none): larger regions are split along a grid of this
         area. Segment-based stereo assumes one plane per segment, which is safer for compact segments.
+    depth_tau : float
+        With an initial disparity map given, neighbours differing by this much (px) are kept apart
+        (0 = colour only, as in the thesis).
     """
 
     hs: int = 5
@@ -48,6 +51,7 @@ class SegmentationParams:
     min_region: int = 20
     max_level: int = 0
     max_region: int = 0
+    depth_tau: float = 0.0
 
 
 def _to_lab8(image: npt.NDArray[np.generic]) -> npt.NDArray[np.uint8]:
@@ -103,6 +107,35 @@ def _label_modes(filt: npt.NDArray[np.float32], hr2: float) -> npt.NDArray[np.in
                 if d < hr2:
                     _union(parent, i, i + 1)
             if y + 1 < h:
+                d = 0.0
+                for k in range(c):
+                    t = filt[y, x, k] - filt[y + 1, x, k]
+                    d += t * t
+                if d < hr2:
+                    _union(parent, i, i + w)
+    out = np.empty(h * w, dtype=np.int32)
+    for i in range(h * w):
+        out[i] = _find(parent, i)
+    return out
+
+
+@njit(cache=True)
+def _label_modes_depth(filt: npt.NDArray[np.float32], hr2: float, disp: npt.NDArray[np.float32],
+                       tau: float) -> npt.NDArray[np.int32]:
+    """As :func:`_label_modes`, but neighbours whose disparities differ by ``tau`` or more stay apart."""
+    h, w, c = filt.shape
+    parent = np.arange(h * w).astype(np.int32)
+    for y in range(h):
+        for x in range(w):
+            i = y * w + x
+            if x + 1 < w and abs(disp[y, x] - disp[y, x + 1]) < tau:
+                d = 0.0
+                for k in range(c):
+                    t = filt[y, x, k] - filt[y, x + 1, k]
+                    d += t * t
+                if d < hr2:
+                    _union(parent, i, i + 1)
+            if y + 1 < h and abs(disp[y, x] - disp[y + 1, x]) < tau:
                 d = 0.0
                 for k in range(c):
                     t = filt[y, x, k] - filt[y + 1, x, k]
@@ -219,7 +252,7 @@ def _split_large(labels: npt.NDArray[np.int32], max_region: int) -> npt.NDArray[
 
 
 def mean_shift_segment(image: npt.NDArray[np.generic], *, params: SegmentationParams | None = None,
-                       ) -> npt.NDArray[np.int32]:
+                       disparity: npt.NDArray[np.floating] | None = None) -> npt.NDArray[np.int32]:
     """Segment an image by joint spatial-range mean shift (thesis §5.1).
 
     Parameters
@@ -228,6 +261,11 @@ def mean_shift_segment(image: npt.NDArray[np.generic], *, params: SegmentationPa
         The reference (left) image.
     params : SegmentationParams, keyword-only
         ``hs``, ``hr``, ``M`` (min_region) ...; defaults tuned for Middlebury-sized images.
+    disparity : (H, W) float, keyword-only, optional
+        A dense initial disparity map. When given and ``params.depth_tau > 0``, 4-neighbours whose
+        (median-filtered) disparities differ by ``depth_tau`` or more are never grouped, and the small-region
+        merge weighs disparity too, so that segments do not straddle depth edges the initial map shows
+        (an extension of §5.1: the thesis assumes depth edges coincide with colour edges).
 
     Returns
     -------
@@ -239,9 +277,18 @@ def mean_shift_segment(image: npt.NDArray[np.generic], *, params: SegmentationPa
     lab = _to_lab8(image)
     h, w = lab.shape[:2]
     filt = cv2.pyrMeanShiftFiltering(lab, sp=float(p.hs), sr=float(p.hr), maxLevel=int(p.max_level))
-    roots = _label_modes(filt.astype(np.float32), float(p.hr) ** 2)
-    labels, nlab = _compact(roots)
     labf = lab.reshape(-1, 3).astype(np.float32)
+    if disparity is not None and p.depth_tau > 0:
+        dm = np.asarray(disparity, dtype=np.float32)
+        if dm.shape != (h, w):
+            raise ImageError(f"expected a disparity map of shape {(h, w)}, got {dm.shape}")
+        dm = np.asarray(cv2.medianBlur(np.nan_to_num(dm, nan=0.0).astype(np.float32), 5), dtype=np.float32)
+        roots = _label_modes_depth(filt.astype(np.float32), float(p.hr) ** 2, dm, float(p.depth_tau))
+        scale = float(p.hr) / float(p.depth_tau)
+        labf = np.concatenate([labf, (dm.reshape(-1, 1) * scale).astype(np.float32)], axis=1)
+    else:
+        roots = _label_modes(filt.astype(np.float32), float(p.hr) ** 2)
+    labels, nlab = _compact(roots)
     if p.min_region > 1:
         labels, nlab = _merge_small(labels, nlab, labf, h, w, int(p.min_region))
     out = labels.reshape(h, w)
