@@ -75,16 +75,15 @@ def _scene_rows(scene_name: str, views: dict[str, float], ref_name: str, *, data
     d, dt = _run("coop", lambda: match(ref, imgs[unit], max_disp=md, method="coop"))
     add("two-view coop", [unit], d, dt)
     if local:
-        d, dt = _run("bpasw", lambda: match(ref, imgs[unit], max_disp=md, method="bpasw", fill=False,
-                                            cross_check=False))
-        add("two-view BPASW (WTA)", [unit], d, dt)
+        d, dt = _run("bpasw", lambda: match(ref, imgs[unit], max_disp=md, method="bpasw"))
+        add("two-view BPASW (checked + filled)", [unit], d, dt)
     for used in subsets:
         ratios = [views[k] for k in used]
         ims = [imgs[k] for k in used]
         if local:
             d, dt = _run("local", lambda ims=ims, ratios=ratios: match_multiview(
                 ref, ims, ratios=ratios, max_disp=md, method="local"))
-            add("local multi-baseline (BPASW, Eq. 7.8)", used, d, dt)
+            add("local multi-baseline (BPASW, Eq. 7.8, sides, filled)", used, d, dt)
         d, dt = _run("global", lambda ims=ims, ratios=ratios: match_multiview(
             ref, ims, ratios=ratios, max_disp=md, method="global"))
         add("global multi-view (§7.1.2)", used, d, dt)

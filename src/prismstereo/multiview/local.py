@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from prismstereo.errors import ConfigError
 from prismstereo.matching.registry import MatchResult
 from prismstereo.multiview.baseline import CostName, check_views, fuse_costs, pair_cost
 
@@ -38,17 +39,22 @@ class LocalMultiViewParams:
         Parabola refinement of the unit disparity on the summed cost.
     fill : bool
         Invalidate pixels whose fused winner no pair's left–right-checked disparity supports (within
-        ``support_tolerance``) and fill them (background scanline fill + weighted median); False keeps the
-        plain WTA of Eq. 7.8 everywhere.
+        ``support_tolerance``) and fill them (background scanline fill + weighted median), as the two-view
+        BPASW matcher fills its cross-check failures; False keeps the plain WTA of Eq. 7.8 everywhere.
     support_tolerance : float
         Unit-baseline pixels.
+    occlusion : {"sum", "sides"}
+        ``"sum"``: Eq. 7.8 as written; ``"sides"``: with views on both sides, the lower of the left views'
+        and the right views' fused cost per pixel and disparity (a point occluded on one side is seen from
+        the other; Kang, Szeliski & Chai 2001).
     """
 
     cost: CostName = "bpasw"
     cost_params: dict[str, Any] = field(default_factory=dict)
     subpixel: bool = True
-    fill: bool = False
+    fill: bool = True
     support_tolerance: float = 1.0
+    occlusion: str = "sides"
 
 
 def match_multibaseline(reference: Any, views: Sequence[Any], *, ratios: Sequence[float], max_disp: int,
@@ -90,7 +96,14 @@ def match_multibaseline(reference: Any, views: Sequence[Any], *, ratios: Sequenc
                                                                                                        strict=True)]
     timings["pair costs"] = time.perf_counter() - t
     t = time.perf_counter()
-    fused, _count = fuse_costs(pcs, max_disp=md)
+    if p.occlusion == "sides" and min(rs) < 0 < max(rs):
+        fl, _ = fuse_costs([pc for pc in pcs if pc.ratio < 0], max_disp=md)
+        fr, _ = fuse_costs([pc for pc in pcs if pc.ratio > 0], max_disp=md)
+        fused = np.minimum(fl, fr)
+    elif p.occlusion in ("sum", "sides"):
+        fused, _count = fuse_costs(pcs, max_disp=md)
+    else:
+        raise ConfigError(f"expected occlusion 'sum' or 'sides', got {p.occlusion!r}")
     timings["fusion"] = time.perf_counter() - t
     t = time.perf_counter()
     d0 = winner_take_all(fused)
