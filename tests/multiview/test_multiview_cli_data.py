@@ -53,11 +53,10 @@ def test_cli_writes_pfm_and_png(tmp_path: Path) -> None:
     assert out.with_suffix(".png").is_file()
 
 
-def test_tsukuba_five_views_global_beats_two_view_coop(middlebury_dir: Path) -> None:
+def test_tsukuba_five_views_global_beats_one_view(middlebury_dir: Path) -> None:
     from prismstereo.evaluation.middlebury import evaluate_disparity, load_scene
     from prismstereo.evaluation.table7_1 import TSUKUBA_VIEWS
     from prismstereo.io import read_image
-    from prismstereo.matching.api import match
     from prismstereo.multiview.api import match_multiview
 
     scene = load_scene("tsukuba", middlebury_dir)
@@ -65,8 +64,9 @@ def test_tsukuba_five_views_global_beats_two_view_coop(middlebury_dir: Path) -> 
     ref = read_image(views / "col3.png")
     imgs = [read_image(views / f"{k}.png") for k in TSUKUBA_VIEWS]
     mv = match_multiview(ref, imgs, ratios=list(TSUKUBA_VIEWS.values()), max_disp=scene.max_disp)
-    two = match(ref, read_image(views / "col4.png"), max_disp=scene.max_disp, method="coop")
+    # one view at ratio +1 is the two-view coop pipeline (same blocks); coop itself still evolves
+    two = match_multiview(ref, [read_image(views / "col4.png")], ratios=[1.0], max_disp=scene.max_disp)
     b_mv = evaluate_disparity(mv.disparity, scene, thresholds=(1.0,))["bad"]["1.0"]
     b_two = evaluate_disparity(two.disparity, scene, thresholds=(1.0,))["bad"]["1.0"]
-    assert b_mv["all"] < b_two["all"]
-    assert b_mv["nonocc"] < 6.0
+    assert b_mv["all"] < b_two["all"] and b_mv["disc"] < b_two["disc"]
+    assert b_mv["nonocc"] < 4.0
