@@ -69,3 +69,14 @@ def test_unwritable_output(tmp_path):
     blocker.write_text("x")
     with pytest.raises(OutputError):
         write_pfm(blocker / "sub" / "a.pfm", np.zeros((2, 2)))
+
+
+def test_outputs_get_umask_permissions(tmp_path):
+    import os
+
+    mask = os.umask(0o022)
+    try:
+        write_pfm(tmp_path / "a.pfm", np.zeros((2, 2)))
+    finally:
+        os.umask(mask)
+    assert (tmp_path / "a.pfm").stat().st_mode & 0o777 == 0o644
