@@ -146,8 +146,15 @@ class DepthResult:
         Integer search range used.
     timings : dict
         Seconds per stage.
+    roi_mask : (h, w) bool
+        The pixels matched: region of interest ∩ the common view of the two faces in the depth range.
+    confidence : (h, w) float32 or None
+        ZNCC of the refined matches (NaN where not refined).
+    stage_counts : dict
+        Pixels left after each filtering stage (cross-checked matches, refined and confident, despeckled).
     accuracy : dict or None
-        Filled by :func:`prismstereo.evaluation.depth_metrics.evaluate_depth` when ground truth is known.
+        Filled by :func:`prismstereo.evaluation.depth_metrics.evaluate_depth` when ground truth is known
+        (``ground_truth`` then holds the :class:`~prismstereo.evaluation.depth_metrics.DepthGroundTruth`).
     """
 
     config: DepthConfig
@@ -170,6 +177,7 @@ class DepthResult:
     accuracy: dict[str, Any] | None = None
     ground_truth: Any = None
     confidence: np.ndarray | None = None
+    stage_counts: dict[str, int] = field(default_factory=dict)
 
     @property
     def faces(self) -> tuple[int, int]:
@@ -189,7 +197,7 @@ class DepthResult:
         return {
             "rectified_pixels": int(self.valid.size),
             "region_pixels": int(region.sum()),
-            "matched_pixels": int(np.isfinite(self.disparity).sum()) if self.disparity is not None else 0,
+            **self.stage_counts,
             "points": int(self.valid.sum()),
         }
 
@@ -448,6 +456,7 @@ def _stage_match(st: DepthResult) -> None:
     src[bad] = np.nan
     st.disparity = src
     st.match_timings = dict(res.timings)
+    st.stage_counts["matched"] = int(np.isfinite(src).sum())
 
 
 def _real_pixels(st: DepthResult, ys: np.ndarray, xs: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -511,6 +520,7 @@ def _stage_refine(st: DepthResult) -> None:
         with np.errstate(invalid="ignore"):
             disp = np.where(conf >= st.config.min_confidence, disp, np.float32(np.nan))
     st.disparity = disp
+    st.stage_counts["refined"] = int(np.isfinite(disp).sum())
 
 
 @register_stage("speckles")
@@ -528,6 +538,7 @@ def _stage_speckles(st: DepthResult) -> None:
     d16 = np.where(finite, np.rint(disp * 16.0), -16).astype(np.int16)
     cv2.filterSpeckles(d16, -16, size, 16)
     st.disparity = np.where(d16 == -16, np.float32(np.nan), disp).astype(np.float32)
+    st.stage_counts["despeckled"] = int(np.isfinite(st.disparity).sum())
 
 
 @register_stage("triangulate")
