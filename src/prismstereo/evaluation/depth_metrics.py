@@ -112,8 +112,14 @@ def ground_truth_for_run(result: Any, *, scene: Any = None, depth_gt: np.ndarray
         World Z per real pixel, mm, NaN where none (the simulator's ``depth_gt.pfm``).
     """
     rig, pair = result.rig, result.pair
-    region = np.asarray(result.roi_mask, dtype=bool)
+    # every valid left pixel of the ROI (not the pipeline's own common-view estimate: no circularity)
+    region = np.asarray(pair.valid_masks()[0], dtype=bool).copy()
     h, w = region.shape
+    if result.config.roi is not None:
+        x, y, rw, rh = result.config.roi
+        roi = np.zeros((h, w), dtype=bool)
+        roi[y:y + rh, x:x + rw] = True
+        region &= roi
     ys, xs = np.nonzero(region)
     left_px = np.stack([xs, ys], axis=1).astype(np.float64)
     real_l = np.asarray(pair.rectified_to_real(left_px, "left"), dtype=np.float64)
