@@ -47,7 +47,10 @@ def _stats_text(summary: dict[str, Any]) -> str:
         lines.append(f"points: {counts.get('points')} of {counts.get('region_pixels')} px in view")
     t = summary.get("timings_s", {})
     if t:
-        lines.append("seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in t.items() if k != "validate"))
+        import textwrap
+
+        text = "seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in t.items() if k != "validate")
+        lines += textwrap.wrap(text, width=58, subsequent_indent="  ")
     acc = summary.get("accuracy")
     if acc:
         lines += [
