@@ -138,7 +138,8 @@ def _box3(vol: F32, r: int) -> F32:
 def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, max_disp: int,
                min_disp: int = 0, segmentation: SegmentationParams | None = None,
                cost: CostParams | None = None, planes: PlaneParams | None = None,
-               coop: CoopParams | None = None, data_radius: int = 1, refit_rounds: int = 1) -> CoopResult:
+               coop: CoopParams | None = None, data_radius: int = 1, refit_rounds: int = 1,
+               data_cost: CostParams | None = None) -> CoopResult:
     """Run the whole segment-based cooperative pipeline (thesis §5.1, §5.2, §6.1, §6.2).
 
     Parameters
@@ -151,6 +152,8 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     data_radius : int, keyword-only
         Box radius of the pixel cost summed in the segment data term (Eq. 6.21); the segment itself is the
         aggregation window there, so only a light pre-smoothing is used (0 = raw pixel cost).
+    data_cost : CostParams, keyword-only
+        Pixel-cost parameters of the data term (Eq. 6.21) when they should differ from ``cost``.
     refit_rounds : int, keyword-only
         After the cooperative optimisation, segments sharing a plane are refitted together (Eqs. 6.2-6.10
         on their union), the refitted planes offered as candidates, and the optimisation resumed; this many
@@ -204,9 +207,11 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
 
     t = time.perf_counter()
     graph = build_segment_graph(labels, lft)
-    data_cost = _box3(raw, data_radius)
+    if data_cost is not None:
+        raw = raw_cost(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=data_cost)
+    dcost = _box3(raw, data_radius)
     del raw
-    assign, plane_set, info = cooperative_optimize(assign0, plane_set, index, graph, data_cost, reliable,
+    assign, plane_set, info = cooperative_optimize(assign0, plane_set, index, graph, dcost, reliable,
                                                    own=own, min_disp=min_disp, params=op)
     e_first = info["energy_before"]
     for _ in range(refit_rounds):
@@ -223,7 +228,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         plane_set = np.concatenate([plane_set, gpl[used[ok]]])
         own2 = own.copy()
         own2[:, 1] = new_ids[assign]
-        assign, plane_set, info2 = cooperative_optimize(assign, plane_set, index, graph, data_cost, reliable,
+        assign, plane_set, info2 = cooperative_optimize(assign, plane_set, index, graph, dcost, reliable,
                                                         own=own2, min_disp=min_disp, params=op)
         info = {**info2, "energy_before": e_first}
     final = render_planes(index, plane_set, assign)
