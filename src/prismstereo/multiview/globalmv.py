@@ -52,12 +52,14 @@ from prismstereo.matching.planes import (
     fill_missing_planes,
     merge_planes,
     render_planes,
+    segment_label_map,
 )
 from prismstereo.matching.registry import MatchResult
 from prismstereo.matching.segmentation import SegmentationParams, mean_shift_segment, segment_adjacency
 from prismstereo.multiview.baseline import CostName, PairCost, check_views, pair_cost, resample_to_unit
 
 log = logging.getLogger(__name__)
+
 
 __all__ = ["GlobalMultiViewParams", "data_volume", "fit_planes_joint", "match_multiview_global"]
 
@@ -86,7 +88,9 @@ class GlobalMultiViewParams:
         Divide the smoothness weight γ (Eq. 6.24) by ``√n_eff``, ``n_eff = (Σ wᵢ)² / Σ wᵢ²`` the effective
         number of views of the data term: the data term is a mean over views whose noise falls as
         ``1/√n_eff``, so the two-view balance of data and smoothness (``coop``'s γ, tuned for one view)
-        is kept at equal noise. ``n_eff = 1`` for one view, so one view reproduces ``coop``.
+        is kept at equal noise. ``n_eff = 1`` for one view, so one view reproduces ``coop``. Off by default
+        since ``coop``'s γ was lowered to 0.5 (its own tuning); on, Tsukuba's five views went from
+        2.53/2.94/9.32 to 2.61/3.06/9.62 with that γ (better with the earlier γ = 1).
     weight_by_baseline : bool
         Weight each view's data cost by ``min(|δᵢ|, 1)`` (see :func:`data_volume`).
     fit_min_ratio : float
@@ -95,6 +99,9 @@ class GlobalMultiViewParams:
     fit_source : {"pairs", "fused", "both"}
         Disparity sets of the joint plane fit: every pair's checked map (Eq. 7.11, the thesis), the map of
         the fused aggregated costs (the local method's winner, reliable where a pair agrees), or both.
+    refit_rounds : int
+        As ``coop``: after the optimisation, segments sharing a plane are refitted together (jointly over
+        the disparity sets), the refitted planes offered as candidates and the optimisation resumed.
     data_radius : int
         Box radius of the pixel cost summed in the data term (as ``coop``).
     unreliable_weight : float
@@ -110,10 +117,11 @@ class GlobalMultiViewParams:
     unreliable_weight: float = 1.0
     data_radius: int = 1
     occlusion: str = "sides"
-    scale_smoothness: bool = True
+    scale_smoothness: bool = False
     weight_by_baseline: bool = True
     fit_min_ratio: float = 0.5
     fit_source: str = "both"
+    refit_rounds: int = 1
 
 
 @njit(cache=True)
@@ -371,13 +379,34 @@ def match_multiview_global(reference: Any, views: Sequence[Any], *, ratios: Sequ
         # the optimiser's right-view visibility test would charge occlusion the left views do not see
         cp = replace(cp, visibility=False)
     initial = render_planes(index, plane_set, assign)
-    out = cooperative_optimize(assign, plane_set, index, graph, data, np.ones(labels.shape, bool),
-                               own=own, min_disp=0, params=cp)
-    # the optimiser returns (assign, info) or, with continuous refinement, (assign, extended planes, info)
-    if len(out) == 3:
-        assign2, plane_set, info = out
-    else:
-        assign2, info = out
+    ones = np.ones(labels.shape, bool)
+
+    def optimise(a0: I32, pset: F64, own_: npt.NDArray[np.int64]) -> tuple[I32, F64, dict[str, float]]:
+        out = cooperative_optimize(a0, pset, index, graph, data, ones, own=own_, min_disp=0, params=cp)
+        # (assign, info), or (assign, extended planes, info) when the optimiser refines planes continuously
+        if len(out) == 3:
+            return out[0], out[1], out[2]
+        return out[0], pset, out[1]
+
+    assign2, plane_set, info = optimise(assign, plane_set, own)
+    e_first = info["energy_before"]
+    for _ in range(p.refit_rounds):
+        # as coop: refit one plane per group of segments sharing a label (jointly over the disparity sets),
+        # offer it as a candidate, and resume the optimisation
+        groups = assign2[segment_label_map(index)].reshape(index.shape)
+        gidx = build_segment_index(groups)
+        gpl, _ = fit_planes_joint(gidx, disps, rels, params=p.planes)
+        used = np.unique(assign2)
+        ok = np.isfinite(gpl[used, 0])
+        if not ok.any():
+            break
+        new_ids = np.full(plane_set.shape[0], -1, np.int64)
+        new_ids[used[ok]] = plane_set.shape[0] + np.arange(int(ok.sum()))
+        plane_set = np.concatenate([plane_set, gpl[used[ok]]])
+        own2 = own.copy()
+        own2[:, 1] = new_ids[assign2]
+        assign2, plane_set, info2 = optimise(assign2, plane_set, own2)
+        info = {**info2, "energy_before": e_first}
     disp = np.clip(render_planes(index, plane_set, assign2), 0, md).astype(np.float32)
     timings["optimisation"] = time.perf_counter() - t
     extras: dict[str, Any] = {"labels": labels, "planes": plane_set, "assign": assign2,
