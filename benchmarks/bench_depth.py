@@ -53,7 +53,11 @@ def main() -> None:
         return r if f == 1 else scaled_rig(r, f)
 
     bi = rig_of(thesis_biprism())
+    from prismstereo.simulate import robot_scene as builtin_robot
+
+    ex_rig, ex_scene = builtin_robot(width=1024 // f)  # examples/biprism_robot.toml (demo scene)
     cases: list[tuple[str, Rig, str, Any]] = [
+        ("examples robot (1.2–2.2 m)", ex_rig, "bi-prism", ex_scene),
         ("demo (1.25–1.9 m)", bi, "bi-prism", demo_scene()),
         ("robot (1.5 m)", bi, "bi-prism", robot_scene()),
         ("plane 1.0 m, 30°", bi, "bi-prism", plane_scene(1000.0, tilt_deg=30.0)),
