@@ -4,13 +4,14 @@ Depth error grows as ``ΔZ / Z = Δd / d``: at the thesis rig's ~80 px disparity
 is 0.2 px of disparity, finer than integer or parabola-fitted winners give. This step refines each valid
 disparity continuously (Lucas–Kanade along the epipolar line): it minimises, over a ``(2r+1)²`` window,
 
-    E(d) = Σ w · ( L(x, y) − R(x − d, y) )²
+    E(d) = Σ ( L(x, y) − R(x − d, y) )²   (window means removed)
 
 with R sampled bilinearly, by Gauss–Newton steps ``Δd = −Σ r·J / Σ J²`` (``r = L − R(x − d)``,
 ``J = ∂r/∂d = R_x(x − d)``), the whole window of each pixel shifted by that pixel's d (vectorised over
-pixels). Means are removed per window (zero-mean SSD), so a gain offset between the two
-faces does not bias d. The update is bounded to ±``max_shift`` px around the matcher's disparity, and
-pixels without texture (small Σ J²) keep the matcher's value.
+pixels). Means are removed per window (zero-mean SSD), so an offset between the two faces' brightness
+does not bias d. The update is bounded to ±``max_shift`` px around the matcher's disparity; pixels
+without texture (small Σ J²) keep the matcher's value and get no confidence. The returned confidence
+(ZNCC of the final windows) lets the pipeline drop matches the refinement could not confirm.
 """
 
 from __future__ import annotations
