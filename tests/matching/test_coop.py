@@ -83,6 +83,30 @@ def test_energy_never_increases_across_iterations() -> None:
     assert energies[-1] < energies[0]
 
 
+def test_powell_refinement_lowers_energy_and_keeps_it_monotone() -> None:
+    from prismstereo.matching.coop import initial_disparity
+    from prismstereo.matching.coopcost import aggregated_costs, raw_cost
+    from prismstereo.matching.planes import fit_planes
+    from prismstereo.matching.segmentation import mean_shift_segment
+
+    left, right, _ = _synthetic_pair(3)
+    labels = mean_shift_segment(left)
+    cl, cr = aggregated_costs(left, right, max_disp=20)
+    init, rel = initial_disparity(cl, cr)
+    idx = build_segment_index(labels)
+    planes, _ = fit_planes(idx, init, rel)
+    pset = planes[np.isfinite(planes[:, 0])]
+    a0 = np.zeros(len(planes), np.int32)  # everything on one plane: a poor start
+    graph = build_segment_graph(labels, left)
+    cost = raw_cost(left, right, max_disp=20)
+    a_d, p_d, info_d = cooperative_optimize(a0, pset, idx, graph, cost, rel, params=CoopParams(refine_rounds=0))
+    a_p, p_p, info_p = cooperative_optimize(a0, pset, idx, graph, cost, rel, params=CoopParams(refine_rounds=2))
+    assert info_p["energy_after"] <= info_d["energy_after"] + 1e-6  # Powell reaches equal or lower energy
+    assert info_p["energy_after"] <= info_p["energy_before"]
+    assert p_p.shape[0] >= pset.shape[0]
+    assert total_energy(a_p, p_p, idx, graph, cost, rel) == pytest.approx(info_p["energy_after"])
+
+
 def test_registered_and_stages_in_extras() -> None:
     from prismstereo.matching.registry import available_matchers, get_matcher
 

@@ -139,7 +139,8 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
                min_disp: int = 0, segmentation: SegmentationParams | None = None,
                cost: CostParams | None = None, planes: PlaneParams | None = None,
                coop: CoopParams | None = None, data_radius: int = 1, refit_rounds: int = 1,
-               data_cost: CostParams | None = None) -> CoopResult:
+               data_cost: CostParams | None = None, check_tolerance: float = 0.0,
+               beta_scale: float = 1.0) -> CoopResult:
     """Run the whole segment-based cooperative pipeline (thesis §5.1, §5.2, §6.1, §6.2).
 
     Parameters
@@ -154,6 +155,10 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         aggregation window there, so only a light pre-smoothing is used (0 = raw pixel cost).
     data_cost : CostParams, keyword-only
         Pixel-cost parameters of the data term (Eq. 6.21) when they should differ from ``cost``.
+    check_tolerance : float, keyword-only
+        Tolerance of the left-right check of the integer WTA maps (Eq. 6.7; 0 = they must agree exactly).
+    beta_scale : float, keyword-only
+        Multiplier on β of Eq. 6.25 (1 = the thesis's choice).
     refit_rounds : int, keyword-only
         After the cooperative optimisation, segments sharing a plane are refitted together (Eqs. 6.2-6.10
         on their union), the refitted planes offered as candidates, and the optimisation resumed; this many
@@ -178,7 +183,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     t = time.perf_counter()
     raw = raw_cost(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=cp)
     agg_l, agg_r = aggregated_costs(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=cp, raw=raw)
-    initial, reliable = initial_disparity(agg_l, agg_r, min_disp=min_disp)
+    initial, reliable = initial_disparity(agg_l, agg_r, min_disp=min_disp, tolerance=check_tolerance)
     del agg_r, agg_l
     tm["initial"] = time.perf_counter() - t
 
@@ -206,7 +211,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     tm["planes"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    graph = build_segment_graph(labels, lft)
+    graph = build_segment_graph(labels, lft, beta_scale=beta_scale)
     if data_cost is not None:
         raw = raw_cost(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=data_cost)
     dcost = _box3(raw, data_radius)

@@ -73,6 +73,8 @@ class CoopParams:
         Cost of a pixel that the plane sends left of the right image's border (x - d < 0): no evidence
         either way, so a typical good-match cost rather than ``ω_occ`` (which would push segments at the
         left border towards small disparities).
+    neighbour_own_planes : bool
+        Also offer each segment its neighbours' own fitted and cluster planes (not only their current ones).
     refine_rounds : int
         Rounds of continuous per-segment refinement by Powell's method (Appendix E), each followed by
         discrete sweeps in which neighbours may adopt the refined planes (0 = discrete labels only).
@@ -94,6 +96,7 @@ class CoopParams:
     occ_margin: float = 1.0
     refine_rounds: int = 0
     omega_border: float = 1.0
+    neighbour_own_planes: bool = False
     powell_cycles: int = 2
     refine_min_size: int = 1
 
@@ -127,13 +130,16 @@ class SegmentGraph:
     nedge: I64
 
 
-def build_segment_graph(labels: npt.NDArray[np.integer], image: npt.NDArray[np.generic]) -> SegmentGraph:
+def build_segment_graph(labels: npt.NDArray[np.integer], image: npt.NDArray[np.generic], *,
+                        beta_scale: float = 1.0) -> SegmentGraph:
     """Segment adjacency (Eq. 6.11) and contrast weights of boundary pixel pairs (Eqs. 6.24-6.25).
 
     Parameters
     ----------
     labels : (H, W) int, labels 0..K-1.
     image : (H, W, 3) or (H, W) reference image (0..255).
+    beta_scale : float, keyword-only
+        Multiplier on β of Eq. 6.25 (1 = the thesis's choice).
     """
     lab = np.asarray(labels).astype(np.int64)
     h, w = lab.shape
@@ -144,7 +150,7 @@ def build_segment_graph(labels: npt.NDArray[np.integer], image: npt.NDArray[np.g
     idx = np.arange(h * w, dtype=np.int64).reshape(h, w)
     dh = ((img[:, :-1] - img[:, 1:]) ** 2).sum(axis=2)
     dv = ((img[:-1, :] - img[1:, :]) ** 2).sum(axis=2)
-    beta = 1.0 / (2.0 * max(float(np.concatenate([dh.ravel(), dv.ravel()]).mean()), 1e-9))  # Eq. 6.25
+    beta = beta_scale / (2.0 * max(float(np.concatenate([dh.ravel(), dv.ravel()]).mean()), 1e-9))  # Eq. 6.25
     ps, qs, ds = [], [], []
     for a, b, p, q, d in ((lab[:, :-1], lab[:, 1:], idx[:, :-1], idx[:, 1:], dh),
                           (lab[:-1, :], lab[1:, :], idx[:-1, :], idx[1:, :], dv)):
@@ -325,14 +331,17 @@ def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost:
                     cand[nc] = extra
                     nc += 1
         for t in range(nstart[j], nstart[j + 1]):
-            lab = a[nbr[t]]
-            dup = False
-            for u in range(nc):
-                if cand[u] == lab:
-                    dup = True
-            if not dup and nc < 64:
-                cand[nc] = lab
-                nc += 1
+            for m in range(3 if prm[10] > 0.5 else 1):
+                lab = a[nbr[t]] if m == 0 else own[2 * nbr[t] + m - 1]
+                if lab < 0:
+                    continue
+                dup = False
+                for u in range(nc):
+                    if cand[u] == lab:
+                        dup = True
+                if not dup and nc < 64:
+                    cand[nc] = lab
+                    nc += 1
         if nc == 1:
             continue
         cur_e = 0.0
@@ -501,7 +510,8 @@ def _flat_cost(cost: F32) -> F32:
 
 def _prm(p: CoopParams) -> F64:
     return np.array([p.kappa, p.mu, p.omega_occ, p.data_trunc, p.unreliable_weight, p.gamma, p.smooth_threshold,
-                     p.occ_margin, 1.0 if p.visibility else 0.0, p.omega_border], np.float64)
+                     p.occ_margin, 1.0 if p.visibility else 0.0, p.omega_border,
+                     1.0 if p.neighbour_own_planes else 0.0], np.float64)
 
 
 def total_energy(assign: npt.NDArray[np.integer], planes: F64, index: SegmentIndex, graph: SegmentGraph,
