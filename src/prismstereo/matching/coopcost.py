@@ -166,18 +166,21 @@ def guided_filter_volume(guide: npt.NDArray[np.generic], vol: F32, *, radius: in
         sig[:, :, j, i] = var[:, :, n]
     sig += eps * np.eye(3)
     inv = np.linalg.inv(sig).astype(np.float32)  # H W 3 3
-    mean_p = _box(vol, r)
-    a = np.empty((3,) + vol.shape, np.float32)
-    cov = [(_box(vol * img[:, :, c:c + 1], r) - mean_i[:, :, c:c + 1] * mean_p) for c in range(3)]
-    for i in range(3):
-        a[i] = (inv[:, :, i, 0, None] * cov[0] + inv[:, :, i, 1, None] * cov[1]
-                + inv[:, :, i, 2, None] * cov[2])
-    del cov
-    b = mean_p - a[0] * mean_i[:, :, 0:1] - a[1] * mean_i[:, :, 1:2] - a[2] * mean_i[:, :, 2:3]
-    out = _box(b, r)
-    for c in range(3):
-        out += _box(a[c], r) * img[:, :, c:c + 1]
-    return out.astype(np.float32)
+    out = np.empty(vol.shape, np.float32)
+    # disparity slices are independent: filter them in blocks to bound the temporaries' memory
+    for s0 in range(0, vol.shape[2], 16):
+        blk = np.ascontiguousarray(vol[:, :, s0:s0 + 16])
+        mean_p = _box(blk, r)
+        cov = [(_box(blk * img[:, :, c:c + 1], r) - mean_i[:, :, c:c + 1] * mean_p) for c in range(3)]
+        a = [inv[:, :, i, 0, None] * cov[0] + inv[:, :, i, 1, None] * cov[1] + inv[:, :, i, 2, None] * cov[2]
+             for i in range(3)]
+        del cov
+        b = mean_p - a[0] * mean_i[:, :, 0:1] - a[1] * mean_i[:, :, 1:2] - a[2] * mean_i[:, :, 2:3]
+        q = _box(b, r)
+        for c in range(3):
+            q += _box(a[c], r) * img[:, :, c:c + 1]
+        out[:, :, s0:s0 + 16] = q
+    return out
 
 
 def raw_cost(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, max_disp: int,
