@@ -44,6 +44,9 @@ class SegmentationParams:
     depth_tau : float
         With an initial disparity map given, neighbours differing by this much (px) are kept apart
         (0 = colour only, as in the thesis).
+    clahe : float
+        Clip limit of a contrast-limited histogram equalisation of L* before the mean shift (0 = none), so
+        that dark, low-contrast areas are segmented as finely as bright ones.
     """
 
     hs: int = 5
@@ -52,6 +55,7 @@ class SegmentationParams:
     max_level: int = 0
     max_region: int = 0
     depth_tau: float = 0.0
+    clahe: float = 0.0
 
 
 def _to_lab8(image: npt.NDArray[np.generic]) -> npt.NDArray[np.uint8]:
@@ -276,6 +280,10 @@ def mean_shift_segment(image: npt.NDArray[np.generic], *, params: SegmentationPa
     p = params or SegmentationParams()
     lab = _to_lab8(image)
     h, w = lab.shape[:2]
+    if p.clahe > 0:
+        lab = lab.copy()
+        lab[:, :, 0] = cv2.createCLAHE(clipLimit=float(p.clahe), tileGridSize=(8, 8)).apply(
+            np.ascontiguousarray(lab[:, :, 0]))
     filt = cv2.pyrMeanShiftFiltering(lab, sp=float(p.hs), sr=float(p.hr), maxLevel=int(p.max_level))
     labf = lab.reshape(-1, 3).astype(np.float32)
     if disparity is not None and p.depth_tau > 0:
