@@ -7,7 +7,11 @@ Stages (each callable on its own, and all kept in :class:`CoopResult`):
    cross-check (§5.2, Eq. 6.7)                                -> ``initial``, ``reliable``
 3. robust plane per segment (Eqs. 6.1-6.10) and merging of similar neighbours (Eqs. 6.14-6.17); segments
    without a plane take their most similar neighbour's       -> ``plane_map`` (thesis Table 6.1)
-4. cooperative optimisation of the plane labels (Eqs. 6.18-6.25) -> ``disparity`` (thesis Table 6.2)
+4. cooperative optimisation of the plane labels (Eqs. 6.18-6.25), then one round in which segments that
+   share a plane are refitted together and the optimisation resumes -> ``disparity`` (thesis Table 6.2)
+
+Default parameters (the same for every scene): hs = 5, hr = 4, M = 20; guided filter r = 9, ε = 1e-4;
+γ_segment = 0.9, t_outlier = 1, ε(6.10) = 0.99, δ = 0.8; κ = 0.5, μ = 1, ω_occ = 1, γ = 0.5.
 """
 
 from __future__ import annotations
@@ -256,22 +260,27 @@ class CoopMatcher:
     segmentation, cost, planes, coop : parameter dataclasses (defaults: the values used for all scenes).
     data_radius : int
         Pre-smoothing radius of the pixel cost in the segment data term.
+    refit_rounds : int
+        Rounds of joint refitting of segments that share a plane after the cooperative optimisation.
 
     ``compute`` returns a :class:`MatchResult` whose ``extras`` hold the stage maps: ``labels``,
     ``initial``, ``reliable``, ``plane_map``, ``planes``, ``assign`` and ``info``.
     """
 
     def __init__(self, *, segmentation: SegmentationParams | None = None, cost: CostParams | None = None,
-                 planes: PlaneParams | None = None, coop: CoopParams | None = None, data_radius: int = 1):
+                 planes: PlaneParams | None = None, coop: CoopParams | None = None, data_radius: int = 1,
+                 refit_rounds: int = 1):
         self.segmentation = segmentation
         self.cost = cost
         self.planes = planes
         self.coop = coop
         self.data_radius = int(data_radius)
+        self.refit_rounds = int(refit_rounds)
 
     def compute(self, left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int = 0) -> MatchResult:
         res = coop_match(left, right, max_disp=max_disp, min_disp=min_disp, segmentation=self.segmentation,
-                         cost=self.cost, planes=self.planes, coop=self.coop, data_radius=self.data_radius)
+                         cost=self.cost, planes=self.planes, coop=self.coop, data_radius=self.data_radius,
+                         refit_rounds=self.refit_rounds)
         raw = np.where(res.reliable, res.initial, np.nan).astype(np.float32)
         extras: dict[str, Any] = {"labels": res.labels, "initial": res.initial, "reliable": res.reliable,
                                   "plane_map": res.plane_map, "planes": res.planes, "assign": res.assign,
