@@ -43,6 +43,11 @@ class LocalMultiViewParams:
         BPASW matcher fills its cross-check failures; False keeps the plain WTA of Eq. 7.8 everywhere.
     support_tolerance : float
         Unit-baseline pixels.
+    final_median : bool
+        After filling, a colour-weighted median over the whole map (as the two-view BPASW matcher).
+    weight_by_baseline : bool
+        Weight each view by ``min(|δᵢ|, 1)`` in the sum (a short baseline resolves the unit disparity
+        ``1/|δᵢ|`` times more coarsely).
     occlusion : {"sum", "sides"}
         ``"sum"``: Eq. 7.8 as written; ``"sides"``: with views on both sides, the lower of the left views'
         and the right views' fused cost per pixel and disparity (a point occluded on one side is seen from
@@ -55,6 +60,8 @@ class LocalMultiViewParams:
     fill: bool = True
     support_tolerance: float = 1.0
     occlusion: str = "sides"
+    final_median: bool = True
+    weight_by_baseline: bool = True
 
 
 def match_multibaseline(reference: Any, views: Sequence[Any], *, ratios: Sequence[float], max_disp: int,
@@ -86,7 +93,12 @@ def match_multibaseline(reference: Any, views: Sequence[Any], *, ratios: Sequenc
     ------
     ImageError, ConfigError, MatchingError
     """
-    from prismstereo.matching.selection import fill_holes, subpixel_refine, winner_take_all
+    from prismstereo.matching.selection import (
+        fill_holes,
+        subpixel_refine,
+        weighted_median_filter,
+        winner_take_all,
+    )
 
     p = params or LocalMultiViewParams()
     ref, vs, rs, md = check_views(reference, views, ratios, max_disp=max_disp)
@@ -96,12 +108,17 @@ def match_multibaseline(reference: Any, views: Sequence[Any], *, ratios: Sequenc
                                                                                                        strict=True)]
     timings["pair costs"] = time.perf_counter() - t
     t = time.perf_counter()
+    def wfn(r: float) -> float:
+        return min(abs(r), 1.0) if p.weight_by_baseline else 1.0
+
     if p.occlusion == "sides" and min(rs) < 0 < max(rs):
-        fl, _ = fuse_costs([pc for pc in pcs if pc.ratio < 0], max_disp=md)
-        fr, _ = fuse_costs([pc for pc in pcs if pc.ratio > 0], max_disp=md)
+        lv = [pc for pc in pcs if pc.ratio < 0]
+        rv = [pc for pc in pcs if pc.ratio > 0]
+        fl, _ = fuse_costs(lv, max_disp=md, weights=[wfn(pc.ratio) for pc in lv])
+        fr, _ = fuse_costs(rv, max_disp=md, weights=[wfn(pc.ratio) for pc in rv])
         fused = np.minimum(fl, fr)
     elif p.occlusion in ("sum", "sides"):
-        fused, _count = fuse_costs(pcs, max_disp=md)
+        fused, _count = fuse_costs(pcs, max_disp=md, weights=[wfn(pc.ratio) for pc in pcs])
     else:
         raise ConfigError(f"expected occlusion 'sum' or 'sides', got {p.occlusion!r}")
     timings["fusion"] = time.perf_counter() - t
@@ -118,6 +135,8 @@ def match_multibaseline(reference: Any, views: Sequence[Any], *, ratios: Sequenc
         t = time.perf_counter()
         raw = np.where(valid, disp, np.float32(np.nan)).astype(np.float32)
         dense = fill_holes(raw, valid, image=ref)
+        if p.final_median and np.isfinite(dense).all():
+            dense = weighted_median_filter(dense, ref, radius=9)
         timings["fill"] = time.perf_counter() - t
         log.debug("multibaseline: %d views, %.1f %% supported", len(vs), 100.0 * valid.mean())
         return MatchResult(dense, valid, raw, timings, extras)
