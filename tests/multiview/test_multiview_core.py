@@ -126,3 +126,15 @@ def test_global_recovers_plane() -> None:
     inner = res.disparity[6:-6, 16:-16]
     assert (np.abs(inner - D_TRUE) < 1.0).mean() > 0.95
     assert res.disparity.dtype == np.float32 and res.disparity.shape == (H, W)
+
+
+def test_resolve_occlusion() -> None:
+    from prismstereo.multiview.baseline import resolve_occlusion
+
+    assert resolve_occlusion("auto", [-2, -1, 1, 2]) == "sides"
+    assert resolve_occlusion("auto", [(k - 2) / 4 for k in range(9) if k != 2]) == "sum"
+    assert resolve_occlusion("auto", [1, 2]) == "sum"
+    assert resolve_occlusion("sides", [1, 2]) == "sum"
+    assert resolve_occlusion("sides", [-0.25, 2]) == "sides"
+    with pytest.raises(ConfigError):
+        resolve_occlusion("best", [1.0])

@@ -389,3 +389,32 @@ def fuse_costs(pairs: Sequence[PairCost], *, max_disp: int,
     with np.errstate(invalid="ignore", divide="ignore"):
         fused = np.where(den > 0, acc / np.maximum(den, np.float32(1e-12)), np.float32(top))
     return fused.astype(np.float32), cnt
+
+
+def resolve_occlusion(mode: str, ratios: Sequence[float], *, weight_by_baseline: bool = True) -> str:
+    """The occlusion handling to use: ``"sum"`` or ``"sides"`` (``"auto"`` decides from the ratios).
+
+    ``"sides"`` (the lower of the left views' and the right views' fused cost) only helps when each side is
+    a trustworthy estimate on its own; ``"auto"`` picks it when views lie on both sides and the weaker side
+    carries at least half the weight of the stronger (weights ``min(|δ|, 1)`` or 1), else ``"sum"``
+    (Eq. 7.8 as written). Tsukuba ±1, ±2 → sides; Cones (−0.5, −0.25 | +0.25 … +1.5) → sum.
+
+    Raises
+    ------
+    ConfigError
+        Unknown mode.
+    """
+    if mode not in ("auto", "sum", "sides"):
+        raise ConfigError(f"expected occlusion 'auto', 'sum' or 'sides', got {mode!r}")
+    left = [r for r in ratios if r < 0]
+    right = [r for r in ratios if r > 0]
+    if mode == "sum" or not left or not right:
+        return "sum"
+    if mode == "sides":
+        return "sides"
+
+    def weight(rs: list[float]) -> float:
+        return float(sum(min(abs(r), 1.0) if weight_by_baseline else 1.0 for r in rs))
+
+    wl, wr = weight(left), weight(right)
+    return "sides" if min(wl, wr) >= 0.5 * max(wl, wr) else "sum"

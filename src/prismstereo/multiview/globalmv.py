@@ -63,7 +63,14 @@ from prismstereo.matching.planes import (
 )
 from prismstereo.matching.registry import MatchResult
 from prismstereo.matching.segmentation import SegmentationParams, mean_shift_segment, segment_adjacency
-from prismstereo.multiview.baseline import CostName, PairCost, check_views, pair_cost, resample_to_unit
+from prismstereo.multiview.baseline import (
+    CostName,
+    PairCost,
+    check_views,
+    pair_cost,
+    resample_to_unit,
+    resolve_occlusion,
+)
 
 log = logging.getLogger(__name__)
 
@@ -87,8 +94,9 @@ class GlobalMultiViewParams:
     cost_params : dict
         Keyword parameters of that cost.
     segmentation, planes, coop : the ``coop`` building blocks' parameter sets.
-    occlusion : {"sides", "sum"}
-        How the views' data costs combine (:func:`data_volume`); ``"sum"`` is the thesis's plain sum. With
+    occlusion : {"auto", "sides", "sum"}
+        How the views' data costs combine (:func:`data_volume`); ``"sum"`` is the thesis's plain sum;
+        ``"auto"`` chooses (:func:`~prismstereo.multiview.baseline.resolve_occlusion`). With
         ``"sides"`` and views on both sides the optimiser's right-view visibility test is switched off
         (the side selection already keeps occluded views from voting).
     scale_smoothness : bool
@@ -123,7 +131,7 @@ class GlobalMultiViewParams:
     coop: CoopParams = field(default_factory=CoopParams)
     unreliable_weight: float = 1.0
     data_radius: int = 1
-    occlusion: str = "sides"
+    occlusion: str = "auto"
     scale_smoothness: bool = False
     weight_by_baseline: bool = True
     fit_min_ratio: float = 0.5
@@ -331,8 +339,9 @@ def match_multiview_global(reference: Any, views: Sequence[Any], *, ratios: Sequ
            for v, r in zip(vs, rs, strict=True)]
     timings["pair costs"] = time.perf_counter() - t
     t = time.perf_counter()
+    occ = resolve_occlusion(p.occlusion, rs, weight_by_baseline=p.weight_by_baseline)
     data = data_volume(pcs, max_disp=md, trunc=p.coop.data_trunc, wu=p.unreliable_weight,
-                       occlusion=p.occlusion, weight_by_baseline=p.weight_by_baseline)
+                       occlusion=occ, weight_by_baseline=p.weight_by_baseline)
     timings["fusion"] = time.perf_counter() - t
     t = time.perf_counter()
     labels = mean_shift_segment(ref, params=p.segmentation)
@@ -347,7 +356,7 @@ def match_multiview_global(reference: Any, views: Sequence[Any], *, ratios: Sequ
         fit_views[:] = True
     disps, rels = disps[fit_views], rels[fit_views]
     if p.fit_source in ("fused", "both"):
-        fd, frel = _fused_initial(pcs, max_disp=md, wu=p.unreliable_weight, occlusion=p.occlusion,
+        fd, frel = _fused_initial(pcs, max_disp=md, wu=p.unreliable_weight, occlusion=occ,
                                   weight_by_baseline=p.weight_by_baseline)
         if p.fit_source == "fused":
             disps, rels = fd[None], frel[None]
@@ -381,7 +390,7 @@ def match_multiview_global(reference: Any, views: Sequence[Any], *, ratios: Sequ
         n_eff = float(wv.sum() ** 2 / np.square(wv).sum())  # Kish effective number of views
         gamma = p.coop.gamma / math.sqrt(n_eff)
     cp = replace(p.coop, data_trunc=float(np.float32(data.max())) + 1.0, unreliable_weight=1.0, gamma=gamma)
-    if p.occlusion == "sides" and min(rs) < 0 < max(rs) and hasattr(cp, "visibility"):
+    if occ == "sides" and hasattr(cp, "visibility"):
         # views on both sides: the side selection of the data term already lets the unoccluded side vote;
         # the optimiser's right-view visibility test would charge occlusion the left views do not see
         cp = replace(cp, visibility=False)

@@ -16,9 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from prismstereo.errors import ConfigError
 from prismstereo.matching.registry import MatchResult
-from prismstereo.multiview.baseline import CostName, check_views, fuse_costs, pair_cost
+from prismstereo.multiview.baseline import CostName, check_views, fuse_costs, pair_cost, resolve_occlusion
 
 log = logging.getLogger(__name__)
 
@@ -48,10 +47,11 @@ class LocalMultiViewParams:
     weight_by_baseline : bool
         Weight each view by ``min(|δᵢ|, 1)`` in the sum (a short baseline resolves the unit disparity
         ``1/|δᵢ|`` times more coarsely).
-    occlusion : {"sum", "sides"}
+    occlusion : {"auto", "sum", "sides"}
         ``"sum"``: Eq. 7.8 as written; ``"sides"``: with views on both sides, the lower of the left views'
         and the right views' fused cost per pixel and disparity (a point occluded on one side is seen from
-        the other; Kang, Szeliski & Chai 2001).
+        the other; Kang, Szeliski & Chai 2001); ``"auto"``: see
+        :func:`~prismstereo.multiview.baseline.resolve_occlusion`.
     """
 
     cost: CostName = "bpasw"
@@ -59,7 +59,7 @@ class LocalMultiViewParams:
     subpixel: bool = True
     fill: bool = True
     support_tolerance: float = 1.0
-    occlusion: str = "sides"
+    occlusion: str = "auto"
     final_median: bool = True
     weight_by_baseline: bool = True
 
@@ -111,16 +111,15 @@ def match_multibaseline(reference: Any, views: Sequence[Any], *, ratios: Sequenc
     def wfn(r: float) -> float:
         return min(abs(r), 1.0) if p.weight_by_baseline else 1.0
 
-    if p.occlusion == "sides" and min(rs) < 0 < max(rs):
+    occ = resolve_occlusion(p.occlusion, rs, weight_by_baseline=p.weight_by_baseline)
+    if occ == "sides":
         lv = [pc for pc in pcs if pc.ratio < 0]
         rv = [pc for pc in pcs if pc.ratio > 0]
         fl, _ = fuse_costs(lv, max_disp=md, weights=[wfn(pc.ratio) for pc in lv])
         fr, _ = fuse_costs(rv, max_disp=md, weights=[wfn(pc.ratio) for pc in rv])
         fused = np.minimum(fl, fr)
-    elif p.occlusion in ("sum", "sides"):
-        fused, _count = fuse_costs(pcs, max_disp=md, weights=[wfn(pc.ratio) for pc in pcs])
     else:
-        raise ConfigError(f"expected occlusion 'sum' or 'sides', got {p.occlusion!r}")
+        fused, _count = fuse_costs(pcs, max_disp=md, weights=[wfn(pc.ratio) for pc in pcs])
     timings["fusion"] = time.perf_counter() - t
     t = time.perf_counter()
     d0 = winner_take_all(fused)
