@@ -11,7 +11,8 @@ Stages (each callable on its own, and all kept in :class:`CoopResult`):
    share a plane are refitted together and the optimisation resumes
 5. boundary step (an addition to the thesis): pixels near segment boundaries may take a neighbouring
    segment's plane where issue 3's BPASW aggregated cost (symmetric adaptive weights, §5.2) clearly prefers
-   it and both cross-checked initial maps agree with it (fixes fattened boundaries), then a colour-weighted
+   it and both cross-checked initial maps agree with it (fixes fattened boundaries); pixels whose right-view
+   match reliably sees a farther surface take the background plane (occlusion); then a colour-weighted
    median that only overrides disparities it moves by more than 1 px -> ``disparity`` (thesis Table 6.2)
 
 Default parameters (the same for every scene): hs = 5, hr = 4, M = 20; guided filter r = 9, ε = 1e-4;
@@ -225,6 +226,43 @@ def _bpasw_reliable(vol: F32, min_disp: int) -> tuple[npt.NDArray[np.bool_], F32
     return rel, d
 
 
+@njit(cache=True)
+def _occlusion_fill(disp: F32, seg: npt.NDArray[np.int32], assign: npt.NDArray[np.int32],
+                    planes: npt.NDArray[np.float64], dright: F32, rright: npt.NDArray[np.bool_],
+                    tol: float) -> tuple[F32, npt.NDArray[np.bool_]]:
+    """Pixels whose match in the right view reliably sees a farther surface (``d_R < d - tol``) are taken as
+    occluded and get the background plane: of the nearest consistent pixels left and right on the row, the
+    plane (extrapolated to the pixel) with the smaller disparity."""
+    h, w = disp.shape
+    occ = np.zeros((h, w), np.bool_)
+    for y in range(h):
+        for x in range(w):
+            d = disp[y, x]
+            xr = int(np.floor(x - d + 0.5))
+            if xr < 0 or xr >= w:
+                continue
+            if rright[y, xr] and dright[y, xr] < d - tol:
+                occ[y, x] = True
+    out = disp.copy()
+    for y in range(h):
+        for x in range(w):
+            if not occ[y, x]:
+                continue
+            best = 1e30
+            for step in (-1, 1):
+                xx = x + step
+                while 0 <= xx < w and occ[y, xx]:
+                    xx += step
+                if 0 <= xx < w:
+                    pl = planes[assign[seg[y, xx]]]
+                    v = pl[0] * x + pl[1] * y + pl[2]
+                    if v < best:
+                        best = v
+            if best < 1e29 and best < disp[y, x]:
+                out[y, x] = best
+    return out, occ
+
+
 def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, max_disp: int,
                min_disp: int = 0, segmentation: SegmentationParams | None = None,
                cost: CostParams | None = None, planes: PlaneParams | None = None,
@@ -232,7 +270,8 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
                data_cost: CostParams | None = None, check_tolerance: float = 0.0,
                beta_scale: float = 1.0, initial_cost: str = "guided", data_term: str = "raw",
                data_scale: float = 0.1, pixel_radius: int = 5, pixel_margin: float = 5.0,
-               pixel_tol: float = 1.0, pixel_agree: bool = True, post_median: int = 4) -> CoopResult:
+               pixel_tol: float = 1.0, pixel_agree: bool = True, post_median: int = 4,
+               occlusion_fill: bool = True, occ_tol: float = 1.0) -> CoopResult:
     """Run the whole segment-based cooperative pipeline (thesis §5.1, §5.2, §6.1, §6.2).
 
     Parameters
@@ -268,6 +307,12 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         ``pixel_margin`` and it lies within ``pixel_tol`` of the BPASW winner at a pixel where the BPASW
         map passes the cross-check (and, with ``pixel_agree``, where the initial map agrees with it within
         ``pixel_tol``). A pixel whose own plane leaves the right image keeps it. 0 = off.
+    occlusion_fill, occ_tol : keyword-only
+        Occlusion step (Eq. 6.22's occluded pixels, resolved after the fact): a pixel whose match in the
+        right view is a reliable BPASW right-view pixel (cross-checked) that sees a farther surface
+        (``d_R < d - occ_tol``) is taken as occluded and gets the background plane, the smaller of the planes
+        of the nearest consistent pixels to its left and right on the row, extrapolated to the pixel
+        (the foreground fattened into occluded background; average 5.03 -> 4.99).
     post_median : int, keyword-only
         Radius of a colour-weighted median over the final map (issue 3's filter); it only replaces values
         it moves by more than 1 px, so subpixel plane disparities are kept (0 = off).
@@ -383,6 +428,16 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
                               float(pixel_tol))
     else:
         final = render_planes(index, plane_set, assign)
+    if occlusion_fill:
+        assert bvol is not None
+        rvol = right_cost_volume(bvol, min_disp=min_disp)
+        dr_int = rvol.argmin(axis=2)
+        dl_int = bvol.argmin(axis=2)
+        xs = np.arange(final.shape[1])[None, :] + dr_int + min_disp
+        rrel = (xs < final.shape[1]) & (np.take_along_axis(dl_int, np.clip(xs, 0, final.shape[1] - 1), axis=1)
+                                         == dr_int)
+        final, _occ = _occlusion_fill(final.astype(np.float32), labels.astype(np.int32), assign.astype(np.int32),
+                                      plane_set, (dr_int + min_disp).astype(np.float32), rrel, float(occ_tol))
     if post_median > 0:
         wm = weighted_median_filter(final, lft, radius=post_median)
         # the median works on integer bins: keep the subpixel plane disparity where it agrees within 1 px
