@@ -71,6 +71,12 @@ from prismstereo.multiview.baseline import (
     resample_to_unit,
     resolve_occlusion,
 )
+from prismstereo.multiview.poststeps import (
+    PostParams,
+    boundary_and_occlusion,
+    bpasw_candidate_rounds,
+    fused_bpasw,
+)
 
 log = logging.getLogger(__name__)
 
@@ -122,6 +128,10 @@ class GlobalMultiViewParams:
     unreliable_weight : float
         Weight of a view's data cost at pixels where that view's pair failed the left–right check
         (thesis: only reliable pixels ``N_r`` count; the ``coop`` default keeps a fraction).
+    post : PostParams or None
+        ``coop``'s post-optimisation steps with multi-view evidence (:mod:`prismstereo.multiview.poststeps`:
+        candidate planes fitted to the fused BPASW map, boundary step on the fused BPASW cost, per-side
+        occlusion step, subpixel-preserving median); None = off (the method as before).
     """
 
     cost: CostName = "guided"
@@ -137,6 +147,7 @@ class GlobalMultiViewParams:
     fit_min_ratio: float = 0.5
     fit_source: str = "both"
     refit_rounds: int = 1
+    post: PostParams | None = field(default_factory=PostParams)
 
 
 @njit(cache=True)
@@ -423,8 +434,22 @@ def match_multiview_global(reference: Any, views: Sequence[Any], *, ratios: Sequ
         own2[:, 1] = new_ids[assign2]
         assign2, plane_set, info2 = optimise(assign2, plane_set, own2)
         info = {**info2, "energy_before": e_first}
-    disp = np.clip(render_planes(index, plane_set, assign2), 0, md).astype(np.float32)
     timings["optimisation"] = time.perf_counter() - t
+    if p.post is not None:
+        t = time.perf_counter()
+        fb = fused_bpasw(ref, vs, rs, max_disp=md, occlusion=occ, weight_by_baseline=p.weight_by_baseline,
+                         params=p.post)
+        timings["bpasw"] = time.perf_counter() - t
+        t = time.perf_counter()
+        assign2, plane_set, info3, bfit_ids = bpasw_candidate_rounds(
+            assign2, plane_set, own, index, pairs, fb, optimise, planes=p.planes, rounds=p.post.bpasw_planes)
+        if info3 is not None:
+            info = {**info3, "energy_before": e_first}
+        disp = boundary_and_occlusion(ref, labels, index, assign2, plane_set, own, bfit_ids, fb, pcs,
+                                      max_disp=md, params=p.post)
+        timings["post"] = time.perf_counter() - t
+    else:
+        disp = np.clip(render_planes(index, plane_set, assign2), 0, md).astype(np.float32)
     extras: dict[str, Any] = {"labels": labels, "planes": plane_set, "assign": assign2,
                               "pair_disparities": disps, **info}
     log.debug("global multiview: %d views, %d segments, %d planes, E %.1f -> %.1f", len(vs), k,

@@ -1,0 +1,239 @@
+"""``coop``'s post-optimisation steps (boundary step, occlusion step, BPASW candidate planes, subpixel-preserving
+median) carried over to the global multi-view method with multi-view evidence.
+
+The two-view ``coop`` (:mod:`prismstereo.matching.coop`) follows its cooperative optimisation with steps that
+read issue 3's BPASW aggregated cost of the one pair. Here each step reads the evidence of all views:
+
+* **Fused BPASW cost** (:func:`fused_bpasw`): the BPASW aggregated cost of the reference against each view
+  whose ``|δ|`` lies in ``[bpasw_min_ratio, bpasw_max_ratio]``, resampled to the unit baseline and summed
+  with baseline weights, the lower of the left and right sides' sums where the data term uses side selection
+  (the local method's volume, :func:`~prismstereo.multiview.local.match_multibaseline`). Its WTA map is
+  *reliable* where at least one view's cross-checked BPASW map agrees with it (multi-view consistency; the
+  two-view ``coop`` uses the pair's own cross-check).
+* **Candidate planes**: planes fitted to that reliable map per segment, their merged clusters, and planes
+  refitted over groups of segments sharing a plane are offered to the optimiser, which resumes after each.
+* **Boundary step**: coop's ``_pixel_planes`` on the fused BPASW cost (a nearby segment's plane wins where it
+  is cheaper by a margin and agrees with the reliable fused map; moves to a larger disparity also need a
+  guided pair's checked map to agree).
+* **Occlusion step**: coop's ``_occlusion_fill`` run once per side, with that side's view of ``|δ|`` closest
+  to 1 (the left side on mirrored images): a pixel whose match in a view reliably sees a farther surface
+  cannot be at that disparity (it would occlude that surface), whichever side the view is on.
+* **Median**: colour-weighted median that only overrides disparities it moves by more than 1 px.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from prismstereo.matching.coop import _occlusion_fill, _pixel_planes
+from prismstereo.matching.planes import (
+    PlaneParams,
+    SegmentIndex,
+    build_segment_index,
+    fit_planes,
+    merge_planes,
+    render_planes,
+    segment_label_map,
+)
+from prismstereo.matching.selection import (
+    right_cost_volume,
+    subpixel_refine,
+    weighted_median_filter,
+    winner_take_all,
+)
+from prismstereo.multiview.baseline import PairCost, fuse_costs, pair_cost
+
+__all__ = ["FusedBPASW", "PostParams", "fused_bpasw", "boundary_and_occlusion", "bpasw_candidate_rounds"]
+
+F32 = npt.NDArray[np.float32]
+F64 = npt.NDArray[np.float64]
+I32 = npt.NDArray[np.int32]
+B = npt.NDArray[np.bool_]
+
+
+@dataclass(frozen=True, kw_only=True)
+class PostParams:
+    """Post-step parameters (``coop``'s defaults where the step is the same).
+
+    Attributes
+    ----------
+    bpasw_min_ratio, bpasw_max_ratio : float
+        Views whose ``|δ|`` lies in this range give BPASW pair costs to the fused cost (all views when none).
+    consistency_tol : float
+        A view's cross-checked BPASW disparity supports the fused winner within this (unit px).
+    bpasw_planes : int
+        Candidate-plane rounds on the fused BPASW map (1: per-segment fits, 2: + merged clusters,
+        3: + group refit), as ``coop``'s ``bpasw_planes``.
+    pixel_radius, pixel_margin, pixel_tol, pixel_agree, pixel_bplanes : boundary step, as ``coop``.
+    occlusion_fill, occ_tol, occ_rematch : occlusion step, as ``coop`` (per side).
+    post_median : int
+        Radius of the final subpixel-preserving weighted median (0 = off).
+    """
+
+    bpasw_min_ratio: float = 0.5
+    bpasw_max_ratio: float = 1.0
+    consistency_tol: float = 0.5
+    bpasw_planes: int = 3
+    pixel_radius: int = 5
+    pixel_margin: float = 5.0
+    pixel_tol: float = 1.0
+    pixel_agree: int = 2
+    pixel_bplanes: int = 2
+    occlusion_fill: bool = True
+    occ_tol: float = 1.0
+    occ_rematch: bool = True
+    post_median: int = 4
+
+
+@dataclass(frozen=True)
+class FusedBPASW:
+    """The fused BPASW evidence: ``cost`` (H, W, D+1) on the unit grid, its WTA+subpixel map ``disparity``,
+    ``reliable`` (multi-view consistent), and the per-view BPASW pair costs ``pairs``."""
+
+    cost: F32
+    disparity: F32
+    reliable: B
+    pairs: list[PairCost]
+
+
+def fused_bpasw(ref: np.ndarray, views: Sequence[np.ndarray], ratios: Sequence[float], *, max_disp: int,
+                occlusion: str, weight_by_baseline: bool, params: PostParams) -> FusedBPASW:
+    """BPASW pair costs of the selected views fused on the unit grid (the local method's volume)."""
+    sel = [i for i, r in enumerate(ratios) if params.bpasw_min_ratio <= abs(r) <= params.bpasw_max_ratio]
+    if not sel:
+        sel = list(range(len(ratios)))
+    pcs = [pair_cost(ref, views[i], ratios[i], max_disp=max_disp, cost="bpasw") for i in sel]
+
+    def wfn(r: float) -> float:
+        return min(abs(r), 1.0) if weight_by_baseline else 1.0
+
+    lv = [pc for pc in pcs if pc.ratio < 0]
+    rv = [pc for pc in pcs if pc.ratio > 0]
+    if occlusion == "sides" and lv and rv:
+        fl, _ = fuse_costs(lv, max_disp=max_disp, weights=[wfn(pc.ratio) for pc in lv])
+        fr, _ = fuse_costs(rv, max_disp=max_disp, weights=[wfn(pc.ratio) for pc in rv])
+        fused = np.minimum(fl, fr)
+    else:
+        fused, _ = fuse_costs(pcs, max_disp=max_disp, weights=[wfn(pc.ratio) for pc in pcs])
+    fused = np.ascontiguousarray(fused, dtype=np.float32)
+    d0 = winner_take_all(fused)
+    disp = np.asarray(subpixel_refine(fused, d0), np.float32)
+    rel = np.zeros(disp.shape, bool)
+    for pc in pcs:
+        rel |= pc.reliable & (np.abs(pc.disparity - disp) <= params.consistency_tol)
+    return FusedBPASW(fused, disp, rel, pcs)
+
+
+Optimise = Callable[[I32, F64, npt.NDArray[np.int64]], tuple[I32, F64, dict[str, float]]]
+
+
+def bpasw_candidate_rounds(assign: I32, plane_set: F64, own: npt.NDArray[np.int64], index: SegmentIndex,
+                           pairs: I32, fb: FusedBPASW, optimise: Optimise, *,
+                           planes: PlaneParams, rounds: int) -> tuple[I32, F64, dict[str, float] | None,
+                                                                       npt.NDArray[np.int64] | None]:
+    """``coop``'s ``bpasw_planes`` rounds on the fused BPASW map; returns assign, planes, last info and the
+    plane id of each segment's own BPASW fit (-1 none)."""
+    info: dict[str, float] | None = None
+    bfit_ids: npt.NDArray[np.int64] | None = None
+    if rounds <= 0:
+        return assign, plane_set, info, bfit_ids
+    bfit, _ = fit_planes(index, fb.disparity, fb.reliable, params=planes)
+    okb = np.flatnonzero(np.isfinite(bfit[:, 0]))
+    if okb.size:
+        own3 = own.copy()
+        own3[:, 0] = -1
+        own3[okb, 0] = plane_set.shape[0] + np.arange(okb.size)
+        bfit_ids = own3[:, 0].copy()
+        plane_set = np.concatenate([plane_set, bfit[okb]])
+        if rounds > 1:
+            bcl, bcp = merge_planes(index, bfit, pairs, fb.disparity, fb.reliable, params=planes)
+            own3[:, 1] = np.where(bcl >= 0, bcl + plane_set.shape[0], -1)
+            plane_set = np.concatenate([plane_set, bcp])
+        assign, plane_set, info = optimise(assign, plane_set, own3)
+    if rounds > 2:
+        groups = assign[segment_label_map(index)].reshape(index.shape)
+        gidx = build_segment_index(groups)
+        gpl, _ = fit_planes(gidx, fb.disparity, fb.reliable, params=planes)
+        used = np.unique(assign)
+        ok = np.isfinite(gpl[used, 0])
+        if ok.any():
+            new_ids = np.full(plane_set.shape[0], -1, np.int64)
+            new_ids[used[ok]] = plane_set.shape[0] + np.arange(int(ok.sum()))
+            plane_set = np.concatenate([plane_set, gpl[used[ok]]])
+            own4 = own.copy()
+            own4[:, 1] = new_ids[assign]
+            assign, plane_set, info = optimise(assign, plane_set, own4)
+    return assign, plane_set, info, bfit_ids
+
+
+def _side_occlusion(final: F32, labels: I32, assign: I32, plane_set: F64, pc: PairCost, fb: FusedBPASW,
+                    *, tol: float, radius: int) -> F32:
+    """coop's occlusion step against one view (scaled to its pair disparities; mirrored for a left view)."""
+    a = abs(pc.ratio)
+    w = final.shape[1]
+    vol = pc.cost
+    disp, lab, bd, br = final, labels, fb.disparity, fb.reliable
+    pl = plane_set * a
+    if pc.ratio < 0:  # mirrored frame: the left view becomes a right view
+        vol = vol[:, ::-1]
+        disp, lab, bd, br = disp[:, ::-1], lab[:, ::-1], bd[:, ::-1], br[:, ::-1]
+        pl = np.stack([-pl[:, 0], pl[:, 1], pl[:, 2] + pl[:, 0] * (w - 1)], axis=1)
+    vol = np.ascontiguousarray(vol, dtype=np.float32)
+    rvol = right_cost_volume(vol)
+    dr_int = rvol.argmin(axis=2)
+    dl_int = vol.argmin(axis=2)
+    xs = np.arange(w)[None, :] + dr_int
+    rrel = (xs < w) & (np.take_along_axis(dl_int, np.clip(xs, 0, w - 1), axis=1) == dr_int)
+    out, _occ = _occlusion_fill(np.ascontiguousarray(disp * np.float32(a), dtype=np.float32),
+                                np.ascontiguousarray(lab, dtype=np.int32), assign.astype(np.int32),
+                                np.ascontiguousarray(pl, dtype=np.float64), dr_int.astype(np.float32),
+                                np.ascontiguousarray(rrel), float(tol * a),
+                                np.ascontiguousarray(bd * np.float32(a), dtype=np.float32),
+                                np.ascontiguousarray(br), int(radius))
+    out = out / np.float32(a)
+    if pc.ratio < 0:
+        out = out[:, ::-1]
+    return np.ascontiguousarray(out, dtype=np.float32)
+
+
+def boundary_and_occlusion(ref: np.ndarray, labels: I32, index: SegmentIndex, assign: I32, plane_set: F64,
+                           own: npt.NDArray[np.int64], bfit_ids: npt.NDArray[np.int64] | None, fb: FusedBPASW,
+                           guided: Sequence[PairCost], *, max_disp: int, params: PostParams) -> F32:
+    """Boundary step, per-side occlusion step and the subpixel-preserving median (see the module doc)."""
+    p = params
+    lab32 = np.ascontiguousarray(labels, dtype=np.int32)
+    if p.pixel_radius > 0:
+        extra = []
+        if p.pixel_bplanes and bfit_ids is not None:
+            extra.append(bfit_ids)
+        if p.pixel_bplanes > 1:
+            extra.append(own[:, 0])
+        k = own.shape[0]
+        bown = np.ascontiguousarray(np.stack(extra, axis=1) if extra else np.full((k, 1), -1), dtype=np.int32)
+        gagree = np.zeros(labels.shape, bool)
+        for pc in guided:
+            gagree |= pc.reliable & (np.abs(pc.disparity - fb.disparity) <= p.pixel_tol)
+        bagree = fb.reliable & gagree
+        brel = bagree if p.pixel_agree == 1 else fb.reliable
+        final = _pixel_planes(lab32, assign.astype(np.int32), plane_set, fb.cost, 0, int(p.pixel_radius),
+                              float(p.pixel_margin), np.ascontiguousarray(brel), fb.disparity,
+                              float(p.pixel_tol), np.ascontiguousarray(bagree if p.pixel_agree else brel),
+                              bown)
+    else:
+        final = render_planes(index, plane_set, assign).astype(np.float32)
+    if p.occlusion_fill:
+        for side in (1, -1):
+            cands = [pc for pc in fb.pairs if side * pc.ratio > 0]
+            if not cands:
+                continue
+            pc = min(cands, key=lambda c: abs(abs(c.ratio) - 1.0))
+            final = _side_occlusion(final, lab32, assign, plane_set, pc, fb, tol=p.occ_tol,
+                                    radius=p.pixel_radius if p.occ_rematch else 0)
+    if p.post_median > 0:
+        wm = weighted_median_filter(final, ref, radius=p.post_median)
+        final = np.where(np.abs(wm - final) <= 1.0, final, wm)
+    return np.clip(final, 0, max_disp).astype(np.float32)
