@@ -70,6 +70,10 @@ class PostParams:
         3: + group refit), as ``coop``'s ``bpasw_planes``.
     pixel_radius, pixel_margin, pixel_tol, pixel_agree, pixel_bplanes : boundary step, as ``coop``.
     occlusion_fill, occ_tol, occ_rematch : occlusion step, as ``coop`` (per side).
+    occ_both : bool
+        With views on both sides of comparable weight (the data term's side selection, ``occlusion`` resolved
+        to ``"sides"``), only pixels contradicted from both sides are changed; otherwise each side's view
+        changes the pixels it contradicts, one side after the other.
     post_median : int
         Radius of the final subpixel-preserving weighted median (0 = off).
     """
@@ -77,7 +81,7 @@ class PostParams:
     bpasw_min_ratio: float = 0.5
     bpasw_max_ratio: float = 1.0
     consistency_tol: float = 0.5
-    bpasw_planes: int = 3
+    bpasw_planes: int = 2
     pixel_radius: int = 5
     pixel_margin: float = 5.0
     pixel_tol: float = 1.0
@@ -86,6 +90,7 @@ class PostParams:
     occlusion_fill: bool = True
     occ_tol: float = 1.0
     occ_rematch: bool = True
+    occ_both: bool = True
     post_median: int = 4
 
 
@@ -171,7 +176,7 @@ def bpasw_candidate_rounds(assign: I32, plane_set: F64, own: npt.NDArray[np.int6
 
 
 def _side_occlusion(final: F32, labels: I32, assign: I32, plane_set: F64, pc: PairCost, fb: FusedBPASW,
-                    *, tol: float, radius: int) -> F32:
+                    *, tol: float, radius: int) -> tuple[F32, B]:
     """coop's occlusion step against one view (scaled to its pair disparities; mirrored for a left view)."""
     a = abs(pc.ratio)
     w = final.shape[1]
@@ -188,7 +193,7 @@ def _side_occlusion(final: F32, labels: I32, assign: I32, plane_set: F64, pc: Pa
     dl_int = vol.argmin(axis=2)
     xs = np.arange(w)[None, :] + dr_int
     rrel = (xs < w) & (np.take_along_axis(dl_int, np.clip(xs, 0, w - 1), axis=1) == dr_int)
-    out, _occ = _occlusion_fill(np.ascontiguousarray(disp * np.float32(a), dtype=np.float32),
+    out, occ = _occlusion_fill(np.ascontiguousarray(disp * np.float32(a), dtype=np.float32),
                                 np.ascontiguousarray(lab, dtype=np.int32), assign.astype(np.int32),
                                 np.ascontiguousarray(pl, dtype=np.float64), dr_int.astype(np.float32),
                                 np.ascontiguousarray(rrel), float(tol * a),
@@ -196,13 +201,14 @@ def _side_occlusion(final: F32, labels: I32, assign: I32, plane_set: F64, pc: Pa
                                 np.ascontiguousarray(br), int(radius))
     out = out / np.float32(a)
     if pc.ratio < 0:
-        out = out[:, ::-1]
-    return np.ascontiguousarray(out, dtype=np.float32)
+        out, occ = out[:, ::-1], occ[:, ::-1]
+    return np.ascontiguousarray(out, dtype=np.float32), np.ascontiguousarray(occ)
 
 
 def boundary_and_occlusion(ref: np.ndarray, labels: I32, index: SegmentIndex, assign: I32, plane_set: F64,
                            own: npt.NDArray[np.int64], bfit_ids: npt.NDArray[np.int64] | None, fb: FusedBPASW,
-                           guided: Sequence[PairCost], *, max_disp: int, params: PostParams) -> F32:
+                           guided: Sequence[PairCost], *, max_disp: int, params: PostParams,
+                           sides_balanced: bool = False) -> F32:
     """Boundary step, per-side occlusion step and the subpixel-preserving median (see the module doc)."""
     p = params
     lab32 = np.ascontiguousarray(labels, dtype=np.int32)
@@ -226,13 +232,21 @@ def boundary_and_occlusion(ref: np.ndarray, labels: I32, index: SegmentIndex, as
     else:
         final = render_planes(index, plane_set, assign).astype(np.float32)
     if p.occlusion_fill:
+        sides = []
         for side in (1, -1):
             cands = [pc for pc in fb.pairs if side * pc.ratio > 0]
-            if not cands:
-                continue
-            pc = min(cands, key=lambda c: abs(abs(c.ratio) - 1.0))
-            final = _side_occlusion(final, lab32, assign, plane_set, pc, fb, tol=p.occ_tol,
-                                    radius=p.pixel_radius if p.occ_rematch else 0)
+            if cands:
+                sides.append(min(cands, key=lambda c: abs(abs(c.ratio) - 1.0)))
+        rad = p.pixel_radius if p.occ_rematch else 0
+        if p.occ_both and sides_balanced and len(sides) == 2:
+            # views on both sides: a wrongly fattened pixel is contradicted from both sides, a pixel that is
+            # only half-occluded (or whose one-side view map is wrong) from one
+            o1, m1 = _side_occlusion(final, lab32, assign, plane_set, sides[0], fb, tol=p.occ_tol, radius=rad)
+            o2, m2 = _side_occlusion(final, lab32, assign, plane_set, sides[1], fb, tol=p.occ_tol, radius=rad)
+            final = np.where(m1 & m2, np.minimum(o1, o2), final).astype(np.float32)
+        else:
+            for pc in sides:
+                final, _m = _side_occlusion(final, lab32, assign, plane_set, pc, fb, tol=p.occ_tol, radius=rad)
     if p.post_median > 0:
         wm = weighted_median_filter(final, ref, radius=p.post_median)
         final = np.where(np.abs(wm - final) <= 1.0, final, wm)
