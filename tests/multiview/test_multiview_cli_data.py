@@ -53,10 +53,11 @@ def test_cli_writes_pfm_and_png(tmp_path: Path) -> None:
     assert out.with_suffix(".png").is_file()
 
 
-def test_tsukuba_five_views_global_beats_one_view(middlebury_dir: Path) -> None:
+def test_tsukuba_five_views_global_beats_two_view_coop(middlebury_dir: Path) -> None:
     from prismstereo.evaluation.middlebury import evaluate_disparity, load_scene
     from prismstereo.evaluation.table7_1 import TSUKUBA_VIEWS
     from prismstereo.io import read_image
+    from prismstereo.matching.api import match
     from prismstereo.multiview.api import match_multiview
 
     scene = load_scene("tsukuba", middlebury_dir)
@@ -64,9 +65,12 @@ def test_tsukuba_five_views_global_beats_one_view(middlebury_dir: Path) -> None:
     ref = read_image(views / "col3.png")
     imgs = [read_image(views / f"{k}.png") for k in TSUKUBA_VIEWS]
     mv = match_multiview(ref, imgs, ratios=list(TSUKUBA_VIEWS.values()), max_disp=scene.max_disp)
-    # one view at ratio +1 is the two-view coop pipeline (same blocks); coop itself still evolves
-    two = match_multiview(ref, [read_image(views / "col4.png")], ratios=[1.0], max_disp=scene.max_disp)
+    # the live two-view coop matcher on col3/col4 (the unit baseline), run here so the comparison tracks it
+    two = match(ref, read_image(views / "col4.png"), max_disp=scene.max_disp, method="coop")
     b_mv = evaluate_disparity(mv.disparity, scene, thresholds=(1.0,))["bad"]["1.0"]
     b_two = evaluate_disparity(two.disparity, scene, thresholds=(1.0,))["bad"]["1.0"]
-    assert b_mv["all"] < b_two["all"] and b_mv["disc"] < b_two["disc"]
-    assert b_mv["nonocc"] < 4.0
+    # measured (v2 masks, bad > 1 px): five-view global 1.70 / 2.04 / 7.33, coop 1.91 / 2.42 / 8.10
+    for m in ("nonocc", "all", "disc"):
+        assert b_mv[m] < b_two[m], (m, b_mv, b_two)
+    assert b_mv["all"] < b_two["all"] - 0.2, (b_mv, b_two)
+    assert b_mv["nonocc"] < 1.9 and b_mv["all"] < 2.3 and b_mv["disc"] < 8.0, b_mv
