@@ -156,7 +156,7 @@ def _refine(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uin
             seg: npt.NDArray[np.int32], assign: npt.NDArray[np.int32],
             planes: npt.NDArray[np.float64], lab: npt.NDArray[np.int32], cur: F32, active: npt.NDArray[np.bool_],
             seg_radius: int, prop: int, parity: int, margin: float, radius: int, dil: int, gamma: float,
-            alpha: float, tau_col: float, tau_grad: float, dmin: float, dmax: float,
+            alpha: float, tau_col: float, tau_grad: float, dmin: float, dmax: float, dref: F32, tol: float,
             ) -> tuple[npt.NDArray[np.int32], F32]:  # pragma: no cover - numba
     """One pass: pixels (of the given checkerboard parity, or all when parity < 0) pick the cheapest plane among
     their own, the segments' planes within ``seg_radius`` (first pass) and the labels of the pixels ``prop``
@@ -223,6 +223,8 @@ def _refine(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uin
                 d = pl[0] * x + pl[1] * y + pl[2]
                 if d < dmin - 0.5 or d > dmax + 0.5:
                     continue
+                if tol > 0 and abs(d - dref[y, x]) > tol:
+                    continue
                 c2 = _cost(fl, fr, cl, cr, lam_cen, n, wy, wx, ww, pl[0], pl[1], pl[2], alpha, tau_col,
                            tau_grad) + margin
                 if c2 < best:
@@ -239,13 +241,15 @@ def refine_plane_labels(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8
                         max_disp: float, seg_radius: int = 6, iterations: int = 2, margin: float = 0.0,
                         active: npt.NDArray[np.bool_] | None = None, radius: int = 15, dilation: int = 2,
                         gamma: float = 20.0, alpha: float = 0.5, tau_col: float = 30.0,
-                        tau_grad: float = 6.0, census: float = 0.5) -> npt.NDArray[np.int32]:
+                        tau_grad: float = 6.0, census: float = 0.5, dref: npt.NDArray[np.float32] | None = None,
+                        tol: float = 0.0) -> npt.NDArray[np.int32]:
     """Per-pixel plane labels minimising the slanted-window cost (PatchMatch Stereo's cost, Bleyer et al. 2011).
 
     Starts from each pixel's segment plane ``assign[labels]``; a first pass offers the planes of the segments
     within ``seg_radius`` px, then ``iterations`` red-black propagation passes offer the labels of the 4
     neighbours at distance 1 (and 4 px, for faster spread). Another plane must be cheaper by more than
-    ``margin``. Only ``active`` pixels (all if None) change. Returns the (H, W) int32 plane index map.
+    ``margin``, and (with ``dref``) lie within ``tol`` of ``dref`` at the pixel. Only ``active`` pixels (all if
+    None) change. Returns the (H, W) int32 plane index map.
     """
     fl = slanted_inputs(left)
     fr = slanted_inputs(right)
@@ -257,7 +261,9 @@ def refine_plane_labels(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8
     act = np.ones(seg.shape, bool) if active is None else np.ascontiguousarray(active, bool)
     cur = np.full(seg.shape, -1.0, np.float32)
     args = (int(radius), int(dilation), float(gamma), float(alpha), float(tau_col), float(tau_grad),
-            float(min_disp), float(max_disp))
+            float(min_disp), float(max_disp),
+            np.ascontiguousarray(dref if dref is not None else np.zeros((1, 1)), np.float32),
+            float(tol) if dref is not None else 0.0)
     lab, cur = _refine(fl, fr, cl, cr, float(census), seg, asg, pl, lab, cur, act, int(seg_radius), 0, -1,
                        float(margin), *args)
     for _ in range(iterations):
