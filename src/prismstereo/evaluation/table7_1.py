@@ -13,6 +13,10 @@ with the unit view only, i.e. the two-view ``coop`` pipeline rebuilt from the sa
 (segmentation, planes, cooperative optimisation), so that the effect of adding views is measured with
 everything else fixed; the local rows use side-aware fusion where both sides are balanced
 (``occlusion="auto"``), baseline weights, and the two-view BPASW matcher's hole filling and final median.
+The global rows include ``coop``'s post-optimisation steps with multi-view evidence
+(:mod:`prismstereo.multiview.poststeps`: candidate planes fitted to the fused BPASW map, boundary step on the
+fused BPASW cost, occlusion step per side, subpixel-preserving median), so the one-view global row is ``coop``'s
+whole pipeline rebuilt from the same blocks.
 
 Extra rows: Cones with all nine views (``im2`` reference, ``imK`` at ratio (K − 2)/4) beside our two-view
 ``coop`` on im2/im6, and the time of five views against two.
