@@ -75,6 +75,8 @@ class PostParams:
     pixel_radius, pixel_margin, pixel_tol, pixel_agree, pixel_bplanes : boundary step, as ``coop``.
     occlusion_fill, occ_tol, occ_rematch : occlusion step, as ``coop`` (per side).
     occ_both : bool
+        Each side's occlusion step uses that side's view of ``|δ|`` closest to ``occ_ratio`` (Tsukuba five
+        views: 1 -> 1.58 nonocc, 2 -> 1.59).
         With views on both sides of comparable weight (the data term's side selection, ``occlusion`` resolved
         to ``"sides"``), only pixels contradicted from both sides are changed; otherwise each side's view
         changes the pixels it contradicts, one side after the other.
@@ -96,6 +98,7 @@ class PostParams:
     occ_tol: float = 1.0
     occ_rematch: bool = True
     occ_both: bool = True
+    occ_ratio: float = 1.0
     post_median: int = 4
 
 
@@ -242,7 +245,7 @@ def boundary_and_occlusion(ref: np.ndarray, labels: I32, index: SegmentIndex, as
         for side in (1, -1):
             cands = [pc for pc in fb.pairs if side * pc.ratio > 0]
             if cands:
-                sides.append(min(cands, key=lambda c: abs(abs(c.ratio) - 1.0)))
+                sides.append(min(cands, key=lambda c: abs(abs(c.ratio) - p.occ_ratio)))
         rad = p.pixel_radius if p.occ_rematch else 0
         if p.occ_both and sides_balanced and len(sides) == 2:
             # views on both sides: a wrongly fattened pixel is contradicted from both sides, a pixel that is
