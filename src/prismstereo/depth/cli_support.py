@@ -12,8 +12,6 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from prismstereo.errors import ConfigError, OutputError
 
 __all__ = ["check_output_dir", "demo_command", "depth_command"]
@@ -54,8 +52,8 @@ def depth_command(rig_path: str, image_path: str, out_dir: str, *, method: str =
     from prismstereo.config import load_rig
     from prismstereo.depth.outputs import write_depth_outputs
     from prismstereo.depth.pipeline import DepthConfig, run_depth, validate_inputs
-    from prismstereo.evaluation.depth_metrics import evaluate_depth, format_accuracy
-    from prismstereo.io import read_image, read_pfm
+    from prismstereo.evaluation.depth_metrics import evaluate_depth, format_accuracy, read_depth_gt
+    from prismstereo.io import read_image
     from prismstereo.matching import get_matcher
 
     rig = load_rig(rig_path)
@@ -78,14 +76,11 @@ def depth_command(rig_path: str, image_path: str, out_dir: str, *, method: str =
     get_matcher(config.method, **config.matcher_params)  # parameters checked before the heavy work
     depth_gt = None
     if gt is not None:
-        depth_gt = read_pfm(gt)
-        if depth_gt.shape != (rig.camera.height, rig.camera.width):
-            raise ConfigError(f"--gt: expected a {rig.camera.width}×{rig.camera.height} depth map, got "
-                              f"{depth_gt.shape[1]}×{depth_gt.shape[0]}")
+        depth_gt = read_depth_gt(gt, rig)
     res = run_depth(rig, image, config=config)
     lines = []
     if depth_gt is not None:
-        acc = evaluate_depth(res, depth_gt=np.asarray(depth_gt, dtype=np.float64))
+        acc = evaluate_depth(res, depth_gt=depth_gt)
         lines.append(format_accuracy(acc))
     outputs = write_depth_outputs(res, out_dir, extra={"inputs": {"rig": str(rig_path), "image": str(image_path),
                                                                  "gt": gt}})

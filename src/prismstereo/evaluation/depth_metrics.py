@@ -21,11 +21,15 @@ of the common view that has a reconstructed point.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from prismstereo.config import Rig
+from prismstereo.errors import ConfigError
+from prismstereo.io import read_pfm
 from prismstereo.optics import project_exact, trace_pixels
 
 __all__ = ["DepthGroundTruth", "depth_accuracy", "evaluate_depth", "ground_truth_for_run"]
@@ -50,6 +54,21 @@ class DepthGroundTruth:
     def depth(self) -> np.ndarray:
         """(h, w) world Z of the ground-truth points, mm."""
         return self.points[..., 2]
+
+
+def read_depth_gt(path: str | os.PathLike[str], rig: Rig) -> np.ndarray:
+    """Read a ground-truth depth map (simulate's ``depth_gt.pfm``: world Z in mm per real pixel, NaN none).
+
+    Raises
+    ------
+    ConfigError
+        If the map's size is not the rig's sensor size.
+    """
+    depth_gt = read_pfm(path)
+    if depth_gt.shape != (rig.camera.height, rig.camera.width):
+        raise ConfigError(f"--gt: expected a {rig.camera.width}×{rig.camera.height} depth map, got "
+                          f"{depth_gt.shape[1]}×{depth_gt.shape[0]}")
+    return np.asarray(depth_gt, dtype=np.float64)
 
 
 def _bilinear_depth(depth_gt: np.ndarray, px: np.ndarray, *, agree: float = 0.005) -> np.ndarray:

@@ -479,16 +479,14 @@ def all_views_command(rig_path: str | os.PathLike[str], image_path: str | os.Pat
     :func:`depth_accuracy` to the summary and to ``run.json``.
     """
     from prismstereo.config import load_rig
-    from prismstereo.io import read_image, read_pfm
+    from prismstereo.evaluation.depth_metrics import read_depth_gt
+    from prismstereo.io import read_image
 
     rig = load_rig(rig_path)
     image = read_image(image_path)
     depth_gt = None
     if gt is not None:
-        depth_gt = read_pfm(gt)
-        if depth_gt.shape != (rig.camera.height, rig.camera.width):
-            raise ConfigError(f"--gt: expected a {rig.camera.width}×{rig.camera.height} depth map, got "
-                              f"{depth_gt.shape[1]}×{depth_gt.shape[0]}")
+        depth_gt = read_depth_gt(gt, rig)
     res = depth_all_views(rig, image, depth_range=depth_range, reference=reference, calibration=calibration)
     extra: dict[str, Any] = {"inputs": {"rig": str(rig_path), "image": str(image_path), "gt": None if gt is None
                                         else str(gt)}, "depth_range_mm": list(depth_range)}
