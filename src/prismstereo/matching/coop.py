@@ -43,6 +43,7 @@ from prismstereo.matching.planes import (
     build_segment_index,
     fill_missing_planes,
     fit_planes,
+    group_refit_planes,
     merge_planes,
     render_planes,
     segment_label_map,
@@ -541,17 +542,11 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
                                                             own=own3, min_disp=min_disp, params=op)
             info = {**info2, "energy_before": e_first}
         if bpasw_planes > 2:  # group refit on the BPASW map
-            groups = assign[segment_label_map(index)].reshape(index.shape)
-            gidx = build_segment_index(groups)
-            gpl, _ = fit_planes(gidx, bdisp0, brel0, params=pp)
-            used = np.unique(assign)
-            ok = np.isfinite(gpl[used, 0])
-            if ok.any():
-                new_ids = np.full(plane_set.shape[0], -1, np.int64)
-                new_ids[used[ok]] = plane_set.shape[0] + np.arange(int(ok.sum()))
-                plane_set = np.concatenate([plane_set, gpl[used[ok]]])
+            refit = group_refit_planes(assign, plane_set, index, bdisp0, brel0, params=pp)
+            if refit is not None:
+                plane_set, group_ids = refit
                 own4 = own.copy()
-                own4[:, 1] = new_ids[assign]
+                own4[:, 1] = group_ids
                 assign, plane_set, info2 = cooperative_optimize(assign, plane_set, index, graph, dcost, reliable,
                                                                 own=own4, min_disp=min_disp, params=op)
                 info = {**info2, "energy_before": e_first}

@@ -449,3 +449,29 @@ def render_planes(index: SegmentIndex, planes: F64,
     pl = np.where(a[:, None] >= 0, planes[np.clip(a, 0, None)], np.nan)
     out = pl[:, 0] * xs + pl[:, 1] * ys + pl[:, 2]
     return out.reshape(h, w).astype(np.float32)
+
+
+def group_refit_planes(
+    assign: npt.NDArray[np.integer], plane_set: npt.NDArray[np.float64], index: SegmentIndex,
+    disparity: npt.NDArray[np.floating], reliable: npt.NDArray[np.bool_], *, params: PlaneParams,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]] | None:
+    """Refit one plane per group of segments that share a plane label (refit of merged planes, §6.1.3).
+
+    Segments currently assigned the same plane are pooled and fitted again on ``disparity``'s reliable
+    pixels; the refitted planes are appended to ``plane_set`` as new candidates.
+
+    Returns
+    -------
+    (plane_set, ids) or None
+        The extended (P', 3) plane set and, per segment, the id of its group's refitted plane (−1 where
+        the group has no fit); ``None`` when no group could be refitted.
+    """
+    groups = assign[segment_label_map(index)].reshape(index.shape)
+    group_planes, _ = fit_planes(build_segment_index(groups), disparity, reliable, params=params)
+    used = np.unique(assign)
+    ok = np.isfinite(group_planes[used, 0])
+    if not ok.any():
+        return None
+    new_ids = np.full(plane_set.shape[0], -1, np.int64)
+    new_ids[used[ok]] = plane_set.shape[0] + np.arange(int(ok.sum()))
+    return np.concatenate([plane_set, group_planes[used[ok]]]), new_ids[assign]

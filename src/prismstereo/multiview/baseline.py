@@ -29,6 +29,7 @@ import numpy as np
 import numpy.typing as npt
 
 from prismstereo.errors import ConfigError, ImageError, MatchingError
+from prismstereo.matching.coop import _box3
 
 log = logging.getLogger(__name__)
 
@@ -178,18 +179,6 @@ class PairCost:
     reliable: npt.NDArray[np.bool_]
     raw: F32 | None = None
     step: int = 1
-
-
-def _box3(vol: F32, r: int) -> F32:
-    if r <= 0:
-        return vol
-    import cv2
-
-    k = 2 * r + 1
-    out = np.empty_like(vol)
-    for i in range(0, vol.shape[2], 512):
-        out[:, :, i:i + 512] = cv2.boxFilter(vol[:, :, i:i + 512], -1, (k, k), borderType=cv2.BORDER_REFLECT)
-    return out
 
 
 def _strided_check(agg_l: F32, agg_r: F32, step: int) -> tuple[F32, npt.NDArray[np.bool_]]:

@@ -33,11 +33,10 @@ from prismstereo.matching.coop import _occlusion_fill, _pixel_planes
 from prismstereo.matching.planes import (
     PlaneParams,
     SegmentIndex,
-    build_segment_index,
     fit_planes,
+    group_refit_planes,
     merge_planes,
     render_planes,
-    segment_label_map,
 )
 from prismstereo.matching.selection import (
     right_cost_volume,
@@ -169,17 +168,11 @@ def bpasw_candidate_rounds(assign: I32, plane_set: F64, own: npt.NDArray[np.int6
             plane_set = np.concatenate([plane_set, bcp])
         assign, plane_set, info = optimise(assign, plane_set, own3)
     if rounds > 2:
-        groups = assign[segment_label_map(index)].reshape(index.shape)
-        gidx = build_segment_index(groups)
-        gpl, _ = fit_planes(gidx, fb.disparity, fb.reliable, params=planes)
-        used = np.unique(assign)
-        ok = np.isfinite(gpl[used, 0])
-        if ok.any():
-            new_ids = np.full(plane_set.shape[0], -1, np.int64)
-            new_ids[used[ok]] = plane_set.shape[0] + np.arange(int(ok.sum()))
-            plane_set = np.concatenate([plane_set, gpl[used[ok]]])
+        refit = group_refit_planes(assign, plane_set, index, fb.disparity, fb.reliable, params=planes)
+        if refit is not None:
+            plane_set, group_ids = refit
             own4 = own.copy()
-            own4[:, 1] = new_ids[assign]
+            own4[:, 1] = group_ids
             assign, plane_set, info = optimise(assign, plane_set, own4)
     return assign, plane_set, info, bfit_ids
 
