@@ -129,3 +129,33 @@ def test_middlebury_tsukuba_bound(middlebury_dir: Path) -> None:
     assert bad["nonocc"] < 2.4
     assert bad["all"] < 3.0
     assert bad["disc"] < 10.0
+
+
+def test_sweep_candidates_reach_a_steep_slant() -> None:
+    """The global sweep offers a plane near a steep y-slant that a fronto-parallel current plane cannot reach."""
+    from prismstereo.matching.coop import _sweep_candidates
+
+    rng = np.random.default_rng(3)
+    h, w = 60, 80
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    disp = 4.0 + 0.25 * yy  # 4 .. 18.75
+    left = rng.integers(0, 256, size=(h, w, 3)).astype(np.uint8)
+    left = np.repeat(np.repeat(left[::2, ::2], 2, 0), 2, 1)[:h, :w]
+    right = np.zeros_like(left)
+    for y in range(h):
+        for c in range(3):
+            right[y, :, c] = np.interp(np.arange(w) + disp[y, 0], np.arange(w), left[y, :, c].astype(float))
+    labels = np.zeros((h, w), np.int32)
+    labels[:, 40:] = 1
+    index = build_segment_index(labels)
+    planes = np.array([[0.0, 0.0, 11.0]])
+    assign = np.zeros(2, np.int32)
+    out, ids = _sweep_candidates(left, right, labels, index, assign, planes, min_disp=0, max_disp=24, frac=1.0,
+                                 slopes=(-0.25, 0.0, 0.25), keep=2, min_px=10, step=2)
+    assert out.shape[0] > 1
+    assert (ids[:, 0] >= 0).all()
+    best = out[ids[:, 0]]
+    assert np.allclose(best[:, 1], 0.25)
+    seg = labels == 1
+    d = best[1, 0] * xx[seg] + best[1, 1] * yy[seg] + best[1, 2]
+    assert np.mean(np.abs(d - disp[seg]) <= 1.0) > 0.9

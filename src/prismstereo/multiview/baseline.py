@@ -205,7 +205,7 @@ def _strided_check(agg_l: F32, agg_r: F32, step: int) -> tuple[F32, npt.NDArray[
 
 def _pair_volumes(left: np.ndarray, right: np.ndarray, max_s: int, cost: CostName, cost_params: dict[str, Any],
                   keep_raw: bool, data_radius: int,
-                  step: int = 1) -> tuple[F32, F32, npt.NDArray[np.bool_], F32 | None]:
+                  step: int = 1, row_box: bool = False) -> tuple[F32, F32, npt.NDArray[np.bool_], F32 | None]:
     """Left aggregated volume, subpixel left disparity (pair px), left–right check and the raw volume.
 
     With ``step > 1`` (guided cost only) slice ``k`` holds the pair disparity ``step · k``.
@@ -219,7 +219,7 @@ def _pair_volumes(left: np.ndarray, right: np.ndarray, max_s: int, cost: CostNam
         if step == 1:
             agg_l, agg_r = aggregated_costs(left, right, max_disp=max_s, min_disp=0, params=cp, raw=pix)
             disp, ok = initial_disparity(agg_l, agg_r, min_disp=0)
-            return agg_l, disp, ok, (_box3(pix, data_radius) if keep_raw else None)
+            return agg_l, disp, ok, (_box3(pix, data_radius, vertical=not row_box) if keep_raw else None)
         sel = np.ascontiguousarray(pix[:, :, ::step])
         del pix
         w = sel.shape[1]
@@ -233,7 +233,7 @@ def _pair_volumes(left: np.ndarray, right: np.ndarray, max_s: int, cost: CostNam
         agg_l = guided_filter_volume(lf, sel, radius=cp.radius, eps=cp.eps)
         agg_r = guided_filter_volume(rf, sel_r, radius=cp.radius, eps=cp.eps)
         disp, ok = _strided_check(agg_l, agg_r, step)
-        return agg_l, disp, ok, (_box3(sel, data_radius) if keep_raw else None)
+        return agg_l, disp, ok, (_box3(sel, data_radius, vertical=not row_box) if keep_raw else None)
     if cost == "bpasw":
         from prismstereo.matching import costs
         from prismstereo.matching.matchers import BPASWMatcher
@@ -251,14 +251,15 @@ def _pair_volumes(left: np.ndarray, right: np.ndarray, max_s: int, cost: CostNam
         raw: F32 | None = None
         if keep_raw:
             raw = _box3(costs.cost_s_ad(left, right, max_disp=max_s, min_disp=0, omega=m.omega,
-                                        tau_color=m.tau_color, tau_gradient=m.tau_gradient), data_radius)
+                                        tau_color=m.tau_color, tau_gradient=m.tau_gradient), data_radius,
+                       vertical=not row_box)
         return vol, subpixel_refine(vol, d0), ok, raw
     raise ConfigError(f"expected cost 'bpasw' or 'guided', got {cost!r}")
 
 
 def pair_cost(reference: np.ndarray, view: np.ndarray, ratio: float, *, max_disp: int,
               cost: CostName = "guided", cost_params: dict[str, Any] | None = None, keep_raw: bool = False,
-              data_radius: int = 1, stride: bool = True) -> PairCost:
+              data_radius: int = 1, stride: bool = True, row_box: bool = False) -> PairCost:
     """Aggregated cost of the reference against one view (thesis Eq. 7.9), in the reference frame.
 
     Parameters
@@ -282,6 +283,8 @@ def pair_cost(reference: np.ndarray, view: np.ndarray, ratio: float, *, max_disp
     stride : bool
         For the guided cost and an integer ``|δ| >= 2``, aggregate only the pair disparities
         ``s = |δ| d`` that unit disparities reach (``|δ|`` times fewer slices; identical values there).
+    row_box : bool
+        Box the pixel-wise cost along the row only (``coop``'s sweep data term on slanted segments).
 
     Returns
     -------
@@ -293,12 +296,13 @@ def pair_cost(reference: np.ndarray, view: np.ndarray, ratio: float, *, max_disp
     max_s = int(min(w - 1, math.ceil(a * max_disp) + step))
     params = dict(cost_params or {})
     if ratio > 0:
-        vol, d, ok, raw = _pair_volumes(reference, view, max_s, cost, params, keep_raw, data_radius, step)
+        vol, d, ok, raw = _pair_volumes(reference, view, max_s, cost, params, keep_raw, data_radius, step,
+                                        row_box)
     else:
         # mirror both images: the left view becomes a right view of the mirrored reference; mirror back
         vol, d, ok, raw = _pair_volumes(np.ascontiguousarray(reference[:, ::-1]),
                                         np.ascontiguousarray(view[:, ::-1]), max_s, cost, params, keep_raw,
-                                        data_radius, step)
+                                        data_radius, step, row_box)
         vol, d, ok = (np.ascontiguousarray(vol[:, ::-1]), np.ascontiguousarray(d[:, ::-1]),
                       np.ascontiguousarray(ok[:, ::-1]))
         raw = None if raw is None else np.ascontiguousarray(raw[:, ::-1])
