@@ -54,6 +54,7 @@ from prismstereo.matching.planes import (
 from prismstereo.matching.registry import MatchResult, register_matcher
 from prismstereo.matching.segmentation import SegmentationParams, mean_shift_segment, segment_adjacency
 from prismstereo.matching.selection import right_cost_volume, weighted_median_filter
+from prismstereo.matching.slanted import add_unique
 
 log = logging.getLogger(__name__)
 
@@ -193,16 +194,8 @@ def _pixel_planes(seg: npt.NDArray[np.int32], assign: npt.NDArray[np.int32], pla
                 for xx in range(max(0, x - radius), min(w, x + radius + 1)):
                     for m in range(nm):
                         lab = assign[seg[yy, xx]] if m == 0 else assign2[seg[yy, xx], m - 1]
-                        if lab == own or lab < 0:
-                            continue
-                        dup = False
-                        for t in range(nc):
-                            if cand[t] == lab:
-                                dup = True
-                                break
-                        if not dup:
-                            cand[nc] = lab
-                            nc += 1
+                        if lab != own and lab >= 0:
+                            nc = add_unique(cand, nc, lab)
             pl = planes[own]
             best_d = pl[0] * x + pl[1] * y + pl[2]
             own_d = best_d

@@ -98,29 +98,8 @@ def _union(parent: npt.NDArray[np.int32], a: int, b: int) -> None:
 @njit(cache=True)
 def _label_modes(filt: npt.NDArray[np.float32], hr2: float) -> npt.NDArray[np.int32]:
     """Union 4-neighbours whose filtered colours (modes) are closer than hr; returns root per pixel."""
-    h, w, c = filt.shape
-    parent = np.arange(h * w).astype(np.int32)
-    for y in range(h):
-        for x in range(w):
-            i = y * w + x
-            if x + 1 < w:
-                d = 0.0
-                for k in range(c):
-                    t = filt[y, x, k] - filt[y, x + 1, k]
-                    d += t * t
-                if d < hr2:
-                    _union(parent, i, i + 1)
-            if y + 1 < h:
-                d = 0.0
-                for k in range(c):
-                    t = filt[y, x, k] - filt[y + 1, x, k]
-                    d += t * t
-                if d < hr2:
-                    _union(parent, i, i + w)
-    out = np.empty(h * w, dtype=np.int32)
-    for i in range(h * w):
-        out[i] = _find(parent, i)
-    return out
+    h, w, _ = filt.shape
+    return _label_modes_depth(filt, hr2, np.zeros((h, w), np.float32), np.inf)
 
 
 @njit(cache=True)

@@ -90,6 +90,16 @@ def _window(fl: F32, y: int, x: int, radius: int, dil: int, gamma: float, wy: np
 
 
 @njit(cache=True, inline="always")
+def add_unique(cand: npt.NDArray[np.int64], nc: int, label: int) -> int:  # pragma: no cover - numba
+    """Append ``label`` to ``cand[:nc]`` unless it is already there; returns the new count."""
+    for t in range(nc):
+        if cand[t] == label:
+            return nc
+    cand[nc] = label
+    return nc + 1
+
+
+@njit(cache=True, inline="always")
 def _popcount(v: np.uint64) -> int:  # pragma: no cover - numba
     v = v - ((v >> np.uint64(1)) & np.uint64(0x5555555555555555))
     v = (v & np.uint64(0x3333333333333333)) + ((v >> np.uint64(2)) & np.uint64(0x3333333333333333))
@@ -182,16 +192,8 @@ def _refine(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uin
                 for yy in range(max(0, y - seg_radius), min(h, y + seg_radius + 1), 2):
                     for xx in range(max(0, x - seg_radius), min(w, x + seg_radius + 1), 2):
                         c = assign[seg[yy, xx]]
-                        if c == own:
-                            continue
-                        dup = False
-                        for t in range(nc):
-                            if cand[t] == c:
-                                dup = True
-                                break
-                        if not dup:
-                            cand[nc] = c
-                            nc += 1
+                        if c != own:
+                            nc = add_unique(cand, nc, c)
             if prop > 0:
                 for dy, dx in ((-prop, 0), (prop, 0), (0, -prop), (0, prop)):
                     yy = y + dy
@@ -199,16 +201,8 @@ def _refine(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uin
                     if yy < 0 or yy >= h or xx < 0 or xx >= w:
                         continue
                     c = lab[yy, xx]
-                    if c == own:
-                        continue
-                    dup = False
-                    for t in range(nc):
-                        if cand[t] == c:
-                            dup = True
-                            break
-                    if not dup:
-                        cand[nc] = c
-                        nc += 1
+                    if c != own:
+                        nc = add_unique(cand, nc, c)
             if nc == 0:
                 continue
             n = _window(fl, y, x, radius, dil, gamma, wy, wx, ww)
