@@ -11,7 +11,9 @@ Stages (each callable on its own, and all kept in :class:`CoopResult`):
    share a plane are refitted together and the optimisation resumes, then one in which planes fitted to
    issue 3's cross-checked BPASW map (and their merged clusters) are offered and it resumes again; then
    the half of the segments with the highest slanted-window cost get planes from a global sweep (whole
-   disparity range x a few vertical slopes) as candidates, with a row-only boxed pixel cost on their pixels
+   disparity range x a few vertical slopes) as candidates, with a row-only boxed pixel cost on their pixels;
+   last, finer segments (a second mean shift with a smaller range radius, inside the segments) along plane
+   boundaries may take a neighbour's plane where the cross-checked initial maps support it
 5. boundary step (an addition to the thesis): pixels near segment boundaries may take a nearby segment's
    plane (current, or fitted to either initial map) where issue 3's BPASW aggregated cost (symmetric
    adaptive weights, §5.2) clearly prefers it and both cross-checked initial maps agree with it (fixes
@@ -22,7 +24,7 @@ Stages (each callable on its own, and all kept in :class:`CoopResult`):
 Default parameters (the same for every scene): hs = 5, hr = 4, M = 20; guided filter r = 9, ε = 1e-4;
 γ_segment = 0.9, t_outlier = 1, ε(6.10) = 0.99, δ = 0.8; κ = 0.5, μ = 1, ω_occ = 1, γ = 0.5;
 BPASW as issue 3's ``bpasw`` matcher; boundary step radius 5 px, margin 5 (BPASW cost units), tolerance
-1 px; weighted median radius 4.
+1 px; weighted median radius 4; finer segments hr = 3, M = 10.
 """
 
 from __future__ import annotations
@@ -410,7 +412,8 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
                slanted_boundary_margin: float = 1.0, sweep_frac: float = 0.5,
                sweep_slopes: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0), sweep_keep: int = 2,
                sweep_min_px: int = 40, sweep_step: int = 4, sweep_hbox: int = 1,
-               sweep_nbr: bool = False, sweep_dil: int = 3) -> CoopResult:
+               sweep_nbr: bool = False, sweep_dil: int = 3, fine_hr: float = 3.0,
+               fine_min: int = 10, fine_check: int = 1) -> CoopResult:
     """Run the whole segment-based cooperative pipeline (thesis §5.1, §5.2, §6.1, §6.2).
 
     Parameters
@@ -495,6 +498,15 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         segment within ``pixel_radius`` whose slanted-window cost (:mod:`slanted`) is lower than their
         segment plane's by ``slanted_boundary_margin`` and which lies within ``pixel_tol`` of the BPASW map.
         Off by default: 4.84 (margin 1), 4.77 (margin 4) against 4.75.
+    fine_hr, fine_min, fine_check : keyword-only
+        Finer segments (an addition to §6.2): the segmentation is repeated with range radius ``fine_hr`` and
+        minimum size ``fine_min`` and intersected with the segments; the fine segments that touch a segment on
+        another plane start from their segment's plane and resume the cooperative optimisation, so that a
+        segment straddling a depth edge can split along a weaker colour edge. A fine segment's move is kept
+        only when at least ``fine_check`` more of its pixels where both cross-checked initial maps agree lie
+        within 1 px of the new plane than of the old (the data term of a 10-pixel segment is noisy).
+        The result's ``labels`` are then the fine segments (0 = off; average 4.49 -> 4.50 without the check,
+        4.44 with it: Tsukuba 1.54/1.94/7.20 -> 1.39/1.79/6.42, Cones 2.23 -> 2.19, Teddy 4.72 -> 4.80).
     sweep_frac, sweep_slopes, sweep_keep, sweep_min_px, sweep_step, sweep_dil, sweep_hbox, sweep_nbr : keyword-only
         Candidate planes from a global sweep (:func:`_sweep_candidates`, after the BPASW rounds): the
         ``sweep_frac`` of the segments of at least ``sweep_min_px`` pixels whose current plane has the highest
@@ -697,6 +709,49 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
             assign[acc] = plane_set.shape[0] + np.arange(acc.size)
             plane_set = np.concatenate([plane_set, newp[acc]])
         info = {**info, "planes_refined": float(acc.size)}
+    if fine_hr > 0:
+        # finer segments inside each segment, starting from their parent's plane, may take a neighbour's plane
+        fine = mean_shift_segment(lft, params=dataclasses.replace(sp, hr=fine_hr, min_region=fine_min))
+        comb = labels.astype(np.int64) * (int(fine.max()) + 1) + fine
+        _, inv = np.unique(comb, return_inverse=True)
+        flab = inv.reshape(labels.shape).astype(np.int32)
+        parent = np.zeros(int(flab.max()) + 1, np.int64)
+        parent[flab.ravel()] = labels.ravel()
+        findex = build_segment_index(flab)
+        fgraph = build_segment_graph(flab, lft, beta_scale=beta_scale)
+        fown = np.full((parent.size, 2), -1, np.int64)
+        fown[:, 0] = assign[parent]
+        fop = dataclasses.replace(op, neighbour_own_planes=False)
+        fa = assign[parent]
+        # only fine segments touching a segment on another plane: interiors keep their segment's plane
+        diff = fa[fgraph.pairs[:, 0]] != fa[fgraph.pairs[:, 1]]
+        fact = np.zeros(parent.size, bool)
+        fact[fgraph.pairs[diff, 0]] = True
+        fact[fgraph.pairs[diff, 1]] = True
+        assign, plane_set, info2 = cooperative_optimize(fa, plane_set, findex, fgraph, dcost, reliable,
+                                                        own=fown, min_disp=min_disp, params=fop, active=fact)
+        if fine_check:
+            # keep a move only where the cross-checked initial maps support the new plane more than the old
+            moved = np.flatnonzero(assign != fa)
+            if moved.size:
+                yy, xx = np.mgrid[0:labels.shape[0], 0:labels.shape[1]]
+                ev = reliable & brel0 & (np.abs(bdisp0 - initial) <= pixel_tol)
+                fl = flab.ravel()
+                pn, po = plane_set[assign][fl], plane_set[fa][fl]
+                dn = pn[:, 0] * xx.ravel() + pn[:, 1] * yy.ravel() + pn[:, 2]
+                do = po[:, 0] * xx.ravel() + po[:, 1] * yy.ravel() + po[:, 2]
+                ref = initial.ravel()
+                sn = np.bincount(fl, weights=(ev.ravel() & (np.abs(dn - ref) <= 1.0)), minlength=parent.size)
+                so = np.bincount(fl, weights=(ev.ravel() & (np.abs(do - ref) <= 1.0)), minlength=parent.size)
+                bad = moved[sn[moved] < so[moved] + fine_check]
+                assign = assign.copy()
+                assign[bad] = fa[bad]
+        info = {**info2, "energy_before": e_first, "fine_segments": float(parent.size)}
+        labels, index, k = flab, findex, int(parent.size)
+        assign0 = assign0[parent]
+        own = own[parent]
+        if bfit_ids is not None:
+            bfit_ids = bfit_ids[parent]
     tm["cooperative"] = time.perf_counter() - t
     t = time.perf_counter()
     if pixel_radius > 0:

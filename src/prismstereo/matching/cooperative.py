@@ -305,8 +305,8 @@ def _energy(assign: I32, planes: F64, order: I64, starts: I64, w: int, cost: F32
 @njit(cache=True)
 def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
            reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
-           nstart: I64, nbr: I64, nedge: I64, prm: F64) -> int:
-    """One cooperative sweep over all segments (Eq. 6.19), in place; returns the number of changes."""
+           nstart: I64, nbr: I64, nedge: I64, prm: F64, active: npt.NDArray[np.bool_]) -> int:
+    """One cooperative sweep over the active segments (Eq. 6.19), in place; returns the number of changes."""
     k = starts.size - 1
     h = cost.shape[0] // w
     kappa = prm[0]
@@ -317,6 +317,8 @@ def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost:
     cand = np.empty(64, np.int64)
     changes = 0
     for j in range(k):
+        if not active[j]:
+            continue
         # candidate planes: current, own fitted/merged planes, neighbours' current planes
         nc = 0
         cand[nc] = a[j]
@@ -537,7 +539,8 @@ def total_energy(assign: npt.NDArray[np.integer], planes: F64, index: SegmentInd
 def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: SegmentIndex,
                          graph: SegmentGraph, cost: F32, reliable: npt.NDArray[np.bool_], *,
                          own: npt.NDArray[np.integer] | None = None, min_disp: int = 0,
-                         params: CoopParams | None = None) -> tuple[I32, F64, dict[str, float]]:
+                         params: CoopParams | None = None,
+                         active: npt.NDArray[np.bool_] | None = None) -> tuple[I32, F64, dict[str, float]]:
     """Cooperative optimisation of the plane labels (thesis §6.2, Eqs. 6.18-6.25).
 
     Parameters
@@ -555,6 +558,8 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
         Extra candidate planes of each segment (its own fitted plane and its cluster plane; -1 = none).
     min_disp : int, keyword-only
     params : CoopParams, keyword-only
+    active : (K,) bool, optional
+        Segments allowed to change their plane (default: all).
 
     Returns
     -------
@@ -575,6 +580,7 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
     a = np.asarray(assign, np.int32).copy()
     k = a.size
     own_arr = np.full((k, 2), -1, np.int64) if own is None else np.asarray(own, np.int64).reshape(k, 2)
+    act = np.ones(k, np.bool_) if active is None else np.asarray(active, np.bool_).reshape(k)
     fc = _flat_cost(cost)
     rel = np.asarray(reliable, np.bool_).ravel()
     n_used = int(planes.shape[0])
@@ -592,7 +598,7 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
     for rnd in range(rounds + 1):
         for _ in range(p.max_iter):
             prev = a.copy()
-            n = _sweep(a, own_arr.ravel(), pl, *common, graph.nstart, graph.nbr, graph.nedge, prm)
+            n = _sweep(a, own_arr.ravel(), pl, *common, graph.nstart, graph.nbr, graph.nedge, prm, act)
             sweeps += 1
             if n == 0:
                 break
