@@ -159,3 +159,60 @@ def test_sweep_candidates_reach_a_steep_slant() -> None:
     seg = labels == 1
     d = best[1, 0] * xx[seg] + best[1, 1] * yy[seg] + best[1, 2]
     assert np.mean(np.abs(d - disp[seg]) <= 1.0) > 0.9
+
+
+def _straddling_scene() -> tuple[np.ndarray, ...]:
+    """Red half at d = 10, blue half at d = 4; the coarse segment of the blue half wrongly holds 5 red columns."""
+    rng = np.random.default_rng(3)
+    h, w, nd = 40, 60, 16
+    img = np.zeros((h, w, 3), np.float64)
+    img[:, :30] = (200, 40, 40)
+    img[:, 30:] = (40, 40, 200)
+    img = np.clip(img + rng.normal(0, 1.0, img.shape), 0, 255).astype(np.uint8)
+    truth = np.where(np.arange(w)[None, :] < 30, 10.0, 4.0) * np.ones((h, 1))
+    labels = np.where(np.arange(w)[None, :] < 25, 0, 1).astype(np.int32) * np.ones((h, 1), np.int32)
+    cost = (np.minimum(np.abs(np.arange(nd)[None, None, :] - truth[..., None]), 2.0) * 0.5).astype(np.float32)
+    planes = np.array([[0.0, 0.0, 10.0], [0.0, 0.0, 4.0]])
+    return img, labels.astype(np.int32), planes, cost, truth.astype(np.float32)
+
+
+def test_fine_segments_move_the_straddling_columns_to_their_plane() -> None:
+    from prismstereo.matching.coop import refine_fine_segments
+    from prismstereo.matching.segmentation import SegmentationParams
+
+    img, labels, planes, cost, truth = _straddling_scene()
+    ok = np.ones(labels.shape, bool)
+    fs = refine_fine_segments(img, labels, np.array([0, 1], np.int32), planes, cost, ok, ok, truth,
+                              segmentation=SegmentationParams(hr=3.0, min_region=10), coop=CoopParams())
+    disp = fs.planes[fs.assign][fs.labels][..., 2]
+    assert np.array_equal(fs.parent[fs.labels], labels)  # fine segments nest in the coarse ones
+    np.testing.assert_allclose(disp, truth)
+    assert fs.info["fine_moves"] >= 1
+
+
+def test_fine_segments_keep_moves_only_with_evidence() -> None:
+    from prismstereo.matching.coop import refine_fine_segments
+    from prismstereo.matching.segmentation import SegmentationParams
+
+    img, labels, planes, cost, truth = _straddling_scene()
+    ok = np.ones(labels.shape, bool)
+    wrong_ref = np.where(labels == 1, 4.0, 10.0).astype(np.float32)  # the trusted map sides with the old plane
+    fs = refine_fine_segments(img, labels, np.array([0, 1], np.int32), planes, cost, ok, ok, wrong_ref,
+                              segmentation=SegmentationParams(hr=3.0, min_region=10), coop=CoopParams())
+    disp = fs.planes[fs.assign][fs.labels][..., 2]
+    np.testing.assert_allclose(disp, np.where(labels == 1, 4.0, 10.0))
+    assert fs.info["fine_moves"] == 0
+
+
+def test_cooperative_optimize_leaves_inactive_segments_alone() -> None:
+    img, labels, planes, cost, truth = _straddling_scene()
+    labels = np.where(np.arange(60)[None, :] < 30, 0, 1).astype(np.int32) * np.ones((40, 1), np.int32)
+    idx = build_segment_index(labels)
+    graph = build_segment_graph(labels, img)
+    wrong = np.array([1, 0], np.int32)
+    rel = np.ones(labels.shape, bool)
+    a_all, _, _ = cooperative_optimize(wrong, planes, idx, graph, cost, rel, own=np.array([[0, -1], [1, -1]]))
+    a_none, _, info = cooperative_optimize(wrong, planes, idx, graph, cost, rel, own=np.array([[0, -1], [1, -1]]),
+                                           active=np.zeros(2, bool))
+    assert list(a_all) == [0, 1]
+    assert list(a_none) == [1, 0] and info["changes"] == 0

@@ -60,7 +60,7 @@ from prismstereo.matching.slanted import add_unique
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CoopMatcher", "CoopResult", "coop_match", "initial_disparity"]
+__all__ = ["CoopMatcher", "CoopResult", "FineSegments", "coop_match", "initial_disparity", "refine_fine_segments"]
 
 F32 = npt.NDArray[np.float32]
 
@@ -394,6 +394,92 @@ def _sweep_candidates(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uint8], la
     return np.concatenate([plane_set, np.asarray(chosen)]), out_ids
 
 
+@dataclass(frozen=True)
+class FineSegments:
+    """Result of :func:`refine_fine_segments`.
+
+    Attributes
+    ----------
+    labels : (H, W) int32       fine segments (each inside one segment of the coarse labels).
+    parent : (K_f,) int64       coarse segment of each fine segment.
+    index : SegmentIndex        pixels of the fine segments.
+    assign : (K_f,) int32       plane per fine segment, into ``planes``.
+    planes : (L, 3) float64
+    info : dict                 energies, sweeps, ``fine_segments``, ``fine_moves``.
+    """
+
+    labels: npt.NDArray[np.int32]
+    parent: npt.NDArray[np.int64]
+    index: Any
+    assign: npt.NDArray[np.int32]
+    planes: npt.NDArray[np.float64]
+    info: dict[str, float]
+
+
+def refine_fine_segments(image: npt.NDArray[np.uint8], labels: npt.NDArray[np.int32],
+                         assign: npt.NDArray[np.int32], planes: npt.NDArray[np.float64], cost: F32,
+                         reliable: npt.NDArray[np.bool_], evidence: npt.NDArray[np.bool_], reference: F32, *,
+                         segmentation: SegmentationParams, coop: CoopParams, min_disp: int = 0,
+                         beta_scale: float = 1.0, check: int = 1) -> FineSegments:
+    """Finer segments along plane boundaries resume the cooperative optimisation (an addition to §6.2).
+
+    The image is segmented again with ``segmentation`` (a smaller range radius) and intersected with
+    ``labels``; each fine segment starts from its segment's plane, and those touching a fine segment on
+    another plane may take a neighbour's plane by the cooperative scheme (Eq. 6.19) on ``cost``. A move is
+    kept only when at least ``check`` more of the fine segment's ``evidence`` pixels lie within 1 px of
+    ``reference`` under the new plane than under the old (0 = keep every move).
+
+    Parameters
+    ----------
+    image : (H, W, 3) uint8 reference image.
+    labels : (H, W) int32 segments; assign : (K,) plane per segment; planes : (L, 3).
+    cost : (H, W, D) float32 data-term pixel cost (as :func:`cooperative_optimize`).
+    reliable : (H, W) bool cross-check mask of the data term.
+    evidence : (H, W) bool pixels whose ``reference`` disparity is trusted.
+    reference : (H, W) float32 disparity map the moves are checked against.
+    """
+    fine = mean_shift_segment(image, params=segmentation)
+    comb = labels.astype(np.int64) * (int(fine.max()) + 1) + fine
+    _, inv = np.unique(comb, return_inverse=True)
+    flab = inv.reshape(labels.shape).astype(np.int32)
+    parent = np.zeros(int(flab.max()) + 1, np.int64)
+    parent[flab.ravel()] = labels.ravel()
+    findex = build_segment_index(flab)
+    fgraph = build_segment_graph(flab, image, beta_scale=beta_scale)
+    fa = np.asarray(assign, np.int32)[parent]
+    fown = np.full((parent.size, 2), -1, np.int64)
+    fown[:, 0] = fa
+    # interiors keep their segment's plane: only fine segments touching another plane may move
+    diff = fa[fgraph.pairs[:, 0]] != fa[fgraph.pairs[:, 1]]
+    active = np.zeros(parent.size, bool)
+    active[fgraph.pairs[diff, 0]] = True
+    active[fgraph.pairs[diff, 1]] = True
+    new, planes_out, info = cooperative_optimize(fa, planes, findex, fgraph, cost, reliable, own=fown,
+                                                 min_disp=min_disp, active=active,
+                                                 params=dataclasses.replace(coop, neighbour_own_planes=False))
+    moved = np.flatnonzero(new != fa)
+    if check and moved.size:
+        # the data term of a 10-pixel segment is noisy: the trusted initial disparities must side with the move
+        h, w = labels.shape
+        yy, xx = np.mgrid[0:h, 0:w]
+        fl = flab.ravel()
+        ev = np.asarray(evidence, bool).ravel()
+        ref = np.asarray(reference, np.float64).ravel()
+
+        def support(lab: npt.NDArray[np.int32]) -> npt.NDArray[np.float64]:
+            pl = planes_out[lab][fl]
+            d = pl[:, 0] * xx.ravel() + pl[:, 1] * yy.ravel() + pl[:, 2]
+            return np.bincount(fl, weights=(ev & (np.abs(d - ref) <= 1.0)).astype(np.float64),
+                               minlength=parent.size).astype(np.float64)
+
+        sn, so = support(new), support(fa)
+        undo = moved[sn[moved] < so[moved] + check]
+        new = new.copy()
+        new[undo] = fa[undo]
+    info = {**info, "fine_segments": float(parent.size), "fine_moves": float((new != fa).sum())}
+    return FineSegments(flab, parent, findex, new.astype(np.int32), planes_out, info)
+
+
 def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, max_disp: int,
                min_disp: int = 0, segmentation: SegmentationParams | None = None,
                cost: CostParams | None = None, planes: PlaneParams | None = None,
@@ -710,48 +796,16 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
             plane_set = np.concatenate([plane_set, newp[acc]])
         info = {**info, "planes_refined": float(acc.size)}
     if fine_hr > 0:
-        # finer segments inside each segment, starting from their parent's plane, may take a neighbour's plane
-        fine = mean_shift_segment(lft, params=dataclasses.replace(sp, hr=fine_hr, min_region=fine_min))
-        comb = labels.astype(np.int64) * (int(fine.max()) + 1) + fine
-        _, inv = np.unique(comb, return_inverse=True)
-        flab = inv.reshape(labels.shape).astype(np.int32)
-        parent = np.zeros(int(flab.max()) + 1, np.int64)
-        parent[flab.ravel()] = labels.ravel()
-        findex = build_segment_index(flab)
-        fgraph = build_segment_graph(flab, lft, beta_scale=beta_scale)
-        fown = np.full((parent.size, 2), -1, np.int64)
-        fown[:, 0] = assign[parent]
-        fop = dataclasses.replace(op, neighbour_own_planes=False)
-        fa = assign[parent]
-        # only fine segments touching a segment on another plane: interiors keep their segment's plane
-        diff = fa[fgraph.pairs[:, 0]] != fa[fgraph.pairs[:, 1]]
-        fact = np.zeros(parent.size, bool)
-        fact[fgraph.pairs[diff, 0]] = True
-        fact[fgraph.pairs[diff, 1]] = True
-        assign, plane_set, info2 = cooperative_optimize(fa, plane_set, findex, fgraph, dcost, reliable,
-                                                        own=fown, min_disp=min_disp, params=fop, active=fact)
-        if fine_check:
-            # keep a move only where the cross-checked initial maps support the new plane more than the old
-            moved = np.flatnonzero(assign != fa)
-            if moved.size:
-                yy, xx = np.mgrid[0:labels.shape[0], 0:labels.shape[1]]
-                ev = reliable & brel0 & (np.abs(bdisp0 - initial) <= pixel_tol)
-                fl = flab.ravel()
-                pn, po = plane_set[assign][fl], plane_set[fa][fl]
-                dn = pn[:, 0] * xx.ravel() + pn[:, 1] * yy.ravel() + pn[:, 2]
-                do = po[:, 0] * xx.ravel() + po[:, 1] * yy.ravel() + po[:, 2]
-                ref = initial.ravel()
-                sn = np.bincount(fl, weights=(ev.ravel() & (np.abs(dn - ref) <= 1.0)), minlength=parent.size)
-                so = np.bincount(fl, weights=(ev.ravel() & (np.abs(do - ref) <= 1.0)), minlength=parent.size)
-                bad = moved[sn[moved] < so[moved] + fine_check]
-                assign = assign.copy()
-                assign[bad] = fa[bad]
-        info = {**info2, "energy_before": e_first, "fine_segments": float(parent.size)}
-        labels, index, k = flab, findex, int(parent.size)
-        assign0 = assign0[parent]
-        own = own[parent]
+        ev = reliable & brel0 & (np.abs(bdisp0 - initial) <= pixel_tol)
+        fs = refine_fine_segments(lft, labels, assign, plane_set, dcost, reliable, ev, initial,
+                                  segmentation=dataclasses.replace(sp, hr=fine_hr, min_region=fine_min),
+                                  coop=op, min_disp=min_disp, beta_scale=beta_scale, check=fine_check)
+        info = {**fs.info, "energy_before": e_first}
+        labels, index, assign, plane_set, k = fs.labels, fs.index, fs.assign, fs.planes, int(fs.parent.size)
+        assign0 = assign0[fs.parent]
+        own = own[fs.parent]
         if bfit_ids is not None:
-            bfit_ids = bfit_ids[parent]
+            bfit_ids = bfit_ids[fs.parent]
     tm["cooperative"] = time.perf_counter() - t
     t = time.perf_counter()
     if pixel_radius > 0:
