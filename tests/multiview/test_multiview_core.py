@@ -138,3 +138,40 @@ def test_resolve_occlusion() -> None:
     assert resolve_occlusion("sides", [-0.25, 2]) == "sides"
     with pytest.raises(ConfigError):
         resolve_occlusion("best", [1.0])
+
+
+@pytest.mark.parametrize("params", [FAST_BPASW, {"radius": 3, "dilation": 1, "kernel": "exp"}])
+def test_shared_bpasw_equals_pair_cost(params: dict) -> None:
+    """The reference's weights computed once for all views give the pair-by-pair volumes (to 1 ulp: the
+    compiler may vectorise the disparity loop's tail differently) and the same maps."""
+    from prismstereo.multiview.baseline import pair_cost
+    from prismstereo.multiview.sharedbpasw import bpasw_pair_costs
+
+    ratios = [-2.0, -1.0, 0.5, 1.0, 2.0]
+    ref, views = _views(ratios, D_TRUE, noise=20.0, seed=5)
+    shared = bpasw_pair_costs(ref, views, ratios, max_disp=6, cost_params=params)
+    for v, r, pc in zip(views, ratios, shared, strict=True):
+        one = pair_cost(ref, v, r, max_disp=6, cost="bpasw", cost_params=params)
+        assert pc.ratio == one.ratio and pc.step == one.step
+        np.testing.assert_allclose(pc.cost, one.cost, rtol=3e-7, atol=0)
+        # a 1-ulp difference may break an exact tie of the WTA at a pixel or two
+        assert (np.abs(pc.disparity - one.disparity) <= 1e-5).mean() > 0.995
+        assert (pc.reliable == one.reliable).mean() > 0.995
+
+
+@pytest.mark.parametrize("cost", ["guided", "bpasw"])
+def test_row_radius_keeps_the_row_boxed_raw(cost: str) -> None:
+    """``row_radius`` keeps the same volume a second ``row_box`` pass over the pair computes."""
+    from prismstereo.multiview.baseline import pair_cost
+
+    ratios = [-1.0, 2.0]
+    ref, views = _views(ratios, D_TRUE, noise=20.0, seed=6)
+    cp = FAST_BPASW if cost == "bpasw" else {}
+    for v, r in zip(views, ratios, strict=True):
+        both = pair_cost(ref, v, r, max_disp=6, cost=cost, cost_params=cp, keep_raw=True, row_radius=1)
+        sq = pair_cost(ref, v, r, max_disp=6, cost=cost, cost_params=cp, keep_raw=True)
+        row = pair_cost(ref, v, r, max_disp=6, cost=cost, cost_params=cp, keep_raw=True, row_box=True)
+        assert both.raw is not None and both.raw_row is not None and sq.raw is not None and row.raw is not None
+        np.testing.assert_array_equal(both.raw, sq.raw)
+        np.testing.assert_array_equal(both.raw_row, row.raw)
+        assert sq.raw_row is None

@@ -171,6 +171,9 @@ class PairCost:
         Slice ``k`` of ``cost``/``raw`` holds the pair disparity ``s = step · k`` (``step = |δ|`` for an
         integer ratio ≥ 2: only the pair disparities that a unit-baseline disparity can reach are
         aggregated).
+    raw_row : (H, W, S + 1) float32 or None
+        The same pixel-wise cost boxed along the row only (``pair_cost(..., row_radius=r)``), kept beside
+        ``raw`` so a row-boxed data term needs no second pass over the pair.
     """
 
     ratio: float
@@ -179,6 +182,7 @@ class PairCost:
     reliable: npt.NDArray[np.bool_]
     raw: F32 | None = None
     step: int = 1
+    raw_row: F32 | None = None
 
 
 def _strided_check(agg_l: F32, agg_r: F32, step: int) -> tuple[F32, npt.NDArray[np.bool_]]:
@@ -203,10 +207,21 @@ def _strided_check(agg_l: F32, agg_r: F32, step: int) -> tuple[F32, npt.NDArray[
     return (step * sub).astype(np.float32), ok
 
 
+def _boxed(pix: F32, keep_raw: bool, data_radius: int, row_box: bool,
+           row_radius: int | None) -> tuple[F32 | None, F32 | None]:
+    """The pixel-wise cost boxed for the data term (``raw``) and, with ``row_radius``, along the row only."""
+    if not keep_raw:
+        return None, None
+    raw = _box3(pix, data_radius, vertical=not row_box)
+    return raw, (None if row_radius is None else _box3(pix, row_radius, vertical=False))
+
+
 def _pair_volumes(left: np.ndarray, right: np.ndarray, max_s: int, cost: CostName, cost_params: dict[str, Any],
                   keep_raw: bool, data_radius: int,
-                  step: int = 1, row_box: bool = False) -> tuple[F32, F32, npt.NDArray[np.bool_], F32 | None]:
-    """Left aggregated volume, subpixel left disparity (pair px), left–right check and the raw volume.
+                  step: int = 1, row_box: bool = False, row_radius: int | None = None,
+                  ) -> tuple[F32, F32, npt.NDArray[np.bool_], tuple[F32 | None, F32 | None]]:
+    """Left aggregated volume, subpixel left disparity (pair px), left–right check and the raw volumes
+    (square-boxed or row-boxed with ``row_box``, and row-boxed with ``row_radius``).
 
     With ``step > 1`` (guided cost only) slice ``k`` holds the pair disparity ``step · k``.
     """
@@ -219,7 +234,7 @@ def _pair_volumes(left: np.ndarray, right: np.ndarray, max_s: int, cost: CostNam
         if step == 1:
             agg_l, agg_r = aggregated_costs(left, right, max_disp=max_s, min_disp=0, params=cp, raw=pix)
             disp, ok = initial_disparity(agg_l, agg_r, min_disp=0)
-            return agg_l, disp, ok, (_box3(pix, data_radius, vertical=not row_box) if keep_raw else None)
+            return agg_l, disp, ok, _boxed(pix, keep_raw, data_radius, row_box, row_radius)
         sel = np.ascontiguousarray(pix[:, :, ::step])
         del pix
         w = sel.shape[1]
@@ -233,7 +248,7 @@ def _pair_volumes(left: np.ndarray, right: np.ndarray, max_s: int, cost: CostNam
         agg_l = guided_filter_volume(lf, sel, radius=cp.radius, eps=cp.eps)
         agg_r = guided_filter_volume(rf, sel_r, radius=cp.radius, eps=cp.eps)
         disp, ok = _strided_check(agg_l, agg_r, step)
-        return agg_l, disp, ok, (_box3(sel, data_radius, vertical=not row_box) if keep_raw else None)
+        return agg_l, disp, ok, _boxed(sel, keep_raw, data_radius, row_box, row_radius)
     if cost == "bpasw":
         from prismstereo.matching import costs
         from prismstereo.matching.matchers import BPASWMatcher
@@ -248,18 +263,19 @@ def _pair_volumes(left: np.ndarray, right: np.ndarray, max_s: int, cost: CostNam
         vol = m.cost_volume(left, right, max_disp=max_s, min_disp=0)
         d0 = winner_take_all(vol)
         ok = cross_check(d0, right_disparity(vol), tolerance=0.0)
-        raw: F32 | None = None
+        raws: tuple[F32 | None, F32 | None] = (None, None)
         if keep_raw:
-            raw = _box3(costs.cost_s_ad(left, right, max_disp=max_s, min_disp=0, omega=m.omega,
-                                        tau_color=m.tau_color, tau_gradient=m.tau_gradient), data_radius,
-                       vertical=not row_box)
-        return vol, subpixel_refine(vol, d0), ok, raw
+            raws = _boxed(costs.cost_s_ad(left, right, max_disp=max_s, min_disp=0, omega=m.omega,
+                                          tau_color=m.tau_color, tau_gradient=m.tau_gradient), True, data_radius,
+                          row_box, row_radius)
+        return vol, subpixel_refine(vol, d0), ok, raws
     raise ConfigError(f"expected cost 'bpasw' or 'guided', got {cost!r}")
 
 
 def pair_cost(reference: np.ndarray, view: np.ndarray, ratio: float, *, max_disp: int,
               cost: CostName = "guided", cost_params: dict[str, Any] | None = None, keep_raw: bool = False,
-              data_radius: int = 1, stride: bool = True, row_box: bool = False) -> PairCost:
+              data_radius: int = 1, stride: bool = True, row_box: bool = False,
+              row_radius: int | None = None) -> PairCost:
     """Aggregated cost of the reference against one view (thesis Eq. 7.9), in the reference frame.
 
     Parameters
@@ -285,6 +301,9 @@ def pair_cost(reference: np.ndarray, view: np.ndarray, ratio: float, *, max_disp
         ``s = |δ| d`` that unit disparities reach (``|δ|`` times fewer slices; identical values there).
     row_box : bool
         Box the pixel-wise cost along the row only (``coop``'s sweep data term on slanted segments).
+    row_radius : int, optional
+        With ``keep_raw``, also keep the pixel-wise cost boxed along the row only with this radius
+        (``raw_row``): the sweep step's data term, from the same pixel cost instead of a second pair pass.
 
     Returns
     -------
@@ -296,18 +315,19 @@ def pair_cost(reference: np.ndarray, view: np.ndarray, ratio: float, *, max_disp
     max_s = int(min(w - 1, math.ceil(a * max_disp) + step))
     params = dict(cost_params or {})
     if ratio > 0:
-        vol, d, ok, raw = _pair_volumes(reference, view, max_s, cost, params, keep_raw, data_radius, step,
-                                        row_box)
+        vol, d, ok, (raw, raw_row) = _pair_volumes(reference, view, max_s, cost, params, keep_raw, data_radius,
+                                                   step, row_box, row_radius)
     else:
         # mirror both images: the left view becomes a right view of the mirrored reference; mirror back
-        vol, d, ok, raw = _pair_volumes(np.ascontiguousarray(reference[:, ::-1]),
-                                        np.ascontiguousarray(view[:, ::-1]), max_s, cost, params, keep_raw,
-                                        data_radius, step, row_box)
+        vol, d, ok, (raw, raw_row) = _pair_volumes(np.ascontiguousarray(reference[:, ::-1]),
+                                                   np.ascontiguousarray(view[:, ::-1]), max_s, cost, params,
+                                                   keep_raw, data_radius, step, row_box, row_radius)
         vol, d, ok = (np.ascontiguousarray(vol[:, ::-1]), np.ascontiguousarray(d[:, ::-1]),
                       np.ascontiguousarray(ok[:, ::-1]))
         raw = None if raw is None else np.ascontiguousarray(raw[:, ::-1])
+        raw_row = None if raw_row is None else np.ascontiguousarray(raw_row[:, ::-1])
     disp = (np.asarray(d, np.float32) / np.float32(a)).astype(np.float32)
-    return PairCost(float(ratio), vol, disp, np.asarray(ok, bool), raw, step)
+    return PairCost(float(ratio), vol, disp, np.asarray(ok, bool), raw, step, raw_row)
 
 
 def resample_to_unit(pc: PairCost, *, max_disp: int, raw: bool = False) -> tuple[F32, npt.NDArray[np.bool_]]:

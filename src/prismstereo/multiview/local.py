@@ -104,8 +104,13 @@ def match_multibaseline(reference: Any, views: Sequence[Any], *, ratios: Sequenc
     ref, vs, rs, md = check_views(reference, views, ratios, max_disp=max_disp)
     timings: dict[str, float] = {}
     t = time.perf_counter()
-    pcs = [pair_cost(ref, v, r, max_disp=md, cost=p.cost, cost_params=p.cost_params) for v, r in zip(vs, rs,
-                                                                                                       strict=True)]
+    if p.cost == "bpasw":  # the reference's support weights computed once for all views (same volumes)
+        from prismstereo.multiview.sharedbpasw import bpasw_pair_costs
+
+        pcs = bpasw_pair_costs(ref, vs, rs, max_disp=md, cost_params=p.cost_params)
+    else:
+        pcs = [pair_cost(ref, v, r, max_disp=md, cost=p.cost, cost_params=p.cost_params)
+               for v, r in zip(vs, rs, strict=True)]
     timings["pair costs"] = time.perf_counter() - t
     t = time.perf_counter()
     def wfn(r: float) -> float:

@@ -45,7 +45,8 @@ from prismstereo.matching.selection import (
     weighted_median_filter,
     winner_take_all,
 )
-from prismstereo.multiview.baseline import PairCost, fuse_costs, pair_cost
+from prismstereo.multiview.baseline import PairCost, fuse_costs
+from prismstereo.multiview.sharedbpasw import bpasw_pair_costs
 
 __all__ = ["FusedBPASW", "PostParams", "fused_bpasw", "boundary_and_occlusion", "bpasw_candidate_rounds",
            "sweep_candidates"]
@@ -139,7 +140,7 @@ def fused_bpasw(ref: np.ndarray, views: Sequence[np.ndarray], ratios: Sequence[f
     sel = [i for i, r in enumerate(ratios) if params.bpasw_min_ratio <= abs(r) <= hi]
     if not sel:
         sel = list(range(len(ratios)))
-    pcs = [pair_cost(ref, views[i], ratios[i], max_disp=max_disp, cost="bpasw") for i in sel]
+    pcs = bpasw_pair_costs(ref, [views[i] for i in sel], [ratios[i] for i in sel], max_disp=max_disp)
 
     def wfn(r: float) -> float:
         return min(abs(r), 1.0) if weight_by_baseline else 1.0
