@@ -94,6 +94,19 @@ class PostParams:
         (``coop``'s 50 % and step 4: 1.57/1.92/6.55; 75 %: 3.13/3.44/7.10; 20 %: 1.52/1.88/6.64; the row box
         changes nothing there), Cones nine views 1.75/3.41/5.11 -> 1.74/3.39/5.08 (step 4: 1.75/3.42/5.11).
         ``sweep_ratio`` 2 (Tsukuba's +2 view) measured worse: 3.06/3.41/6.61 at 50 %.
+    fine_hr, fine_min, fine_check : finer segments, as ``coop``
+        (:func:`~prismstereo.matching.coop.refine_fine_segments`, after the sweep step): the reference is
+        segmented again with range radius ``fine_hr`` and minimum size ``fine_min`` inside the segments; fine
+        segments touching another plane resume the cooperative optimisation on the multi-view data term, a
+        move kept only when at least ``fine_check`` more of the fine segment's evidence pixels lie within
+        1 px of the new plane than of the old; ``fine_hr`` 0 = off. Measured (bad > 1 px, nonocc/all/disc):
+        Tsukuba five views 1.37/1.73/6.53 -> 1.24/1.60/5.87, Cones nine views 1.74/3.39/5.08 -> 1.72/3.34/5.05
+        (``"bpasw"`` evidence: 1.25/1.61/5.85 and 1.73/3.33/5.05).
+    fine_evidence : {"fused", "bpasw"}
+        The evidence of the fine step. ``"fused"`` (``coop``'s rule on the unit grid): the map of the views'
+        fused guided costs (``_fused_initial``) where a pair's checked map agrees with it and the fused
+        BPASW map is reliable and within ``pixel_tol`` of it. ``"bpasw"``: the boundary step's evidence, the
+        fused BPASW map where it is reliable and a guided pair's checked map agrees.
     """
 
     bpasw_min_ratio: float = 0.5
@@ -120,6 +133,10 @@ class PostParams:
     sweep_dil: int = 3
     sweep_hbox: int = 1
     sweep_ratio: float = 1.0
+    fine_hr: float = 3.0
+    fine_min: int = 10
+    fine_check: int = 1
+    fine_evidence: str = "fused"
 
 
 @dataclass(frozen=True)
