@@ -1,17 +1,23 @@
-"""BPASW pair costs of one reference against several views, the reference's support weights computed once.
+"""BPASW pair costs of one reference against several views, each image's support weights computed once.
 
 The fused BPASW evidence of the global multi-view method (:func:`~prismstereo.multiview.poststeps.fused_bpasw`)
 and the local method aggregate the reference against every view with the BPASW cost (thesis §5.2). The
 symmetric aggregation (Eq. 5.14) weights each window pixel by the reference's colour/proximity weight times
 the view's; computing a weight (a square root and a logarithm) costs far more than the disparity loop it
-feeds (on Tsukuba about 0.37 s of the 0.85 s of one pair for each image's weights), and the reference's
-weights are the same for every pair. Here they are computed once per row and read by all pairs, the views on
-the left (matched on mirrored images, see :mod:`~prismstereo.multiview.baseline`) reading them mirrored. The
-arithmetic per entry is that of :func:`prismstereo.matching.aggregation.aggregate_bpasw` in the same order,
+feeds (on Tsukuba about 0.37 s of the 0.85 s of one pair for each image's weights). Here
+
+* the reference's weights are computed once for all pairs (the views on the left, matched on mirrored images,
+  see :mod:`~prismstereo.multiview.baseline`, read them mirrored), and
+* each image's weights are computed for half of the window's offsets only: the weight of a pixel and its
+  neighbour at offset ``(dy, dx)`` is the neighbour's weight at ``(-dy, -dx)`` (the colour difference only
+  changes sign, the distance not at all), so the other half is read from the table at the neighbour.
+
+The arithmetic per entry is that of :func:`prismstereo.matching.aggregation.aggregate_bpasw` in the same order,
 so the volumes equal those of :func:`~prismstereo.multiview.baseline.pair_cost` (``cost="bpasw"``) up to
 the last bit of some entries (the compiler vectorises the tail of the disparity loop differently for some
 range lengths: 1 ulp, tested); on Tsukuba's four pairs they are equal bit for bit. Measured on Tsukuba's
-four views (one thread): 4.24 s pair by pair, 2.94 s shared.
+four views, same process, min of 4 (2 shared cores): 3.6-3.8 s pair by pair, 2.08 s with the reference's
+weights shared, 1.64 s with the half tables as well.
 """
 
 from __future__ import annotations
@@ -35,24 +41,19 @@ I64 = npt.NDArray[np.int64]
 
 
 @njit(cache=True, parallel=True, fastmath=True)
-def _bpasw_views_kernel(cost: F32, offs: I64, lab_ref: F32, lab_views: F32, mirrored: npt.NDArray[np.bool_],
-                        dys: I64, dxs: I64, kmir: I64, prox: npt.NDArray[np.float64], kernel: int, s0: float,
-                        s_min: float) -> F32:  # pragma: no cover - numba
-    """Symmetric BPASW aggregation of the pairs' volumes ``cost[:, :, offs[p]:offs[p + 1]]`` (each in its pair's
-    frame, mirrored for a view on the left), ``lab_views[p]`` the view in that frame, ``lab_ref`` the reference
-    in the unmirrored frame; ``kmir[k]`` is the offset ``(dy, -dx)`` of offset ``k``."""
-    h, w, _ = cost.shape
-    nk = dys.shape[0]
-    npair = offs.shape[0] - 1
+def _half_weights(lab: F32, dys: I64, dxs: I64, half: I64, prox: npt.NDArray[np.float64], kernel: int, s0: float,
+                  s_min: float) -> F32:  # pragma: no cover - numba
+    """Support weights ``T[y, j, x]`` of pixel ``(y, x)`` and its neighbour at offset ``half[j]``, for the half of
+    the window's offsets that lie after the centre (0 outside the image): the weight of a pixel and its
+    neighbour is symmetric (the colour difference only changes sign, the distance not at all), so the other
+    half is ``T`` read at the neighbour."""
+    h, w, _ = lab.shape
+    nh = half.shape[0]
     log_norm = 1.0 / np.log(s0 / s_min) if kernel == 0 else 1.0
-    ndmax = 0
-    for p in range(npair):
-        ndmax = max(ndmax, offs[p + 1] - offs[p])
-    out = np.empty_like(cost)
+    out = np.zeros((h, nh, w), dtype=np.float32)
     for y in prange(h):
-        # the reference's weights of this row, wl[k, x] (0 outside the image), shared by all pairs
-        wl = np.zeros((nk, w), dtype=np.float32)
-        for k in range(nk):
+        for j in range(nh):
+            k = half[j]
             qy = y + dys[k]
             if qy < 0 or qy >= h:
                 continue
@@ -60,63 +61,91 @@ def _bpasw_views_kernel(cost: F32, offs: I64, lab_ref: F32, lab_views: F32, mirr
                 qx = x + dxs[k]
                 if qx < 0 or qx >= w:
                     continue
-                a = lab_ref[y, x, 0] - lab_ref[qy, qx, 0]
-                b = lab_ref[y, x, 1] - lab_ref[qy, qx, 1]
-                c = lab_ref[y, x, 2] - lab_ref[qy, qx, 2]
-                wl[k, x] = np.float32(_sim(a * a + b * b + c * c, kernel, s0, s_min, log_norm) * prox[k])
-        wr = np.zeros((nk, w), dtype=np.float32)
-        num = np.empty(ndmax, dtype=np.float32)
-        den = np.empty(ndmax, dtype=np.float32)
-        for p in range(npair):
-            o0 = offs[p]
-            nd = offs[p + 1] - o0
-            mir = mirrored[p]
-            # the view's weights of this row, stored reversed (wr[k, w-1-xr]) as the two-view kernel does
-            wr[:, :] = 0.0
+                a = lab[y, x, 0] - lab[qy, qx, 0]
+                b = lab[y, x, 1] - lab[qy, qx, 1]
+                c = lab[y, x, 2] - lab[qy, qx, 2]
+                out[y, j, x] = np.float32(_sim(a * a + b * b + c * c, kernel, s0, s_min, log_norm) * prox[k])
+    return out
+
+
+@njit(cache=True, inline="always")
+def _weight_row(tab: F32, y: int, k: int, dys: I64, dxs: I64, hidx: I64, kneg: I64, row: F32) -> None:
+    """``row[x]``: the weight of ``(y, x)`` and its neighbour at offset ``k`` from the half table."""
+    h = tab.shape[0]
+    w = tab.shape[2]
+    j = hidx[k]
+    if j >= 0:
+        row[:] = tab[y, j]
+        return
+    row[:] = 0.0
+    qy = y + dys[k]
+    if qy < 0 or qy >= h:
+        return
+    jn = hidx[kneg[k]]
+    for x in range(w):
+        qx = x + dxs[k]
+        if 0 <= qx < w:
+            row[x] = tab[qy, jn, qx]
+
+
+@njit(cache=True, parallel=True, fastmath=True)
+def _bpasw_pair_kernel(cost: F32, tab_ref: F32, tab_view: F32, mirrored: bool, dys: I64, dxs: I64, hidx: I64,
+                       kneg: I64, kmir: I64) -> F32:  # pragma: no cover - numba
+    """Symmetric BPASW aggregation (as :func:`prismstereo.matching.aggregation._bpasw_kernel`) of one pair's
+    volume ``cost`` (in the pair's frame, mirrored for a view on the left) from the half weight tables of the
+    reference (unmirrored frame) and of the view (the pair's frame)."""
+    h, w, nd = cost.shape
+    nk = dys.shape[0]
+    out = np.empty_like(cost)
+    for y in prange(h):
+        buf = np.empty(w, dtype=np.float32)
+        wl = np.empty((nk, w), dtype=np.float32)
+        wr = np.empty((nk, w), dtype=np.float32)
+        for k in range(nk):
+            if mirrored:  # the pair's pixel x is the reference's w-1-x and its offset dx the reference's -dx
+                _weight_row(tab_ref, y, kmir[k], dys, dxs, hidx, kneg, buf)
+                for x in range(w):
+                    wl[k, x] = buf[w - 1 - x]
+            else:
+                _weight_row(tab_ref, y, k, dys, dxs, hidx, kneg, wl[k])
+            # the view's weights stored reversed, wr[k, w-1-xr], as the two-view kernel does
+            _weight_row(tab_view, y, k, dys, dxs, hidx, kneg, buf)
+            for x in range(w):
+                wr[k, w - 1 - x] = buf[x]
+        num = np.empty(nd, dtype=np.float32)
+        den = np.empty(nd, dtype=np.float32)
+        for x in range(w):
+            num[:] = 0.0
+            den[:] = 0.0
+            nvalid = min(nd, x + 1)
+            base = w - 1 - x
             for k in range(nk):
                 qy = y + dys[k]
-                if qy < 0 or qy >= h:
+                qx = x + dxs[k]
+                if qy < 0 or qy >= h or qx < 0 or qx >= w:
                     continue
-                for xr in range(w):
-                    qx = xr + dxs[k]
-                    if qx < 0 or qx >= w:
-                        continue
-                    a = lab_views[p, y, xr, 0] - lab_views[p, qy, qx, 0]
-                    b = lab_views[p, y, xr, 1] - lab_views[p, qy, qx, 1]
-                    c = lab_views[p, y, xr, 2] - lab_views[p, qy, qx, 2]
-                    wr[k, w - 1 - xr] = _sim(a * a + b * b + c * c, kernel, s0, s_min, log_norm) * prox[k]
-            for x in range(w):
-                num[:nd] = 0.0
-                den[:nd] = 0.0
-                nvalid = min(nd, x + 1)
-                base = w - 1 - x
-                for k in range(nk):
-                    qy = y + dys[k]
-                    qx = x + dxs[k]
-                    if qy < 0 or qy >= h or qx < 0 or qx >= w:
-                        continue
-                    # a mirrored pair's pixel x is the reference's w-1-x and its offset dx the reference's -dx
-                    wlk = wl[kmir[k], w - 1 - x] if mir else wl[k, x]
-                    if wlk == 0.0:
-                        continue
-                    wrk = wr[k, base:base + nvalid]
-                    cq = cost[qy, qx, o0:o0 + nvalid]
-                    for i in range(nvalid):
-                        ww = wlk * wrk[i]
-                        num[i] += ww * cq[i]
-                        den[i] += ww
-                for i in range(nd):
-                    if i < nvalid and den[i] > 0.0:
-                        out[y, x, o0 + i] = num[i] / den[i]
-                    else:
-                        out[y, x, o0 + i] = cost[y, x, o0 + i]
+                wlk = wl[k, x]
+                if wlk == 0.0:
+                    continue
+                wrk = wr[k, base:base + nvalid]
+                cq = cost[qy, qx, :nvalid]
+                for i in range(nvalid):
+                    ww = wlk * wrk[i]
+                    num[i] += ww * cq[i]
+                    den[i] += ww
+            for i in range(nd):
+                if i < nvalid and den[i] > 0.0:
+                    out[y, x, i] = num[i] / den[i]
+                else:
+                    out[y, x, i] = cost[y, x, i]
     return out
 
 
 def bpasw_pair_costs(reference: np.ndarray, views: Sequence[np.ndarray], ratios: Sequence[float], *,
                      max_disp: int, cost_params: dict[str, Any] | None = None) -> list[PairCost]:
     """``[pair_cost(reference, v, r, max_disp=max_disp, cost="bpasw", cost_params=cost_params) ...]`` with the
-    reference's support weights computed once for all views (the same values to 1 ulp; see the module doc).
+    reference's support weights computed once for all views and every image's weights for half the window
+    (the same values to 1 ulp; see the module doc).
 
     Parameters
     ----------
@@ -143,21 +172,7 @@ def bpasw_pair_costs(reference: np.ndarray, views: Sequence[np.ndarray], ratios:
     if m.radius < 0 or m.dilation < 1:
         raise MatchingError(f"expected radius >= 0 and dilation >= 1, got radius={m.radius}, "
                             f"dilation={m.dilation}")
-    h, w = reference.shape[:2]
-    vols: list[F32] = []
-    labs: list[F32] = []
-    for v, r in zip(views, ratios, strict=True):
-        a = abs(float(r))
-        max_s = int(min(w - 1, math.ceil(a * max_disp) + 1))  # as pair_cost
-        lft, rgt = ((reference, v) if r > 0 else
-                    (np.ascontiguousarray(reference[:, ::-1]), np.ascontiguousarray(v[:, ::-1])))
-        # BPASWMatcher.cost_volume's pixel cost: S_AD (Eq. 5.6) plus the weighted census distance
-        vol = costs.cost_s_ad(lft, rgt, max_disp=max_s, min_disp=0, omega=m.omega, tau_color=m.tau_color,
-                              tau_gradient=m.tau_gradient)
-        if m.census_weight > 0:
-            vol += np.float32(m.census_weight) * costs.cost_census(lft, rgt, max_disp=max_s, min_disp=0)
-        vols.append(np.asarray(vol, np.float32))
-        labs.append(to_lab(rgt))
+    w = reference.shape[1]
     # aggregate_bpasw's window and weight constants
     dys, dxs, dist = window_offsets(m.radius, m.dilation)
     if m.kernel == "weber":
@@ -170,14 +185,27 @@ def bpasw_pair_costs(reference: np.ndarray, views: Sequence[np.ndarray], ratios:
         kid, s0, s_min = 1, float(m.gamma_color), 1.0
     pos = {(int(dy), int(dx)): k for k, (dy, dx) in enumerate(zip(dys, dxs, strict=True))}
     kmir = np.array([pos[(int(dy), -int(dx))] for dy, dx in zip(dys, dxs, strict=True)], np.int64)
-    offs = np.cumsum([0] + [vol.shape[2] for vol in vols]).astype(np.int64)
-    agg = _bpasw_views_kernel(np.ascontiguousarray(np.concatenate(vols, axis=2)), offs, to_lab(reference),
-                              np.ascontiguousarray(np.stack(labs)), np.array([r < 0 for r in ratios]),
-                              dys, dxs, kmir, prox.astype(np.float64), kid, s0, s_min)
-    del vols
+    kneg = np.array([pos[(-int(dy), -int(dx))] for dy, dx in zip(dys, dxs, strict=True)], np.int64)
+    half = np.flatnonzero((dys > 0) | ((dys == 0) & (dxs >= 0))).astype(np.int64)
+    hidx = np.full(dys.size, -1, np.int64)
+    hidx[half] = np.arange(half.size)
+    prox = prox.astype(np.float64)
+    tab_ref = _half_weights(to_lab(reference), dys, dxs, half, prox, kid, s0, s_min)
     out = []
-    for p, r in enumerate(ratios):
-        vol = np.ascontiguousarray(agg[:, :, offs[p]:offs[p + 1]])
+    for v, r in zip(views, ratios, strict=True):
+        a = abs(float(r))
+        max_s = int(min(w - 1, math.ceil(a * max_disp) + 1))  # as pair_cost
+        lft, rgt = ((reference, v) if r > 0 else
+                    (np.ascontiguousarray(reference[:, ::-1]), np.ascontiguousarray(v[:, ::-1])))
+        # BPASWMatcher.cost_volume's pixel cost: S_AD (Eq. 5.6) plus the weighted census distance
+        raw = costs.cost_s_ad(lft, rgt, max_disp=max_s, min_disp=0, omega=m.omega, tau_color=m.tau_color,
+                              tau_gradient=m.tau_gradient)
+        if m.census_weight > 0:
+            raw += np.float32(m.census_weight) * costs.cost_census(lft, rgt, max_disp=max_s, min_disp=0)
+        tab_view = _half_weights(to_lab(rgt), dys, dxs, half, prox, kid, s0, s_min)
+        vol = _bpasw_pair_kernel(np.ascontiguousarray(raw, dtype=np.float32), tab_ref, tab_view, bool(r < 0), dys,
+                                 dxs, hidx, kneg, kmir)
+        del raw, tab_view
         d0 = winner_take_all(vol)
         ok = cross_check(d0, right_disparity(vol), tolerance=0.0)
         d = np.asarray(subpixel_refine(vol, d0), np.float32)
