@@ -73,5 +73,7 @@ def test_tsukuba_five_views_global_beats_two_view_coop(middlebury_dir: Path) -> 
     # fine segments, e1990f5; before: global 1.37 / 1.73 / 6.53, coop 1.54 / 1.94 / 7.20)
     for m in ("nonocc", "all", "disc"):
         assert b_mv[m] < b_two[m], (m, b_mv, b_two)
-    assert b_mv["all"] < b_two["all"] - 0.2, (b_mv, b_two)
-    assert b_mv["nonocc"] < 1.6 and b_mv["all"] < 2.0 and b_mv["disc"] < 7.0, b_mv
+    # both are deterministic; margins of 0.1 on every mask keep the comparison meaningful
+    for m in ("nonocc", "all", "disc"):
+        assert b_mv[m] < b_two[m] - 0.1, (m, b_mv, b_two)
+    assert b_mv["nonocc"] < 1.4 and b_mv["all"] < 1.8 and b_mv["disc"] < 6.5, b_mv
