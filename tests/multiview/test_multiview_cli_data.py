@@ -71,8 +71,6 @@ def test_tsukuba_five_views_global_beats_two_view_coop(middlebury_dir: Path) -> 
     b_two = evaluate_disparity(two.disparity, scene, thresholds=(1.0,))["bad"]["1.0"]
     # measured (v2 masks, bad > 1 px): five-view global 1.24 / 1.60 / 5.87, coop 1.39 / 1.79 / 6.42 (with its
     # fine segments, e1990f5; before: global 1.37 / 1.73 / 6.53, coop 1.54 / 1.94 / 7.20)
-    for m in ("nonocc", "all", "disc"):
-        assert b_mv[m] < b_two[m], (m, b_mv, b_two)
     # both are deterministic; margins of 0.1 on every mask keep the comparison meaningful
     for m in ("nonocc", "all", "disc"):
         assert b_mv[m] < b_two[m] - 0.1, (m, b_mv, b_two)
