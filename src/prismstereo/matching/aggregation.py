@@ -110,6 +110,16 @@ def _sim(d2: float, kernel: int, s0: float, s_min: float, log_norm: float) -> fl
     return np.exp(-s / s0)  # Yoon–Kweon exp kernel, s0 = gamma
 
 
+@njit(cache=True, inline="always")
+def _pair_weight(lab: np.ndarray, y: int, x: int, qy: int, qx: int, kernel: int, s0: float, s_min: float,
+                 log_norm: float) -> float:  # pragma: no cover - numba
+    """Colour similarity (:func:`_sim`) of Lab pixels ``(y, x)`` and ``(qy, qx)``."""
+    a = lab[y, x, 0] - lab[qy, qx, 0]
+    b = lab[y, x, 1] - lab[qy, qx, 1]
+    c = lab[y, x, 2] - lab[qy, qx, 2]
+    return _sim(a * a + b * b + c * c, kernel, s0, s_min, log_norm)
+
+
 @njit(cache=True, parallel=True, fastmath=True)
 def _bpasw_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, dys: np.ndarray,
                   dxs: np.ndarray, prox: np.ndarray, min_disp: int, kernel: int, s0: float,
@@ -132,10 +142,7 @@ def _bpasw_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, dys: n
                     qx = xr + dxs[k]
                     if qx < 0 or qx >= w:
                         continue
-                    a = lab_r[y, xr, 0] - lab_r[qy, qx, 0]
-                    b = lab_r[y, xr, 1] - lab_r[qy, qx, 1]
-                    c = lab_r[y, xr, 2] - lab_r[qy, qx, 2]
-                    wr[k, w - 1 - xr] = _sim(a * a + b * b + c * c, kernel, s0, s_min, log_norm) * prox[k]
+                    wr[k, w - 1 - xr] = _pair_weight(lab_r, y, xr, qy, qx, kernel, s0, s_min, log_norm) * prox[k]
         num = np.empty(nd, dtype=np.float32)
         den = np.empty(nd, dtype=np.float32)
         for x in range(w):
@@ -149,10 +156,7 @@ def _bpasw_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, dys: n
                 qx = x + dxs[k]
                 if qy < 0 or qy >= h or qx < 0 or qx >= w:
                     continue
-                a = lab_l[y, x, 0] - lab_l[qy, qx, 0]
-                b = lab_l[y, x, 1] - lab_l[qy, qx, 1]
-                c = lab_l[y, x, 2] - lab_l[qy, qx, 2]
-                wl = np.float32(_sim(a * a + b * b + c * c, kernel, s0, s_min, log_norm) * prox[k])
+                wl = np.float32(_pair_weight(lab_l, y, x, qy, qx, kernel, s0, s_min, log_norm) * prox[k])
                 if wl == 0.0:
                     continue
                 if use_prior:

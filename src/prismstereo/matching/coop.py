@@ -51,7 +51,6 @@ from prismstereo.matching.planes import (
     group_refit_planes,
     merge_planes,
     render_planes,
-    segment_label_map,
 )
 from prismstereo.matching.registry import MatchResult, register_matcher
 from prismstereo.matching.segmentation import SegmentationParams, mean_shift_segment, segment_adjacency
@@ -696,18 +695,12 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     e_first = info["energy_before"]
     for _ in range(refit_rounds):
         # refit one plane per group of segments sharing a label (wider support), offer it as a candidate
-        groups = assign[segment_label_map(index)].reshape(index.shape)
-        gidx = build_segment_index(groups)
-        gpl, _ = fit_planes(gidx, initial, reliable, params=pp)
-        used = np.unique(assign)
-        ok = np.isfinite(gpl[used, 0])
-        if not ok.any():
+        refit = group_refit_planes(assign, plane_set, index, initial, reliable, params=pp)
+        if refit is None:
             break
-        new_ids = np.full(plane_set.shape[0], -1, np.int64)
-        new_ids[used[ok]] = plane_set.shape[0] + np.arange(int(ok.sum()))
-        plane_set = np.concatenate([plane_set, gpl[used[ok]]])
+        plane_set, group_ids = refit
         own2 = own.copy()
-        own2[:, 1] = new_ids[assign]
+        own2[:, 1] = group_ids
         assign, plane_set, info2 = cooperative_optimize(assign, plane_set, index, graph, dcost, reliable,
                                                         own=own2, min_disp=min_disp, params=op)
         info = {**info2, "energy_before": e_first}

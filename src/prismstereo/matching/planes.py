@@ -12,6 +12,7 @@ that are nearly the same surface are then merged (§6.1.3, Eqs. 6.14-6.17) and r
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -453,12 +454,15 @@ def render_planes(index: SegmentIndex, planes: F64,
 
 def group_refit_planes(
     assign: npt.NDArray[np.integer], plane_set: npt.NDArray[np.float64], index: SegmentIndex,
-    disparity: npt.NDArray[np.floating], reliable: npt.NDArray[np.bool_], *, params: PlaneParams,
+    disparity: npt.NDArray[np.floating] | None = None, reliable: npt.NDArray[np.bool_] | None = None, *,
+    params: PlaneParams | None = None,
+    fit: Callable[[SegmentIndex], npt.NDArray[np.float64]] | None = None,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]] | None:
     """Refit one plane per group of segments that share a plane label (refit of merged planes, §6.1.3).
 
     Segments currently assigned the same plane are pooled and fitted again on ``disparity``'s reliable
-    pixels; the refitted planes are appended to ``plane_set`` as new candidates.
+    pixels (:func:`fit_planes` with ``params``), or by ``fit`` (the groups' index -> (G, 3) planes, NaN where
+    no fit) when given; the refitted planes are appended to ``plane_set`` as new candidates.
 
     Returns
     -------
@@ -466,8 +470,13 @@ def group_refit_planes(
         The extended (P', 3) plane set and, per segment, the id of its group's refitted plane (−1 where
         the group has no fit); ``None`` when no group could be refitted.
     """
-    groups = assign[segment_label_map(index)].reshape(index.shape)
-    group_planes, _ = fit_planes(build_segment_index(groups), disparity, reliable, params=params)
+    groups = build_segment_index(assign[segment_label_map(index)].reshape(index.shape))
+    if fit is not None:
+        group_planes = fit(groups)
+    else:
+        if disparity is None or reliable is None:
+            raise ValueError("group_refit_planes needs disparity and reliable, or fit")
+        group_planes, _ = fit_planes(groups, disparity, reliable, params=params or PlaneParams())
     used = np.unique(assign)
     ok = np.isfinite(group_planes[used, 0])
     if not ok.any():

@@ -74,9 +74,9 @@ from prismstereo.matching.planes import (
     _fit_one,
     build_segment_index,
     fill_missing_planes,
+    group_refit_planes,
     merge_planes,
     render_planes,
-    segment_label_map,
 )
 from prismstereo.matching.registry import MatchResult
 from prismstereo.matching.segmentation import SegmentationParams, mean_shift_segment, segment_adjacency
@@ -467,18 +467,13 @@ def match_multiview_global(reference: Any, views: Sequence[Any], *, ratios: Sequ
     for _ in range(p.refit_rounds):
         # as coop: refit one plane per group of segments sharing a label (jointly over the disparity sets),
         # offer it as a candidate, and resume the optimisation
-        groups = assign2[segment_label_map(index)].reshape(index.shape)
-        gidx = build_segment_index(groups)
-        gpl, _ = fit_planes_joint(gidx, disps, rels, params=p.planes)
-        used = np.unique(assign2)
-        ok = np.isfinite(gpl[used, 0])
-        if not ok.any():
+        refit = group_refit_planes(assign2, plane_set, index,
+                                   fit=lambda g: fit_planes_joint(g, disps, rels, params=p.planes)[0])
+        if refit is None:
             break
-        new_ids = np.full(plane_set.shape[0], -1, np.int64)
-        new_ids[used[ok]] = plane_set.shape[0] + np.arange(int(ok.sum()))
-        plane_set = np.concatenate([plane_set, gpl[used[ok]]])
+        plane_set, group_ids = refit
         own2 = own.copy()
-        own2[:, 1] = new_ids[assign2]
+        own2[:, 1] = group_ids
         assign2, plane_set, info2 = optimise(assign2, plane_set, own2)
         info = {**info2, "energy_before": e_first}
     timings["optimisation"] = time.perf_counter() - t
@@ -516,21 +511,12 @@ def match_multiview_global(reference: Any, views: Sequence[Any], *, ratios: Sequ
         if p.post.fine_hr > 0:
             # as coop: finer segments along plane boundaries resume the optimisation, a move kept only where
             # the trusted multi-view disparities side with it
-            if p.post.fine_evidence == "fused":
-                if fused0 is None:
-                    fused0 = _fused_initial(pcs, max_disp=md, wu=p.unreliable_weight, occlusion=occ,
-                                            weight_by_baseline=p.weight_by_baseline)
-                fd0, frel0 = fused0
-                ev = frel0 & fb.reliable & (np.abs(fb.disparity - fd0) <= p.post.pixel_tol)
-                ref_map = fd0
-            elif p.post.fine_evidence == "bpasw":
-                gagree = np.zeros(labels.shape, bool)
-                for pc in pcs:
-                    gagree |= pc.reliable & (np.abs(pc.disparity - fb.disparity) <= p.post.pixel_tol)
-                ev, ref_map = fb.reliable & gagree, fb.disparity
-            else:
-                raise ConfigError(f"expected fine_evidence 'fused' or 'bpasw', got {p.post.fine_evidence!r}")
-            fs = refine_fine_segments(ref, labels, assign2, plane_set, data, ones, ev, ref_map,
+            if fused0 is None:
+                fused0 = _fused_initial(pcs, max_disp=md, wu=p.unreliable_weight, occlusion=occ,
+                                        weight_by_baseline=p.weight_by_baseline)
+            fd0, frel0 = fused0
+            ev = frel0 & fb.reliable & (np.abs(fb.disparity - fd0) <= p.post.pixel_tol)
+            fs = refine_fine_segments(ref, labels, assign2, plane_set, data, ones, ev, fd0,
                                       segmentation=replace(p.segmentation, hr=p.post.fine_hr,
                                                            min_region=p.post.fine_min),
                                       coop=cp, min_disp=0, check=p.post.fine_check)

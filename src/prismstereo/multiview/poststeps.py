@@ -100,13 +100,11 @@ class PostParams:
         segments touching another plane resume the cooperative optimisation on the multi-view data term, a
         move kept only when at least ``fine_check`` more of the fine segment's evidence pixels lie within
         1 px of the new plane than of the old; ``fine_hr`` 0 = off. Measured (bad > 1 px, nonocc/all/disc):
-        Tsukuba five views 1.37/1.73/6.53 -> 1.24/1.60/5.87, Cones nine views 1.74/3.39/5.08 -> 1.72/3.34/5.05
-        (``"bpasw"`` evidence: 1.25/1.61/5.85 and 1.73/3.33/5.05).
-    fine_evidence : {"fused", "bpasw"}
-        The evidence of the fine step. ``"fused"`` (``coop``'s rule on the unit grid): the map of the views'
-        fused guided costs (``_fused_initial``) where a pair's checked map agrees with it and the fused
-        BPASW map is reliable and within ``pixel_tol`` of it. ``"bpasw"``: the boundary step's evidence, the
-        fused BPASW map where it is reliable and a guided pair's checked map agrees.
+        Tsukuba five views 1.37/1.73/6.53 -> 1.24/1.60/5.87, Cones nine views 1.74/3.39/5.08 -> 1.72/3.34/5.05.
+        The evidence is ``coop``'s rule on the unit grid: the map of the views' fused guided costs where a
+        pair's checked map agrees with it and the fused BPASW map is reliable and within ``pixel_tol`` of it
+        (the boundary step's evidence instead, the reliable fused BPASW map where a guided pair's checked map
+        agrees, measured 1.25/1.61/5.85 and 1.73/3.33/5.05: not kept).
     """
 
     bpasw_min_ratio: float = 0.5
@@ -136,7 +134,6 @@ class PostParams:
     fine_hr: float = 3.0
     fine_min: int = 10
     fine_check: int = 1
-    fine_evidence: str = "fused"
 
 
 @dataclass(frozen=True)
