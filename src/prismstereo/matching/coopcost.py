@@ -17,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit, prange
 
-__all__ = ["CostParams", "aggregated_costs", "guided_filter_volume", "raw_cost"]
+__all__ = ["CostParams", "aggregated_costs", "guided_filter_volume", "raw_cost", "sheared_costs"]
 
 F32 = npt.NDArray[np.float32]
 
@@ -237,3 +237,108 @@ def aggregated_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generi
     agg_l = guided_filter_volume(lf, raw, radius=p.radius, eps=p.eps)
     agg_r = guided_filter_volume(rf, raw_r, radius=p.radius, eps=p.eps)
     return agg_l, agg_r
+
+
+@njit(cache=True, parallel=True)
+def _census_sheared(gray: F32, ry: int, rx: int, slope: float) -> npt.NDArray[np.uint64]:
+    """Census of ``gray`` over a window whose row ``dy`` is shifted by ``-round(slope * dy)`` columns.
+
+    The bit order is that of :func:`_census`, so a left census and a sheared right census compare the pixels
+    that a surface ``d = a x + b y + c`` with ``b = slope`` maps onto each other.
+    """
+    h, w = gray.shape
+    out = np.zeros((h, w), dtype=np.uint64)
+    for y in prange(h):
+        for x in range(w):
+            c = gray[y, x]
+            bits = np.uint64(0)
+            for dy in range(-ry, ry + 1):
+                yy = min(max(y + dy, 0), h - 1)
+                sh = int(np.floor(slope * dy + 0.5))
+                for dx in range(-rx, rx + 1):
+                    if dy == 0 and dx == 0:
+                        continue
+                    xx = min(max(x + dx - sh, 0), w - 1)
+                    bits = (bits << np.uint64(1)) | np.uint64(1 if gray[yy, xx] < c else 0)
+            out[y, x] = bits
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _shear_box_rows(hb: F32, slope: float, r: int, out: F32) -> None:
+    """``out[y, x, k] = mean over |dy| <= r of hb[y + dy, x, k + slope * dy]`` (linear in k, rows clamped)."""
+    h, w, nd = hb.shape
+    for y in prange(h):
+        for x in range(w):
+            for k in range(nd):
+                s = 0.0
+                for dy in range(-r, r + 1):
+                    yy = min(max(y + dy, 0), h - 1)
+                    kk = min(max(k + slope * dy, 0.0), nd - 1.0)
+                    k0 = int(kk)
+                    k1 = min(k0 + 1, nd - 1)
+                    f = kk - k0
+                    s += (1.0 - f) * hb[yy, x, k0] + f * hb[yy, x, k1]
+                out[y, x, k] = s / (2 * r + 1)
+
+
+def sheared_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, max_disp: int,
+                  min_disp: int = 0, params: CostParams | None = None, slopes: tuple[float, ...] = (0.0,),
+                  radius: int = 1, vertical: bool = True) -> F32:
+    """Pixel cost volumes for surfaces slanted in ``y``: one per vertical disparity slope (an addition to Eq. 6.21).
+
+    The census window of the right view and the ``(2 radius + 1)²`` smoothing box follow a surface of
+    vertical slope ``b`` (``d = a x + b y + c``): row ``dy`` of the window is read ``b dy`` columns (census) or
+    disparities (box) away. On a steep floor (``b`` near 1) the square windows of :func:`raw_cost` compare
+    pixels of different surface points, so the true plane costs more than an aliased fronto-parallel one;
+    the sheared volume removes that bias while keeping the full census. Slope 0 gives the boxed
+    :func:`raw_cost` exactly.
+
+    Parameters
+    ----------
+    left, right : (H, W, 3) uint8 RGB (or (H, W) grey)
+    max_disp, min_disp : int, keyword-only
+    params : CostParams, keyword-only
+    slopes : tuple of float, keyword-only
+        Vertical disparity slopes ``b`` (px per row), one volume each.
+    radius : int, keyword-only
+        Half size of the smoothing box (0: none).
+    vertical : bool, keyword-only
+        Box over rows as well (False: along the row only).
+
+    Returns
+    -------
+    (S, H, W, D) float32, slice ``[s, :, :, k]`` = cost at disparity ``min_disp + k`` under slope ``slopes[s]``.
+    """
+    p = params or CostParams()
+    lf = np.asarray(left, dtype=np.float32)
+    rf = np.asarray(right, dtype=np.float32)
+    if lf.ndim == 2:
+        lf = np.repeat(lf[:, :, None], 3, axis=2)
+        rf = np.repeat(rf[:, :, None], 3, axis=2)
+    gray_l = np.asarray(cv2.cvtColor(lf, cv2.COLOR_RGB2GRAY), dtype=np.float32)
+    gray_r = np.asarray(cv2.cvtColor(rf, cv2.COLOR_RGB2GRAY), dtype=np.float32)
+    gxl = np.asarray(cv2.Sobel(gray_l, cv2.CV_32F, 1, 0, ksize=3) / 4.0, dtype=np.float32)
+    gxr = np.asarray(cv2.Sobel(gray_r, cv2.CV_32F, 1, 0, ksize=3) / 4.0, dtype=np.float32)
+    cl = _census(gray_l, p.census_ry, p.census_rx)
+    nd = max_disp - min_disp + 1
+    h, w = gray_l.shape
+    out = np.empty((len(slopes), h, w, nd), np.float32)
+    lfc, rfc = np.ascontiguousarray(lf), np.ascontiguousarray(rf)
+    for i, b in enumerate(slopes):
+        cr = _census_sheared(gray_r, p.census_ry, p.census_rx, float(b))
+        raw = _raw_cost(lfc, rfc, gxl, gxr, cl, cr, int(min_disp), nd, p.tau_color, p.tau_grad, p.lambda_ad,
+                        p.lambda_census)
+        if radius <= 0:
+            out[i] = raw
+            continue
+        k = 2 * radius + 1
+        hb = np.empty_like(raw)
+        for s0 in range(0, nd, 512):
+            hb[:, :, s0:s0 + 512] = cv2.boxFilter(raw[:, :, s0:s0 + 512], -1, (k, 1), borderType=cv2.BORDER_REFLECT)
+        del raw
+        if vertical:
+            _shear_box_rows(hb, float(b), int(radius), out[i])
+        else:
+            out[i] = hb
+    return out

@@ -227,9 +227,18 @@ def _data(j: int, pl: F64, order: I64, starts: I64, w: int, cost: F32, min_disp:
     wu = prm[4]
     margin = prm[7]
     vis = prm[8] > 0.5
-    nd = cost.shape[1]
+    nd = cost.shape[2]
     e = 0.0
     a, b, c = pl[0], pl[1], pl[2]
+    lev = 0  # the cost volume of the vertical slope nearest the plane's
+    nlev = int(prm[11])
+    if nlev > 1:
+        dmin = np.inf
+        for i in range(nlev):
+            dd = abs(prm[12 + i] - b)
+            if dd < dmin:
+                dmin = dd
+                lev = i
     for t in range(starts[j], starts[j + 1]):
         p = order[t]
         x = p % w
@@ -254,7 +263,7 @@ def _data(j: int, pl: F64, order: I64, starts: I64, w: int, cost: F32, min_disp:
         k0 = int(k)
         k1 = min(k0 + 1, nd - 1)
         f = k - k0
-        v = (1.0 - f) * cost[p, k0] + f * cost[p, k1]
+        v = (1.0 - f) * cost[lev, p, k0] + f * cost[lev, p, k1]
         v = min(v, trunc)
         e += v if reliable[p] else wu * v
     return e
@@ -285,7 +294,7 @@ def _energy(assign: I32, planes: F64, order: I64, starts: I64, w: int, cost: F32
             reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
             prm: F64) -> float:
     k = starts.size - 1
-    h = cost.shape[0] // w
+    h = cost.shape[1] // w
     z1, o1, z2 = _zbuffer(assign, planes, order, starts, h, w)
     gamma = prm[5]
     thr = prm[6]
@@ -308,7 +317,7 @@ def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost:
            nstart: I64, nbr: I64, nedge: I64, prm: F64, active: npt.NDArray[np.bool_]) -> int:
     """One cooperative sweep over the active segments (Eq. 6.19), in place; returns the number of changes."""
     k = starts.size - 1
-    h = cost.shape[0] // w
+    h = cost.shape[1] // w
     kappa = prm[0]
     mu = prm[1]
     gamma = prm[5]
@@ -489,7 +498,7 @@ def _refine_pass(a: I32, planes: F64, n_used: int, order: I64, starts: I64, w: i
     """Continuous refinement of every segment's plane by Powell's method; new planes are appended to
     ``planes`` (capacity permitting) so that neighbours can adopt them in the next discrete sweep."""
     k = starts.size - 1
-    h = cost.shape[0] // w
+    h = cost.shape[1] // w
     z1, o1, z2 = _zbuffer(a, planes, order, starts, h, w)
     changed = 0
     for j in range(k):
@@ -505,20 +514,30 @@ def _refine_pass(a: I32, planes: F64, n_used: int, order: I64, starts: I64, w: i
     return n_used, changed
 
 
-def _flat_cost(cost: F32) -> F32:
-    h, w, d = cost.shape
-    return np.ascontiguousarray(cost.reshape(h * w, d), dtype=np.float32)
+def _flat_cost(cost: F32, slopes: tuple[float, ...] | None) -> F32:
+    """(S, H*W, D) view of an (H, W, D) volume or of (S, H, W, D) volumes, one per vertical slope."""
+    c = np.asarray(cost)
+    if c.ndim == 3:
+        c = c[None]
+    if c.ndim != 4:
+        raise ValueError(f"expected a cost volume (H, W, D) or (S, H, W, D), got shape {c.shape}")
+    ns, h, w, d = c.shape
+    nslopes = 1 if slopes is None else len(slopes)
+    if ns != nslopes:
+        raise ValueError(f"expected one cost volume per slope ({nslopes}), got {ns}")
+    return np.ascontiguousarray(c.reshape(ns, h * w, d), dtype=np.float32)
 
 
-def _prm(p: CoopParams) -> F64:
+def _prm(p: CoopParams, slopes: tuple[float, ...] | None = None) -> F64:
+    lev = [0.0] if slopes is None else [float(b) for b in slopes]
     return np.array([p.kappa, p.mu, p.omega_occ, p.data_trunc, p.unreliable_weight, p.gamma, p.smooth_threshold,
                      p.occ_margin, 1.0 if p.visibility else 0.0, p.omega_border,
-                     1.0 if p.neighbour_own_planes else 0.0], np.float64)
+                     1.0 if p.neighbour_own_planes else 0.0, float(len(lev)), *lev], np.float64)
 
 
 def total_energy(assign: npt.NDArray[np.integer], planes: F64, index: SegmentIndex, graph: SegmentGraph,
                  cost: F32, reliable: npt.NDArray[np.bool_], *, min_disp: int = 0,
-                 params: CoopParams | None = None) -> float:
+                 params: CoopParams | None = None, slopes: tuple[float, ...] | None = None) -> float:
     """Total energy ``E = Σ_j E_j`` (Eq. 6.18) of a plane assignment.
 
     Parameters
@@ -526,21 +545,23 @@ def total_energy(assign: npt.NDArray[np.integer], planes: F64, index: SegmentInd
     assign : (K,) int, plane index per segment.
     planes : (L, 3) float64 plane set ``(a, b, c)``.
     index, graph : segment pixels and adjacency.
-    cost : (H, W, D) float32 pixel cost of the left view, slice k = disparity ``min_disp + k``.
+    cost : (H, W, D) float32 pixel cost of the left view, slice k = disparity ``min_disp + k``; or
+        (S, H, W, D), one volume per vertical slope in ``slopes`` (a plane reads the nearest slope's).
     reliable : (H, W) bool cross-check mask (Eq. 6.7).
     """
     p = params or CoopParams()
     return float(_energy(np.asarray(assign, np.int32), np.asarray(planes, np.float64), index.order,
-                         index.starts, index.shape[1], _flat_cost(cost), int(min_disp),
+                         index.starts, index.shape[1], _flat_cost(cost, slopes), int(min_disp),
                          np.asarray(reliable, np.bool_).ravel(), graph.pairs, graph.bstart, graph.bp_lo,
-                         graph.bp_hi, graph.bw, _prm(p)))
+                         graph.bp_hi, graph.bw, _prm(p, slopes)))
 
 
 def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: SegmentIndex,
                          graph: SegmentGraph, cost: F32, reliable: npt.NDArray[np.bool_], *,
                          own: npt.NDArray[np.integer] | None = None, min_disp: int = 0,
                          params: CoopParams | None = None,
-                         active: npt.NDArray[np.bool_] | None = None) -> tuple[I32, F64, dict[str, float]]:
+                         active: npt.NDArray[np.bool_] | None = None,
+                         slopes: tuple[float, ...] | None = None) -> tuple[I32, F64, dict[str, float]]:
     """Cooperative optimisation of the plane labels (thesis §6.2, Eqs. 6.18-6.25).
 
     Parameters
@@ -550,8 +571,10 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
     planes : (L, 3) float64
         The plane set (fitted and merged planes).
     index, graph : SegmentIndex, SegmentGraph
-    cost : (H, W, D) float32
-        Pixel matching cost of the left view (slice k = disparity ``min_disp + k``).
+    cost : (H, W, D) or (S, H, W, D) float32
+        Pixel matching cost of the left view (slice k = disparity ``min_disp + k``); with ``slopes``, one
+        volume per vertical disparity slope, and each plane's data term reads the volume of the slope nearest
+        its ``b`` (:func:`prismstereo.matching.coopcost.sheared_costs`).
     reliable : (H, W) bool
         Cross-check mask (Eq. 6.7).
     own : (K, 2) int, optional
@@ -560,6 +583,8 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
     params : CoopParams, keyword-only
     active : (K,) bool, optional
         Segments allowed to change their plane (default: all).
+    slopes : tuple of float, optional
+        Vertical slopes of the volumes of a 4-D ``cost``.
 
     Returns
     -------
@@ -581,13 +606,13 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
     k = a.size
     own_arr = np.full((k, 2), -1, np.int64) if own is None else np.asarray(own, np.int64).reshape(k, 2)
     act = np.ones(k, np.bool_) if active is None else np.asarray(active, np.bool_).reshape(k)
-    fc = _flat_cost(cost)
+    fc = _flat_cost(cost, slopes)
     rel = np.asarray(reliable, np.bool_).ravel()
     n_used = int(planes.shape[0])
     rounds = max(int(p.refine_rounds), 0)
     pl = np.zeros((n_used + rounds * k, 3), np.float64)
     pl[:n_used] = planes
-    prm = _prm(p)
+    prm = _prm(p, slopes)
     common = (index.order, index.starts, index.shape[1], fc, int(min_disp), rel, graph.pairs, graph.bstart,
               graph.bp_lo, graph.bp_hi, graph.bw)
     e0 = _energy(a, pl, *common, prm)

@@ -1,0 +1,65 @@
+"""Slope-sheared data-term volumes (coopcost.sheared_costs) and their use by the cooperative energy."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from prismstereo.matching.coop import _box3
+from prismstereo.matching.coopcost import raw_cost, sheared_costs
+from prismstereo.matching.cooperative import build_segment_graph, total_energy
+from prismstereo.matching.planes import build_segment_index
+
+
+def _steep_floor(slope: float = 1.0, seed: int = 5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Random-texture pair of a surface ``d = 4 + slope * y`` (integer disparities, exact warp)."""
+    rng = np.random.default_rng(seed)
+    h, w = 24, 80
+    left = rng.integers(0, 256, size=(h, w, 3)).astype(np.uint8)
+    right = rng.integers(0, 256, size=(h, w, 3)).astype(np.uint8)
+    truth = np.rint(4 + slope * np.arange(h)).astype(int)
+    for y in range(h):
+        d = truth[y]
+        right[y, : w - d] = left[y, d:]
+    return left, right, truth
+
+
+def test_slope_zero_is_the_boxed_raw_cost() -> None:
+    left, right, _ = _steep_floor()
+    vol = sheared_costs(left, right, max_disp=30, slopes=(0.0,), radius=1)
+    ref = _box3(raw_cost(left, right, max_disp=30), 1)
+    assert vol.shape == (1, *ref.shape)
+    np.testing.assert_allclose(vol[0], ref, atol=1e-6)
+
+
+def test_sheared_volume_prefers_the_true_steep_plane() -> None:
+    left, right, truth = _steep_floor(1.0)
+    vol = sheared_costs(left, right, max_disp=30, slopes=(0.0, 1.0), radius=1)
+    h, w = left.shape[:2]
+    ys, xs = np.mgrid[4:h - 4, 40:w - 2]  # away from the borders, every window inside the image
+    at_truth = vol[:, ys, xs, truth[ys]]
+    # the square window compares different surface points on a 1 px/row slant; the sheared one does not
+    assert at_truth[1].mean() < 0.5 * at_truth[0].mean()
+    wta = vol[1][ys, xs].argmin(axis=-1)
+    assert np.mean(wta == truth[ys]) > 0.95
+    assert np.mean(vol[0][ys, xs].argmin(axis=-1) == truth[ys]) < np.mean(wta == truth[ys])
+
+
+def test_energy_reads_the_volume_of_the_nearest_slope() -> None:
+    h, w, nd = 10, 12, 8
+    labels = np.zeros((h, w), np.int32)
+    index = build_segment_index(labels)
+    graph = build_segment_graph(labels, np.zeros((h, w, 3), np.uint8))
+    cost = np.stack([np.ones((h, w, nd), np.float32), np.zeros((h, w, nd), np.float32)])
+    rel = np.ones((h, w), bool)
+    flat = np.array([[0.0, 0.0, 3.0]])
+    steep = np.array([[0.0, 0.4, 3.0]])  # nearest slope 0.5 -> the zero volume
+    e_flat = total_energy(np.zeros(1, np.int32), flat, index, graph, cost, rel, slopes=(0.0, 0.5))
+    e_steep = total_energy(np.zeros(1, np.int32), steep, index, graph, cost, rel, slopes=(0.0, 0.5))
+    yy, xx = np.mgrid[0:h, 0:w]
+    border = int((xx - (0.4 * yy + 3.0) < -0.5).sum())  # left of the right image: ω_border = 1 each
+    assert 0 < border < h * w
+    assert e_flat == pytest.approx(h * w)
+    assert e_steep == pytest.approx(border)
+    with pytest.raises(ValueError, match="one cost volume per slope"):
+        total_energy(np.zeros(1, np.int32), flat, index, graph, cost, rel)
