@@ -216,3 +216,53 @@ def test_cooperative_optimize_leaves_inactive_segments_alone() -> None:
                                            active=np.zeros(2, bool))
     assert list(a_all) == [0, 1]
     assert list(a_none) == [1, 0] and info["changes"] == 0
+
+
+def _striped_surface() -> tuple:
+    """Five stripe segments that all hold plane A; plane B is cheaper for every one of them, but not by enough
+    to pay, alone, the smoothness term against its two neighbours on A."""
+    rng = np.random.default_rng(0)
+    h, w, nd = 20, 50, 8
+    labels = np.repeat((np.arange(w) // 10)[None, :], h, axis=0).astype(np.int32)
+    img = np.clip(120 + rng.normal(0, 3.0, (h, w, 3)), 0, 255).astype(np.uint8)
+    cost = np.full((h, w, nd), 1.0, np.float32)
+    cost[:, :, 1] = 0.5  # plane A: d = 1
+    cost[:, :, 2] = 0.45  # plane B: d = 2
+    planes = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 2.0]])
+    return labels, img, cost, planes
+
+
+def test_group_moves_take_a_region_that_single_moves_cannot() -> None:
+    from prismstereo.matching.cooperative import expand_planes
+
+    labels, img, cost, planes = _striped_surface()
+    idx = build_segment_index(labels)
+    graph = build_segment_graph(labels, img)
+    rel = np.ones(labels.shape, bool)
+    params = CoopParams(omega_border=0.0)
+    a0 = np.zeros(5, np.int32)
+    own = np.full((5, 2), -1, np.int64)
+    own[2, 0] = 1  # plane B proposed for the middle stripe only
+    single, _, _ = cooperative_optimize(a0, planes, idx, graph, cost, rel, own=own, params=params)
+    assert (single == 0).all()  # one stripe alone pays more smoothness than it gains
+    cands = np.full((5, 1), -1, np.int64)
+    cands[2, 0] = 1
+    moved, info = expand_planes(a0, planes, idx, graph, cost, rel, cands, params=params)
+    assert (moved == 1).all() and info["group_moves"] == 1.0
+    e0 = total_energy(a0, planes, idx, graph, cost, rel, params=params)
+    assert total_energy(moved, planes, idx, graph, cost, rel, params=params) < e0
+    # a dearer plane is never taken: E does not increase
+    dear = cost.copy()
+    dear[:, :, 2] = 0.55
+    kept, info = expand_planes(a0, planes, idx, graph, dear, rel, cands, params=params)
+    assert (kept == 0).all() and info["group_moves"] == 0.0
+
+
+def test_neighbour_plane_candidates_lists_the_planes_across_boundaries() -> None:
+    from prismstereo.matching.cooperative import neighbour_plane_candidates
+
+    labels, img, _, _ = _striped_surface()
+    graph = build_segment_graph(labels, img)
+    cands = neighbour_plane_candidates(graph, np.array([0, 0, 1, 2, 2]))
+    got = [sorted(int(c) for c in row if c >= 0) for row in cands]
+    assert got == [[], [1], [0, 2], [1], []]

@@ -34,7 +34,8 @@ from prismstereo.matching.planes import SegmentIndex
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CoopParams", "SegmentGraph", "build_segment_graph", "cooperative_optimize", "total_energy"]
+__all__ = ["CoopParams", "SegmentGraph", "build_segment_graph", "cooperative_optimize", "expand_planes",
+           "neighbour_plane_candidates", "total_energy"]
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
@@ -650,3 +651,157 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
     log.debug("cooperative optimisation: E %.1f -> %.1f in %d sweeps (%d changes)", e0, e_cur, sweeps, changes)
     return a, planes_out, {"energy_before": float(e0), "energy_after": float(e_cur), "sweeps": float(sweeps),
                            "changes": float(changes), "refined": float(refined)}
+
+
+@njit(cache=True)
+def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: I64, starts: I64, w: int,
+            cost: F32, min_disp: int, reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64,
+            bp_hi: I64, bw: F64, nstart: I64, nbr: I64, nedge: I64, prm: F64, max_region: int) -> int:
+    """Group moves, in place: for each candidate plane, the connected region of segments grown from its seeds
+    through segments whose data term it does not raise moves to it at once when that lowers E (Eq. 6.18)."""
+    k = starts.size - 1
+    h = cost.shape[1] // w
+    gamma = prm[5]
+    thr = prm[6]
+    in_s = np.zeros(k, np.bool_)
+    seen = np.zeros(k, np.bool_)
+    region = np.empty(k, np.int64)
+    dnew = np.empty(k, np.float64)
+    dold = np.empty(k, np.float64)
+    z1, o1, z2 = _zbuffer(a, planes, order, starts, h, w)
+    e_cur = _energy(a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo, bp_hi, bw, prm)
+    accepted = 0
+    for m in range(cand.size):
+        lab = cand[m]
+        pl = planes[lab]
+        n = 0
+        head = 0
+        for t in range(seed_start[m], seed_start[m + 1]):
+            s = seeds[t]
+            if a[s] != lab and not seen[s]:
+                seen[s] = True
+                dn = _data(s, pl, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2)
+                do = _data(s, planes[a[s]], order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2)
+                if dn <= do:
+                    region[n] = s
+                    dnew[n] = dn
+                    dold[n] = do
+                    in_s[s] = True
+                    n += 1
+        while head < n and n < max_region:
+            j = region[head]
+            head += 1
+            for t in range(nstart[j], nstart[j + 1]):
+                i = nbr[t]
+                if seen[i] or a[i] == lab:
+                    continue
+                seen[i] = True
+                dn = _data(i, pl, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2)
+                do = _data(i, planes[a[i]], order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2)
+                if dn <= do and n < max_region:
+                    region[n] = i
+                    dnew[n] = dn
+                    dold[n] = do
+                    in_s[i] = True
+                    n += 1
+        de = 0.0
+        for r in range(n):
+            j = region[r]
+            de += dnew[r] - dold[r]
+            for t in range(nstart[j], nstart[j + 1]):
+                i = nbr[t]
+                before = 0.0
+                if a[i] != a[j]:
+                    before = _smooth(j, i, nedge[t], planes[a[j]], planes[a[i]], pairs, bstart, bp_lo, bp_hi, bw,
+                                     w, thr)
+                if in_s[i]:
+                    de -= gamma * before  # visited from both sides: 2 γ S in E (Eq. 6.18)
+                else:
+                    after = 0.0
+                    if a[i] != lab:
+                        after = _smooth(j, i, nedge[t], pl, planes[a[i]], pairs, bstart, bp_lo, bp_hi, bw, w, thr)
+                    de += 2.0 * gamma * (after - before)
+        if n > 0 and de < -1e-9:
+            for r in range(n):
+                dold[r] = a[region[r]]  # keep the old labels to undo
+                a[region[r]] = lab
+            e_new = _energy(a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo, bp_hi,
+                            bw, prm)
+            if e_new < e_cur - 1e-9:
+                e_cur = e_new
+                accepted += 1
+                z1, o1, z2 = _zbuffer(a, planes, order, starts, h, w)
+            else:
+                for r in range(n):
+                    a[region[r]] = int(dold[r])
+        for r in range(n):
+            in_s[region[r]] = False
+        seen[:] = False  # also the segments visited but not taken
+    return accepted
+
+
+def expand_planes(assign: npt.NDArray[np.integer], planes: F64, index: SegmentIndex, graph: SegmentGraph,
+                  cost: F32, reliable: npt.NDArray[np.bool_], candidates: npt.NDArray[np.integer], *,
+                  min_disp: int = 0, params: CoopParams | None = None, slopes: tuple[float, ...] | None = None,
+                  max_region: int = 400) -> tuple[I32, dict[str, float]]:
+    """Group moves of candidate planes over connected regions of segments (an addition to §6.2).
+
+    The cooperative scheme moves one segment at a time, so a surface split into many segments that all sit
+    on a wrong plane cannot move to the right one when each segment alone would pay the smoothness cost
+    against its neighbours. For every candidate plane (``candidates[j, t]`` proposed for segment ``j``), the
+    region grown from the segments it was proposed for, through neighbours whose data term (Eqs. 6.21-6.22)
+    it does not raise, moves to it at once when that lowers the total energy E (Eq. 6.18, checked with
+    visibility); E never increases.
+
+    Parameters
+    ----------
+    assign : (K,) int; planes : (L, 3); index, graph, cost, reliable, slopes : as :func:`cooperative_optimize`.
+    candidates : (K, T) int
+        Candidate plane indices per segment (-1 = none).
+    max_region : int, keyword-only
+        Largest region (segments) of one move.
+
+    Returns
+    -------
+    assign : (K,) int32; info : dict with ``group_moves``.
+    """
+    p = params or CoopParams()
+    a = np.asarray(assign, np.int32).copy()
+    cands = np.asarray(candidates, np.int64)
+    segs, cols = np.nonzero(cands >= 0)
+    labs = cands[segs, cols]
+    if labs.size == 0:
+        return a, {"group_moves": 0.0}
+    order = np.argsort(labs, kind="stable")
+    labs, segs = labs[order], segs[order]
+    uniq, first = np.unique(labs, return_index=True)
+    seed_start = np.append(first, labs.size).astype(np.int64)
+    n = _expand(a, np.asarray(planes, np.float64), uniq.astype(np.int64), seed_start, segs.astype(np.int64),
+                index.order, index.starts, index.shape[1], _flat_cost(cost, slopes), int(min_disp),
+                np.asarray(reliable, np.bool_).ravel(), graph.pairs, graph.bstart, graph.bp_lo, graph.bp_hi,
+                graph.bw, graph.nstart, graph.nbr, graph.nedge, _prm(p, slopes), int(max_region))
+    return a, {"group_moves": float(n)}
+
+
+def neighbour_plane_candidates(graph: SegmentGraph, assign: npt.NDArray[np.integer]) -> I64:
+    """The current planes across each segment's boundary, as a (K, T) candidate array for :func:`expand_planes`.
+
+    Row ``j`` lists the distinct current planes of ``j``'s neighbours other than its own (-1 pads).
+    """
+    a = np.asarray(assign, np.int64)
+    k = a.size
+    pr = graph.pairs.astype(np.int64)
+    diff = a[pr[:, 0]] != a[pr[:, 1]]
+    segs = np.concatenate([pr[diff, 1], pr[diff, 0]])
+    labs = np.concatenate([a[pr[diff, 0]], a[pr[diff, 1]]])
+    if segs.size == 0:
+        return np.full((k, 1), -1, np.int64)
+    o = np.lexsort((labs, segs))
+    segs, labs = segs[o], labs[o]
+    first = np.ones(segs.size, bool)
+    first[1:] = (segs[1:] != segs[:-1]) | (labs[1:] != labs[:-1])
+    segs, labs = segs[first], labs[first]
+    cnt = np.bincount(segs, minlength=k)
+    out = np.full((k, int(cnt.max())), -1, np.int64)
+    out[segs, np.arange(segs.size) - np.repeat(np.cumsum(cnt) - cnt, cnt)] = labs
+    return out
