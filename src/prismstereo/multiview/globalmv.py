@@ -35,7 +35,8 @@ to all views, and they reuse the ``coop`` building blocks of :mod:`prismstereo.m
    the unit grid (the local method's volume), its WTA map reliable where a view's cross-checked BPASW map
    agrees within 1 px; planes fitted to that map and their merged clusters offered as candidates (the
    optimisation resumes); ``coop``'s sweep candidates for the segments of highest slanted-window cost, with
-   a row-only boxed data term on their pixels (the optimisation resumes); ``coop``'s finer segments along
+   a row-only boxed data term on their pixels (the optimisation resumes); ``coop``'s group moves of those
+   candidates and of the planes across segment boundaries (the optimisation resumes); ``coop``'s finer segments along
    plane boundaries (:func:`~prismstereo.matching.coop.refine_fine_segments` on the multi-view data term, a
    move kept where the trusted fused disparities side with it); the boundary step on the fused
    cost; the occlusion step against each side's view (only pixels contradicted from both sides when the
@@ -67,7 +68,13 @@ from numba import njit
 
 from prismstereo.errors import ConfigError
 from prismstereo.matching.coop import refine_fine_segments
-from prismstereo.matching.cooperative import CoopParams, build_segment_graph, cooperative_optimize
+from prismstereo.matching.cooperative import (
+    CoopParams,
+    build_segment_graph,
+    cooperative_optimize,
+    expand_planes,
+    neighbour_plane_candidates,
+)
 from prismstereo.matching.planes import (
     PlaneParams,
     SegmentIndex,
@@ -508,6 +515,13 @@ def match_multiview_global(reference: Any, views: Sequence[Any], *, ratios: Sequ
                     assign2, plane_set, info4 = optimise(assign2, plane_set, own6)
                     info = {**info4, "energy_before": e_first}
         info = {**info, "sweep_segments": float((sw_ids[:, 0] >= 0).sum())}
+        if p.post.group_moves:
+            # as coop: sweep candidates and the planes across boundaries moved over whole regions
+            cands = np.concatenate([sw_ids, neighbour_plane_candidates(graph, assign2)], axis=1)
+            assign2, ginfo = expand_planes(assign2, plane_set, index, graph, data, ones, cands, min_disp=0,
+                                           params=cp)
+            assign2, plane_set, info5 = optimise(assign2, plane_set, own)
+            info = {**info5, **ginfo, "energy_before": e_first}
         if p.post.fine_hr > 0:
             # as coop: finer segments along plane boundaries resume the optimisation, a move kept only where
             # the trusted multi-view disparities side with it

@@ -94,6 +94,10 @@ class PostParams:
         (``coop``'s 50 % and step 4: 1.57/1.92/6.55; 75 %: 3.13/3.44/7.10; 20 %: 1.52/1.88/6.64; the row box
         changes nothing there), Cones nine views 1.75/3.41/5.11 -> 1.74/3.39/5.08 (step 4: 1.75/3.42/5.11).
         ``sweep_ratio`` 2 (Tsukuba's +2 view) measured worse: 3.06/3.41/6.61 at 50 %.
+    group_moves : bool
+        After the sweep, sweep candidates and the planes across segment boundaries may move whole regions at
+        once (:func:`~prismstereo.matching.cooperative.expand_planes`, as ``coop``); Tsukuba five views
+        unchanged (1.24/1.60/5.87), Cones nine views 1.72/3.34/5.05 -> 1.70/3.30/4.97.
     fine_hr, fine_min, fine_check : finer segments, as ``coop``
         (:func:`~prismstereo.matching.coop.refine_fine_segments`, after the sweep step): the reference is
         segmented again with range radius ``fine_hr`` and minimum size ``fine_min`` inside the segments; fine
@@ -116,6 +120,7 @@ class PostParams:
     pixel_margin: float = 5.0
     pixel_tol: float = 1.0
     pixel_agree: int = 2
+    group_moves: bool = True
     pixel_bplanes: int = 2
     occlusion_fill: bool = True
     occ_tol: float = 1.0
