@@ -119,16 +119,18 @@ def test_registered_and_stages_in_extras() -> None:
     assert set(res.timings) >= {"segmentation", "initial", "planes", "cooperative"}
 
 
-def test_middlebury_tsukuba_bound(middlebury_dir: Path) -> None:
+# measured nonocc / all / disc: Tsukuba 1.35 / 1.79 / 6.21, Teddy 3.63 / 7.45 / 10.11 (its steep floor and
+# repeated textures: the slope-sheared data term and the group moves); the thesis's per-scene rule is nonocc no
+# worse than its own by more than 0.5 (Tsukuba 0.89, Teddy 4.02)
+@pytest.mark.parametrize(("scene", "bounds"), [("tsukuba", (1.39, 2.1, 7.0)), ("teddy", (4.0, 7.9, 11.0))])
+def test_middlebury_bounds(middlebury_dir: Path, scene: str, bounds: tuple[float, float, float]) -> None:
     from prismstereo.evaluation.middlebury import evaluate_disparity, load_scene
 
-    sc = load_scene("tsukuba", middlebury_dir)
+    sc = load_scene(scene, middlebury_dir)
     res = coop_match(sc.left, sc.right, max_disp=sc.max_disp)
     bad = evaluate_disparity(res.disparity, sc, thresholds=(1.0,))["bad"]["1.0"]
-    # measured 1.91 / 2.42 / 8.10 (nonocc / all / disc); bounds leave a margin
-    assert bad["nonocc"] < 2.4
-    assert bad["all"] < 3.0
-    assert bad["disc"] < 10.0
+    for v, b in zip((bad["nonocc"], bad["all"], bad["disc"]), bounds, strict=True):
+        assert v < b
 
 
 def test_sweep_candidates_reach_a_steep_slant() -> None:
