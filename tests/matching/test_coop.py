@@ -135,7 +135,7 @@ def test_middlebury_bounds(middlebury_dir: Path, scene: str, bounds: tuple[float
 
 def test_sweep_candidates_reach_a_steep_slant() -> None:
     """The global sweep offers a plane near a steep y-slant that a fronto-parallel current plane cannot reach."""
-    from prismstereo.matching.coop import _sweep_candidates
+    from prismstereo.matching.coop import segment_sweep_candidates
 
     rng = np.random.default_rng(3)
     h, w = 60, 80
@@ -152,7 +152,7 @@ def test_sweep_candidates_reach_a_steep_slant() -> None:
     index = build_segment_index(labels)
     planes = np.array([[0.0, 0.0, 11.0]])
     assign = np.zeros(2, np.int32)
-    out, ids = _sweep_candidates(left, right, labels, index, assign, planes, min_disp=0, max_disp=24, frac=1.0,
+    out, ids = segment_sweep_candidates(left, right, labels, index, assign, planes, min_disp=0, max_disp=24, frac=1.0,
                                  slopes=(-0.25, 0.0, 0.25), keep=2, min_px=10, step=2)
     assert out.shape[0] > 1
     assert (ids[:, 0] >= 0).all()

@@ -67,7 +67,8 @@ from prismstereo.matching.slanted import add_unique
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CoopMatcher", "CoopResult", "FineSegments", "coop_match", "initial_disparity", "refine_fine_segments"]
+__all__ = ["CoopMatcher", "CoopResult", "FineSegments", "boundary_pixel_planes", "coop_match", "initial_disparity",
+           "occlusion_background_fill", "refine_fine_segments", "segment_sweep_candidates"]
 
 F32 = npt.NDArray[np.float32]
 
@@ -180,7 +181,7 @@ def bpasw_volume(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, m
 
 
 @njit(cache=True)
-def _pixel_planes(seg: npt.NDArray[np.int32], assign: npt.NDArray[np.int32], planes: npt.NDArray[np.float64],
+def boundary_pixel_planes(seg: npt.NDArray[np.int32], assign: npt.NDArray[np.int32], planes: npt.NDArray[np.float64],
                   cost: F32, min_disp: int, radius: int, margin: float,
                   active: npt.NDArray[np.bool_], dref: F32, tol: float,
                   active_up: npt.NDArray[np.bool_], assign2: npt.NDArray[np.int32]) -> F32:  # assign2: (K, M)
@@ -243,7 +244,7 @@ def _bpasw_reliable(vol: F32, min_disp: int) -> tuple[npt.NDArray[np.bool_], F32
 
 
 @njit(cache=True)
-def _occlusion_fill(disp: F32, seg: npt.NDArray[np.int32], assign: npt.NDArray[np.int32],
+def occlusion_background_fill(disp: F32, seg: npt.NDArray[np.int32], assign: npt.NDArray[np.int32],
                     planes: npt.NDArray[np.float64], dright: F32, rright: npt.NDArray[np.bool_],
                     tol: float, dleft: F32, rleft: npt.NDArray[np.bool_],
                     radius: int) -> tuple[F32, npt.NDArray[np.bool_]]:
@@ -325,7 +326,7 @@ def _segment_slanted_step(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uint8]
     return new
 
 
-def _sweep_candidates(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uint8], labels: npt.NDArray[np.int32],
+def segment_sweep_candidates(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uint8], labels: npt.NDArray[np.int32],
                       index: Any, assign: npt.NDArray[np.int32], plane_set: npt.NDArray[np.float64], *,
                       min_disp: int, max_disp: int, frac: float, slopes: tuple[float, ...], keep: int,
                       min_px: int, step: int, dilation: int = 2,
@@ -607,7 +608,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         The result's ``labels`` are then the fine segments (0 = off; average 4.49 -> 4.50 without the check,
         4.44 with it: Tsukuba 1.54/1.94/7.20 -> 1.39/1.79/6.42, Cones 2.23 -> 2.19, Teddy 4.72 -> 4.80).
     sweep_frac, sweep_slopes, sweep_keep, sweep_min_px, sweep_step, sweep_dil, sweep_hbox, sweep_nbr : keyword-only
-        Candidate planes from a global sweep (:func:`_sweep_candidates`, after the BPASW rounds): the
+        Candidate planes from a global sweep (:func:`segment_sweep_candidates`, after the BPASW rounds): the
         ``sweep_frac`` of the segments of at least ``sweep_min_px`` pixels whose current plane has the highest
         mean slanted-window cost (:mod:`slanted`, sampled every ``sweep_step`` px, window every ``sweep_dil``
         px) get, as candidates, the ``sweep_keep`` cheapest planes of a sweep of the centre disparity over the
@@ -767,7 +768,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
                                                                 own=own4, min_disp=min_disp, params=op, slopes=slopes)
                 info = {**info2, "energy_before": e_first}
     if sweep_frac > 0:
-        plane_set, sw_ids = _sweep_candidates(lft, rgt, labels, index, assign, plane_set, min_disp=min_disp,
+        plane_set, sw_ids = segment_sweep_candidates(lft, rgt, labels, index, assign, plane_set, min_disp=min_disp,
                                               max_disp=max_disp, frac=sweep_frac, slopes=tuple(sweep_slopes),
                                               keep=sweep_keep, min_px=sweep_min_px, step=sweep_step,
                                               dilation=sweep_dil)
@@ -862,7 +863,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         bagree = brel & reliable & (np.abs(bdisp - initial) <= pixel_tol)
         if pixel_agree == 1:  # both initial maps must agree on the pixel
             brel = bagree
-        final = _pixel_planes(labels.astype(np.int32), assign.astype(np.int32), plane_set, bvol, int(min_disp),
+        final = boundary_pixel_planes(labels.astype(np.int32), assign.astype(np.int32), plane_set, bvol, int(min_disp),
                               int(pixel_radius), float(pixel_margin), brel, bdisp,
                               float(pixel_tol), bagree if pixel_agree else brel, bown)
     else:
@@ -894,9 +895,10 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         xs = np.arange(final.shape[1])[None, :] + dr_int + min_disp
         rrel = (xs < final.shape[1]) & (np.take_along_axis(dl_int, np.clip(xs, 0, final.shape[1] - 1), axis=1)
                                          == dr_int)
-        final, _occ = _occlusion_fill(final.astype(np.float32), labels.astype(np.int32), assign.astype(np.int32),
-                                      plane_set, (dr_int + min_disp).astype(np.float32), rrel, float(occ_tol),
-                                      bdisp0, brel0, int(pixel_radius) if occ_rematch else 0)
+        final, _occ = occlusion_background_fill(final.astype(np.float32), labels.astype(np.int32),
+                                                assign.astype(np.int32), plane_set,
+                                                (dr_int + min_disp).astype(np.float32), rrel, float(occ_tol),
+                                                bdisp0, brel0, int(pixel_radius) if occ_rematch else 0)
     if post_median > 0:
         wm = weighted_median_filter(final, lft, radius=post_median)
         # the median works on integer bins: keep the subpixel plane disparity where it agrees within 1 px

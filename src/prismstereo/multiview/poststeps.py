@@ -12,10 +12,10 @@ read issue 3's BPASW aggregated cost of the one pair. Here each step reads the e
   two-view ``coop`` uses the pair's own cross-check).
 * **Candidate planes**: planes fitted to that reliable map per segment, their merged clusters, and planes
   refitted over groups of segments sharing a plane are offered to the optimiser, which resumes after each.
-* **Boundary step**: coop's ``_pixel_planes`` on the fused BPASW cost (a nearby segment's plane wins where it
+* **Boundary step**: coop's ``boundary_pixel_planes`` on the fused BPASW cost (a nearby segment's plane wins where it
   is cheaper by a margin and agrees with the reliable fused map; moves to a larger disparity also need a
   guided pair's checked map to agree).
-* **Occlusion step**: coop's ``_occlusion_fill`` run once per side, with that side's view of ``|δ|`` closest
+* **Occlusion step**: coop's ``occlusion_background_fill`` run once per side, with that side's view of ``|δ|`` closest
   to 1 (the left side on mirrored images): a pixel whose match in a view reliably sees a farther surface
   cannot be at that disparity (it would occlude that surface), whichever side the view is on.
 * **Median**: colour-weighted median that only overrides disparities it moves by more than 1 px.
@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from prismstereo.matching.coop import _occlusion_fill, _pixel_planes, _sweep_candidates
+from prismstereo.matching.coop import boundary_pixel_planes, occlusion_background_fill, segment_sweep_candidates
 from prismstereo.matching.planes import (
     PlaneParams,
     SegmentIndex,
@@ -85,7 +85,7 @@ class PostParams:
     post_median : int
         Radius of the final subpixel-preserving weighted median (0 = off).
     sweep_frac, sweep_slopes, sweep_keep, sweep_min_px, sweep_step, sweep_dil, sweep_hbox : sweep step
-        As ``coop`` (:func:`prismstereo.matching.coop._sweep_candidates`, after the BPASW rounds): the
+        As ``coop`` (:func:`prismstereo.matching.coop.segment_sweep_candidates`, after the BPASW rounds): the
         ``sweep_frac`` of the segments with the highest slanted-window cost against the right view of ``|δ|``
         closest to ``sweep_ratio`` get the ``sweep_keep`` cheapest planes of a global sweep (whole range x ``b`` in
         ``sweep_slopes``) as candidates, and with ``sweep_hbox >= 0`` the data term on their pixels is the
@@ -187,7 +187,7 @@ Optimise = Callable[[I32, F64, npt.NDArray[np.int64]], tuple[I32, F64, dict[str,
 def sweep_candidates(ref: np.ndarray, views: Sequence[np.ndarray], ratios: Sequence[float], labels: I32,
                      index: SegmentIndex, assign: I32, plane_set: F64, *, max_disp: int,
                      params: PostParams) -> tuple[F64, npt.NDArray[np.int64]]:
-    """``coop``'s sweep candidates (:func:`~prismstereo.matching.coop._sweep_candidates`) on the reference and
+    """``coop``'s sweep candidates (:func:`~prismstereo.matching.coop.segment_sweep_candidates`) on the reference and
     its right view of ``|δ|`` closest to 1, converted to the unit baseline; returns the extended plane set and
     the (K, keep) candidate ids (-1 none; all -1 when there is no right view or the step is off)."""
     k = index.n_segments
@@ -199,7 +199,7 @@ def sweep_candidates(ref: np.ndarray, views: Sequence[np.ndarray], ratios: Seque
     r = float(ratios[i])
     w = ref.shape[1]
     md = int(min(w - 1, math.ceil(r * max_disp)))
-    out, ids = _sweep_candidates(np.ascontiguousarray(ref, np.uint8), np.ascontiguousarray(views[i], np.uint8),
+    out, ids = segment_sweep_candidates(np.ascontiguousarray(ref, np.uint8), np.ascontiguousarray(views[i], np.uint8),
                                  labels, index, assign, plane_set * r, min_disp=0, max_disp=md,
                                  frac=params.sweep_frac, slopes=tuple(params.sweep_slopes),
                                  keep=params.sweep_keep, min_px=params.sweep_min_px, step=params.sweep_step,
@@ -259,7 +259,7 @@ def _side_occlusion(final: F32, labels: I32, assign: I32, plane_set: F64, pc: Pa
     dl_int = vol.argmin(axis=2)
     xs = np.arange(w)[None, :] + dr_int
     rrel = (xs < w) & (np.take_along_axis(dl_int, np.clip(xs, 0, w - 1), axis=1) == dr_int)
-    out, occ = _occlusion_fill(np.ascontiguousarray(disp * np.float32(a), dtype=np.float32),
+    out, occ = occlusion_background_fill(np.ascontiguousarray(disp * np.float32(a), dtype=np.float32),
                                 np.ascontiguousarray(lab, dtype=np.int32), assign.astype(np.int32),
                                 np.ascontiguousarray(pl, dtype=np.float64), dr_int.astype(np.float32),
                                 np.ascontiguousarray(rrel), float(tol * a),
@@ -291,7 +291,7 @@ def boundary_and_occlusion(ref: np.ndarray, labels: I32, index: SegmentIndex, as
             gagree |= pc.reliable & (np.abs(pc.disparity - fb.disparity) <= p.pixel_tol)
         bagree = fb.reliable & gagree
         brel = bagree if p.pixel_agree == 1 else fb.reliable
-        final = _pixel_planes(lab32, assign.astype(np.int32), plane_set, fb.cost, 0, int(p.pixel_radius),
+        final = boundary_pixel_planes(lab32, assign.astype(np.int32), plane_set, fb.cost, 0, int(p.pixel_radius),
                               float(p.pixel_margin), np.ascontiguousarray(brel), fb.disparity,
                               float(p.pixel_tol), np.ascontiguousarray(bagree if p.pixel_agree else brel),
                               bown)
