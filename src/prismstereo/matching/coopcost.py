@@ -54,23 +54,9 @@ class CostParams:
     eps: float = 1e-4
 
 
-@njit(cache=True, parallel=True)
 def _census(gray: F32, ry: int, rx: int) -> npt.NDArray[np.uint64]:
-    h, w = gray.shape
-    out = np.zeros((h, w), dtype=np.uint64)
-    for y in prange(h):
-        for x in range(w):
-            c = gray[y, x]
-            bits = np.uint64(0)
-            for dy in range(-ry, ry + 1):
-                yy = min(max(y + dy, 0), h - 1)
-                for dx in range(-rx, rx + 1):
-                    if dy == 0 and dx == 0:
-                        continue
-                    xx = min(max(x + dx, 0), w - 1)
-                    bits = (bits << np.uint64(1)) | np.uint64(1 if gray[yy, xx] < c else 0)
-            out[y, x] = bits
-    return out
+    """Census transform over a ``(2 ry + 1) x (2 rx + 1)`` window (bit set where the neighbour is darker)."""
+    return _census_sheared(gray, ry, rx, 0.0)
 
 
 @njit(cache=True)
@@ -183,14 +169,8 @@ def guided_filter_volume(guide: npt.NDArray[np.generic], vol: F32, *, radius: in
     return out
 
 
-def raw_cost(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, max_disp: int,
-             min_disp: int = 0, params: CostParams | None = None) -> F32:
-    """Pixel-wise left-view cost volume before aggregation, (H, W, D) float32 in [0, 2].
-
-    ``(1 - exp(-(min(AD, τ_c) + min(|∇x|, τ_g)) / λ_ad)) + (1 - exp(-census / λ_census))``; slice k holds
-    d = min_disp + k; pixels with x - d < 0 get the maximum 2.
-    """
-    p = params or CostParams()
+def _cost_inputs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic]) -> tuple[F32, ...]:
+    """Contiguous float RGB of both views (grey repeated), their grey images and x-gradients (Sobel / 4)."""
     lf = np.asarray(left, dtype=np.float32)
     rf = np.asarray(right, dtype=np.float32)
     if lf.ndim == 2:
@@ -200,11 +180,23 @@ def raw_cost(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, m
     gray_r = np.asarray(cv2.cvtColor(rf, cv2.COLOR_RGB2GRAY), dtype=np.float32)
     gxl = np.asarray(cv2.Sobel(gray_l, cv2.CV_32F, 1, 0, ksize=3) / 4.0, dtype=np.float32)
     gxr = np.asarray(cv2.Sobel(gray_r, cv2.CV_32F, 1, 0, ksize=3) / 4.0, dtype=np.float32)
+    return np.ascontiguousarray(lf), np.ascontiguousarray(rf), gray_l, gray_r, gxl, gxr
+
+
+def raw_cost(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, max_disp: int,
+             min_disp: int = 0, params: CostParams | None = None) -> F32:
+    """Pixel-wise left-view cost volume before aggregation, (H, W, D) float32 in [0, 2].
+
+    ``(1 - exp(-(min(AD, τ_c) + min(|∇x|, τ_g)) / λ_ad)) + (1 - exp(-census / λ_census))``; slice k holds
+    d = min_disp + k; pixels with x - d < 0 get the maximum 2.
+    """
+    p = params or CostParams()
+    lf, rf, gray_l, gray_r, gxl, gxr = _cost_inputs(left, right)
     cl = _census(gray_l, p.census_ry, p.census_rx)
     cr = _census(gray_r, p.census_ry, p.census_rx)
     nd = max_disp - min_disp + 1
-    return _raw_cost(np.ascontiguousarray(lf), np.ascontiguousarray(rf), gxl, gxr, cl, cr, int(min_disp), nd,
-                     p.tau_color, p.tau_grad, p.lambda_ad, p.lambda_census)
+    return _raw_cost(lf, rf, gxl, gxr, cl, cr, int(min_disp), nd, p.tau_color, p.tau_grad, p.lambda_ad,
+                     p.lambda_census)
 
 
 def aggregated_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, max_disp: int,
@@ -311,23 +303,14 @@ def sheared_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic],
     (S, H, W, D) float32, slice ``[s, :, :, k]`` = cost at disparity ``min_disp + k`` under slope ``slopes[s]``.
     """
     p = params or CostParams()
-    lf = np.asarray(left, dtype=np.float32)
-    rf = np.asarray(right, dtype=np.float32)
-    if lf.ndim == 2:
-        lf = np.repeat(lf[:, :, None], 3, axis=2)
-        rf = np.repeat(rf[:, :, None], 3, axis=2)
-    gray_l = np.asarray(cv2.cvtColor(lf, cv2.COLOR_RGB2GRAY), dtype=np.float32)
-    gray_r = np.asarray(cv2.cvtColor(rf, cv2.COLOR_RGB2GRAY), dtype=np.float32)
-    gxl = np.asarray(cv2.Sobel(gray_l, cv2.CV_32F, 1, 0, ksize=3) / 4.0, dtype=np.float32)
-    gxr = np.asarray(cv2.Sobel(gray_r, cv2.CV_32F, 1, 0, ksize=3) / 4.0, dtype=np.float32)
+    lf, rf, gray_l, gray_r, gxl, gxr = _cost_inputs(left, right)
     cl = _census(gray_l, p.census_ry, p.census_rx)
     nd = max_disp - min_disp + 1
     h, w = gray_l.shape
     out = np.empty((len(slopes), h, w, nd), np.float32)
-    lfc, rfc = np.ascontiguousarray(lf), np.ascontiguousarray(rf)
     for i, b in enumerate(slopes):
         cr = _census_sheared(gray_r, p.census_ry, p.census_rx, float(b))
-        raw = _raw_cost(lfc, rfc, gxl, gxr, cl, cr, int(min_disp), nd, p.tau_color, p.tau_grad, p.lambda_ad,
+        raw = _raw_cost(lf, rf, gxl, gxr, cl, cr, int(min_disp), nd, p.tau_color, p.tau_grad, p.lambda_ad,
                         p.lambda_census)
         if radius <= 0:
             out[i] = raw
