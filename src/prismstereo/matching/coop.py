@@ -716,18 +716,24 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         assert bvol is not None
         # residual above the pixel's best match: removes the texture-dependent offset of aggregated costs
         dcost = ((bvol - bvol.min(axis=2, keepdims=True)) * np.float32(data_scale)).astype(np.float32)
+    elif data_slopes:
+        raw = None  # the sheared volumes compute their own pixel costs: free the initial map's first
+        dcost = sheared_costs(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=data_cost or cp,
+                              slopes=tuple(data_slopes), radius=data_radius)
     else:
         if data_cost is not None or raw is None:
             raw = raw_cost(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=data_cost or cp)
-        if data_slopes:
-            dcost = sheared_costs(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=data_cost or cp,
-                                  slopes=tuple(data_slopes), radius=data_radius)
-        else:
-            dcost = _box3(raw, data_radius)
+        dcost = _box3(raw, data_radius)
     del raw
     slopes = tuple(float(b) for b in data_slopes) if data_slopes and data_term == "raw" else None
-    assign, plane_set, info = cooperative_optimize(assign0, plane_set, index, graph, dcost, reliable,
-                                                   own=own, min_disp=min_disp, params=op, slopes=slopes)
+
+    def resume(a: npt.NDArray[np.int32], pset: npt.NDArray[np.float64], own_: npt.NDArray[np.int64],
+               prm: CoopParams = op) -> tuple[npt.NDArray[np.int32], npt.NDArray[np.float64], dict[str, float]]:
+        # the cooperative optimisation (Eqs. 6.18-6.25) on the coarse segments and the data term
+        return cooperative_optimize(a, pset, index, graph, dcost, reliable, own=own_, min_disp=min_disp,
+                                    params=prm, slopes=slopes)
+
+    assign, plane_set, info = resume(assign0, plane_set, own)
     e_first = info["energy_before"]
     for _ in range(refit_rounds):
         # refit one plane per group of segments sharing a label (wider support), offer it as a candidate
@@ -737,8 +743,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         plane_set, group_ids = refit
         own2 = own.copy()
         own2[:, 1] = group_ids
-        assign, plane_set, info2 = cooperative_optimize(assign, plane_set, index, graph, dcost, reliable,
-                                                        own=own2, min_disp=min_disp, params=op, slopes=slopes)
+        assign, plane_set, info2 = resume(assign, plane_set, own2)
         info = {**info2, "energy_before": e_first}
     bfit_ids: npt.NDArray[np.int64] | None = None
     if bpasw_planes:
@@ -755,8 +760,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
                 bcl, bcp = merge_planes(index, bfit, pairs, bdisp0, brel0, params=pp)
                 own3[:, 1] = np.where(bcl >= 0, bcl + plane_set.shape[0], -1)
                 plane_set = np.concatenate([plane_set, bcp])
-            assign, plane_set, info2 = cooperative_optimize(assign, plane_set, index, graph, dcost, reliable,
-                                                            own=own3, min_disp=min_disp, params=op, slopes=slopes)
+            assign, plane_set, info2 = resume(assign, plane_set, own3)
             info = {**info2, "energy_before": e_first}
         if bpasw_planes > 2:  # group refit on the BPASW map
             refit = group_refit_planes(assign, plane_set, index, bdisp0, brel0, params=pp)
@@ -764,8 +768,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
                 plane_set, group_ids = refit
                 own4 = own.copy()
                 own4[:, 1] = group_ids
-                assign, plane_set, info2 = cooperative_optimize(assign, plane_set, index, graph, dcost, reliable,
-                                                                own=own4, min_disp=min_disp, params=op, slopes=slopes)
+                assign, plane_set, info2 = resume(assign, plane_set, own4)
                 info = {**info2, "energy_before": e_first}
     if sweep_frac > 0:
         plane_set, sw_ids = segment_sweep_candidates(lft, rgt, labels, index, assign, plane_set, min_disp=min_disp,
@@ -791,9 +794,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
             own6 = np.full((k, 2), -1, np.int64)
             own6[:, :min(2, sw_ids.shape[1] - col)] = sw_ids[:, col:col + 2]
             if (own6 >= 0).any():
-                assign, plane_set, info2 = cooperative_optimize(assign, plane_set, index, graph, dcost, reliable,
-                                                                own=own6, min_disp=min_disp, params=sw_op,
-                                                                slopes=slopes)
+                assign, plane_set, info2 = resume(assign, plane_set, own6, sw_op)
                 info = {**info2, "energy_before": e_first}
         info = {**info, "sweep_segments": float((sw_ids[:, 0] >= 0).sum())}
         if group_moves:
@@ -801,8 +802,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
             cands = np.concatenate([sw_ids, neighbour_plane_candidates(graph, assign)], axis=1)
             assign, ginfo = expand_planes(assign, plane_set, index, graph, dcost, reliable, cands,
                                           min_disp=min_disp, params=op, slopes=slopes)
-            assign, plane_set, info2 = cooperative_optimize(assign, plane_set, index, graph, dcost, reliable,
-                                                            own=own, min_disp=min_disp, params=op, slopes=slopes)
+            assign, plane_set, info2 = resume(assign, plane_set, own)
             info = {**info2, **ginfo, "energy_before": e_first}
     for _ in range(seg_slanted):
         assign = _segment_slanted_step(lft, rgt, labels, assign, plane_set, pairs,
@@ -829,8 +829,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
                 selb = np.isin(hasb, accb)
                 own5[accb, 1] = plane_set.shape[0] + np.arange(accb.size)
                 plane_set = np.concatenate([plane_set, newb[selb]])
-            assign, plane_set, info2 = cooperative_optimize(assign, plane_set, index, graph, dcost, reliable,
-                                                            own=own5, min_disp=min_disp, params=op, slopes=slopes)
+            assign, plane_set, info2 = resume(assign, plane_set, own5)
             info = {**info2, "energy_before": e_first}
         elif acc.size:
             assign = assign.copy()

@@ -668,6 +668,7 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
     region = np.empty(k, np.int64)
     dnew = np.empty(k, np.float64)
     dold = np.empty(k, np.float64)
+    prev = np.empty(k, np.int32)
     z1, o1, z2 = _zbuffer(a, planes, order, starts, h, w)
     e_cur = _energy(a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo, bp_hi, bw, prm)
     accepted = 0
@@ -723,7 +724,7 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
                     de += 2.0 * gamma * (after - before)
         if n > 0 and de < -1e-9:
             for r in range(n):
-                dold[r] = a[region[r]]  # keep the old labels to undo
+                prev[r] = a[region[r]]
                 a[region[r]] = lab
             e_new = _energy(a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo, bp_hi,
                             bw, prm)
@@ -733,7 +734,7 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
                 z1, o1, z2 = _zbuffer(a, planes, order, starts, h, w)
             else:
                 for r in range(n):
-                    a[region[r]] = int(dold[r])
+                    a[region[r]] = prev[r]
         for r in range(n):
             in_s[region[r]] = False
         seen[:] = False  # also the segments visited but not taken
