@@ -175,3 +175,44 @@ def test_row_radius_keeps_the_row_boxed_raw(cost: str) -> None:
         np.testing.assert_array_equal(both.raw, sq.raw)
         np.testing.assert_array_equal(both.raw_row, row.raw)
         assert sq.raw_row is None
+
+
+def _layered_views(ratios: list[float], d_bg: float, d_fg: float) -> tuple[np.ndarray, list, np.ndarray]:
+    """A textured square at disparity ``d_fg`` in front of a textured wall at ``d_bg``, seen from each ratio;
+    returns the reference, the views and the reference's true disparity."""
+    h, w, pad = 40, 72, 24
+    # dark wall, bright card: the square's outline is a colour edge, as segment-based stereo assumes
+    wall = _texture(h, w + 2 * pad, seed=5) * 0.45
+    card = 140.0 + _texture(h, w + 2 * pad, seed=6) * 0.45
+    y0, y1, x0, x1 = 12, 28, 28, 46  # the square in reference coordinates
+    out = []
+    for r in [0.0, *ratios]:
+        v = wall[:, pad + int(round(r * d_bg)):pad + int(round(r * d_bg)) + w].copy()
+        s = int(round(r * d_fg))
+        v[y0:y1, x0 - s:x1 - s] = card[y0:y1, pad + x0:pad + x1]
+        out.append(v)
+    gt = np.full((h, w), d_bg, np.float32)
+    gt[y0:y1, x0:x1] = d_fg
+    return out[0], out[1:], gt
+
+
+@pytest.mark.parametrize("overrides", [{}, {"data_agg": 0.0}, {"fine_extra": ()}])
+def test_global_recovers_layered_scene_with_and_without_the_edge_steps(overrides: dict) -> None:
+    from dataclasses import replace
+
+    from prismstereo.multiview.globalmv import GlobalMultiViewParams, match_multiview_global
+
+    ratios = [-1.0, 1.0, 2.0]
+    ref, views, gt = _layered_views(ratios, 2.0, 6.0)
+    p = GlobalMultiViewParams()
+    if "fine_extra" in overrides:
+        assert p.post is not None
+        p = replace(p, post=replace(p.post, fine_extra=overrides["fine_extra"]))
+    else:
+        p = replace(p, **overrides)
+    res = match_multiview_global(ref, views, ratios=ratios, max_disp=8, params=p)
+    inner = (slice(4, -4), slice(14, -14))  # the outer columns are seen by one side's views only
+    good = np.abs(res.disparity - gt)[inner] <= 1.0
+    assert good.mean() > 0.97, good.mean()
+    # the square itself, edges included
+    assert (np.abs(res.disparity - gt)[12:28, 28:46] <= 1.0).mean() > 0.95
