@@ -34,6 +34,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -53,6 +54,7 @@ from prismstereo.matching.cooperative import (
 )
 from prismstereo.matching.planes import (
     PlaneParams,
+    SegmentIndex,
     build_segment_index,
     fill_missing_planes,
     fit_planes,
@@ -67,7 +69,8 @@ from prismstereo.matching.slanted import add_unique
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CoopMatcher", "CoopResult", "FineSegments", "boundary_pixel_planes", "coop_match", "initial_disparity",
+__all__ = ["CoopMatcher", "CoopResult", "FineSegments", "boundary_pixel_planes",
+           "bpasw_candidate_rounds", "coop_match", "initial_disparity",
            "occlusion_background_fill", "refine_fine_segments", "segment_sweep_candidates"]
 
 F32 = npt.NDArray[np.float32]
@@ -241,6 +244,49 @@ def boundary_pixel_planes(seg: npt.NDArray[np.int32], assign: npt.NDArray[np.int
 def _bpasw_reliable(vol: F32, min_disp: int) -> tuple[npt.NDArray[np.bool_], F32]:
     d, rel = initial_disparity(vol, right_cost_volume(vol, min_disp=min_disp), min_disp=min_disp)
     return rel, d
+
+
+Optimise = Callable[[npt.NDArray[np.int32], npt.NDArray[np.float64], npt.NDArray[np.int64]],
+                    tuple[npt.NDArray[np.int32], npt.NDArray[np.float64], dict[str, float]]]
+
+
+def bpasw_candidate_rounds(assign: npt.NDArray[np.int32], plane_set: npt.NDArray[np.float64],
+                           own: npt.NDArray[np.int64], index: SegmentIndex, pairs: npt.NDArray[np.int32],
+                           disparity: F32, reliable: npt.NDArray[np.bool_], optimise: Optimise, *,
+                           planes: PlaneParams, rounds: int
+                           ) -> tuple[npt.NDArray[np.int32], npt.NDArray[np.float64], dict[str, float] | None,
+                                      npt.NDArray[np.int64] | None]:
+    """``coop``'s ``bpasw_planes`` rounds: planes fitted per segment to the cross-checked BPASW map
+    ``disparity`` (reliable where ``reliable``) offered as each segment's first candidate (1), with their
+    merged-cluster planes as second (2), then one plane refitted per group of segments sharing a plane (3);
+    ``optimise(assign, planes, own)`` resumes the cooperative optimisation after each. Returns assign,
+    planes, the last optimisation's info (None when none ran) and each segment's own BPASW-fit plane id
+    (-1 none)."""
+    info: dict[str, float] | None = None
+    bfit_ids: npt.NDArray[np.int64] | None = None
+    if rounds <= 0:
+        return assign, plane_set, info, bfit_ids
+    bfit, _ = fit_planes(index, disparity, reliable, params=planes)
+    okb = np.flatnonzero(np.isfinite(bfit[:, 0]))
+    if okb.size:
+        own3 = own.copy()
+        own3[:, 0] = -1
+        own3[okb, 0] = plane_set.shape[0] + np.arange(okb.size)
+        bfit_ids = own3[:, 0].copy()
+        plane_set = np.concatenate([plane_set, bfit[okb]])
+        if rounds > 1:
+            bcl, bcp = merge_planes(index, bfit, pairs, disparity, reliable, params=planes)
+            own3[:, 1] = np.where(bcl >= 0, bcl + plane_set.shape[0], -1)
+            plane_set = np.concatenate([plane_set, bcp])
+        assign, plane_set, info = optimise(assign, plane_set, own3)
+    if rounds > 2:
+        refit = group_refit_planes(assign, plane_set, index, disparity, reliable, params=planes)
+        if refit is not None:
+            plane_set, group_ids = refit
+            own4 = own.copy()
+            own4[:, 1] = group_ids
+            assign, plane_set, info = optimise(assign, plane_set, own4)
+    return assign, plane_set, info, bfit_ids
 
 
 @njit(cache=True)
@@ -745,31 +791,11 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         own2[:, 1] = group_ids
         assign, plane_set, info2 = resume(assign, plane_set, own2)
         info = {**info2, "energy_before": e_first}
-    bfit_ids: npt.NDArray[np.int64] | None = None
-    if bpasw_planes:
-        # second plane hypothesis per segment: fitted to the cross-checked BPASW map, resume the optimisation
-        bfit, _ = fit_planes(index, bdisp0, brel0, params=pp)
-        okb = np.flatnonzero(np.isfinite(bfit[:, 0]))
-        if okb.size:
-            own3 = own.copy()
-            own3[:, 0] = -1
-            own3[okb, 0] = plane_set.shape[0] + np.arange(okb.size)
-            bfit_ids = own3[:, 0].copy()
-            plane_set = np.concatenate([plane_set, bfit[okb]])
-            if bpasw_planes > 1:  # and the merged-cluster planes of the BPASW fits
-                bcl, bcp = merge_planes(index, bfit, pairs, bdisp0, brel0, params=pp)
-                own3[:, 1] = np.where(bcl >= 0, bcl + plane_set.shape[0], -1)
-                plane_set = np.concatenate([plane_set, bcp])
-            assign, plane_set, info2 = resume(assign, plane_set, own3)
-            info = {**info2, "energy_before": e_first}
-        if bpasw_planes > 2:  # group refit on the BPASW map
-            refit = group_refit_planes(assign, plane_set, index, bdisp0, brel0, params=pp)
-            if refit is not None:
-                plane_set, group_ids = refit
-                own4 = own.copy()
-                own4[:, 1] = group_ids
-                assign, plane_set, info2 = resume(assign, plane_set, own4)
-                info = {**info2, "energy_before": e_first}
+    # second plane hypotheses per segment from the cross-checked BPASW map, resuming the optimisation
+    assign, plane_set, info3, bfit_ids = bpasw_candidate_rounds(assign, plane_set, own, index, pairs, bdisp0, brel0,
+                                                                resume, planes=pp, rounds=bpasw_planes)
+    if info3 is not None:
+        info = {**info3, "energy_before": e_first}
     if sweep_frac > 0:
         plane_set, sw_ids = segment_sweep_candidates(lft, rgt, labels, index, assign, plane_set, min_disp=min_disp,
                                               max_disp=max_disp, frac=sweep_frac, slopes=tuple(sweep_slopes),

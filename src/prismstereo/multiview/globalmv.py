@@ -526,7 +526,8 @@ def match_multiview_global(reference: Any, views: Sequence[Any], *, ratios: Sequ
     if p.post is not None and fb is not None:
         t = time.perf_counter()
         assign2, plane_set, info3, bfit_ids = bpasw_candidate_rounds(
-            assign2, plane_set, own, index, pairs, fb, optimise, planes=p.planes, rounds=p.post.bpasw_planes)
+            assign2, plane_set, own, index, pairs, fb.disparity, fb.reliable, optimise, planes=p.planes,
+            rounds=p.post.bpasw_planes)
         if info3 is not None:
             info = {**info3, "energy_before": e_first}
         # as coop: planes of a global sweep for the segments of highest slanted cost, with the views' pixel

@@ -24,19 +24,20 @@ read issue 3's BPASW aggregated cost of the one pair. Here each step reads the e
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 
-from prismstereo.matching.coop import boundary_pixel_planes, occlusion_background_fill, segment_sweep_candidates
+from prismstereo.matching.coop import (
+    boundary_pixel_planes,
+    bpasw_candidate_rounds,
+    occlusion_background_fill,
+    segment_sweep_candidates,
+)
 from prismstereo.matching.planes import (
-    PlaneParams,
     SegmentIndex,
-    fit_planes,
-    group_refit_planes,
-    merge_planes,
     render_planes,
 )
 from prismstereo.matching.selection import (
@@ -189,9 +190,6 @@ def fused_bpasw(ref: np.ndarray, views: Sequence[np.ndarray], ratios: Sequence[f
     return FusedBPASW(fused, disp, rel, pcs)
 
 
-Optimise = Callable[[I32, F64, npt.NDArray[np.int64]], tuple[I32, F64, dict[str, float]]]
-
-
 def sweep_candidates(ref: np.ndarray, views: Sequence[np.ndarray], ratios: Sequence[float], labels: I32,
                      index: SegmentIndex, assign: I32, plane_set: F64, *, max_disp: int,
                      params: PostParams) -> tuple[F64, npt.NDArray[np.int64]]:
@@ -214,39 +212,6 @@ def sweep_candidates(ref: np.ndarray, views: Sequence[np.ndarray], ratios: Seque
                                  dilation=params.sweep_dil)
     base = plane_set.shape[0]
     return np.concatenate([plane_set, out[base:] / r]), ids
-
-
-def bpasw_candidate_rounds(assign: I32, plane_set: F64, own: npt.NDArray[np.int64], index: SegmentIndex,
-                           pairs: I32, fb: FusedBPASW, optimise: Optimise, *,
-                           planes: PlaneParams, rounds: int) -> tuple[I32, F64, dict[str, float] | None,
-                                                                       npt.NDArray[np.int64] | None]:
-    """``coop``'s ``bpasw_planes`` rounds on the fused BPASW map; returns assign, planes, last info and the
-    plane id of each segment's own BPASW fit (-1 none)."""
-    info: dict[str, float] | None = None
-    bfit_ids: npt.NDArray[np.int64] | None = None
-    if rounds <= 0:
-        return assign, plane_set, info, bfit_ids
-    bfit, _ = fit_planes(index, fb.disparity, fb.reliable, params=planes)
-    okb = np.flatnonzero(np.isfinite(bfit[:, 0]))
-    if okb.size:
-        own3 = own.copy()
-        own3[:, 0] = -1
-        own3[okb, 0] = plane_set.shape[0] + np.arange(okb.size)
-        bfit_ids = own3[:, 0].copy()
-        plane_set = np.concatenate([plane_set, bfit[okb]])
-        if rounds > 1:
-            bcl, bcp = merge_planes(index, bfit, pairs, fb.disparity, fb.reliable, params=planes)
-            own3[:, 1] = np.where(bcl >= 0, bcl + plane_set.shape[0], -1)
-            plane_set = np.concatenate([plane_set, bcp])
-        assign, plane_set, info = optimise(assign, plane_set, own3)
-    if rounds > 2:
-        refit = group_refit_planes(assign, plane_set, index, fb.disparity, fb.reliable, params=planes)
-        if refit is not None:
-            plane_set, group_ids = refit
-            own4 = own.copy()
-            own4[:, 1] = group_ids
-            assign, plane_set, info = optimise(assign, plane_set, own4)
-    return assign, plane_set, info, bfit_ids
 
 
 def _side_occlusion(final: F32, labels: I32, assign: I32, plane_set: F64, pc: PairCost, fb: FusedBPASW,
