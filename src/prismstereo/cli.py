@@ -1,4 +1,4 @@
-"""Thin command line over the library (DESIGN.md §5). No algorithm code lives here.
+"""Thin command line over the library (docs/cli.md). No algorithm code lives here.
 
 Each subcommand has an ``_add_<name>`` function that declares its arguments and a ``_cmd_<name>``
 function that calls the library. Errors the user can fix (``PrismStereoError``) become one line on
@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from collections.abc import Callable, Sequence
 
@@ -59,7 +60,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------- calibrate
 def _add_calibrate(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("calibrate", help="virtual cameras of a rig from its optics -> cameras.json")
-    p.add_argument("rig", help="rig TOML (DESIGN.md §4)")
+    p.add_argument("rig", help="rig TOML (docs/rig.md)")
     p.add_argument("-o", "--output", required=True, help="cameras.json to write")
     p.add_argument("--method", choices=["thesis", "fit"], default="fit", help="virtual camera model")
     p.set_defaults(handler=_cmd_calibrate)
@@ -69,7 +70,10 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     from prismstereo.cameras import calibrate_rig, cameras_table, write_cameras_json
     from prismstereo.config import load_rig
 
+    from prismstereo.io import check_output_file
+
     rig = load_rig(args.rig)
+    check_output_file(args.output)
     cams = calibrate_rig(rig, method=args.method)
     write_cameras_json(args.output, rig, cams, method=args.method)
     print(cameras_table(rig, cams))
@@ -132,8 +136,9 @@ def _cmd_match(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from prismstereo.io import read_image, write_image, write_pfm
+    from prismstereo.io import check_output_file, output_files, read_image, write_image, write_pfm
     from prismstereo.matching import get_matcher, match
+    from prismstereo.matching.diagnostics import limit_warnings
     from prismstereo.viz.colorize import colorize_disparity
 
     params = _parse_params(args.param)
@@ -143,12 +148,18 @@ def _cmd_match(args: argparse.Namespace) -> int:
         raise ConfigError(f"-o: expected a .pfm file name, got {args.output!r}")
     if args.max_disp < 0 or args.min_disp < 0 or args.min_disp > args.max_disp:
         raise ConfigError(f"expected 0 <= --min-disp <= --max-disp, got {args.min_disp} and {args.max_disp}")
+    png = out.with_suffix(".png")
+    check_output_file(out)  # before any work
+    check_output_file(png)
     left, right = read_image(args.left), read_image(args.right)
     res = match(left, right, max_disp=args.max_disp, min_disp=args.min_disp, method=args.method, **params)
-    write_pfm(out, res.disparity)
-    png = out.with_suffix(".png")
-    write_image(png, colorize_disparity(res.disparity, vmin=float(args.min_disp), vmax=float(args.max_disp)))
     d = res.disparity
+    for line in limit_warnings(d, res.valid, min_disp=args.min_disp, max_disp=args.max_disp):
+        log.warning("%s", line)
+    with output_files([out, png]) as (tmp_pfm, tmp_png):
+        write_pfm(tmp_pfm, d)
+        write_image(tmp_png, colorize_disparity(d, vmin=float(args.min_disp), vmax=float(args.max_disp),
+                                                colorbar="disparity (px)"))
     fin = np.isfinite(d)
     print(f"{args.method}: {d.shape[1]}x{d.shape[0]}, valid (cross-check) {100.0 * res.valid.mean():.1f} %, "
           f"d in [{np.nanmin(d) if fin.any() else float('nan'):.2f}, "
@@ -191,7 +202,7 @@ _ADDERS: list[Callable[[argparse._SubParsersAction], None]] = [_add_simulate, _a
 # --------------------------------------------------------------------------- rectify
 def _add_rectify(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("rectify", help="rectify a capture's views -> left/right (or view_<k>) images + JSON")
-    p.add_argument("rig", help="rig TOML (DESIGN.md §4)")
+    p.add_argument("rig", help="rig TOML (docs/rig.md)")
     p.add_argument("image", help="the capture (the rig's sensor size)")
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--views", default=None, help="faces to rectify: I,J for a pair, I,J,K or 'all' for more")
@@ -226,13 +237,15 @@ def _parse_roi(text: str | None) -> tuple[int, int, int, int] | None:
 
 def _add_depth(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("depth", help="depth from one prism capture -> disparity, depth, points.ply, report")
-    p.add_argument("rig", help="rig TOML (DESIGN.md §4)")
+    p.add_argument("rig", help="rig TOML (docs/rig.md)")
     p.add_argument("image", help="the capture (the rig's sensor size)")
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--method", default="bpasw", help="matcher name (any registered: bpasw, sad, sgbm, coop, ...)")
     p.add_argument("-p", "--param", action="append", metavar="KEY=VALUE", help="matcher tuning parameter")
-    p.add_argument("--depth-range", default="800,5000", metavar="MIN,MAX",
-                   help="scene depths to search, mm (default 800,5000); sets the disparity range")
+    p.add_argument("--depth-range", default=None, metavar="MIN,MAX",
+                   help="scene depths to search, mm (negative values are fine to type but invalid); default: "
+                        "derived from the rig (depths where the views share a field) and a coarse match of the "
+                        "images, printed and written to run.json")
     p.add_argument("--roi", default=None, metavar="X,Y,W,H", help="region of the rectified left view")
     p.add_argument("--views", default=None, metavar="I,J|all",
                    help="faces to pair (default: 1,0 for a bi-prism, else 0,1); 'all' uses every face (N >= 3)")
@@ -250,9 +263,9 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     from prismstereo.depth.cli_support import depth_command
 
     views = _parse_views(args.views)
-    lo, hi = _parse_pair(args.depth_range, "--depth-range")
+    depth_range = None if args.depth_range is None else _parse_pair(args.depth_range, "--depth-range")
     print(depth_command(args.rig, args.image, args.output, method=args.method, params=_parse_params(args.param),
-                        depth_range=(lo, hi), roi=_parse_roi(args.roi), views=views,
+                        depth_range=depth_range, roi=_parse_roi(args.roi), views=views,
                         triangulation=args.triangulation, calibration=args.calibration, gt=args.gt,
                         refine=not args.no_refine))
     return 0
@@ -298,25 +311,96 @@ def _cmd_multiview(args: argparse.Namespace) -> int:
 _ADDERS.append(_add_multiview)
 
 
+#: options whose value may start with "-" (a negative number): argparse would take it for an option
+_SIGNED_VALUE_OPTIONS = ("--depth-range", "--roi")
+
+
+def _join_signed_values(argv: Sequence[str]) -> list[str]:
+    """``--depth-range -100,5000`` -> ``--depth-range=-100,5000`` so that the value reaches its parser."""
+    out: list[str] = []
+    items = list(argv)
+    i = 0
+    while i < len(items):
+        a = items[i]
+        if a in _SIGNED_VALUE_OPTIONS and i + 1 < len(items) and items[i + 1].startswith("-") \
+                and len(items[i + 1]) > 1 and (items[i + 1][1].isdigit() or items[i + 1][1] == "."):
+            out.append(f"{a}={items[i + 1]}")
+            i += 2
+            continue
+        out.append(a)
+        i += 1
+    return out
+
+
+def _add_common(p: argparse.ArgumentParser) -> None:
+    # SUPPRESS: a subcommand's -v adds to (does not reset) a -v given before the subcommand
+    p.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
+                   help="more log output (-vv for debug); also before the subcommand")
+    p.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
+                   help="no progress bars (they show only on a terminal anyway)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="prismstereo",
         description="Depth from a single camera and a prism: simulate, calibrate, rectify, match, depth.",
+        epilog="Documentation in the repository: docs/cli.md (commands), docs/rig.md (rig TOML keys), "
+               "docs/formats.md (files), docs/conventions.md (frames, units, disparity sign).",
     )
     parser.add_argument("--version", action="version", version=f"prismstereo {__version__}")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    parser.add_argument("-q", "--quiet", action="store_true", default=False,
+                        help="no progress bars (they show only on a terminal anyway)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for add in _ADDERS:
         add(sub)
+    for p in sub.choices.values():
+        _add_common(p)
     return parser
+
+
+class _CliFormatter(logging.Formatter):
+    """Warnings as one ``prismstereo CMD: warning: ...`` line; -v/-vv records with their logger name."""
+
+    def __init__(self, command: str) -> None:
+        super().__init__("%(levelname)s %(name)s: %(message)s")
+        self.command = command
+
+    def format(self, record: logging.LogRecord) -> str:
+        if record.levelno >= logging.WARNING and record.name != "py.warnings":
+            return f"prismstereo {self.command}: warning: {record.getMessage()}"
+        return super().format(record)
+
+
+def _setup_logging(command: str, verbose: int) -> None:
+    import warnings
+
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_CliFormatter(command))
+    root = logging.getLogger()
+    root.handlers[:] = [handler]
+    root.setLevel(logging.WARNING - 10 * min(verbose, 2))
+    # numpy's RuntimeWarnings and other library warnings: only with -v (one line per error otherwise)
+    logging.captureWarnings(True)
+    logging.getLogger("py.warnings").setLevel(logging.DEBUG if verbose else logging.CRITICAL)
+    if not verbose:
+        warnings.simplefilter("ignore")
+
+
+def _os_error_line(exc: OSError) -> str:
+    from prismstereo.io.atomic import _why
+
+    where = exc.filename if exc.filename is not None else ""
+    return f"{_why(exc)}: {where}" if where else _why(exc)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
-    level = logging.WARNING - 10 * min(args.verbose, 2)
-    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    args = parser.parse_args(_join_signed_values(sys.argv[1:] if argv is None else argv))
+    _setup_logging(args.command, args.verbose)
+    if args.quiet:  # tqdm reads its defaults from TQDM_* variables; bars show only on a terminal anyway
+        os.environ["TQDM_DISABLE"] = "1"
     handler: Handler = args.handler
     try:
         return handler(args)
@@ -326,6 +410,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"prismstereo {args.command}: interrupted", file=sys.stderr)
         return 130
+    except MemoryError:
+        print(f"prismstereo {args.command}: error: expected inputs that fit in memory, got out of memory "
+              "(use a smaller image, --roi or a narrower --depth-range)", file=sys.stderr)
+        return 2
+    except OSError as exc:  # the system refused a read or write (disk full, permissions, ...)
+        if args.verbose:
+            raise
+        print(f"prismstereo {args.command}: error: {_os_error_line(exc)}", file=sys.stderr)
+        return 2
     except Exception as exc:  # noqa: BLE001 - last resort: one line, exit 1, traceback with -v
         if args.verbose:
             raise

@@ -58,7 +58,7 @@ def test_output_dir_leaves_nothing_on_failure(tmp_path):
     with pytest.raises(RuntimeError), output_dir(out) as stage:
         (stage / "a.txt").write_text("half")
         raise RuntimeError("boom")
-    assert list(out.iterdir()) == []
+    assert not out.exists() and list(tmp_path.iterdir()) == []  # not even the folder
     with output_dir(out) as stage:
         (stage / "a.txt").write_text("done")
     assert [p.name for p in out.iterdir()] == ["a.txt"]

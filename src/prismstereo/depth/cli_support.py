@@ -7,32 +7,16 @@ the options; the geometry (views that do not overlap) is checked by rectificatio
 
 from __future__ import annotations
 
-import os
-import tempfile
-from pathlib import Path
 from typing import Any
 
-from prismstereo.errors import ConfigError, OutputError
+import logging
+
+from prismstereo.errors import ConfigError
+from prismstereo.io.atomic import check_output_dir
 
 __all__ = ["check_output_dir", "demo_command", "depth_command"]
 
-
-def check_output_dir(path: str | os.PathLike[str]) -> None:
-    """Fail early (OutputError) if ``path`` cannot become a writable folder; creates nothing."""
-    p = Path(path).absolute()
-    if p.exists() and not p.is_dir():
-        raise OutputError(f"expected an output folder, got {str(path)!r} (an existing file)")
-    probe = p
-    while not probe.exists():
-        probe = probe.parent
-    if not probe.is_dir():
-        raise OutputError(f"expected a writable output folder, got {str(path)!r} ({str(probe)!r} is a file)")
-    if not os.access(probe, os.W_OK | os.X_OK):
-        raise OutputError(f"expected a writable output folder, got {str(path)!r} (permission denied)")
-    try:  # a real test (root passes os.access everywhere, read-only mounts do not)
-        Path(tempfile.mkdtemp(prefix=".prismstereo-probe-", dir=probe)).rmdir()
-    except OSError as exc:
-        raise OutputError(f"expected a writable output folder, got {str(path)!r} ({exc.strerror})") from None
+log = logging.getLogger(__name__)
 
 
 def _resolve_views(views: Any, faces: int) -> tuple[int, int] | None:
@@ -44,7 +28,7 @@ def _resolve_views(views: Any, faces: int) -> tuple[int, int] | None:
 
 
 def depth_command(rig_path: str, image_path: str, out_dir: str, *, method: str = "bpasw",
-                  params: dict[str, Any] | None = None, depth_range: tuple[float, float] = (800.0, 5000.0),
+                  params: dict[str, Any] | None = None, depth_range: tuple[float, float] | None = None,
                   roi: tuple[int, int, int, int] | None = None, views: Any = None,
                   triangulation: str = "exact", calibration: str = "fit", gt: str | None = None,
                   refine: bool = True) -> str:
@@ -64,11 +48,22 @@ def depth_command(rig_path: str, image_path: str, out_dir: str, *, method: str =
         from prismstereo.depth.pipeline import validate_image
         from prismstereo.multiview.prism import all_views_command
 
-        validate_image(rig, image)
-        if not 0 < depth_range[0] < depth_range[1]:
+        img = validate_image(rig, image)
+        notes = []
+        if depth_range is None:
+            from prismstereo.depth.pipeline import default_views
+            from prismstereo.depth.search_range import auto_search_range_of_capture
+
+            found = auto_search_range_of_capture(rig, img, faces=default_views(rig), calibration=calibration)
+            for w in found.warnings:
+                log.warning("%s", w)
+            depth_range = found.depth_mm
+            notes.append(f"depth range {depth_range[0]:.0f}–{depth_range[1]:.0f} mm (from the {found.source}; "
+                         "--depth-range MIN,MAX to set it)")
+        elif not 0 < depth_range[0] < depth_range[1]:
             raise ConfigError(f"--depth-range: expected 0 < MIN < MAX mm, got {depth_range[0]:g},{depth_range[1]:g}")
-        return all_views_command(rig_path, image_path, out_dir, depth_range=depth_range, calibration=calibration,
-                                 gt=gt)
+        return "\n".join(notes + [all_views_command(rig_path, image_path, out_dir, depth_range=depth_range,
+                                                     calibration=calibration, gt=gt)])
     config = DepthConfig(method=method, matcher_params=dict(params or {}), depth_range=depth_range, roi=roi,
                          views=_resolve_views(views, rig.prism.faces), triangulation=triangulation,
                          calibration=calibration, refine=refine)
@@ -86,7 +81,10 @@ def depth_command(rig_path: str, image_path: str, out_dir: str, *, method: str =
                                                                  "gt": gt}})
     c = res.counts()
     t = res.timings
-    lines.insert(0, f"depth: faces {res.faces[0]} (left) and {res.faces[1]} (right), "
+    zr = res.depth_range
+    how = "given" if res.depth_range_source == "given" else f"from the {res.depth_range_source}"
+    lines.insert(0, f"depth range {zr[0]:.0f}–{zr[1]:.0f} mm ({how}; --depth-range MIN,MAX to set it)")
+    lines.insert(1, f"depth: faces {res.faces[0]} (left) and {res.faces[1]} (right), "
                     f"d in [{res.disparity_range[0]}, {res.disparity_range[1]}] px, {c['points']} points "
                     f"({100.0 * c['points'] / max(c['region_pixels'], 1):.1f} % of the view), {t['total']:.1f} s "
                     f"(" + ", ".join(f"{k} {v:.1f}" for k, v in t.items() if k not in ("total", "validate")) + ")")

@@ -51,7 +51,7 @@ def write_depth_outputs(result: DepthResult, out_dir: str | os.PathLike[str], *,
     target = Path(out_dir)
     with output_dir(target) as stage:
         write_pfm(stage / "disparity.pfm", result.disparity)
-        write_image(stage / "disparity.png", colorize_disparity(result.disparity))
+        write_image(stage / "disparity.png", colorize_disparity(result.disparity, colorbar="disparity (px)"))
         write_pfm(stage / "depth.pfm", result.depth)
         write_ply(stage / "points.ply", pts, cols)
         if report:

@@ -63,9 +63,10 @@ class DepthConfig:
         Matcher name (any of :func:`prismstereo.matching.available_matchers`).
     matcher_params : dict
         Keyword tuning parameters of the matcher.
-    depth_range : (min, max)
+    depth_range : (min, max) or None
         World depths to search, mm; the disparity search range follows from it (clipped to what the
-        common view of the two sub-images allows).
+        common view of the two sub-images allows). None: derived from the rig and the images
+        (:func:`prismstereo.depth.search_range.auto_search_range`).
     roi : (x, y, w, h) or None
         Region of interest in the rectified left image, pixels; None = the whole view.
     views : (i, j) or None
@@ -96,7 +97,7 @@ class DepthConfig:
 
     method: str = "bpasw"
     matcher_params: dict[str, Any] = field(default_factory=dict)
-    depth_range: tuple[float, float] = DEFAULT_DEPTH_RANGE_MM
+    depth_range: tuple[float, float] | None = DEFAULT_DEPTH_RANGE_MM
     roi: tuple[int, int, int, int] | None = None
     views: tuple[int, int] | None = None
     triangulation: str = "exact"
@@ -110,7 +111,7 @@ class DepthConfig:
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
-        d["depth_range"] = list(self.depth_range)
+        d["depth_range"] = list(self.depth_range) if self.depth_range is not None else None
         d["roi"] = list(self.roi) if self.roi is not None else None
         d["views"] = list(self.views) if self.views is not None else None
         return d
@@ -178,6 +179,13 @@ class DepthResult:
     ground_truth: Any = None
     confidence: np.ndarray | None = None
     stage_counts: dict[str, int] = field(default_factory=dict)
+    #: the depths searched (mm) and where they came from ("given", "rig", "rig+images")
+    depth_range: tuple[float, float] = (0.0, 0.0)
+    depth_range_source: str = "given"
+    #: one-line warnings: the result may be unreliable (also logged and written to run.json)
+    warnings: list[str] = field(default_factory=list)
+    raw_disparity: np.ndarray | None = None
+    raw_valid: np.ndarray | None = None
 
     @property
     def faces(self) -> tuple[int, int]:
@@ -216,6 +224,9 @@ class DepthResult:
             "image_size": [int(self.image.shape[1]), int(self.image.shape[0])],
             "rectified_size": [int(self.left.shape[1]), int(self.left.shape[0])] if self.left is not None else None,
             "disparity_range": list(self.disparity_range),
+            "depth_range_mm": [round(float(v), 1) for v in self.depth_range],
+            "depth_range_source": self.depth_range_source,
+            "warnings": list(self.warnings),
             "baseline_mm": float(getattr(self.pair, "baseline_mm", float("nan"))),
             "timings_s": {k: round(v, 4) for k, v in self.timings.items()},
             "matcher_timings_s": {k: round(v, 4) for k, v in self.match_timings.items()},
@@ -278,11 +289,14 @@ def validate_inputs(rig: Rig, image: Any, config: DepthConfig) -> tuple[np.ndarr
                           f"got {config.triangulation!r}")
     if config.calibration not in ("fit", "thesis"):
         raise ConfigError(f"calibration: expected 'fit' or 'thesis', got {config.calibration!r}")
-    zmin, zmax = (float(v) for v in config.depth_range)
-    back = rig.prism.back_distance
-    if not (math.isfinite(zmin) and math.isfinite(zmax)) or zmin <= back or zmax <= zmin:
-        raise ConfigError(f"--depth-range: expected MIN,MAX mm with {back:g} (the prism's back plane) < MIN "
-                          f"< MAX, got {zmin:g},{zmax:g}")
+    depth_range: tuple[float, float] | None = None
+    if config.depth_range is not None:
+        zmin, zmax = (float(v) for v in config.depth_range)
+        back = rig.prism.back_distance
+        if not (math.isfinite(zmin) and math.isfinite(zmax)) or zmin <= back or zmax <= zmin:
+            raise ConfigError(f"--depth-range: expected MIN,MAX mm with {back:g} (the prism's back plane) < MIN "
+                              f"< MAX, got {zmin:g},{zmax:g}")
+        depth_range = (zmin, zmax)
     views = config.views if config.views is not None else default_views(rig)
     if len(views) != 2:
         raise ConfigError(f"--views: expected two face indices I,J, got {list(views)}")
@@ -299,7 +313,7 @@ def validate_inputs(rig: Rig, image: Any, config: DepthConfig) -> tuple[np.ndarr
     if config.max_gap_mm is not None and not config.max_gap_mm > 0:
         raise ConfigError(f"max_gap_mm: expected a positive number, got {config.max_gap_mm!r}")
     resolved = DepthConfig(**{**asdict(config), "views": (int(views[0]), int(views[1])),
-                              "method": config.method.lower(), "depth_range": (zmin, zmax)})
+                              "method": config.method.lower(), "depth_range": depth_range})
     return img, resolved
 
 
@@ -389,11 +403,22 @@ def _stage_rectify(st: DepthResult) -> None:
     by_face = {v.face: v for v in st.views}
     a, b = st.config.views
     st.pair = rectify_pair(st.rig, by_face[a], by_face[b])
-    zmin, zmax = st.config.depth_range
-    common, (lo, hi) = common_view(st.pair, zmin, zmax)
     left, right = st.pair.rectify_images(st.image)
     st.left, st.right = np.asarray(left), np.asarray(right)
     width = st.left.shape[1]
+    if st.config.depth_range is None:
+        from prismstereo.depth.search_range import auto_search_range
+
+        found = auto_search_range(st.pair, st.rig.prism.back_distance, st.left, st.right)
+        st.warnings.extend(found.warnings)
+        zmin, zmax = found.depth_mm
+        common, _ = common_view(st.pair, zmin, zmax)
+        lo, hi = found.disparity_px
+        st.depth_range_source = found.source
+    else:
+        zmin, zmax = st.config.depth_range
+        common, (lo, hi) = common_view(st.pair, zmin, zmax)
+    st.depth_range = (zmin, zmax)
     hi = min(hi, width - 1)
     lo = min(lo, hi)
     st.disparity_range = (lo, hi)
@@ -457,6 +482,7 @@ def _stage_match(st: DepthResult) -> None:
     st.disparity = src
     st.match_timings = dict(res.timings)
     st.stage_counts["matched"] = int(np.isfinite(src).sum())
+    st.raw_disparity = disp
 
 
 def _real_pixels(st: DepthResult, ys: np.ndarray, xs: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -562,6 +588,17 @@ def _stage_triangulate(st: DepthResult) -> None:
     st.depth = np.where(valid, points[..., 2], np.nan).astype(np.float32)
 
 
+@register_stage("diagnose")
+def _stage_diagnose(st: DepthResult) -> None:
+    from prismstereo.depth.search_range import depth_warnings
+
+    c = st.counts()
+    st.warnings.extend(depth_warnings(
+        points=c["points"], region_pixels=c["region_pixels"], matched=c.get("matched", 0),
+        confident=c.get("refined"), disparity=st.raw_disparity, valid=None,
+        disparity_range=st.disparity_range, depth_range=st.depth_range))
+
+
 def _progress(total: int) -> Any:
     if not sys.stderr.isatty():
         return None
@@ -613,4 +650,6 @@ def run_depth(rig: Rig, image: Any, *, config: DepthConfig | None = None,
         if bar is not None:
             bar.close()
     st.timings["total"] = time.perf_counter() - t0
+    for line in st.warnings:
+        log.warning("%s", line)
     return st

@@ -147,7 +147,7 @@ def ground_truth_for_run(result: Any, *, scene: Any = None, depth_gt: np.ndarray
     points[ys, xs] = gt
 
     # (a) inside the depth range
-    zmin, zmax = result.config.depth_range
+    zmin, zmax = result.depth_range
     z = gt[:, 2]
     with np.errstate(invalid="ignore"):
         cand = np.isfinite(z) & (z >= zmin) & (z <= zmax)

@@ -2,7 +2,15 @@
 
 from __future__ import annotations
 
-from prismstereo.io.atomic import atomic_path, atomic_write_bytes, atomic_write_text, output_dir
+from prismstereo.io.atomic import (
+    atomic_path,
+    atomic_write_bytes,
+    atomic_write_text,
+    check_output_dir,
+    check_output_file,
+    output_dir,
+    output_files,
+)
 from prismstereo.io.images import read_image, write_image
 from prismstereo.io.jsonio import to_jsonable, write_json
 from prismstereo.io.pfm import read_pfm, write_pfm
@@ -12,7 +20,10 @@ __all__ = [
     "atomic_path",
     "atomic_write_bytes",
     "atomic_write_text",
+    "check_output_dir",
+    "check_output_file",
     "output_dir",
+    "output_files",
     "read_image",
     "read_pfm",
     "read_ply",

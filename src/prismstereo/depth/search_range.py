@@ -1,0 +1,236 @@
+"""The depth range a run searches when none is given, and the warnings that say a result is unreliable.
+
+A fixed default range (say 0.8–5 m) silently fails for every scene outside it: the matcher returns the
+nearest allowed disparity and the run reports success. Instead the range is derived
+
+1. from the rig: the depths at which the two rectified views share a sizeable part of their field
+   (:func:`view_overlap`: at least half the largest shared fraction, up to 100 m), and
+2. from the images: a coarse OpenCV SGBM match over that whole range on downsampled rectified views;
+   the 1st–99th percentiles of its consistent disparities, padded, give the range actually searched
+   (:func:`estimate_disparity_range`).
+
+When the images give too little support (noise, a photo that is no prism capture, no texture) the rig
+range is kept and a warning says so. :func:`depth_warnings` turns coverage, match confidence and the
+share of matches at the search limits into one-line warnings (also written to ``run.json``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from prismstereo.errors import GeometryError
+from prismstereo.matching.diagnostics import LIMIT_SHARE, limit_shares
+
+log = logging.getLogger(__name__)
+
+__all__ = ["SearchRange", "auto_search_range", "depth_warnings", "estimate_disparity_range", "view_overlap"]
+
+#: a depth is part of the rig's range when the views share at least this fraction of their best overlap
+OVERLAP_FRACTION = 0.5
+#: farthest depth considered, mm
+FAR_MM = 100_000.0
+#: consistent coarse matches (share of the common view) needed to trust the image-based range
+MIN_SUPPORT = 0.05
+#: warnings: fewer points than this share of the matched region
+MIN_COVERAGE = 0.2
+#: warnings: fewer confident (refined) matches than this share of the matcher's consistent ones
+MIN_CONFIDENT = 0.4
+
+
+@dataclass(frozen=True)
+class SearchRange:
+    """A resolved search range.
+
+    Attributes
+    ----------
+    depth_mm : (min, max)  world depths searched, mm.
+    disparity_px : (min, max)  integer disparities searched in the rectified pair.
+    source : str  ``"rig"`` (rig overlap only), ``"rig+images"`` (coarse match) or ``"given"``.
+    warnings : tuple of str
+    """
+
+    depth_mm: tuple[float, float]
+    disparity_px: tuple[int, int]
+    source: str
+    warnings: tuple[str, ...] = ()
+
+
+def view_overlap(pair: object, depths_mm: np.ndarray, *, stride: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Shared fraction of the rectified left view and the median disparity at each world depth.
+
+    Every ``stride``-th valid left pixel is followed along its ray to each depth and projected into the
+    rectified right view (thesis Eq. 7.22).
+
+    Returns
+    -------
+    fraction : (D,) float  share of the sampled left pixels whose point lands in the right view's valid region.
+    disparity : (D,) float  median disparity x_left − x_right of those samples, px (NaN where none).
+    """
+    vl, vr = (np.asarray(m, dtype=bool) for m in pair.valid_masks())  # type: ignore[attr-defined]
+    ys, xs = np.nonzero(vl[::stride, ::stride])
+    ys, xs = ys * stride, xs * stride
+    if ys.size == 0:
+        raise GeometryError("expected a rectified left view with valid pixels, got none")
+    px = np.stack([xs, ys], axis=1).astype(np.float64)
+    K = np.asarray(pair.K, dtype=np.float64)  # type: ignore[attr-defined]
+    R = np.asarray(pair.R_left, dtype=np.float64)  # type: ignore[attr-defined]
+    C = np.asarray(pair.C_left, dtype=np.float64)  # type: ignore[attr-defined]
+    rays = np.concatenate([px, np.ones((px.shape[0], 1))], axis=1) @ np.linalg.inv(K).T @ R
+    frac = np.zeros(len(depths_mm))
+    disp = np.full(len(depths_mm), np.nan)
+    for i, z in enumerate(depths_mm):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = (z - C[2]) / rays[:, 2]
+        X = C + np.where(s > 0, s, np.nan)[:, None] * rays
+        xr = np.asarray(pair.project(X, "right"), dtype=np.float64)  # type: ignore[attr-defined]
+        ok = np.all(np.isfinite(xr), axis=1)
+        ci = np.rint(np.where(ok, xr[:, 0], -1)).astype(np.int64)
+        ri = np.rint(np.where(ok, xr[:, 1], -1)).astype(np.int64)
+        ok &= (ci >= 0) & (ci < vr.shape[1]) & (ri >= 0) & (ri < vr.shape[0])
+        ok[ok] &= vr[ri[ok], ci[ok]]
+        frac[i] = ok.mean()
+        if ok.any():
+            disp[i] = float(np.median(px[ok, 0] - xr[ok, 0]))
+    return frac, disp
+
+
+def _rig_range(pair: object, back_mm: float) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
+    depths = np.geomspace(back_mm * 1.02, FAR_MM, 32)
+    frac, disp = view_overlap(pair, depths, stride=6)
+    if not (frac > 0).any():
+        raise GeometryError("expected the two views to share part of the scene at some depth, got views that "
+                            "never overlap (choose other --views)")
+    keep = np.flatnonzero(frac >= OVERLAP_FRACTION * frac.max())
+    return depths, disp, (float(depths[keep[0]]), float(depths[keep[-1]]))
+
+
+def _depth_of(d: float, depths: np.ndarray, disp: np.ndarray) -> float:
+    """World depth whose median disparity is ``d`` (disparity falls with depth)."""
+    ok = np.isfinite(disp)
+    dd, zz = disp[ok][::-1], np.log(depths[ok][::-1])  # increasing disparity
+    return float(np.exp(np.interp(d, dd, zz)))
+
+
+def estimate_disparity_range(left: np.ndarray, right: np.ndarray, region: np.ndarray, *, lo: int, hi: int
+                             ) -> tuple[tuple[int, int] | None, float]:
+    """Disparity range of the scene from a coarse SGBM match of the rectified views.
+
+    Parameters
+    ----------
+    left, right : (h, w, 3) or (h, w) uint8  rectified views.
+    region : (h, w) bool  the common view (pixels that may match).
+    lo, hi : int  the widest range the rig allows, px.
+
+    Returns
+    -------
+    ((min, max) or None, support)
+        The padded 1st–99th percentile of the coarse consistent disparities (None when fewer than
+        :data:`MIN_SUPPORT` of the region matched), and the share of the region that matched.
+    """
+    import cv2
+
+    s = max(1, int(math.ceil((hi - lo) / 64.0)))
+    h, w = left.shape[:2]
+    size = (max(8, w // s), max(8, h // s))
+    gl = left if left.ndim == 2 else cv2.cvtColor(np.ascontiguousarray(left), cv2.COLOR_RGB2GRAY)
+    gr = right if right.ndim == 2 else cv2.cvtColor(np.ascontiguousarray(right), cv2.COLOR_RGB2GRAY)
+    cl = cv2.resize(gl, size, interpolation=cv2.INTER_AREA)
+    cr = cv2.resize(gr, size, interpolation=cv2.INTER_AREA)
+    cm = cv2.resize(region.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST).astype(bool)
+    cm = cv2.erode(cm.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    dmin = int(math.floor(lo / s))
+    num = int(16 * math.ceil((math.ceil(hi / s) - dmin + 2) / 16.0))
+    # padding on the left keeps SGBM from dropping the first min+num columns of the left view
+    pad = dmin + num
+    cl_p = cv2.copyMakeBorder(cl, 0, 0, pad, 0, cv2.BORDER_CONSTANT, value=0)
+    cr_p = cv2.copyMakeBorder(cr, 0, 0, pad, 0, cv2.BORDER_CONSTANT, value=0)
+    block = 5
+    sgbm = cv2.StereoSGBM_create(minDisparity=dmin, numDisparities=num, blockSize=block, P1=8 * block * block,
+                                 P2=32 * block * block, disp12MaxDiff=1, uniquenessRatio=15, speckleWindowSize=50,
+                                 speckleRange=2, mode=cv2.STEREO_SGBM_MODE_SGBM)
+    d = sgbm.compute(cl_p, cr_p)[:, pad:].astype(np.float32) / 16.0
+    ok = cm & (d >= dmin) & (d <= dmin + num - 1)
+    support = float(ok.sum()) / max(int(cm.sum()), 1)
+    if support < MIN_SUPPORT:
+        return None, support
+    p1, p99 = np.percentile(d[ok], [1.0, 99.0])
+    margin = max(3.0 * s, 0.1 * (p99 - p1) * s, 4.0)
+    rlo = max(lo, int(math.floor(p1 * s - margin)))
+    rhi = min(hi, int(math.ceil(p99 * s + margin)))
+    if rhi <= rlo:
+        return None, support
+    return (rlo, rhi), support
+
+
+def auto_search_range(pair: object, back_mm: float, left: np.ndarray, right: np.ndarray) -> SearchRange:
+    """The depth and disparity range to search when the user gave none (see the module docstring)."""
+    from prismstereo.depth.pipeline import common_view
+
+    depths, disp, (zmin, zmax) = _rig_range(pair, back_mm)
+    region, (dlo, dhi) = common_view(pair, zmin, zmax)
+    dhi = min(dhi, left.shape[1] - 1)
+    dlo = min(dlo, dhi)
+    est, support = estimate_disparity_range(left, right, region, lo=dlo, hi=dhi)
+    if est is None:
+        msg = (f"could not find the scene's disparities in the images (only {100 * support:.1f} % of the common "
+               f"view matched coarsely: too little texture, or not a capture of this prism): searching the whole "
+               f"range the rig allows, {zmin:.0f}–{zmax:.0f} mm; pass --depth-range MIN,MAX to narrow it")
+        return SearchRange((zmin, zmax), (dlo, dhi), "rig", (msg,))
+    lo, hi = est
+    z_near = _depth_of(hi, depths, disp)
+    z_far = _depth_of(lo, depths, disp) if lo > np.nanmin(disp) else zmax
+    z_near, z_far = max(z_near, zmin), min(max(z_far, z_near * 1.01), zmax)
+    return SearchRange((z_near, z_far), (lo, hi), "rig+images")
+
+
+def depth_warnings(*, points: int, region_pixels: int, matched: int, confident: int | None,
+                   disparity: np.ndarray | None, valid: np.ndarray | None, disparity_range: tuple[int, int],
+                   depth_range: tuple[float, float]) -> list[str]:
+    """One-line warnings about a finished depth run (empty when nothing looks wrong).
+
+    Parameters
+    ----------
+    points : valid triangulated points.  region_pixels : pixels of the matched region.
+    matched : matches that passed the matcher's left–right check.  confident : of those, the refined
+        confident ones (None when refinement was off).
+    disparity, valid : the matcher's raw disparity and its consistency mask (for the limit shares).
+    disparity_range, depth_range : what was searched.
+    """
+    zr = f"{depth_range[0]:.0f}–{depth_range[1]:.0f} mm"
+    if points == 0:
+        return [f"no depth recovered: nothing in the searched depth range {zr} matched (wrong --depth-range, "
+                "or the image is not a capture of this prism rig)"]
+    out: list[str] = []
+    coverage = points / max(region_pixels, 1)
+    if coverage < MIN_COVERAGE:
+        out.append(f"only {100 * coverage:.1f} % of the common view got a depth: the result is unreliable "
+                   f"(scene outside {zr}, too little texture, or not a capture of this prism rig)")
+    if confident is not None and matched > 0 and confident / matched < MIN_CONFIDENT:
+        out.append(f"only {100 * confident / matched:.1f} % of the matches are confident after refinement: the "
+                   "images do not look like two views of one scene (not a prism capture of this rig?)")
+    if disparity is not None:
+        lo, hi = disparity_range
+        at_lo, at_hi, n = limit_shares(disparity, valid, min_disp=lo, max_disp=hi)
+        if n and at_hi > LIMIT_SHARE:
+            out.append(f"{100 * at_hi:.1f} % of the matches sit at the nearest searched depth ({hi} px): parts "
+                       f"of the scene are probably nearer than {zr} (widen --depth-range)")
+        if n and at_lo > LIMIT_SHARE and lo > 0:
+            out.append(f"{100 * at_lo:.1f} % of the matches sit at the farthest searched depth ({lo} px): parts "
+                       f"of the scene are probably farther than {zr} (widen --depth-range)")
+    return out
+
+
+def auto_search_range_of_capture(rig: object, image: np.ndarray, *, faces: tuple[int, int],
+                                 calibration: str = "fit") -> SearchRange:
+    """:func:`auto_search_range` for a capture: calibrates and rectifies the pair ``faces`` first."""
+    from prismstereo.cameras import calibrate_rig
+    from prismstereo.rectify.rectification import rectify_pair
+
+    by_face = {v.face: v for v in calibrate_rig(rig, method=calibration)}  # type: ignore[arg-type]
+    pair = rectify_pair(rig, by_face[faces[0]], by_face[faces[1]])  # type: ignore[arg-type]
+    left, right = pair.rectify_images(image)
+    return auto_search_range(pair, rig.prism.back_distance, np.asarray(left), np.asarray(right))  # type: ignore[attr-defined]
