@@ -137,6 +137,8 @@ def _cmd_match(args: argparse.Namespace) -> int:
     import numpy as np
 
     from prismstereo.io import check_output_file, output_files, read_image, write_image, write_pfm
+    from prismstereo.io.images import image_size
+    from prismstereo.io.memory import check_fits_in_memory
     from prismstereo.matching import get_matcher, match
     from prismstereo.matching.diagnostics import limit_warnings
     from prismstereo.viz.colorize import colorize_disparity
@@ -151,10 +153,17 @@ def _cmd_match(args: argparse.Namespace) -> int:
     png = out.with_suffix(".png")
     check_output_file(out)  # before any work
     check_output_file(png)
+    size = image_size(args.left)  # header only: refuse a cost volume that cannot fit before decoding
+    if size is not None:
+        check_fits_in_memory(size[0] * size[1] * (args.max_disp - args.min_disp + 1) * 4 * 3,
+                             what=f"the cost volume of a {size[0]}×{size[1]} pair over "
+                                  f"{args.max_disp - args.min_disp + 1} disparities",
+                             hint="use smaller images or a narrower --min-disp/--max-disp", error=ConfigError)
     left, right = read_image(args.left), read_image(args.right)
     res = match(left, right, max_disp=args.max_disp, min_disp=args.min_disp, method=args.method, **params)
     d = res.disparity
-    for line in limit_warnings(d, res.valid, min_disp=args.min_disp, max_disp=args.max_disp):
+    region = (left.reshape(left.shape[0], left.shape[1], -1) > 0).any(axis=2)  # not a black rectification border
+    for line in limit_warnings(d, res.valid, min_disp=args.min_disp, max_disp=args.max_disp, region=region):
         log.warning("%s", line)
     with output_files([out, png]) as (tmp_pfm, tmp_png):
         write_pfm(tmp_pfm, d)

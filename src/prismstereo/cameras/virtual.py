@@ -15,6 +15,8 @@ reference they are measured against.
 
 from __future__ import annotations
 
+import math
+
 import logging
 import os
 from dataclasses import dataclass
@@ -85,8 +87,25 @@ def face_pixels(rig: Rig, face: int, *, step: float = 8.0, margin: float = 0.0) 
             keep &= trace_pixels(rig, grid + np.array(off)).face == face
     pts = grid[keep]
     if pts.shape[0] < 8:
-        raise GeometryError(f"expected face {face} to be seen by the camera, got {pts.shape[0]} sample pixels")
+        raise GeometryError(unseen_face_message(rig, face, int(pts.shape[0])))
     return pts
+
+
+def unseen_face_message(rig: Rig, face: int, n: int) -> str:
+    """One line naming the prism parameter that keeps ``face`` out of the picture, with its valid range.
+
+    A camera ray meets a face at about the corner angle α; beyond the critical angle asin(1/n) it is
+    totally reflected inside the glass and the face shows nothing.
+    """
+    p = rig.prism
+    critical = math.degrees(math.asin(1.0 / p.refractive_index))
+    if p.corner_angle >= critical:
+        return (f"[prism] corner_angle: expected degrees in (0, {critical:.1f}) for refractive_index "
+                f"{p.refractive_index:g} (beyond asin(1/n) the rays are totally reflected inside the prism), got "
+                f"{p.corner_angle:g} (face {face} is seen by {n} sample pixels; docs/rig.md)")
+    return (f"expected face {face} to be seen by the camera, got {n} sample pixels: check [prism] faces "
+            f"({p.faces}), corner_angle ({p.corner_angle:g}°, valid 0–{critical:.1f}° here), apex_distance "
+            f"({p.apex_distance:g} mm) and rotation against the camera's field of view (docs/rig.md)")
 
 
 def _check_face(rig: Rig, face: int) -> None:
@@ -110,7 +129,7 @@ def sample_points(
     b = trace_pixels(rig, px)
     keep = np.flatnonzero(b.face == face)[:n]
     if keep.size < 8:
-        raise GeometryError(f"expected face {face} to be seen by the camera, got {keep.size} sample pixels")
+        raise GeometryError(unseen_face_message(rig, face, int(keep.size)))
     z = rng.uniform(depth_range[0], depth_range[1], size=keep.size)
     pts = _points_at_depth(b, keep, z)
     return px[keep], pts

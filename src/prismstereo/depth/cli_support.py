@@ -42,7 +42,8 @@ def depth_command(rig_path: str, image_path: str, out_dir: str, *, method: str =
 
     rig = load_rig(rig_path)
     check_output_dir(out_dir)
-    image = read_image(image_path)
+    image = read_image(image_path, expected_size=(rig.camera.width, rig.camera.height),
+                       what="capture (the rig's camera size)")
     if views == "all" and rig.prism.faces >= 3:
         # every face at once: plane sweep in a reference view + exact multi-ray triangulation (multiview)
         from prismstereo.depth.pipeline import validate_image

@@ -174,7 +174,9 @@ def evaluate_method(method: str, *, data_dir: str | os.PathLike[str] | None = No
     dict
         ``{"method", "params", "scenes": {name: {bad, mae, seconds, ...}}, "average": {...}}``.
     """
-    from prismstereo.io import write_image, write_json, write_pfm
+    from tqdm import tqdm
+
+    from prismstereo.io import check_output_dir, output_dir, write_image, write_json, write_pfm
     from prismstereo.matching import get_matcher, match
     from prismstereo.viz.colorize import colorize_disparity
 
@@ -185,9 +187,12 @@ def evaluate_method(method: str, *, data_dir: str | os.PathLike[str] | None = No
             raise ConfigError(f"expected scenes among {', '.join(SCENES)}, got {s!r}")
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
+        check_output_dir(out)  # before any work; nothing is created until every scene is done
     per: dict[str, Any] = {}
-    for s in scenes:
+    maps: dict[str, tuple[np.ndarray, int]] = {}
+    bar = tqdm(scenes, desc=f"evaluate {method}", unit="scene", leave=False, disable=None)
+    for s in bar:
+        bar.set_postfix_str(s)
         scene = load_scene(s, root)
         t = time.perf_counter()
         res = match(scene.left, scene.right, max_disp=scene.max_disp, method=method, **params)
@@ -200,9 +205,7 @@ def evaluate_method(method: str, *, data_dir: str | os.PathLike[str] | None = No
         per[scene.name] = ev
         log.info("%s %s: bad1 nonocc %.2f %% (%.2f s)", method, s, ev["bad"]["1.0"]["nonocc"], seconds)
         if out is not None:
-            write_pfm(out / f"{scene.name}.pfm", res.disparity)
-            write_image(out / f"{scene.name}.png",
-                        colorize_disparity(res.disparity, vmin=0.0, vmax=float(scene.max_disp)))
+            maps[scene.name] = (res.disparity, scene.max_disp)
     avg: dict[str, float] = {m: float(np.mean([per[s]["bad"]["1.0"][m] for s in per])) for m in MASKS}
     avg["bad0.5_nonocc"] = float(np.mean([per[s]["bad"]["0.5"]["nonocc"] for s in per]))
     avg["bad2.0_nonocc"] = float(np.mean([per[s]["bad"]["2.0"]["nonocc"] for s in per]))
@@ -210,6 +213,11 @@ def evaluate_method(method: str, *, data_dir: str | os.PathLike[str] | None = No
     avg["seconds"] = float(np.mean([per[s]["seconds"] for s in per]))
     results = {"method": method, "params": params, "protocol": "Middlebury v2, bad if |d-gt|>t over "
                "mask==255, NaN estimates bad", "scenes": per, "average": avg}
-    if out is not None:
-        write_json(out / "results.json", results)
+    if out is not None:  # all scenes' files appear together, or none (a broken scene, Ctrl-C)
+        with output_dir(out) as stage:
+            for name, (disp, max_disp) in maps.items():
+                write_pfm(stage / f"{name}.pfm", disp)
+                write_image(stage / f"{name}.png", colorize_disparity(disp, vmin=0.0, vmax=float(max_disp),
+                                                                     colorbar="disparity (px)"))
+            write_json(stage / "results.json", results)
     return results

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from prismstereo.errors import ConfigError
-from prismstereo.io.atomic import atomic_write_text
+from prismstereo.io.atomic import atomic_write_text, check_output_dir, output_dir
 from prismstereo.io.jsonio import write_json
 
 #: table name -> module that implements it
@@ -58,8 +58,10 @@ def reproduce_table(name: str, out_dir: str | os.PathLike[str], *, data_dir: Pat
         if exc.name == TABLE_MODULES[key]:
             raise ConfigError(f"{key} is not implemented yet") from None
         raise
-    result: TableResult = module.reproduce(data_dir=data_dir, quick=quick)
     out = Path(out_dir)
-    atomic_write_text(out / f"{key}.md", result.markdown)
-    write_json(out / f"{key}.json", {"table": key, **result.data})
+    check_output_dir(out)  # before the (long) measurement
+    result: TableResult = module.reproduce(data_dir=data_dir, quick=quick)
+    with output_dir(out) as stage:  # the .md and the .json appear together
+        atomic_write_text(stage / f"{key}.md", result.markdown)
+        write_json(stage / f"{key}.json", {"table": key, **result.data})
     return result

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -11,23 +13,152 @@ import numpy as np
 from prismstereo.errors import ImageError
 from prismstereo.io.atomic import atomic_path
 
+__all__ = ["image_size", "read_image", "write_image"]
 
-def read_image(path: str | os.PathLike[str], *, gray: bool = False) -> np.ndarray:
-    """Read an 8- or 16-bit image file as RGB (H×W×3) or gray (H×W) ``uint8``/``uint16``.
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}
+#: decoded bytes of an image times this must fit in the memory available (decode, colour conversion,
+#: the float copies of the first processing step)
+_MEMORY_FACTOR = 8
+
+
+def _png_header(data: bytes, shown: str) -> tuple[int, int, int]:
+    """(width, height, decoded bytes) of a PNG, after checking that every chunk is complete and intact.
+
+    Walking the chunks (lengths and CRCs, no decompression) finds truncated or damaged files before the
+    decoder does, so libpng never prints its own messages.
+    """
+    import zlib
+
+    if len(data) < 33 or data[12:16] != b"IHDR":
+        raise ImageError(f"expected a PNG image, got {shown!r} (no PNG header: damaged file)")
+    pos, seen_end = 8, False
+    while pos + 8 <= len(data):
+        length = int.from_bytes(data[pos:pos + 4], "big")
+        kind = data[pos + 4:pos + 8]
+        end = pos + 12 + length
+        if end > len(data):
+            raise ImageError(f"expected a complete PNG image, got {shown!r} (truncated in its "
+                             f"{kind.decode('latin-1')!r} chunk)")
+        crc = int.from_bytes(data[end - 4:end], "big")
+        if zlib.crc32(data[pos + 4:end - 4]) & 0xFFFFFFFF != crc:
+            raise ImageError(f"expected an intact PNG image, got {shown!r} (damaged {kind.decode('latin-1')!r} "
+                             "chunk: checksum mismatch)")
+        pos = end
+        if kind == b"IEND":
+            seen_end = True
+            break
+    if not seen_end:
+        raise ImageError(f"expected a complete PNG image, got {shown!r} (truncated: no end chunk)")
+    w = int.from_bytes(data[16:20], "big")
+    h = int.from_bytes(data[20:24], "big")
+    depth, ctype = data[24], data[25]
+    channels = _PNG_CHANNELS.get(ctype, 4)
+    return w, h, w * h * max(channels, 3) * (2 if depth == 16 else 1)
+
+
+def _jpeg_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) from a JPEG's start-of-frame marker, or None if not found."""
+    pos = 2
+    while pos + 9 < len(data):
+        if data[pos] != 0xFF:
+            return None
+        marker = data[pos + 1]
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
+            pos += 2
+            continue
+        length = int.from_bytes(data[pos + 2:pos + 4], "big")
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            h = int.from_bytes(data[pos + 5:pos + 7], "big")
+            w = int.from_bytes(data[pos + 7:pos + 9], "big")
+            return w, h
+        pos += 2 + length
+    return None
+
+
+def image_size(path: str | os.PathLike[str]) -> tuple[int, int] | None:
+    """(width, height) of a PNG or JPEG file from its header (no decoding), or None for other formats.
 
     Raises
     ------
     ImageError
-        If the file does not exist, is empty or cannot be decoded.
+        If the file is missing, empty, or a truncated or damaged PNG.
     """
     p = Path(path)
+    data = _read_bytes(p)
+    if data[:8] == _PNG_SIGNATURE:
+        w, h, _ = _png_header(data, str(p))
+        return w, h
+    if data[:2] == b"\xff\xd8":
+        return _jpeg_size(data)
+    return None
+
+
+def _read_bytes(p: Path) -> bytes:
     if not p.is_file():
         raise ImageError(f"expected an image file, got {str(p)!r} (no such file)")
     if p.stat().st_size == 0:
         raise ImageError(f"expected an image file, got {str(p)!r} (empty file)")
-    data = np.fromfile(p, dtype=np.uint8)
+    try:
+        return p.read_bytes()
+    except OSError as exc:
+        raise ImageError(f"expected a readable image file, got {str(p)!r} ({exc.strerror})") from None
+
+
+@contextlib.contextmanager
+def _decoder_messages_silenced() -> Iterator[None]:
+    """Keep libpng/libjpeg from printing to the process's stderr (the failure becomes an ImageError)."""
+    try:
+        saved = os.dup(2)
+    except OSError:  # no stderr to protect
+        yield
+        return
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+def read_image(path: str | os.PathLike[str], *, gray: bool = False,
+               expected_size: tuple[int, int] | None = None, what: str = "image") -> np.ndarray:
+    """Read an 8- or 16-bit image file as RGB (H×W×3) or gray (H×W) ``uint8``/``uint16``.
+
+    The header is read first: a PNG is checked to be complete and intact, and its size (PNG, JPEG) is
+    compared with ``expected_size`` (width, height) and with the memory available before anything is
+    decoded.
+
+    Raises
+    ------
+    ImageError
+        If the file does not exist, is empty, truncated, damaged, of the wrong size, too large for the
+        memory, or cannot be decoded.
+    """
+    from prismstereo.io.memory import check_fits_in_memory
+
+    p = Path(path)
+    raw = _read_bytes(p)
+    size: tuple[int, int] | None = None
+    decoded = None
+    if raw[:8] == _PNG_SIGNATURE:
+        w, h, decoded = _png_header(raw, str(p))
+        size = (w, h)
+    elif raw[:2] == b"\xff\xd8":
+        size = _jpeg_size(raw)
+        decoded = None if size is None else size[0] * size[1] * 3
+    if size is not None and expected_size is not None and tuple(size) != tuple(expected_size):
+        ew, eh = expected_size
+        raise ImageError(f"expected a {ew}×{eh} {what}, got {size[0]}×{size[1]} ({str(p)!r})")
+    if size is not None and decoded is not None:
+        check_fits_in_memory(decoded * _MEMORY_FACTOR, what=f"the {size[0]}×{size[1]} image {str(p)!r}",
+                             hint="use a smaller image", error=ImageError)
+    data = np.frombuffer(raw, dtype=np.uint8)
     flags = cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_UNCHANGED
-    img = cv2.imdecode(data, flags)
+    with _decoder_messages_silenced():
+        img = cv2.imdecode(data, flags)
     if img is None:
         raise ImageError(f"expected a readable image (PNG, JPEG, PPM, ...), got {str(p)!r} (cannot decode)")
     if img.ndim == 3:

@@ -483,7 +483,8 @@ def all_views_command(rig_path: str | os.PathLike[str], image_path: str | os.Pat
     from prismstereo.io import read_image
 
     rig = load_rig(rig_path)
-    image = read_image(image_path)
+    image = read_image(image_path, expected_size=(rig.camera.width, rig.camera.height),
+                       what="capture (the rig's camera size)")
     depth_gt = None
     if gt is not None:
         depth_gt = read_depth_gt(gt, rig)

@@ -14,7 +14,7 @@ import numpy as np
 from prismstereo.cameras import calibrate_rig
 from prismstereo.config import load_rig
 from prismstereo.errors import ConfigError
-from prismstereo.io import output_dir, read_image, write_image, write_json
+from prismstereo.io import check_output_dir, output_dir, read_image, write_image, write_json
 from prismstereo.rectify.rectification import RectifiedPair, rectify_pair, rectify_views
 from prismstereo.rectify.regions import check_image_size, view_regions
 
@@ -70,8 +70,10 @@ def rectify_to_folder(
     from prismstereo.viz.epipolar import epipolar_after, epipolar_after_views, epipolar_before, pick_points
 
     rig = load_rig(rig_path)
-    image = read_image(image_path)
-    check_image_size(image, rig)  # before any work
+    check_output_dir(out_dir)  # before any work
+    image = read_image(image_path, expected_size=(rig.camera.width, rig.camera.height),
+                       what="capture (the rig's sensor size)")
+    check_image_size(image, rig)
     n = rig.prism.faces
     if views is None or views == "all":
         faces = tuple(range(n))

@@ -11,7 +11,8 @@ import numpy as np
 
 from prismstereo.config import Rig
 from prismstereo.errors import ConfigError
-from prismstereo.io import atomic_write_text, output_dir, write_image, write_pfm
+from prismstereo.io import atomic_write_text, check_output_dir, output_dir, write_image, write_pfm
+from prismstereo.io.memory import check_fits_in_memory
 from prismstereo.simulate.render import Capture, render_capture
 from prismstereo.simulate.scene import Scene
 from prismstereo.simulate.scene_toml import load_scene, scene_to_toml
@@ -56,6 +57,14 @@ def write_capture(out_dir: str | os.PathLike[str], rig: Rig, scene: Scene, captu
     atomic_write_text(d / "scene.toml", scene_to_toml(rig, scene))
 
 
+def check_render_memory(rig: Rig, scene: Scene) -> None:
+    """Refuse (ConfigError) a render whose buffers cannot fit in the memory available now."""
+    w, h, ss = rig.camera.width, rig.camera.height, scene.supersample
+    # per supersample: ray origin + direction (float64 ×6), hit depth, face, colour (float64 ×3): ~100 bytes
+    check_fits_in_memory(w * h * ss * ss * 100, what=f"a {w}×{h} render with {ss}×{ss} samples per pixel",
+                         hint="lower [camera] width/height (docs/rig.md) or --supersample", error=ConfigError)
+
+
 def simulate_to_folder(
     scene_path: str | os.PathLike[str],
     out_dir: str | os.PathLike[str],
@@ -83,6 +92,8 @@ def simulate_to_folder(
         if isinstance(supersample, bool) or not isinstance(supersample, int | np.integer) or not 1 <= supersample <= 16:
             raise ConfigError(f"--supersample: expected an integer in 1..16, got {supersample!r}")
         scene = replace(scene, supersample=int(supersample))
+    check_output_dir(out_dir)  # before the render
+    check_render_memory(rig, scene)
     capture = render_capture(rig, scene)
     with output_dir(out_dir) as staging:
         write_capture(staging, rig, scene, capture)
