@@ -69,7 +69,6 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     from prismstereo.cameras import calibrate_rig, cameras_table, write_cameras_json
     from prismstereo.config import load_rig
-
     from prismstereo.io import check_output_file
 
     rig = load_rig(args.rig)
@@ -81,12 +80,18 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+_MIDDLEBURY_HELP = ("Middlebury folder (default $PRISMSTEREO_MIDDLEBURY, else ../shared/data/middlebury). "
+                     "The v2 scenes come from https://vision.middlebury.edu/stereo/data/ (2003: teddy, cones; "
+                     "2001: tsukuba, venus); layout: DIR/<scene>/left.png, right.png, disp_left.png "
+                     "(ground truth x scale, 0 = unknown), nonocc.png, all.png, disc.png (see docs/formats.md)")
+
+
 # --------------------------------------------------------------------------- reproduce
 def _add_reproduce(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("reproduce", help="re-measure a thesis table beside the thesis's numbers")
     p.add_argument("table", help="table3.4, table4.3, table5.1, table6.1, table6.2, table7.1 or table7.2")
     p.add_argument("-o", "--output", required=True, help="output folder (markdown + JSON)")
-    p.add_argument("--data", default=None, help="Middlebury folder (default ../shared/data/middlebury)")
+    p.add_argument("--data", default=None, help=_MIDDLEBURY_HELP)
     p.add_argument("--quick", action="store_true", help="smaller, faster run (for smoke tests)")
     p.set_defaults(handler=_cmd_reproduce)
 
@@ -162,7 +167,7 @@ def _cmd_match(args: argparse.Namespace) -> int:
     left, right = read_image(args.left), read_image(args.right)
     res = match(left, right, max_disp=args.max_disp, min_disp=args.min_disp, method=args.method, **params)
     d = res.disparity
-    region = (left.reshape(left.shape[0], left.shape[1], -1) > 0).any(axis=2)  # not a black rectification border
+    region = np.asarray((left.reshape(left.shape[0], left.shape[1], -1) > 0).any(axis=2))  # not a black border
     for line in limit_warnings(d, res.valid, min_disp=args.min_disp, max_disp=args.max_disp, region=region):
         log.warning("%s", line)
     with output_files([out, png]) as (tmp_pfm, tmp_png):
@@ -182,7 +187,7 @@ def _cmd_match(args: argparse.Namespace) -> int:
 def _add_evaluate(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("evaluate", help="evaluate a matcher on a benchmark (middlebury)")
     p.add_argument("benchmark", choices=["middlebury"], help="benchmark name")
-    p.add_argument("--data", default=None, help="Middlebury folder (default ../shared/data/middlebury)")
+    p.add_argument("--data", default=None, help=_MIDDLEBURY_HELP)
     p.add_argument("--method", default="bpasw", help="matcher name")
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--scenes", default=None, help="comma-separated subset of tsukuba,venus,teddy,cones")

@@ -267,7 +267,7 @@ def rig_from_dict(data: Mapping[str, Any], *, name: str = "rig", extra_sections:
         raise ConfigError(f"rig: unknown table(s) {', '.join(unknown)}; expected [camera] and [prism]")
     for section in ("camera", "prism"):
         if section not in data:
-            raise ConfigError(f"rig: missing table [{section}]; see DESIGN.md §4 for the rig layout")
+            raise ConfigError(f"rig: missing table [{section}]; see docs/rig.md for the rig layout")
     cam = data["camera"]
     _check_keys("camera", cam, _CAMERA_REQUIRED, _CAMERA_OPTIONAL)
     prism = data["prism"]

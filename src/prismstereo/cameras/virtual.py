@@ -15,9 +15,8 @@ reference they are measured against.
 
 from __future__ import annotations
 
-import math
-
 import logging
+import math
 import os
 from dataclasses import dataclass
 from itertools import combinations
@@ -91,21 +90,36 @@ def face_pixels(rig: Rig, face: int, *, step: float = 8.0, margin: float = 0.0) 
     return pts
 
 
-def unseen_face_message(rig: Rig, face: int, n: int) -> str:
-    """One line naming the prism parameter that keeps ``face`` out of the picture, with its valid range.
+def max_corner_angle(refractive_index: float) -> float:
+    """Largest corner angle (degrees) at which a ray along the optical axis still crosses the prism.
 
-    A camera ray meets a face at about the corner angle α; beyond the critical angle asin(1/n) it is
-    totally reflected inside the glass and the face shows nothing.
+    The ray meets a face at the corner angle α, bends to β = asin(sin α / n) and reaches the back plane at
+    α − β from its normal; it is totally reflected there once n·sin(α − β) > 1 (solved by bisection).
     """
+    n = refractive_index
+    crit = math.asin(1.0 / n)
+    lo, hi = 0.0, math.pi / 2
+    for _ in range(60):
+        a = (lo + hi) / 2
+        if a - math.asin(math.sin(a) / n) < crit:
+            lo = a
+        else:
+            hi = a
+    return math.degrees(lo)
+
+
+def unseen_face_message(rig: Rig, face: int, n: int) -> str:
+    """One line naming the prism parameter that keeps ``face`` out of the picture, with its valid range."""
     p = rig.prism
-    critical = math.degrees(math.asin(1.0 / p.refractive_index))
-    if p.corner_angle >= critical:
-        return (f"[prism] corner_angle: expected degrees in (0, {critical:.1f}) for refractive_index "
-                f"{p.refractive_index:g} (beyond asin(1/n) the rays are totally reflected inside the prism), got "
+    limit = max_corner_angle(p.refractive_index)
+    if p.corner_angle >= limit - 2.0:
+        return (f"[prism] corner_angle: expected degrees in (0, {limit:.1f}) for refractive_index "
+                f"{p.refractive_index:g} (beyond, the camera's rays are totally reflected inside the prism), got "
                 f"{p.corner_angle:g} (face {face} is seen by {n} sample pixels; docs/rig.md)")
     return (f"expected face {face} to be seen by the camera, got {n} sample pixels: check [prism] faces "
-            f"({p.faces}), corner_angle ({p.corner_angle:g}°, valid 0–{critical:.1f}° here), apex_distance "
-            f"({p.apex_distance:g} mm) and rotation against the camera's field of view (docs/rig.md)")
+            f"({p.faces}), corner_angle ({p.corner_angle:g}°, at most {limit:.1f}° for n = "
+            f"{p.refractive_index:g}), apex_distance ({p.apex_distance:g} mm) and rotation against the camera's "
+            f"field of view (docs/rig.md)")
 
 
 def _check_face(rig: Rig, face: int) -> None:

@@ -7,9 +7,8 @@ the options; the geometry (views that do not overlap) is checked by rectificatio
 
 from __future__ import annotations
 
-from typing import Any
-
 import logging
+from typing import Any
 
 from prismstereo.errors import ConfigError
 from prismstereo.io.atomic import check_output_dir

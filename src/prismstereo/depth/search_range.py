@@ -149,9 +149,9 @@ def estimate_disparity_range(left: np.ndarray, right: np.ndarray, region: np.nda
     cl_p = cv2.copyMakeBorder(cl, 0, 0, pad, 0, cv2.BORDER_CONSTANT, value=0)
     cr_p = cv2.copyMakeBorder(cr, 0, 0, pad, 0, cv2.BORDER_CONSTANT, value=0)
     block = 5
-    sgbm = cv2.StereoSGBM_create(minDisparity=dmin, numDisparities=num, blockSize=block, P1=8 * block * block,
-                                 P2=32 * block * block, disp12MaxDiff=1, uniquenessRatio=15, speckleWindowSize=50,
-                                 speckleRange=2, mode=cv2.STEREO_SGBM_MODE_SGBM)
+    sgbm = cv2.StereoSGBM_create(  # type: ignore[attr-defined]
+        minDisparity=dmin, numDisparities=num, blockSize=block, P1=8 * block * block, P2=32 * block * block,
+        disp12MaxDiff=1, uniquenessRatio=15, speckleWindowSize=50, speckleRange=2, mode=cv2.STEREO_SGBM_MODE_SGBM)
     d = sgbm.compute(cl_p, cr_p)[:, pad:].astype(np.float32) / 16.0
     ok = cm & (d >= dmin) & (d <= dmin + num - 1)
     support = float(ok.sum()) / max(int(cm.sum()), 1)

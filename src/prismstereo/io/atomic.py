@@ -256,11 +256,12 @@ def output_dir(path: str | os.PathLike[str]) -> Iterator[Path]:
         os.chmod(staging, 0o777 & ~_umask())  # mkdtemp makes it owner-only; it may become the output folder
         try:
             yield staging
+        except OutputError as exc:  # name the output the user asked for, not the staging folder
+            raise OutputError(str(exc).replace(str(staging), str(target))) from None
         except OSError as exc:
-            if isinstance(exc, OutputError):
-                raise
             where = exc.filename if isinstance(exc.filename, str) else shown
-            raise OutputError(f"could not write into {shown!r} ({where}): {_why(exc)}") from None
+            where = where.replace(str(staging), str(target))
+            raise OutputError(f"could not write {where!r}: {_why(exc)}") from None
         if not exists and not target.exists():
             _make_parents(target.parent, shown)
             try:

@@ -292,7 +292,10 @@ def depth_all_views(rig: Rig, capture: Any, *, method: str = "sweep",
         out = np.where(cnt > 1e-3, agg / np.maximum(cnt, np.float32(1e-3)), np.float32(np.nan))
         return out.astype(np.float32), seen, uv
 
-    for k in range(nk):  # loop over depth hypotheses (planes), not pixels
+    from tqdm import tqdm
+
+    # loop over depth hypotheses (planes), not pixels; a bar on a terminal only
+    for k in tqdm(range(nk), desc="depth --views all: plane sweep", unit="plane", leave=False, disable=None):
         pts = point_at(depths[k])
         acc = np.zeros((h, w), np.float32)
         n = np.zeros((h, w), np.float32)
@@ -438,23 +441,26 @@ def depth_accuracy(result: AllViewsDepth, depth_gt: npt.NDArray[np.floating], *,
 def write_all_views_outputs(result: AllViewsDepth, out_dir: str | os.PathLike[str], *,
                             extra: dict[str, Any] | None = None) -> dict[str, Path]:
     """Write an all-view result all-or-nothing: ``depth.pfm`` (Z mm per REAL capture pixel, inf = none),
-    ``depth.png`` (colourised), ``views.png`` (number of views that triangulated each pixel, ×60 grey),
-    ``points.ply`` (mm, world frame, reference colours) and ``run.json`` (faces, hypotheses, counts,
-    timings, ``extra``).
+    ``depth.png`` (colourised), ``views.png`` (number of views that triangulated each pixel, colourised),
+    both with a labelled colour bar, ``points.ply`` (mm, world frame, reference colours) and ``run.json``
+    (faces, hypotheses, counts, timings, ``extra``).
 
     Returns
     -------
     dict name -> final path.
     """
     from prismstereo.io import output_dir, write_image, write_json, write_pfm, write_ply
-    from prismstereo.viz.colorize import colorize_depth
+    from prismstereo.viz.colorize import colorize_depth, colorize_disparity
 
     names = ("depth.pfm", "depth.png", "views.png", "points.ply", "run.json")
     d = result.depth
     with output_dir(out_dir) as stage:
         write_pfm(stage / "depth.pfm", np.where(np.isfinite(d), d, np.float32(np.inf)).astype(np.float32))
-        write_image(stage / "depth.png", colorize_depth(d))
-        write_image(stage / "views.png", np.clip(result.counts.astype(np.int32) * 60, 0, 255).astype(np.uint8))
+        write_image(stage / "depth.png", colorize_depth(d, colorbar="depth Z (mm)"))
+        nv = len(result.views) + 1
+        write_image(stage / "views.png", colorize_disparity(
+            np.where(result.counts > 0, result.counts.astype(np.float32), np.float32(np.nan)), vmin=0.0,
+            vmax=float(nv), colorbar="views per pixel"))
         write_ply(stage / "points.ply", result.points, result.colors)
         counts = np.bincount(result.counts.ravel(), minlength=len(result.views) + 2)
         write_json(stage / "run.json", {

@@ -67,7 +67,13 @@ def rectify_to_folder(
     Writes ``left.png``, ``right.png``, ``rectification.json``, ``epipolar_before.png``,
     ``epipolar_after.png``; with more than two views also ``view_<k>.png`` (shared orientation).
     """
-    from prismstereo.viz.epipolar import epipolar_after, epipolar_after_views, epipolar_before, pick_points
+    from prismstereo.viz.epipolar import (
+        epipolar_after,
+        epipolar_after_views,
+        epipolar_before,
+        pick_points,
+        with_title,
+    )
 
     rig = load_rig(rig_path)
     check_output_dir(out_dir)  # before any work
@@ -108,14 +114,23 @@ def rectify_to_folder(
         write_image(stage / "right.png", right)
         pts = pick_points(rig, pair.left_face, pair.right_face, regions=regions)
         others = [f for f in faces if f != pair.left_face]
-        write_image(stage / "epipolar_before.png", epipolar_before(image, rig, pts, others, regions=regions))
+        write_image(stage / "epipolar_before.png", with_title(
+            epipolar_before(image, rig, pts, others, regions=regions),
+            f"before rectification: points of face {pair.left_face} and their exact epipolar curves in faces "
+            f"{', '.join(map(str, others))} (capture pixels)"))
         if len(faces) == 2:
             after = epipolar_after(left, right, pair, pts)
         else:
             after = epipolar_after_views(rv.rectify_images(image), rv, pts)
-            write_image(stage / "epipolar_after_pair.png", epipolar_after(left, right, pair, pts))
+            write_image(stage / "epipolar_after_pair.png", with_title(
+                epipolar_after(left, right, pair, pts),
+                f"after rectification: left (face {pair.left_face}) | right (face {pair.right_face}); epipolar "
+                "curves should lie on the grey horizontal lines"))
             written.append("epipolar_after_pair.png")
-        write_image(stage / "epipolar_after.png", after)
+        write_image(stage / "epipolar_after.png", with_title(
+            after, "after rectification: " + ("left | right" if len(faces) == 2 else
+                                              "views " + " | ".join(map(str, rv.faces)))
+            + "; epipolar curves should be horizontal lines through the marked points"))
         written += ["left.png", "right.png", "epipolar_before.png", "epipolar_after.png"]
     log.info("rectify: wrote %s", ", ".join(written))
     return RectifyResult(out_dir=Path(out_dir), files=tuple(sorted(written)), faces=faces,

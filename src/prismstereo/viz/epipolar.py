@@ -23,6 +23,16 @@ __all__ = ["epipolar_after", "epipolar_after_views", "epipolar_before", "epipola
 _COLOURS = [(255, 64, 64), (64, 220, 64), (64, 160, 255), (255, 200, 0), (230, 64, 230), (0, 230, 230)]
 
 
+def with_title(image: np.ndarray, title: str) -> np.ndarray:
+    """``image`` (RGB uint8) with a white band on top carrying ``title`` (black text)."""
+    img = _rgb_u8(image)
+    scale = float(np.clip(img.shape[1] / 1600.0, 0.4, 0.8))
+    (_, th), base = cv2.getTextSize(title, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)
+    band = np.full((th + base + 10, img.shape[1], 3), 255, np.uint8)
+    cv2.putText(band, title, (6, th + 5), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 1, cv2.LINE_AA)
+    return np.concatenate([band, img], axis=0)
+
+
 def _rgb_u8(image: np.ndarray) -> np.ndarray:
     img = np.asarray(image)
     if img.dtype != np.uint8:

@@ -13,7 +13,6 @@ from typing import Any
 import numpy as np
 
 from prismstereo.io.atomic import atomic_path
-from prismstereo.viz.pointcloud import render_point_cloud
 
 __all__ = ["epipolar_figure", "write_depth_report"]
 
@@ -119,12 +118,28 @@ def write_depth_report(
     im = ax[3].imshow(np.ma.masked_invalid(depth), cmap=cmap_r, vmin=zlo, vmax=zhi)
     ax[3].set_title("depth Z (mm), rectified left view")
     fig.colorbar(im, ax=ax[3], fraction=0.046, pad=0.04, label="mm")
-    ax[4].imshow(render_point_cloud(points, colors, size=(480, 360)))
-    ax[4].set_title(f"point cloud ({points.shape[0]} points, world frame)")
+    ax[4].remove()  # a 3-D panel with labelled world axes instead of a flat render
+    ax3 = fig.add_subplot(2, 3, 5, projection="3d")
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if pts.shape[0] > 20_000:  # enough to see the shape; matplotlib's 3-D scatter is slow
+        pick = np.random.default_rng(0).choice(pts.shape[0], 20_000, replace=False)
+        pts, cols = pts[pick], np.asarray(colors)[pick]
+    else:
+        cols = np.asarray(colors)
+    if pts.shape[0]:
+        # plotted as (X, Z, -Y): depth runs into the picture, +Y (down in the camera) points down
+        ax3.scatter(pts[:, 0], pts[:, 2], -pts[:, 1], c=cols.reshape(-1, 3) / 255.0, s=0.5, depthshade=False)
+    ax3.set_xlabel("X (mm)")
+    ax3.set_ylabel("Z (mm)")
+    ax3.set_zlabel("−Y (mm)")
+    ax3.view_init(elev=20, azim=-65)
+    ax3.set_title(f"point cloud ({points.shape[0]} points, world frame)")
     ax[5].text(0.0, 1.0, _stats_text(summary), va="top", ha="left", family="monospace", fontsize=9,
                transform=ax[5].transAxes)
     ax[5].set_title("run")
-    for a in ax:
+    for i, a in enumerate(ax):
+        if i == 4:
+            continue
         a.set_xticks([])
         a.set_yticks([])
     ax[5].axis("off")
