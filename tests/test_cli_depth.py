@@ -128,13 +128,14 @@ def test_output_on_a_read_only_filesystem(capture_folder, capsys):
 
 
 def test_views_that_do_not_overlap(tmp_path, capsys):
-    """A 20° bi-prism deviates each view by ~10°, more than the half field of view: they never meet."""
+    """A 20° bi-prism deviates each view by ~10°, more than the half field of view: beyond ~0.4 m they never
+    meet (they cross just in front of the prism, 0.22–0.33 m, which the default range would search)."""
     rig = scaled_rig(thesis_biprism(20.0), 4)
     rig.save(tmp_path / "rig.toml")
     write_image(tmp_path / "capture.png", np.random.default_rng(0).integers(0, 255, (192, 256, 3), np.uint8))
     out = tmp_path / "out"
-    code, _, err = _run(["depth", str(tmp_path / "rig.toml"), str(tmp_path / "capture.png"), "-o", str(out)],
-                        capsys)
+    code, _, err = _run(["depth", str(tmp_path / "rig.toml"), str(tmp_path / "capture.png"), "-o", str(out),
+                         "--depth-range", "800,5000"], capsys)
     _assert_failed_cleanly(code, err, out)
     assert "do not overlap" in err
 

@@ -118,6 +118,10 @@ def test_disk_full_leaves_nothing(capture: Path, tmp_path: Path) -> None:
     out2 = tmp_path / "rect"
     proc = _run("rectify", str(capture / "rig.toml"), str(capture / "capture.png"), "-o", str(out2), fsize=20_000)
     _one_error(proc, "rectify", str(out2))
+    out3 = tmp_path / "depth"
+    proc = _run("depth", str(capture / "rig.toml"), str(capture / "capture.png"), "-o", str(out3), "--method", "sad",
+                "--depth-range", "1200,2200", fsize=20_000)
+    _one_error(proc, "depth", str(out3))
     assert _files(tmp_path) == set()
 
 
@@ -151,6 +155,10 @@ def test_match_writes_both_files_or_none(tmp_path: Path) -> None:
                     "--max-disp", "40", "--method", "sad"), "match", "a folder")
     assert _files(tmp_path) == {"l.png", "r.png", "d.png"}
     (tmp_path / "d.png").rmdir()
+    proc = _run("match", str(tmp_path / "l.png"), str(tmp_path / "r.png"), "-o", str(tmp_path / "d.pfm"),
+                "--max-disp", "40", "--method", "sad", fsize=20_000)  # the PFM is 48 kB: "disk full"
+    _one_error(proc, "match", "d.pfm")
+    assert _files(tmp_path) == {"l.png", "r.png"}
     # 2. the search stops short of the scene: warnings, exit 0
     proc = _run("match", str(tmp_path / "l.png"), str(tmp_path / "r.png"), "-o", str(tmp_path / "d.pfm"),
                 "--max-disp", "16", "--method", "sad")
@@ -219,7 +227,7 @@ def test_depth_default_range_comes_from_rig_and_images(capture: Path, tmp_path: 
 @pytest.mark.parametrize("image, extra", [("capture.png", ["--depth-range", "216,300"]), ("noise.png", [])])
 def test_depth_unreliable_results_warn(capture: Path, tmp_path: Path, image: str, extra: list[str]) -> None:
     out = tmp_path / "out"
-    proc = _run("depth", str(capture / "rig.toml"), str(capture / image), "-o", str(out), *extra)
+    proc = _run("depth", str(capture / "rig.toml"), str(capture / image), "-o", str(out), "--method", "sad", *extra)
     assert proc.returncode == 0, proc.stderr
     warns = proc.stderr.splitlines()
     assert warns and all(w.startswith("prismstereo depth: warning: ") for w in warns), proc.stderr
@@ -284,3 +292,34 @@ def test_help_cites_docs_that_exist() -> None:
     for cmd in ("evaluate", "reproduce"):
         text = _run(cmd, "--help").stdout
         assert "vision.middlebury.edu" in text and "disp_left.png" in text
+
+
+# --------------------------------------------------------------------------- 6. Ctrl-C
+def test_ctrl_c_leaves_nothing(tmp_path: Path) -> None:
+    import time
+
+    out = tmp_path / "sim"
+    proc = subprocess.Popen([sys.executable, "-m", "prismstereo", "simulate", str(REPO / "examples" /
+                             "biprism_robot.toml"), "-o", str(out), "--supersample", "8"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env())
+    time.sleep(4.0)  # past the imports, inside the render
+    t = time.perf_counter()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    waited = time.perf_counter() - t
+    assert proc.returncode == 130, err
+    assert err.splitlines() == ["prismstereo simulate: interrupted"]
+    assert waited < 5.0  # typically well under a second; generous for a loaded machine
+    assert _files(tmp_path) == set()
+
+
+def test_blank_render_warns(tmp_path: Path) -> None:
+    rig = RIG.read_text().replace("width = 1024", "width = 128").replace("height = 768", "height = 96")
+    rig = rig.replace("pixel_size = 0.00465", "pixel_size = 0.0372")
+    (tmp_path / "behind.toml").write_text(rig + '\n[[objects]]\ntype = "plane"\ncenter = [0.0, 0.0, -1500.0]\n'
+                                          'normal = [0.0, 0.0, 1.0]\ntexture = { type = "noise", scale = 20.0 }\n')
+    proc = _run("simulate", str(tmp_path / "behind.toml"), "-o", str(tmp_path / "out"))
+    assert proc.returncode == 0
+    assert proc.stderr.splitlines() == [line for line in proc.stderr.splitlines()
+                                        if line.startswith("prismstereo simulate: warning: the render is blank")]
+    assert proc.stderr.count("\n") == 1

@@ -53,6 +53,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from prismstereo.simulate import simulate_to_folder
 
     result = simulate_to_folder(args.scene, args.output, supersample=args.supersample)
+    if result.capture.coverage < 0.01:
+        log.warning("the render is %s: no object is seen through the prism (objects behind the camera or the "
+                    "prism, or outside the field of view; see docs/rig.md for the frame)",
+                    "blank" if result.capture.coverage == 0 else f"{100 * result.capture.coverage:.2f} % covered")
     print(result.summary())
     return 0
 

@@ -152,16 +152,25 @@ def run_demo(out_dir: str | os.PathLike[str] = "demo_out", *, config: DepthConfi
         rig, scene = builtin_robot(width=512)  # = examples/biprism_demo.toml
     rig = rig if rig is not None else demo_rig()
     scene = scene if scene is not None else demo_scene()
+    from tqdm import tqdm
+
     seconds: dict[str, float] = {}
+    bar = tqdm(total=4, desc="demo: render", unit="step", leave=False, disable=None)  # a terminal only
     t = time.perf_counter()
     cap = render_capture(rig, scene)
     seconds["render"] = time.perf_counter() - t
+    bar.set_description("demo: depth")
+    bar.update(1)
     t = time.perf_counter()
     res = run_depth(rig, cap.image, config=config or DepthConfig())
     seconds["depth"] = time.perf_counter() - t
+    bar.set_description("demo: accuracy")
+    bar.update(1)
     t = time.perf_counter()
     acc = evaluate_depth(res, scene=scene)
     seconds["evaluate"] = time.perf_counter() - t
+    bar.set_description("demo: write")
+    bar.update(1)
     t = time.perf_counter()
 
     def also(stage: Path) -> None:
@@ -173,6 +182,8 @@ def run_demo(out_dir: str | os.PathLike[str] = "demo_out", *, config: DepthConfi
                                   extra={"demo": {"scene": scene.name, "render_s": seconds["render"]}})
     for name in ("capture.png", "depth_gt.pfm", "rig.toml"):
         outputs[name] = Path(out_dir) / name
+    bar.update(1)
+    bar.close()
     seconds["write"] = time.perf_counter() - t
     seconds["total"] = time.perf_counter() - t0
     return DemoResult(result=res, accuracy=acc, outputs=outputs, seconds=seconds)

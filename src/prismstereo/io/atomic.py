@@ -49,7 +49,7 @@ def _why(exc: OSError) -> str:
         return "no space left on the device"
     if exc.errno == errno.EFBIG:
         return "file too large for this file system or process limit"
-    return exc.strerror or type(exc).__name__
+    return exc.strerror or str(exc) or type(exc).__name__
 
 
 def _kind(mode: int) -> str:

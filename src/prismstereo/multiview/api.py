@@ -85,7 +85,7 @@ def multiview_command(reference: str | os.PathLike[str], view_specs: Sequence[st
     ConfigError, ImageError, MatchingError
         Bad specs, unreadable or mismatched images, a bad range (all checked before any matching).
     """
-    from prismstereo.io import read_image, write_image, write_pfm
+    from prismstereo.io import check_output_file, output_files, read_image, write_image, write_pfm
     from prismstereo.multiview.baseline import parse_view_spec
     from prismstereo.viz.colorize import colorize_disparity
 
@@ -97,6 +97,9 @@ def multiview_command(reference: str | os.PathLike[str], view_specs: Sequence[st
     out = Path(output)
     if out.suffix.lower() != ".pfm":
         raise ConfigError(f"-o: expected a .pfm output path, got {str(out)!r}")
+    png = out.with_suffix(".png")
+    check_output_file(out)  # before any work
+    check_output_file(png)
     ref = read_image(reference)
     views = [read_image(p) for p, _ in specs]
     ratios = [r for _, r in specs]
@@ -104,9 +107,10 @@ def multiview_command(reference: str | os.PathLike[str], view_specs: Sequence[st
     res = match_multiview(ref, views, ratios=ratios, max_disp=max_disp, method=method)
     dt = time.perf_counter() - t
     disp = res.disparity
-    write_pfm(out, np.where(np.isfinite(disp), disp, np.float32(np.inf)).astype(np.float32))
-    png = out.with_suffix(".png")
-    write_image(png, colorize_disparity(disp, vmin=0.0, vmax=float(max(max_disp, 1))))
+    with output_files([out, png]) as (tmp_pfm, tmp_png):  # the two files appear together or not at all
+        write_pfm(tmp_pfm, np.where(np.isfinite(disp), disp, np.float32(np.inf)).astype(np.float32))
+        write_image(tmp_png, colorize_disparity(disp, vmin=0.0, vmax=float(max(max_disp, 1)),
+                                                colorbar="disparity (px, unit baseline)"))
     finite = np.isfinite(disp)
     return (f"{method} multi-view: {len(views)} views (ratios {', '.join(f'{r:+g}' for r in ratios)}), "
             f"d in [0, {max_disp}] for the unit baseline, {100.0 * finite.mean():.1f} % dense, "
