@@ -214,7 +214,7 @@ def test_evaluate_all_or_nothing(tmp_path: Path) -> None:
 def test_depth_default_range_comes_from_rig_and_images(capture: Path, tmp_path: Path) -> None:
     out = tmp_path / "out"
     proc = _run("depth", str(capture / "rig.toml"), str(capture / "capture.png"), "-o", str(out), "--gt",
-                str(capture / "depth_gt.pfm"))
+                str(capture / "depth_gt.pfm"), "--method", "sad")
     assert proc.returncode == 0 and proc.stderr == "", proc.stderr
     assert "(from the rig+images" in proc.stdout
     run = json.loads((out / "run.json").read_text())

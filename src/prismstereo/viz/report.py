@@ -31,13 +31,21 @@ def epipolar_figure(left: np.ndarray, right: np.ndarray, *, n_lines: int = 12, g
     return out
 
 
+def _range_line(summary: dict[str, Any], cfg: dict[str, Any]) -> str:
+    rng = summary.get("depth_range_mm") or cfg.get("depth_range")
+    if not rng:
+        return "depth range: ?"
+    src = summary.get("depth_range_source", "given")
+    return f"depth range: {rng[0]:.0f}–{rng[1]:.0f} mm ({src})"
+
+
 def _stats_text(summary: dict[str, Any]) -> str:
     cfg = summary.get("config", {})
     lines = [
         f"method: {cfg.get('method')}   triangulation: {cfg.get('triangulation')}",
         f"calibration: {cfg.get('calibration')}   views (L,R): {summary.get('faces', {}).get('left')},"
         f"{summary.get('faces', {}).get('right')}",
-        f"depth range: {cfg.get('depth_range')} mm",
+        _range_line(summary, cfg),
         f"disparity search: {summary.get('disparity_range')} px",
         f"baseline: {summary.get('baseline_mm', float('nan')):.2f} mm",
     ]
@@ -50,6 +58,13 @@ def _stats_text(summary: dict[str, Any]) -> str:
 
         text = "seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in t.items() if k != "validate")
         lines += textwrap.wrap(text, width=58, subsequent_indent="  ")
+    warns = summary.get("warnings") or []
+    if warns:
+        import textwrap
+
+        lines += ["", "WARNINGS:"]
+        for w in warns:
+            lines += textwrap.wrap(w, width=58, initial_indent="- ", subsequent_indent="  ")
     acc = summary.get("accuracy")
     if acc:
         lines += [
