@@ -123,7 +123,9 @@ def check_output_dir(path: str | os.PathLike[str]) -> None:
     shown = str(path)
     p = Path(path).absolute()
     if p.exists() and not p.is_dir():
-        raise OutputError(f"expected an output folder, got {shown!r} (an existing file)")
+        mode = os.stat(p).st_mode
+        what = "an existing file" if stat.S_ISREG(mode) else _kind(mode)
+        raise OutputError(f"expected an output folder, got {shown!r} ({what})")
     if not p.exists() and p.is_symlink():
         raise OutputError(f"expected an output folder, got {shown!r} (a dangling symbolic link)")
     probe = _existing_ancestor(p)
