@@ -323,3 +323,16 @@ def test_blank_render_warns(tmp_path: Path) -> None:
     assert proc.stderr.splitlines() == [line for line in proc.stderr.splitlines()
                                         if line.startswith("prismstereo simulate: warning: the render is blank")]
     assert proc.stderr.count("\n") == 1
+
+
+def test_ordinary_photo_warns(capture: Path, tmp_path: Path, middlebury_dir: Path) -> None:
+    import cv2
+
+    photo = cv2.resize(cv2.imread(str(middlebury_dir / "cones" / "left.png")), (512, 384))  # not a prism capture
+    cv2.imwrite(str(tmp_path / "photo.png"), photo)
+    out = tmp_path / "out"
+    proc = _run("depth", str(capture / "rig.toml"), str(tmp_path / "photo.png"), "-o", str(out), "--method", "sad")
+    assert proc.returncode == 0, proc.stderr
+    warns = proc.stderr.splitlines()
+    assert warns and all(w.startswith("prismstereo depth: warning: ") for w in warns), proc.stderr
+    assert json.loads((out / "run.json").read_text())["warnings"]
