@@ -97,7 +97,7 @@ class DepthConfig:
 
     method: str = "bpasw"
     matcher_params: dict[str, Any] = field(default_factory=dict)
-    depth_range: tuple[float, float] | None = DEFAULT_DEPTH_RANGE_MM
+    depth_range: tuple[float, float] | None = None
     roi: tuple[int, int, int, int] | None = None
     views: tuple[int, int] | None = None
     triangulation: str = "exact"

@@ -30,7 +30,9 @@ log = logging.getLogger(__name__)
 __all__ = ["SearchRange", "auto_search_range", "depth_warnings", "estimate_disparity_range", "view_overlap"]
 
 #: a depth is part of the rig's range when the views share at least this fraction of their best overlap
-OVERLAP_FRACTION = 0.5
+OVERLAP_FRACTION = 0.25
+#: largest disparity span of the coarse match, px at the coarse scale (sets the downsampling factor)
+COARSE_SPAN = 128
 #: farthest depth considered, mm
 FAR_MM = 100_000.0
 #: consistent coarse matches (share of the common view) needed to trust the image-based range
@@ -115,7 +117,8 @@ def _depth_of(d: float, depths: np.ndarray, disp: np.ndarray) -> float:
     return float(np.exp(np.interp(d, dd, zz)))
 
 
-def estimate_disparity_range(left: np.ndarray, right: np.ndarray, region: np.ndarray, *, lo: int, hi: int
+def estimate_disparity_range(left: np.ndarray, right: np.ndarray, region: np.ndarray, *, lo: int, hi: int,
+                             valid_left: np.ndarray | None = None, valid_right: np.ndarray | None = None
                              ) -> tuple[tuple[int, int] | None, float]:
     """Disparity range of the scene from a coarse SGBM match of the rectified views.
 
@@ -124,6 +127,9 @@ def estimate_disparity_range(left: np.ndarray, right: np.ndarray, region: np.nda
     left, right : (h, w, 3) or (h, w) uint8  rectified views.
     region : (h, w) bool  the common view (pixels that may match).
     lo, hi : int  the widest range the rig allows, px.
+    valid_left, valid_right : (h, w) bool, optional
+        The views' valid regions; outside them the images are filled with independent noise, so that the
+        edges of the black borders cannot match each other (they would add a false cluster of disparities).
 
     Returns
     -------
@@ -133,11 +139,16 @@ def estimate_disparity_range(left: np.ndarray, right: np.ndarray, region: np.nda
     """
     import cv2
 
-    s = max(1, int(math.ceil((hi - lo) / 64.0)))
+    s = max(1, int(math.ceil((hi - lo) / float(COARSE_SPAN))))
     h, w = left.shape[:2]
     size = (max(8, w // s), max(8, h // s))
-    gl = left if left.ndim == 2 else cv2.cvtColor(np.ascontiguousarray(left), cv2.COLOR_RGB2GRAY)
-    gr = right if right.ndim == 2 else cv2.cvtColor(np.ascontiguousarray(right), cv2.COLOR_RGB2GRAY)
+    gl = left.copy() if left.ndim == 2 else cv2.cvtColor(np.ascontiguousarray(left), cv2.COLOR_RGB2GRAY)
+    gr = right.copy() if right.ndim == 2 else cv2.cvtColor(np.ascontiguousarray(right), cv2.COLOR_RGB2GRAY)
+    rng = np.random.default_rng(0)
+    for img, valid in ((gl, valid_left), (gr, valid_right)):
+        if valid is not None:
+            out = ~np.asarray(valid, dtype=bool)
+            img[out] = rng.integers(0, 256, int(out.sum()), dtype=np.uint8)
     cl = cv2.resize(gl, size, interpolation=cv2.INTER_AREA)
     cr = cv2.resize(gr, size, interpolation=cv2.INTER_AREA)
     cm = cv2.resize(region.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST).astype(bool)
@@ -158,6 +169,8 @@ def estimate_disparity_range(left: np.ndarray, right: np.ndarray, region: np.nda
     if support < MIN_SUPPORT:
         return None, support
     p1, p99 = np.percentile(d[ok], [1.0, 99.0])
+    log.debug("coarse disparities x%d: support %.3f, percentiles 0/1/2/5/50/95/98/99/100: %s", s, support,
+              np.percentile(d[ok], [0, 1, 2, 5, 50, 95, 98, 99, 100]) * s)
     margin = max(3.0 * s, 0.1 * (p99 - p1) * s, 4.0)
     rlo = max(lo, int(math.floor(p1 * s - margin)))
     rhi = min(hi, int(math.ceil(p99 * s + margin)))
@@ -174,7 +187,8 @@ def auto_search_range(pair: object, back_mm: float, left: np.ndarray, right: np.
     region, (dlo, dhi) = common_view(pair, zmin, zmax)
     dhi = min(dhi, left.shape[1] - 1)
     dlo = min(dlo, dhi)
-    est, support = estimate_disparity_range(left, right, region, lo=dlo, hi=dhi)
+    vl, vr = (np.asarray(m, dtype=bool) for m in pair.valid_masks())  # type: ignore[attr-defined]
+    est, support = estimate_disparity_range(left, right, region, lo=dlo, hi=dhi, valid_left=vl, valid_right=vr)
     if est is None:
         msg = (f"could not find the scene's disparities in the images (only {100 * support:.1f} % of the common "
                f"view matched coarsely: too little texture, or not a capture of this prism): searching the whole "
