@@ -261,9 +261,9 @@ def _add_depth(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--method", default="bpasw", help="matcher name (any registered: bpasw, sad, sgbm, coop, ...)")
     p.add_argument("-p", "--param", action="append", metavar="KEY=VALUE", help="matcher tuning parameter")
     p.add_argument("--depth-range", default=None, metavar="MIN,MAX",
-                   help="scene depths to search, mm (negative values are fine to type but invalid); default: "
-                        "derived from the rig (depths where the views share a field) and a coarse match of the "
-                        "images, printed and written to run.json")
+                   help="world depths to search, mm (MIN > the prism's back_distance); default: derived from the "
+                        "rig (depths where the views share a field) and a coarse match of the images, printed and "
+                        "written to run.json (docs/cli.md)")
     p.add_argument("--roi", default=None, metavar="X,Y,W,H", help="region of the rectified left view")
     p.add_argument("--views", default=None, metavar="I,J|all",
                    help="faces to pair (default: 1,0 for a bi-prism, else 0,1); 'all' uses every face (N >= 3)")

@@ -4,7 +4,7 @@ A fixed default range (say 0.8–5 m) silently fails for every scene outside it:
 nearest allowed disparity and the run reports success. Instead the range is derived
 
 1. from the rig: the depths at which the two rectified views share a sizeable part of their field
-   (:func:`view_overlap`: at least half the largest shared fraction, up to 100 m), and
+   (:func:`view_overlap`: at least a quarter of the largest shared fraction, up to 100 m), and
 2. from the images: a coarse OpenCV SGBM match over that whole range on downsampled rectified views;
    the 1st–99th percentiles of its consistent disparities, padded, give the range actually searched
    (:func:`estimate_disparity_range`).
