@@ -265,7 +265,7 @@ def calibrate_rig(rig: Rig, *, method: str = "fit") -> list[VirtualView]:
 
 
 def write_cameras_json(path: str | os.PathLike[str], rig: Rig, views: list[VirtualView], *, method: str) -> None:
-    """Write cameras.json (DESIGN.md §6)."""
+    """Write cameras.json (docs/formats.md)."""
     write_json(path, {"method": method, "rig": rig.to_dict(), "views": [v.to_dict() for v in views]})
 
 

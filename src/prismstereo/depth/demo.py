@@ -138,7 +138,7 @@ def run_demo(out_dir: str | os.PathLike[str] = "demo_out", *, config: DepthConfi
     (:func:`prismstereo.simulate.robot_scene`, the same as ``examples/biprism_demo.toml``): boxes, balls
     and panels at 1.2–1.8 m, a textured wall at 2.2 m and a floor.
 
-    Writes the depth outputs (DESIGN.md §5) plus ``capture.png``, ``depth_gt.pfm`` (world Z per real
+    Writes the depth outputs (docs/cli.md) plus ``capture.png``, ``depth_gt.pfm`` (world Z per real
     pixel) and ``rig.toml`` into ``out_dir``, all or nothing.
     """
     from prismstereo.evaluation.depth_metrics import evaluate_depth

@@ -1,4 +1,4 @@
-"""Files of a depth run (DESIGN.md §5–6), written together through a staging folder.
+"""Files of a depth run (docs/cli.md, docs/formats.md), written together through a staging folder.
 
 ``disparity.pfm`` (px, inf = invalid), ``disparity.png`` (colourised), ``depth.pfm`` (world Z in mm on the
 rectified left grid, inf = invalid), ``points.ply`` (valid points, mm, world frame, RGB), ``report.png``

@@ -2,7 +2,7 @@
 
 ``run_depth(rig, image, config=DepthConfig(...))`` runs a registry of named stages (pandora style) over
 one shared state and returns a :class:`DepthResult`; :func:`write_depth_outputs` writes the files of
-DESIGN.md §5 (``disparity.pfm``, ``disparity.png``, ``depth.pfm``, ``points.ply``, ``report.png``,
+docs/cli.md (``disparity.pfm``, ``disparity.png``, ``depth.pfm``, ``points.ply``, ``report.png``,
 ``run.json``) through a staging folder, so a failed run leaves nothing behind.
 
 Everything the user can get wrong (image size, views, depth range, region of interest, method) is checked

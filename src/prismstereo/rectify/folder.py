@@ -1,5 +1,5 @@
 """``prismstereo rectify``: rectify a capture and write the images, rectification.json and the epipolar
-figures into a folder (DESIGN.md §5), atomically."""
+figures into a folder (docs/cli.md), atomically."""
 
 from __future__ import annotations
 
@@ -53,7 +53,7 @@ def rectify_to_folder(
     method: str = "fit",
     remap: str = "model",
 ) -> RectifyResult:
-    """Rectify one capture (DESIGN.md §5 ``rectify``).
+    """Rectify one capture (docs/cli.md ``rectify``).
 
     Parameters
     ----------

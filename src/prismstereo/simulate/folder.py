@@ -48,7 +48,7 @@ class SimulationResult:
 
 
 def write_capture(out_dir: str | os.PathLike[str], rig: Rig, scene: Scene, capture: Capture) -> None:
-    """Write the five outputs of DESIGN.md §5 into an existing folder (each file atomically)."""
+    """Write the five outputs of docs/cli.md into an existing folder (each file atomically)."""
     d = Path(out_dir)
     write_image(d / "capture.png", capture.image)
     write_pfm(d / "depth_gt.pfm", capture.depth)
