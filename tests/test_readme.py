@@ -16,6 +16,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -46,6 +48,7 @@ def _middlebury() -> Path | None:
     return path if (path / "tsukuba" / "left.png").is_file() else None
 
 
+@pytest.mark.slow
 def test_readme_command_line_runs_as_written(tmp_path: Path) -> None:
     middlebury_dir = _middlebury()  # without the data only `evaluate` is left out
     cmds = _readme_commands()
