@@ -336,3 +336,44 @@ def test_ordinary_photo_warns(capture: Path, tmp_path: Path, middlebury_dir: Pat
     warns = proc.stderr.splitlines()
     assert warns and all(w.startswith("prismstereo depth: warning: ") for w in warns), proc.stderr
     assert json.loads((out / "run.json").read_text())["warnings"]
+
+
+def _run_on_terminal(*args: str) -> tuple[int, str]:
+    """Run with stderr on a pseudo-terminal (120 columns); returns the exit code and what it showed."""
+    import fcntl
+    import pty
+    import select
+    import termios
+    import time
+
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))
+    proc = subprocess.Popen([sys.executable, "-m", "prismstereo", *args], stdin=slave, stdout=subprocess.DEVNULL,
+                            stderr=slave, env=_env())
+    os.close(slave)
+    out, t0 = b"", time.time()
+    while time.time() - t0 < 120:
+        if select.select([master], [], [], 0.2)[0]:
+            try:
+                chunk = os.read(master, 65536)
+            except OSError:
+                break
+            if not chunk:
+                break
+            out += chunk
+        elif proc.poll() is not None:
+            break
+    os.close(master)
+    return proc.wait(), out.decode(errors="replace")
+
+
+def test_progress_bar_on_a_terminal_only(tmp_path: Path) -> None:
+    data = tmp_path / "data"
+    _middlebury_like(data, ("tsukuba", "venus"))
+    args = ("evaluate", "middlebury", "--data", str(data), "--method", "sad", "--scenes", "tsukuba,venus")
+    code, shown = _run_on_terminal(*args, "-o", str(tmp_path / "a"))
+    assert code == 0 and "evaluate sad" in shown and "scene" in shown
+    code, shown = _run_on_terminal(*args, "-o", str(tmp_path / "b"), "--quiet")
+    assert code == 0 and shown == ""
+    proc = _run(*args, "-o", str(tmp_path / "c"))  # not a terminal: nothing on stderr
+    assert proc.returncode == 0 and proc.stderr == ""

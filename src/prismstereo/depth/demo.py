@@ -152,10 +152,10 @@ def run_demo(out_dir: str | os.PathLike[str] = "demo_out", *, config: DepthConfi
         rig, scene = builtin_robot(width=512)  # = examples/biprism_demo.toml
     rig = rig if rig is not None else demo_rig()
     scene = scene if scene is not None else demo_scene()
-    from tqdm import tqdm
+    from prismstereo.progress import progress_bar
 
     seconds: dict[str, float] = {}
-    bar = tqdm(total=4, desc="demo: render", unit="step", leave=False, disable=None)  # a terminal only
+    bar = progress_bar(total=4, desc="demo: render", unit="step", leave=False)  # a terminal only
     t = time.perf_counter()
     cap = render_capture(rig, scene)
     seconds["render"] = time.perf_counter() - t

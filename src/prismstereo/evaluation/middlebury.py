@@ -174,10 +174,9 @@ def evaluate_method(method: str, *, data_dir: str | os.PathLike[str] | None = No
     dict
         ``{"method", "params", "scenes": {name: {bad, mae, seconds, ...}}, "average": {...}}``.
     """
-    from tqdm import tqdm
-
     from prismstereo.io import check_output_dir, output_dir, write_image, write_json, write_pfm
     from prismstereo.matching import get_matcher, match
+    from prismstereo.progress import progress_bar
     from prismstereo.viz.colorize import colorize_disparity
 
     get_matcher(method, **params)  # validates name and parameters first
@@ -190,7 +189,7 @@ def evaluate_method(method: str, *, data_dir: str | os.PathLike[str] | None = No
         check_output_dir(out)  # before any work; nothing is created until every scene is done
     per: dict[str, Any] = {}
     maps: dict[str, tuple[np.ndarray, int]] = {}
-    bar = tqdm(scenes, desc=f"evaluate {method}", unit="scene", leave=False, disable=None)
+    bar = progress_bar(scenes, desc=f"evaluate {method}", unit="scene", leave=False)
     for s in bar:
         bar.set_postfix_str(s)
         scene = load_scene(s, root)

@@ -60,7 +60,13 @@ def reproduce_table(name: str, out_dir: str | os.PathLike[str], *, data_dir: Pat
         raise
     out = Path(out_dir)
     check_output_dir(out)  # before the (long) measurement
-    result: TableResult = module.reproduce(data_dir=data_dir, quick=quick)
+    from prismstereo.progress import progress_bar
+
+    # one step per table (the modules do not report their inner progress): on a terminal the bar names the
+    # table being measured and its elapsed time when done
+    with progress_bar(total=1, desc=f"reproduce {key}", unit="table", leave=False) as bar:
+        result: TableResult = module.reproduce(data_dir=data_dir, quick=quick)
+        bar.update(1)
     with output_dir(out) as stage:  # the .md and the .json appear together
         atomic_write_text(stage / f"{key}.md", result.markdown)
         write_json(stage / f"{key}.json", {"table": key, **result.data})

@@ -292,10 +292,10 @@ def depth_all_views(rig: Rig, capture: Any, *, method: str = "sweep",
         out = np.where(cnt > 1e-3, agg / np.maximum(cnt, np.float32(1e-3)), np.float32(np.nan))
         return out.astype(np.float32), seen, uv
 
-    from tqdm import tqdm
+    from prismstereo.progress import progress_bar
 
     # loop over depth hypotheses (planes), not pixels; a bar on a terminal only
-    for k in tqdm(range(nk), desc="depth --views all: plane sweep", unit="plane", leave=False, disable=None):
+    for k in progress_bar(range(nk), desc="depth --views all: plane sweep", unit="plane", leave=False):
         pts = point_at(depths[k])
         acc = np.zeros((h, w), np.float32)
         n = np.zeros((h, w), np.float32)
