@@ -351,11 +351,15 @@ def _join_signed_values(argv: Sequence[str]) -> list[str]:
 
 
 def _add_common(p: argparse.ArgumentParser) -> None:
-    # SUPPRESS: a subcommand's -v adds to (does not reset) a -v given before the subcommand
-    p.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
-                   help="more log output (-vv for debug); also before the subcommand")
-    p.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
-                   help="no progress bars (they show only on a terminal anyway)")
+    # SUPPRESS: a subcommand's -v adds to (does not reset) a -v given before the subcommand. A subcommand
+    # that declares either option itself keeps its own.
+    taken = set(p._option_string_actions)
+    if not taken & {"-v", "--verbose"}:
+        p.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
+                       help="more log output (-vv for debug); also before the subcommand")
+    if not taken & {"-q", "--quiet"}:
+        p.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
+                       help="no progress bars (they show only on a terminal anyway)")
 
 
 def build_parser() -> argparse.ArgumentParser:
