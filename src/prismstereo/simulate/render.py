@@ -18,6 +18,7 @@ import numpy as np
 from prismstereo.config import Rig
 from prismstereo.errors import ConfigError
 from prismstereo.optics import trace_rays
+from prismstereo.optics.distortion import undistort_points
 from prismstereo.simulate.kernels import (
     LIGHT,
     CompiledScene,
@@ -154,11 +155,18 @@ class Capture:
 def _trace(rig: Rig, pixels: np.ndarray, prism: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Rays of real pixels (N, 2): what :func:`prismstereo.optics.trace_pixels` gives, without its
     per-call inverse of K (the pinhole direction K⁻¹[u, v, 1] is computed directly; trace_rays normalises)."""
-    f = rig.camera.focal_px
-    cx, cy = rig.camera.center
+    cam = rig.camera
+    cx, cy = cam.center
     d = np.empty((pixels.shape[0], 3))
-    d[:, 0] = (pixels[:, 0] - cx) / f
-    d[:, 1] = (pixels[:, 1] - cy) / f
+    if cam.fx is None:
+        f = cam.focal_px
+        d[:, 0] = (pixels[:, 0] - cx) / f
+        d[:, 1] = (pixels[:, 1] - cy) / f
+    else:
+        d[:, 0] = (pixels[:, 0] - cx) / cam.fx
+        d[:, 1] = (pixels[:, 1] - cy) / cam.fy
+    if cam.has_distortion:
+        d[:, :2] = undistort_points(d[:, :2], cam.distortion)
     d[:, 2] = 1.0
     if prism:
         b = trace_rays(rig, d)
