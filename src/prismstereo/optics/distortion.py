@@ -85,8 +85,15 @@ def undistort_points(
         xy[idx, 1] = y - sy
         step = np.abs(sx) + np.abs(sy)
         done[idx[~(step > tolerance * (1.0 + np.abs(x) + np.abs(y)))]] = True
-    # a fold of the polynomial (or a non-finite step) is not a solution
+    # A root beyond the fold of the polynomial (where the Jacobian turns over) is not the lens's point.
     check = distort_points(xy, (k1, k2, p1, p2, k3)) - t
-    bad = ~np.all(np.abs(check) < 1e-9, axis=1)
+    x, y = xy[:, 0], xy[:, 1]
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    dradial = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
+    a = radial + 2.0 * x * x * dradial + 2.0 * p1 * y + 6.0 * p2 * x
+    b = 2.0 * x * y * dradial + 2.0 * p1 * x + 2.0 * p2 * y
+    c = radial + 2.0 * y * y * dradial + 6.0 * p1 * y + 2.0 * p2 * x
+    bad = ~(np.all(np.abs(check) < 1e-9, axis=1) & (a * c - b * b > 0) & (a > 0) & (radial > 0))
     xy[bad] = np.nan
     return xy.reshape(shape)
