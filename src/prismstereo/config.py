@@ -39,7 +39,9 @@ def _positive(section: str, key: str, value: Any, *, integer: bool = False) -> f
     return v
 
 
-def _vector(section: str, key: str, value: Any, *, lengths: tuple[int, ...], limit: float, names: str) -> tuple[float, ...]:
+def _vector(
+    section: str, key: str, value: Any, *, lengths: tuple[int, ...], limit: float, names: str
+) -> tuple[float, ...]:
     """A short list of finite numbers, each within ±limit (a sanity range for physical rigs)."""
     if not isinstance(value, list | tuple) or len(value) not in lengths:
         raise ConfigError(f"[{section}] {key}: expected {names}, got {value!r}")
