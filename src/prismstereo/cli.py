@@ -298,6 +298,12 @@ def _cmd_multiview(args: argparse.Namespace) -> int:
 _ADDERS.append(_add_multiview)
 
 
+# --------------------------------------------------------------------------- real rigs (issue 15)
+from prismstereo.cli_calibration import add_calibrate_camera, add_calibrate_prism  # noqa: E402
+
+_ADDERS += [add_calibrate_camera, add_calibrate_prism]
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="prismstereo",
