@@ -139,9 +139,9 @@ def parse_free(text: str | Sequence[str] | None) -> tuple[str, ...]:
         items = list(text)
     out: list[str] = []
     for item in items:
-        if item not in FREE_GROUPS:
+        if item not in FREE_GROUPS and item not in PARAMETERS:
             raise ConfigError(f"--free: expected a comma list of {', '.join(FREE_GROUPS)}, got {item!r}")
-        out += [p for p in FREE_GROUPS[item] if p not in out]
+        out += [p for p in FREE_GROUPS.get(item, (item,)) if p not in out]
     if not out:
         raise ConfigError("--free: expected at least one parameter to fit, got none")
     return tuple(out)
