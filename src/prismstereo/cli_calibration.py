@@ -49,9 +49,10 @@ def add_calibrate_prism(sub: argparse._SubParsersAction) -> None:
     p.add_argument("captures", nargs="+", help="captures of a checkerboard seen whole through every face")
     p.add_argument("--board", required=True, help="inner corners COLSxROWS, e.g. 8x6")
     p.add_argument("--square", required=True, type=float, help="square side, mm")
-    p.add_argument("--free", default="rotation,tilt,decenter",
+    p.add_argument("--free", default="rotation,tilt,decenter,focal",
                    help="parameters to fit: rotation, tilt, decenter, apex_distance, refractive_index, "
-                        "corner_angle (comma list; default rotation,tilt,decenter)")
+                        "corner_angle (prism), focal, principal_point, k1 (camera) "
+                        "(comma list; default rotation,tilt,decenter,focal)")
     p.add_argument("-o", "--output", required=True,
                    help="rig TOML to write; <name>.report.json and <name>.residuals.png are written beside it")
     p.set_defaults(handler=_cmd_calibrate_prism)

@@ -34,7 +34,10 @@ def test_calibration_recovers_a_known_pose(board_captures, small_true, small_nom
     assert res.rms_px < 0.3 and res.std["rotation"] < 0.05
     assert set(res.per_view_rms) == {f"capture{i}:{k}" for i in range(5) for k in range(2)}
     assert res.rig.prism.rotation == res.estimates["rotation"]
-    assert res.rig.camera == small_true.camera
+    # the focal lengths are refined by default (they start at the truth here and must stay there)
+    f = small_true.camera.focal_px
+    assert abs(res.estimates["fx"] / f - 1) < 0.002 and abs(res.estimates["fy"] / f - 1) < 0.002
+    assert res.rig.camera.distortion == small_true.camera.distortion
 
 
 def test_missing_board_in_a_sub_image_is_refused(board_captures, small_true, small_nominal):
@@ -55,7 +58,8 @@ def test_ill_conditioned_fit_is_refused(board_captures, small_true, small_nomina
 
 
 def test_parse_free():
-    assert parse_free(None) == ("rotation", "tilt_x", "tilt_y", "decenter_x", "decenter_y")
+    assert parse_free(None) == ("rotation", "tilt_x", "tilt_y", "decenter_x", "decenter_y", "fx", "fy")
+    assert parse_free("principal_point,k1") == ("cx", "cy", "k1")
     assert parse_free("rotation,apex_distance") == ("rotation", "apex_distance")
     with pytest.raises(ConfigError, match="--free: expected a comma list"):
         parse_free("rotation,spin")

@@ -134,7 +134,7 @@ def detect_board(
         return Detection(None, float("nan"), "board not found (missing, partial or too small)")
     corners = corners.reshape(-1, 2).astype(np.float64)
     sharp, _ = cv2.estimateChessboardSharpness(gray, board.pattern_size, corners.astype(np.float32))
-    width = float(sharp[0])
+    width = float(np.ravel(sharp)[0])
     if not np.isfinite(width) or width > max_edge_width:
         return Detection(None, width, f"board blurred (edge width {width:.1f} px > {max_edge_width:g})")
     return Detection(canonical_order(corners, board), width)

@@ -126,7 +126,7 @@ def calibrate_camera(
                 f"{len(used)} of {len(images)}; take more photos (whole board, in focus, varied tilts)")
         objs = [obj.astype(np.float32)] * len(used)
         imgs = [c.astype(np.float32) for c in used.values()]
-        rms, K, dist, rvecs, tvecs, std_int, _, _ = cv2.calibrateCameraExtended(
+        rms, K, dist, rvecs, tvecs, std_int, _, _ = cv2.calibrateCameraExtended(  # type: ignore[call-overload]
             objs, imgs, (w, h), None, None, flags=cv2.CALIB_FIX_K3 if fix_k3 else 0)
         dist = dist.ravel()[:5]
         per = {n: _view_rms(obj, c, r, t, K, dist) for n, c, r, t in zip(used, used.values(), rvecs, tvecs,

@@ -3,8 +3,9 @@
 Each capture shows the same board once per face. The board's inner corners are detected in every
 sub-image (the board's 180° symmetry resolved by :func:`~prismstereo.calibration.boards.canonical_order`,
 so that every view of a capture labels the corners alike), then one bundle adjustment refines every
-board's pose (rotation vector, translation) together with the prism's rotation, tilt and decenter, and
-optionally its apex distance, refractive index and corner angle. The model is exact: a corner's predicted
+board's pose (rotation vector, translation) together with the prism's rotation, tilt and decenter, the
+camera's focal lengths, and optionally the prism's apex distance, refractive index and corner angle and the
+camera's principal point and k1. The model is exact: a corner's predicted
 pixel is the real pixel whose ray, refracted through the posed prism by the calibrated (distorting) lens,
 passes through the corner (:func:`~prismstereo.optics.project_exact`). The solver is scipy's
 ``least_squares`` (trust-region reflective) with a sparse finite-difference Jacobian (a board's pose moves
@@ -21,6 +22,7 @@ by a prior (``decenter_prior_mm``) unless the data say otherwise, and its standa
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections.abc import Sequence
@@ -51,7 +53,13 @@ PARAMETERS: dict[str, tuple[str, float]] = {
     "apex_distance": ("mm", 10.0),
     "refractive_index": ("", 0.02),
     "corner_angle": ("deg", 0.5),
+    "fx": ("px", 100.0),
+    "fy": ("px", 100.0),
+    "cx": ("px", 100.0),
+    "cy": ("px", 100.0),
+    "k1": ("", 0.5),
 }
+_CAMERA_PARAMS = ("fx", "fy", "cx", "cy", "k1")
 #: names accepted by ``free`` and what they free
 FREE_GROUPS = {
     "rotation": ("rotation",),
@@ -60,8 +68,11 @@ FREE_GROUPS = {
     "apex_distance": ("apex_distance",),
     "refractive_index": ("refractive_index",),
     "corner_angle": ("corner_angle",),
+    "focal": ("fx", "fy"),
+    "principal_point": ("cx", "cy"),
+    "k1": ("k1",),
 }
-DEFAULT_FREE = ("rotation", "tilt", "decenter")
+DEFAULT_FREE = ("rotation", "tilt", "decenter", "focal")
 #: search band (px) beyond the input rig's sub-image in which a board is looked for
 SEARCH_BAND_PX = 48
 #: corner noise (px) that the decenter prior is weighed against
@@ -148,10 +159,12 @@ def parse_free(text: str | Sequence[str] | None) -> tuple[str, ...]:
 
 
 def _prism_values(rig: Rig) -> dict[str, float]:
-    p = rig.prism
+    p, c = rig.prism, rig.camera
+    fx, fy = c.focal_xy
     return {"rotation": p.rotation, "tilt_x": p.tilt[0], "tilt_y": p.tilt[1], "decenter_x": p.decenter[0],
             "decenter_y": p.decenter[1], "apex_distance": p.apex_distance,
-            "refractive_index": p.refractive_index, "corner_angle": p.corner_angle}
+            "refractive_index": p.refractive_index, "corner_angle": p.corner_angle,
+            "fx": fx, "fy": fy, "cx": c.center[0], "cy": c.center[1], "k1": c.distortion[0]}
 
 
 def _with_values(rig: Rig, values: dict[str, float]) -> Rig:
@@ -160,6 +173,11 @@ def _with_values(rig: Rig, values: dict[str, float]) -> Rig:
         "decenter": (values["decenter_x"], values["decenter_y"]), "refractive_index": values["refractive_index"],
         "corner_angle": values["corner_angle"],
     }
+    cam = rig.camera
+    if any(values[k] != v for k, v in _prism_values(rig).items() if k in _CAMERA_PARAMS):
+        cam = dataclasses.replace(cam, fx=values["fx"], fy=values["fy"], principal_point=(values["cx"], values["cy"]),
+                                  distortion=(values["k1"],) + cam.distortion[1:])
+        rig = dataclasses.replace(rig, camera=cam)
     if values["apex_distance"] != rig.prism.apex_distance:
         # the glass keeps its thickness: move the back plane with the apex
         shift = values["apex_distance"] - rig.prism.apex_distance
@@ -239,7 +257,11 @@ def calibrate_prism(
     captures : sequence of (H, W) or (H, W, 3) uint8 images of the board through the prism.
     board : Board
     names : names of the captures for the report.
-    free : parameter groups to fit (default rotation, tilt, decenter; see :data:`FREE_GROUPS`).
+    free : parameter groups to fit (default rotation, tilt, decenter, focal; see :data:`FREE_GROUPS`).
+        ``focal`` refines the camera's fx, fy, ``principal_point`` its cx, cy, ``k1`` its first radial
+        term: the two views of a board of known size pin the focal length to ~1 px, several times better
+        than a bare-camera calibration over a long lens's narrow field, and a focal error otherwise leaks
+        into the tilt (which changes the two views' scale differentially).
     decenter_prior_mm : float
         Std of the prior holding the decenter near the input rig's value (it is nearly unobservable from
         board corners; see the module notes). 0 removes the prior.
@@ -280,7 +302,8 @@ def calibrate_prism(
     poses0 = np.stack([_initial_pose(rig, board, o[0], 0) for o in obs])
     init = _prism_values(rig)
     scale = {"rotation": 1.0, "tilt_x": 1.0, "tilt_y": 1.0, "decenter_x": 1.0, "decenter_y": 1.0,
-             "apex_distance": 1.0, "refractive_index": 0.01, "corner_angle": 0.1}
+             "apex_distance": 1.0, "refractive_index": 0.01, "corner_angle": 0.1, "fx": 1.0, "fy": 1.0, "cx": 1.0,
+             "cy": 1.0, "k1": 0.01}
     observed = np.stack([np.stack(o) for o in obs])  # (n_cap, n_faces, m, 2)
     # corner pixels grouped by face: (n_faces, n_cap·m, 2)
     obs_face = observed.transpose(1, 0, 2, 3).reshape(n_faces, n_cap * m, 2)
@@ -301,11 +324,17 @@ def calibrate_prism(
     # Jacobian) are computed once; each evaluation only traces them through the prism.
     h = 0.5
     steps = np.array([[0.0, 0.0], [h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])
-    dist = rig.camera.distortion if rig.camera.has_distortion else None
-    rays = [rays_from_pixels(obs_face[k][None] + steps[:, None], rig.camera.K, dist).reshape(-1, 3)
-            for k in range(n_faces)]
+    camera_free = any(k in _CAMERA_PARAMS for k in free_params)
 
-    def project_near(r_rig: Rig, X: np.ndarray, k: int) -> np.ndarray:
+    def camera_rays(r_rig: Rig) -> list[np.ndarray]:
+        cam = r_rig.camera
+        dist = cam.distortion if cam.has_distortion else None
+        return [rays_from_pixels(obs_face[k][None] + steps[:, None], cam.K, dist).reshape(-1, 3)
+                for k in range(n_faces)]
+
+    fixed_rays = camera_rays(rig)
+
+    def project_near(r_rig: Rig, X: np.ndarray, k: int, rays: list[np.ndarray]) -> np.ndarray:
         """Pixel offsets from the detected corners to the predicted ones: one Newton step of
         :func:`project_exact` started at the detected pixel (exact to second order in the offset, ~1e-5 px
         at sub-pixel residuals; the reported residuals use the converged projection)."""
@@ -331,12 +360,13 @@ def calibrate_prism(
             return np.full(n_faces * n_cap * m * 2 + len(prior), 1e3)
         X = corners_world(poses)
         res = np.empty((n_faces, n_cap * m, 2))
+        rays = camera_rays(r_rig) if camera_free else fixed_rays
         for k in range(n_faces):
             if exact:
                 px, _ = project_exact(X, r_rig, k, tolerance_px=1e-9, initial_pixels=obs_face[k])
                 res[k] = px - obs_face[k]
             else:
-                res[k] = project_near(r_rig, X, k)
+                res[k] = project_near(r_rig, X, k, rays)
         # (face, capture, corner) → (capture, face, corner) so that a board's rows are contiguous
         out = np.nan_to_num(res.reshape(n_faces, n_cap, m, 2).transpose(1, 0, 2, 3).ravel(), nan=1e3)
         pri = [x[free_params.index(k)] * scale[k] / decenter_prior_mm * PRIOR_NOISE_PX for k in prior]

@@ -163,8 +163,9 @@ def _trace(rig: Rig, pixels: np.ndarray, prism: bool) -> tuple[np.ndarray, np.nd
         d[:, 0] = (pixels[:, 0] - cx) / f
         d[:, 1] = (pixels[:, 1] - cy) / f
     else:
-        d[:, 0] = (pixels[:, 0] - cx) / cam.fx
-        d[:, 1] = (pixels[:, 1] - cy) / cam.fy
+        fx, fy = cam.focal_xy
+        d[:, 0] = (pixels[:, 0] - cx) / fx
+        d[:, 1] = (pixels[:, 1] - cy) / fy
     if cam.has_distortion:
         d[:, :2] = undistort_points(d[:, :2], cam.distortion)
     d[:, 2] = 1.0
