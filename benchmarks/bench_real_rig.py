@@ -30,6 +30,7 @@ from prismstereo.calibration import Board, calibrate_camera, calibrate_prism
 from prismstereo.config import Rig, thesis_biprism
 from prismstereo.depth import DepthConfig, run_depth
 from prismstereo.depth.demo import plane_scene, scaled_rig
+from prismstereo.errors import PrismStereoError
 from prismstereo.evaluation.depth_metrics import evaluate_depth
 from prismstereo.simulate import render_capture
 from prismstereo.simulate.checkerboard import camera_board_poses, checkerboard_poses
@@ -134,10 +135,19 @@ def main() -> None:
     print("\nTrue correspondences triangulated with each rig (geometry only):")
     print("| rig | median rel % | within 1 % | rectified rows apart, px | points |\n|---|---|---|---|---|")
     for name, rig in rigs:
-        c = correspondence_row(name, rig, true, capture)
+        try:
+            c = correspondence_row(name, rig, true, capture)
+        except PrismStereoError as exc:
+            print(f"| {name} | failed: {exc} | | | |")
+            continue
         print(f"| {name} | {100 * c['median_rel']:.3f} | {100 * c['within_1pct']:.1f} | {c['rows_px']:.2f} | "
               f"{c['n']} |")
-    rows = [depth_row(name, rig, true, image, scene) for name, rig in rigs]
+    rows = []
+    for name, rig in rigs:
+        try:
+            rows.append(depth_row(name, rig, true, image, scene))
+        except PrismStereoError as exc:
+            print(f"depth with {name} failed: {exc}")
     print("\nDepth pipeline (bpasw matcher, exact triangulation) on the capture, against the truth:")
     print("| rig | median rel % | p95 rel % | within 1 % | coverage | points | depth s |")
     print("|---|---|---|---|---|---|---|")

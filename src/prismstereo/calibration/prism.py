@@ -17,7 +17,7 @@ amounts (a differential ~0.1–0.2 px per degree) and needs boards spread in pos
 decenter moves the rays by less than 0.05 px per mm (a thin prism deviates every ray by an angle that
 does not depend on where it crosses the face), so board corners hardly see it, and depth hardly depends
 on it; it only moves the line between the sub-images. It is therefore held near the input rig's value
-by a prior (``decenter_prior_mm``) unless the data say otherwise, and its standard deviation is reported.
+by a prior (``decenter_prior_mm``) and within ±3 mm of it, and its standard deviation is reported.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from prismstereo.calibration.boards import MAX_EDGE_WIDTH_PX, Board, detect_boar
 from prismstereo.cameras.virtual import thesis_camera
 from prismstereo.config import Rig
 from prismstereo.errors import ConfigError, GeometryError, ImageError
-from prismstereo.optics import face_map, project_exact, rays_from_pixels, trace_rays
+from prismstereo.optics import face_map, project_exact, rays_from_pixels, trace_pixels, trace_rays
 
 log = logging.getLogger(__name__)
 
@@ -77,6 +77,9 @@ DEFAULT_FREE = ("rotation", "tilt", "decenter", "focal")
 SEARCH_BAND_PX = 48
 #: corner noise (px) that the decenter prior is weighed against
 PRIOR_NOISE_PX = 0.1
+#: the decenter may move at most this far (mm) from the input rig's: beyond it a fit is using the decenter's
+#: tiny effect to absorb some other error
+DECENTER_BOUND_MM = 3.0
 
 
 @dataclass(frozen=True)
@@ -392,10 +395,16 @@ def calibrate_prism(
     s1 = least_squares(lambda xb: residuals(np.concatenate([zeros, xb])), x0[n_p:],
                        jac_sparsity=sparsity(False)[:, n_p:], x_scale="jac", method="trf", max_nfev=30)
     # 2. everything together, first plainly, then with the Huber loss against mis-detected corners
+    lo = np.full(x0.size, -np.inf)
+    hi = np.full(x0.size, np.inf)
+    for i, k in enumerate(free_params):
+        if k.startswith("decenter"):
+            lo[i], hi[i] = -DECENTER_BOUND_MM / scale[k], DECENTER_BOUND_MM / scale[k]
+    bounds = (lo, hi)
     s2 = least_squares(residuals, np.concatenate([zeros, s1.x]), jac_sparsity=sparsity(True), x_scale="jac",
-                       method="trf", max_nfev=60)
+                       method="trf", max_nfev=60, bounds=bounds)
     sol = least_squares(residuals, s2.x, jac_sparsity=sparsity(True), loss="huber", f_scale=loss_scale_px,
-                        x_scale="jac", method="trf", max_nfev=30)
+                        x_scale="jac", method="trf", max_nfev=30, bounds=bounds)
     log.debug("prism calibration: costs %.4g -> %.4g -> %.4g (%d, %d, %d evaluations)", s1.cost, s2.cost,
               sol.cost, s1.nfev, s2.nfev, sol.nfev)
     fitted, _ = unpack(sol.x)
@@ -411,6 +420,14 @@ def calibrate_prism(
         std_all = np.sqrt(np.maximum(np.diag(cov), 0.0))
     except np.linalg.LinAlgError:
         std_all = np.full(x0.size, np.inf)
+    # every corner must still be seen through the face it was found in
+    for k in range(n_faces):
+        seen = trace_pixels(fitted, obs_face[k]).face == k
+        if seen.mean() < 0.98:
+            raise GeometryError(
+                f"expected the fitted prism to show each board through the face it was found in, got "
+                f"{int((~seen).sum())} of {seen.size} corners of face {k} elsewhere; the fit is ill-conditioned "
+                f"(check the camera calibration, or fit fewer parameters with --free)")
     values = _prism_values(fitted)
     estimates = {k: float(values[k]) for k in free_params}
     std = {k: float(std_all[i] * scale[k]) for i, k in enumerate(free_params)}
