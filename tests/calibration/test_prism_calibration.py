@@ -63,3 +63,17 @@ def test_parse_free():
     assert parse_free("rotation,apex_distance") == ("rotation", "apex_distance")
     with pytest.raises(ConfigError, match="--free: expected a comma list"):
         parse_free("rotation,spin")
+
+
+def test_a_wrong_focal_length_is_refused_or_absorbed(board_captures, small_true, small_nominal):
+    _, images = board_captures
+    f = small_true.camera.focal_px * 1.01  # a camera calibration 1 % off
+    cam = dataclasses.replace(small_true.camera, fx=f, fy=f)
+    start = dataclasses.replace(small_nominal, camera=cam)
+    # holding the focal length, the prism cannot explain the corners: refused, not silently wrong
+    with pytest.raises(GeometryError, match="expected a"):
+        calibrate_prism(start, images, Board(8, 6, 5.0), free="rotation,tilt,decenter")
+    # with the focal length free (the default) it is recovered
+    res = calibrate_prism(start, images, Board(8, 6, 5.0))
+    assert abs(res.estimates["fx"] / small_true.camera.focal_px - 1) < 0.002
+    assert abs(res.estimates["rotation"] - 1.4) < 0.1

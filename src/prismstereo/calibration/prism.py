@@ -420,13 +420,20 @@ def calibrate_prism(
         std_all = np.sqrt(np.maximum(np.diag(cov), 0.0))
     except np.linalg.LinAlgError:
         std_all = np.full(x0.size, np.inf)
+    at_bound = [name for i, name in enumerate(free_params) if np.isfinite(lo[i])
+                and min(sol.x[i] - lo[i], hi[i] - sol.x[i]) * scale[name] < 1e-3]
+    if at_bound:
+        raise GeometryError(
+            f"expected a prism fit inside the ±{DECENTER_BOUND_MM:g} mm decenter bound, got {', '.join(at_bound)} "
+            f"at it: the corners ask for more than a decenter can do (a camera calibration error?); "
+            f"add focal to --free or recalibrate the camera")
     # every corner must still be seen through the face it was found in
-    for k in range(n_faces):
-        seen = trace_pixels(fitted, obs_face[k]).face == k
+    for face in range(n_faces):
+        seen = trace_pixels(fitted, obs_face[face]).face == face
         if seen.mean() < 0.98:
             raise GeometryError(
                 f"expected the fitted prism to show each board through the face it was found in, got "
-                f"{int((~seen).sum())} of {seen.size} corners of face {k} elsewhere; the fit is ill-conditioned "
+                f"{int((~seen).sum())} of {seen.size} corners of face {face} elsewhere; the fit is ill-conditioned "
                 f"(check the camera calibration, or fit fewer parameters with --free)")
     values = _prism_values(fitted)
     estimates = {k: float(values[k]) for k in free_params}
