@@ -13,7 +13,6 @@ from hypothesis import strategies as st
 from prismstereo.config import Rig, pyramid_rig, thesis_biprism, thesis_triprism
 from prismstereo.optics import (
     distort_points,
-    face_map,
     project_exact,
     rays_from_pixels,
     refract,
@@ -110,17 +109,31 @@ def test_posed_pyramid_round_trip(faces, rotation, tx, ty, dx, dy, k1, seed):
         np.testing.assert_allclose(q, px[sel], atol=1e-5)
 
 
+def _row_faces(rig: Rig, v: float) -> np.ndarray:
+    u = np.arange(rig.camera.width, dtype=np.float64)
+    return trace_pixels(rig, np.stack([u, np.full_like(u, v)], axis=1)).face
+
+
 def test_posed_biprism_apex_line_moves_with_decenter_and_rotation():
     rig = thesis_biprism().with_prism(decenter=(1.0, 0.0))
-    fm = face_map(rig)
     # the apex (x = 1 mm at 210 mm) is seen f·1/210 ≈ 25.6 px right of the centre
-    edge = np.flatnonzero(np.diff(fm[384]) != 0)
+    edge = np.flatnonzero(np.diff(_row_faces(rig, 384.0)) != 0)
     assert edge.size == 1 and abs(edge[0] + 0.5 - (511.5 + rig.camera.focal_px / 210.0)) < 1.5
-    turned = face_map(thesis_biprism().with_prism(rotation=2.0))
-    top = np.flatnonzero(np.diff(turned[0]) != 0)[0]
-    bottom = np.flatnonzero(np.diff(turned[767]) != 0)[0]
+    turned = thesis_biprism().with_prism(rotation=2.0)
+    top = np.flatnonzero(np.diff(_row_faces(turned, 0.0)) != 0)[0]
+    bottom = np.flatnonzero(np.diff(_row_faces(turned, 767.0)) != 0)[0]
     # the apex line turns with the prism: across 767 rows it moves by 767·tan(2°) ≈ 26.8 px
     assert abs((top - bottom) - 767 * np.tan(np.radians(2.0))) < 1.5
+
+
+def test_sub_image_split_follows_the_real_apex_line():
+    from prismstereo.depth.demo import scaled_rig
+    from prismstereo.rectify.regions import view_regions
+
+    rig = scaled_rig(thesis_biprism(), 4).with_prism(decenter=(1.0, 0.0))  # 256×192, f = 1344 px
+    right = view_regions(rig, margin_px=2)[0].mask
+    first = np.argmax(right[96])  # the right view starts 2 px (the margin) past the apex line
+    assert abs(first - (127.5 + 1344.1 / 210.0 + 2.5)) < 1.5
 
 
 def test_distortion_matches_opencv():
