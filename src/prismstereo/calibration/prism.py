@@ -255,8 +255,8 @@ def calibrate_prism(
     Parameters
     ----------
     rig : Rig
-        The camera (intrinsics and distortion from :func:`calibrate_camera`, held fixed) and the nominal
-        prism (the starting point).
+        The camera (intrinsics and distortion from :func:`calibrate_camera`; held, except the camera
+        parameters in ``free``) and the nominal prism (the starting point).
     captures : sequence of (H, W) or (H, W, 3) uint8 images of the board through the prism.
     board : Board
     names : names of the captures for the report.
@@ -281,7 +281,9 @@ def calibrate_prism(
     ImageError
         When a board is missing in a sub-image of some capture, or too few captures.
     GeometryError
-        When the fit is ill-conditioned (a parameter's std above its limit in :data:`PARAMETERS`).
+        When the fit is ill-conditioned: a parameter's std above its limit in :data:`PARAMETERS`, a
+        decenter at its ±:data:`DECENTER_BOUND_MM` bound, or a fitted prism that shows a detected corner
+        through another face than the one it was found in.
     """
     t0 = time.perf_counter()
     free_params = parse_free(free)
@@ -323,8 +325,8 @@ def calibrate_prism(
         R = Rotation.from_rotvec(poses[:, :3]).as_matrix()  # (n_cap, 3, 3)
         return (np.einsum("cij,mj->cmi", R, obj) + poses[:, None, 3:]).reshape(-1, 3)
 
-    # The camera is fixed, so the rays of the detected corners (and of their ±h neighbours for the local
-    # Jacobian) are computed once; each evaluation only traces them through the prism.
+    # With the camera held, the rays of the detected corners (and of their ±h neighbours for the local
+    # Jacobian) are computed once and each evaluation only traces them through the prism.
     h = 0.5
     steps = np.array([[0.0, 0.0], [h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])
     camera_free = any(k in _CAMERA_PARAMS for k in free_params)
