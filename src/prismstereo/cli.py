@@ -361,6 +361,11 @@ def _add_common(p: argparse.ArgumentParser) -> None:
         p.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
                        help="no progress bars (they show only on a terminal anyway)")
 
+# --------------------------------------------------------------------------- real rigs (issue 15)
+from prismstereo.cli_calibration import add_calibrate_camera, add_calibrate_prism  # noqa: E402
+
+_ADDERS += [add_calibrate_camera, add_calibrate_prism]
+
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(

@@ -39,6 +39,19 @@ def _positive(section: str, key: str, value: Any, *, integer: bool = False) -> f
     return v
 
 
+def _vector(
+    section: str, key: str, value: Any, *, lengths: tuple[int, ...], limit: float, names: str
+) -> tuple[float, ...]:
+    """A short list of finite numbers, each within ±limit (a sanity range for physical rigs)."""
+    if not isinstance(value, list | tuple) or len(value) not in lengths:
+        raise ConfigError(f"[{section}] {key}: expected {names}, got {value!r}")
+    out = tuple(_number(section, key, v) for v in value)
+    for v in out:
+        if abs(v) > limit:
+            raise ConfigError(f"[{section}] {key}: expected every value within ±{limit:g}, got {list(value)!r}")
+    return out
+
+
 def _check_keys(section: str, table: Mapping[str, Any], required: set[str], optional: set[str]) -> None:
     if not isinstance(table, Mapping):
         raise ConfigError(f"[{section}]: expected a table, got {table!r}")
@@ -53,31 +66,56 @@ def _check_keys(section: str, table: Mapping[str, Any], required: set[str], opti
 
 @dataclass(frozen=True)
 class CameraSpec:
-    """The real camera: a pinhole with square pixels, no distortion.
+    """The real camera: a pinhole with optional OpenCV lens distortion (DESIGN.md §4).
 
     Attributes
     ----------
     width, height : int
         Sensor size in pixels.
-    focal_length : float
-        Focal length in mm.
-    pixel_size : float
+    focal_length : float or None
+        Focal length in mm (with ``pixel_size``; may be omitted when ``fx`` and ``fy`` are given).
+    pixel_size : float or None
         Pixel pitch in mm (square pixels).
     principal_point : tuple of float or None
         (cx, cy) in pixels; ``None`` means the image centre ((width-1)/2, (height-1)/2).
+    fx, fy : float or None
+        Focal lengths in pixels (from a calibration); when given they define K instead of
+        focal_length / pixel_size. Both or neither.
+    distortion : (k1, k2, p1, p2, k3)
+        OpenCV distortion of normalised coordinates; all zero = a distortion-free pinhole. A real pixel
+        looks along the ray through its undistorted normalised point (as ``cv2.undistortPoints``).
     """
 
     width: int
     height: int
-    focal_length: float
-    pixel_size: float
+    focal_length: float | None = None
+    pixel_size: float | None = None
     principal_point: tuple[float, float] | None = None
+    fx: float | None = None
+    fy: float | None = None
+    distortion: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         _positive("camera", "width", self.width, integer=True)
         _positive("camera", "height", self.height, integer=True)
-        _positive("camera", "focal_length", self.focal_length)
-        _positive("camera", "pixel_size", self.pixel_size)
+        if (self.fx is None) != (self.fy is None):
+            raise ConfigError(f"[camera] fx, fy: expected both or neither, got fx={self.fx!r}, fy={self.fy!r}")
+        if self.fx is None and (self.focal_length is None or self.pixel_size is None):
+            raise ConfigError("[camera]: expected focal_length and pixel_size, or fx and fy (px), got neither; "
+                              "add them to the rig file")
+        if self.focal_length is not None:
+            _positive("camera", "focal_length", self.focal_length)
+        if self.pixel_size is not None:
+            _positive("camera", "pixel_size", self.pixel_size)
+        if self.fx is not None and self.fy is not None:
+            object.__setattr__(self, "fx", _positive("camera", "fx", self.fx))
+            object.__setattr__(self, "fy", _positive("camera", "fy", self.fy))
+        dist = _vector("camera", "distortion", self.distortion, lengths=(4, 5), limit=100.0,
+                       names="[k1, k2, p1, p2, k3] (OpenCV order)")
+        for name, v in zip(("p1", "p2"), dist[2:4], strict=True):
+            if abs(v) > 1.0:
+                raise ConfigError(f"[camera] distortion: expected tangential {name} within ±1, got {v!r}")
+        object.__setattr__(self, "distortion", tuple(dist) + (0.0,) * (5 - len(dist)))
         if self.principal_point is not None:
             pp = self.principal_point
             if not isinstance(pp, list | tuple) or len(pp) != 2:
@@ -90,8 +128,24 @@ class CameraSpec:
 
     @property
     def focal_px(self) -> float:
-        """Focal length in pixels, f / pixel_size."""
+        """Focal length in pixels: f / pixel_size, or the mean of fx and fy when those are given."""
+        if self.fx is not None and self.fy is not None:
+            return 0.5 * (self.fx + self.fy)
+        assert self.focal_length is not None and self.pixel_size is not None  # __post_init__ checked
         return self.focal_length / self.pixel_size
+
+    @property
+    def focal_xy(self) -> tuple[float, float]:
+        """(fx, fy) in pixels."""
+        if self.fx is not None and self.fy is not None:
+            return (self.fx, self.fy)
+        f = self.focal_px
+        return (f, f)
+
+    @property
+    def has_distortion(self) -> bool:
+        """True when any distortion coefficient is non-zero."""
+        return any(v != 0.0 for v in self.distortion)
 
     @property
     def center(self) -> tuple[float, float]:
@@ -104,8 +158,8 @@ class CameraSpec:
     def K(self) -> np.ndarray:
         """3×3 intrinsic matrix of the real camera."""
         cx, cy = self.center
-        f = self.focal_px
-        return np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
+        fx, fy = self.focal_xy
+        return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
     @property
     def size(self) -> tuple[int, int]:
@@ -134,6 +188,16 @@ class PrismSpec:
         leaves a flat slab (parallel plate) behind the faces.
     rotation : float
         Rotation of the face layout about the optical axis, degrees.
+    tilt : (tx, ty)
+        Tilt of the prism about the camera's X axis, then its Y axis, through the apex, degrees.
+    decenter : (dx, dy)
+        Offset of the apex from the optical axis, mm.
+
+    Notes
+    -----
+    Pose (DESIGN.md §4): a point p of the nominal prism maps to the camera frame as
+    ``Ry(ty)·Rx(tx)·Rz(rotation)·(p − A0) + A0 + (dx, dy, 0)``, A0 = (0, 0, apex_distance). The rotation is
+    carried by the face directions; tilt and decenter by :meth:`pose`.
     """
 
     faces: int
@@ -143,6 +207,8 @@ class PrismSpec:
     back_distance: float
     height: float | None = None
     rotation: float = 0.0
+    tilt: tuple[float, float] = (0.0, 0.0)
+    decenter: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         faces = _number("prism", "faces", self.faces, integer=True)
@@ -169,7 +235,27 @@ class PrismSpec:
                     f"got {h:g}"
                 )
         _number("prism", "rotation", self.rotation)
+        tilt = _vector("prism", "tilt", self.tilt, lengths=(2,), limit=30.0, names="[tx, ty] in degrees")
+        decenter = _vector("prism", "decenter", self.decenter, lengths=(2,), limit=apex,
+                           names="[dx, dy] in mm")
+        object.__setattr__(self, "tilt", (tilt[0], tilt[1]))
+        object.__setattr__(self, "decenter", (decenter[0], decenter[1]))
         object.__setattr__(self, "faces", int(faces))
+
+    @property
+    def is_posed(self) -> bool:
+        """True when the prism is tilted or decentred (the rotation alone keeps it on the axis)."""
+        return any(v != 0.0 for v in self.tilt + self.decenter)
+
+    def pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """(M, A): the prism's tilt Ry(ty)·Rx(tx) (3, 3) and its apex (3,) in the camera frame, so that a point
+        q of the centred prism (with its rotation) is at ``M (q − A0) + A`` (DESIGN.md §4)."""
+        tx, ty = (math.radians(v) for v in self.tilt)
+        cx, sx, cy, sy = math.cos(tx), math.sin(tx), math.cos(ty), math.sin(ty)
+        rx = np.array([[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]])
+        ry = np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]])
+        apex = np.array([self.decenter[0], self.decenter[1], self.apex_distance])
+        return ry @ rx, apex
 
     @property
     def face_height(self) -> float:
@@ -211,19 +297,24 @@ class Rig:
 
     def view_name(self, face: int) -> str:
         """Human name of the virtual camera created by ``face`` ("left"/"right" for a bi-prism)."""
-        if self.prism.faces == 2 and self.prism.rotation % 360.0 == 0.0:
+        # a calibrated bi-prism is rotated by a degree or two and still has a left and a right view
+        if self.prism.faces == 2 and abs((self.prism.rotation + 180.0) % 360.0 - 180.0) < 10.0:
             return "right" if face == 0 else "left"
         return f"view{face}"
 
     def to_dict(self) -> dict[str, Any]:
-        cam: dict[str, Any] = {
-            "width": self.camera.width,
-            "height": self.camera.height,
-            "focal_length": self.camera.focal_length,
-            "pixel_size": self.camera.pixel_size,
-        }
+        cam: dict[str, Any] = {"width": self.camera.width, "height": self.camera.height}
+        if self.camera.focal_length is not None:
+            cam["focal_length"] = self.camera.focal_length
+        if self.camera.pixel_size is not None:
+            cam["pixel_size"] = self.camera.pixel_size
         if self.camera.principal_point is not None:
             cam["principal_point"] = list(self.camera.principal_point)
+        if self.camera.fx is not None:
+            cam["fx"] = self.camera.fx
+            cam["fy"] = self.camera.fy
+        if self.camera.has_distortion:
+            cam["distortion"] = list(self.camera.distortion)
         prism: dict[str, Any] = {
             "faces": self.prism.faces,
             "corner_angle": self.prism.corner_angle,
@@ -235,6 +326,10 @@ class Rig:
             prism["height"] = self.prism.height
         if self.prism.rotation != 0.0:
             prism["rotation"] = self.prism.rotation
+        if any(self.prism.tilt):
+            prism["tilt"] = list(self.prism.tilt)
+        if any(self.prism.decenter):
+            prism["decenter"] = list(self.prism.decenter)
         return {"camera": cam, "prism": prism}
 
     def to_toml(self) -> str:
@@ -249,10 +344,10 @@ class Rig:
         return replace(self, prism=replace(self.prism, **changes))
 
 
-_CAMERA_REQUIRED = {"width", "height", "focal_length", "pixel_size"}
-_CAMERA_OPTIONAL = {"principal_point"}
+_CAMERA_REQUIRED = {"width", "height"}
+_CAMERA_OPTIONAL = {"principal_point", "focal_length", "pixel_size", "fx", "fy", "distortion"}
 _PRISM_REQUIRED = {"faces", "corner_angle", "refractive_index", "apex_distance", "back_distance"}
-_PRISM_OPTIONAL = {"height", "rotation"}
+_PRISM_OPTIONAL = {"height", "rotation", "tilt", "decenter"}
 
 
 def rig_from_dict(data: Mapping[str, Any], *, name: str = "rig", extra_sections: set[str] | None = None) -> Rig:
@@ -276,9 +371,12 @@ def rig_from_dict(data: Mapping[str, Any], *, name: str = "rig", extra_sections:
     camera = CameraSpec(
         width=cam["width"],
         height=cam["height"],
-        focal_length=cam["focal_length"],
-        pixel_size=cam["pixel_size"],
+        focal_length=cam.get("focal_length"),
+        pixel_size=cam.get("pixel_size"),
         principal_point=tuple(pp) if isinstance(pp, list) else pp,
+        fx=cam.get("fx"),
+        fy=cam.get("fy"),
+        distortion=cam.get("distortion", (0.0, 0.0, 0.0, 0.0, 0.0)),
     )
     spec = PrismSpec(
         faces=prism["faces"],
@@ -288,6 +386,8 @@ def rig_from_dict(data: Mapping[str, Any], *, name: str = "rig", extra_sections:
         back_distance=prism["back_distance"],
         height=prism.get("height"),
         rotation=prism.get("rotation", 0.0),
+        tilt=prism.get("tilt", (0.0, 0.0)),
+        decenter=prism.get("decenter", (0.0, 0.0)),
     )
     return Rig(camera=camera, prism=spec, name=name)
 

@@ -33,8 +33,9 @@ def scaled_rig(rig: Rig, factor: int) -> Rig:
     """The same rig with a sensor ``factor`` times coarser (same field of view, same optics)."""
     cam = rig.camera
     pp = None if cam.principal_point is None else (cam.principal_point[0] / factor, cam.principal_point[1] / factor)
-    new = replace(cam, width=cam.width // factor, height=cam.height // factor, pixel_size=cam.pixel_size * factor,
-                  principal_point=pp)
+    new = replace(cam, width=cam.width // factor, height=cam.height // factor,
+                  pixel_size=None if cam.pixel_size is None else cam.pixel_size * factor, principal_point=pp,
+                  fx=None if cam.fx is None else cam.fx / factor, fy=None if cam.fy is None else cam.fy / factor)
     return replace(rig, camera=new, name=f"{rig.name}-1/{factor}")
 
 

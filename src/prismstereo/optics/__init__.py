@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from prismstereo.optics.distortion import distort_points, undistort_points
 from prismstereo.optics.prism import (
     RayBundle,
     deviation_angle,
@@ -22,6 +23,7 @@ from prismstereo.optics.refraction import (
 __all__ = [
     "RayBundle",
     "closest_points_between_lines",
+    "distort_points",
     "deviation_angle",
     "face_map",
     "intersect_plane",
@@ -32,4 +34,5 @@ __all__ = [
     "refract",
     "trace_pixels",
     "trace_rays",
+    "undistort_points",
 ]

@@ -7,6 +7,10 @@ surface to the back plane ``z = back``; the prism's lateral walls are ``max_k (p
 A camera ray enters through the face whose half-space it enters last (the front surface is convex), is
 refracted into the glass, leaves through the back plane and is refracted again into the scene. Rays that
 hit no glass, leave through a side wall or are totally internally reflected are invalid (NaN).
+
+A misaligned prism (``tilt``, ``decenter``) is traced in the frame of the centred prism: the camera's
+centre and ray directions are moved by the inverse of its pose, and the results moved back. Lens
+distortion enters through :func:`rays_from_pixels` (each pixel's ray goes through its undistorted point).
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from prismstereo.config import Rig
+from prismstereo.optics.distortion import undistort_points
 from prismstereo.optics.refraction import normalize, refract
 
 _EPS = 1e-9
@@ -53,22 +58,29 @@ class RayBundle:
         return self.origins + s[..., None] * self.directions
 
 
-def rays_from_pixels(pixels: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Unit ray directions in the camera frame for pixels of a distortion-free pinhole.
+def rays_from_pixels(pixels: np.ndarray, K: np.ndarray, dist: np.ndarray | tuple[float, ...] | None = None
+                     ) -> np.ndarray:
+    """Unit ray directions in the camera frame for pixels of a pinhole with optional lens distortion.
 
     Parameters
     ----------
     pixels : (..., 2) array of (u, v), pixel centres at integers.
     K : (3, 3) intrinsic matrix.
+    dist : (k1, k2, p1, p2, k3), optional
+        OpenCV distortion; the ray goes through the undistorted normalised point (DESIGN.md §4).
 
     Returns
     -------
-    (..., 3) unit directions, d ∝ K⁻¹ [u, v, 1]ᵀ.
+    (..., 3) unit directions, d ∝ K⁻¹ [u, v, 1]ᵀ without distortion; NaN where undistortion fails.
     """
     px = np.asarray(pixels, dtype=np.float64)
     Kinv = np.linalg.inv(np.asarray(K, dtype=np.float64))
     hom = np.concatenate([px, np.ones(px.shape[:-1] + (1,))], axis=-1)
-    return normalize(hom @ Kinv.T)
+    if dist is None or not np.any(np.asarray(dist)):
+        return normalize(hom @ Kinv.T)
+    xy = (hom @ Kinv.T)[..., :2]
+    und = undistort_points(xy, dist)
+    return normalize(np.concatenate([und, np.ones(und.shape[:-1] + (1,))], axis=-1))
 
 
 def trace_rays(
@@ -101,12 +113,22 @@ def trace_rays(
     u = prism.face_directions()  # N×3
     t = prism.tan_alpha
     apex, back, n_glass = prism.apex_distance, prism.back_distance, prism.refractive_index
+    posed = prism.is_posed
+    if posed:
+        # Trace in the frame of the centred prism: the camera's centre and rays move by the inverse pose.
+        M, apex_cam = prism.pose()
+        a0 = np.array([0.0, 0.0, apex])
+        o = M.T @ (-apex_cam) + a0
+        d = d @ M  # Mᵀ d for row vectors
 
-    # Half-space k of the convex front surface: z − t·(u_k·p) ≥ apex. Along p = s·d it is entered at
-    # s_k = apex / (d_z − t·u_k·d); a ray with a non-positive denominator never enters it (misses).
+    # Half-space k of the convex front surface: z − t·(u_k·p) ≥ apex. Along p = o + s·d it is entered at
+    # s_k = (apex − o_z + t·u_k·o) / (d_z − t·u_k·d); a ray with a non-positive denominator never enters it.
     denom = d[:, 2:3] - t * (d @ u.T)  # M×N
     with np.errstate(divide="ignore", invalid="ignore"):
-        s_k = np.where(denom > _EPS, apex / denom, np.inf)
+        if posed:
+            s_k = np.where(denom > _EPS, (apex - o[2] + t * (u @ o))[None, :] / denom, np.inf)
+        else:
+            s_k = np.where(denom > _EPS, apex / denom, np.inf)
     if face is None:
         k = np.argmax(s_k, axis=1)
         valid = np.all(denom > _EPS, axis=1)
@@ -114,7 +136,7 @@ def trace_rays(
         k = np.full(d.shape[0], int(face))
         valid = denom[:, face] > _EPS
     s = np.take_along_axis(s_k, k[:, None], axis=1)[:, 0]
-    entry = s[:, None] * d
+    entry = o + s[:, None] * d if posed else s[:, None] * d
     inradius = prism.inradius
     if bounded:
         valid &= entry[:, 2] <= apex + prism.face_height + 1e-9 * max(1.0, apex)
@@ -131,6 +153,12 @@ def trace_rays(
 
     out, ok = refract(inside, np.array([0.0, 0.0, 1.0]), n_glass, 1.0)
     valid &= ok & np.all(np.isfinite(out), axis=1)
+    if posed:
+        # back to the camera frame: p_cam = M (p − A0) + A
+        exit_pt = (exit_pt - a0) @ M.T + apex_cam
+        entry = (entry - a0) @ M.T + apex_cam
+        out = out @ M.T
+        inside = inside @ M.T
 
     nan3 = np.full(3, np.nan)
     origins = np.where(valid[:, None], exit_pt, nan3)
@@ -156,7 +184,8 @@ def trace_pixels(
     Parameters
     ----------
     rig : Rig
-    pixels : (..., 2) array of (u, v) in the real image, pixel centres at integers.
+    pixels : (..., 2) array of (u, v) in the real image, pixel centres at integers. With lens distortion
+        (``rig.camera.distortion``) each pixel looks along the ray of its undistorted normalised point.
     face : int, optional
         Force refraction through this face (see :func:`trace_rays`).
 
@@ -164,7 +193,9 @@ def trace_pixels(
     -------
     RayBundle with leading shape ``pixels.shape[:-1]``.
     """
-    return trace_rays(rig, rays_from_pixels(pixels, rig.camera.K), face=face, bounded=bounded)
+    cam = rig.camera
+    dist = cam.distortion if cam.has_distortion else None
+    return trace_rays(rig, rays_from_pixels(pixels, cam.K, dist), face=face, bounded=bounded)
 
 
 def pixel_grid(width: int, height: int, *, step: float = 1.0) -> np.ndarray:
@@ -183,7 +214,7 @@ def face_map(rig: Rig) -> np.ndarray:
 
 def deviation_angle(rig: Rig, pixels: np.ndarray) -> np.ndarray:
     """Angle (degrees) between each pixel's camera ray and its ray after the prism: (...,)."""
-    d0 = rays_from_pixels(pixels, rig.camera.K)
+    d0 = rays_from_pixels(pixels, rig.camera.K, rig.camera.distortion if rig.camera.has_distortion else None)
     b = trace_pixels(rig, pixels)
     cos = np.clip(np.einsum("...k,...k->...", d0, b.directions), -1.0, 1.0)
     return np.degrees(np.arccos(cos))

@@ -12,6 +12,7 @@ import numpy as np
 
 from prismstereo.config import Rig
 from prismstereo.errors import GeometryError
+from prismstereo.optics.distortion import distort_points
 from prismstereo.optics.prism import trace_pixels
 
 
@@ -29,6 +30,7 @@ def project_exact(
     *,
     tolerance_px: float = 1e-4,
     max_iterations: int = 30,
+    initial_pixels: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Real-image pixels that see 3D points through one prism face (exact refraction).
 
@@ -42,6 +44,9 @@ def project_exact(
     tolerance_px : float
         Newton stops when the last step is below this (px); points that do not get there fail.
     max_iterations : int
+    initial_pixels : (N, 2) array, optional
+        Where Newton starts (e.g. the detected pixels in a calibration); default: the point's projection
+        without the prism.
 
     Returns
     -------
@@ -60,10 +65,18 @@ def project_exact(
         raise GeometryError(f"expected a face index in [0, {rig.prism.faces - 1}], got {face}")
     pts = np.atleast_2d(np.asarray(points_in_world, dtype=np.float64))
     n = pts.shape[0]
-    K = rig.camera.K
-    with np.errstate(divide="ignore", invalid="ignore"):
-        proj = pts @ K.T
-        px = proj[:, :2] / proj[:, 2:3]
+    cam = rig.camera
+    K = cam.K
+    if initial_pixels is not None:
+        px = np.array(initial_pixels, dtype=np.float64).reshape(n, 2)
+    elif cam.has_distortion:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xy = distort_points(pts[:, :2] / pts[:, 2:3], cam.distortion)
+        px = xy @ K[:2, :2].T + K[:2, 2]
+    else:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            proj = pts @ K.T
+            px = proj[:, :2] / proj[:, 2:3]
     active = np.all(np.isfinite(pts), axis=1) & (pts[:, 2] > rig.prism.back_distance)
     px[~active] = np.nan
     converged = np.zeros(n, dtype=bool)

@@ -227,3 +227,57 @@ def checkerboard_poses(
     log.info("%d checkerboard poses, square %.3g mm, %d-%d mm", n_poses, sq, near, far)
     return poses
 
+
+
+def camera_board_poses(
+    rig: Rig,
+    *,
+    n_poses: int = 12,
+    squares: tuple[int, int] = (9, 7),
+    square_mm: float = 3.0,
+    distance_range: tuple[float, float] = (250.0, 400.0),
+    max_tilt: float = 35.0,
+    max_spin: float = 20.0,
+    seed: int = 0,
+    background: tuple[float, float, float] = (0.45, 0.45, 0.45),
+    max_tries: int = 400,
+) -> list[BoardPose]:
+    """Random checkerboard poses for calibrating the bare camera (no prism), spread over the whole image.
+
+    Board centres are drawn so that their images cover the sensor out to the corners (where the lens
+    distortion is strongest); each pose is whole inside the image (distorting projection, 4 px border).
+    Same parameters as :func:`checkerboard_poses`.
+    """
+    from prismstereo.cameras.pinhole import project_points
+
+    if n_poses < 1:
+        raise ConfigError(f"n_poses: expected a positive integer, got {n_poses!r}")
+    near, far = (float(x) for x in distance_range)
+    if not (np.isfinite(near) and np.isfinite(far)) or near <= 0 or far < near:
+        raise ConfigError(f"distance_range: expected (near, far) with 0 < near <= far, got {distance_range!r}")
+    cam = rig.camera
+    W, H = cam.width, cam.height
+    rng = np.random.default_rng(seed)
+    poses: list[BoardPose] = []
+    fx, fy = cam.focal_xy
+    cx, cy = cam.center
+    for k in range(n_poses):
+        for _ in range(max_tries):
+            z = rng.uniform(near, far)
+            u, v = rng.uniform([0.1 * W, 0.1 * H], [0.9 * W, 0.9 * H])
+            centre = ((u - cx) / fx * z, (v - cy) / fy * z, z)
+            rx, ry = rng.uniform(-max_tilt, max_tilt, size=2)
+            rz = rng.uniform(-max_spin, max_spin)
+            board = board_rectangle(centre, (float(rx), float(ry), float(rz)), squares=squares, square_mm=square_mm)
+            px = project_points(_check_points(board), cam.K, np.eye(3), np.zeros(3), np.asarray(cam.distortion))
+            if np.all(np.isfinite(px)) and np.all((px >= 4) & (px <= np.array([W - 5, H - 5]))):
+                break
+        else:
+            raise GeometryError(f"expected a checkerboard pose inside the image, got none in {max_tries} tries")
+        corners, obj = board_corners(board)
+        poses.append(BoardPose(
+            board=board, corners=corners, object_points=obj, rotation=board.matrix, origin=corners[0].copy(),
+            pattern_size=(squares[0] - 1, squares[1] - 1), square=square_mm,
+            scene=Scene(objects=(board,), background=background, name=f"camera-board{k}"),
+        ))
+    return poses

@@ -18,6 +18,7 @@ import numpy as np
 from prismstereo.config import Rig
 from prismstereo.errors import ConfigError
 from prismstereo.optics import trace_rays
+from prismstereo.optics.distortion import undistort_points
 from prismstereo.simulate.kernels import (
     LIGHT,
     CompiledScene,
@@ -154,11 +155,19 @@ class Capture:
 def _trace(rig: Rig, pixels: np.ndarray, prism: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Rays of real pixels (N, 2): what :func:`prismstereo.optics.trace_pixels` gives, without its
     per-call inverse of K (the pinhole direction K⁻¹[u, v, 1] is computed directly; trace_rays normalises)."""
-    f = rig.camera.focal_px
-    cx, cy = rig.camera.center
+    cam = rig.camera
+    cx, cy = cam.center
     d = np.empty((pixels.shape[0], 3))
-    d[:, 0] = (pixels[:, 0] - cx) / f
-    d[:, 1] = (pixels[:, 1] - cy) / f
+    if cam.fx is None:
+        f = cam.focal_px
+        d[:, 0] = (pixels[:, 0] - cx) / f
+        d[:, 1] = (pixels[:, 1] - cy) / f
+    else:
+        fx, fy = cam.focal_xy
+        d[:, 0] = (pixels[:, 0] - cx) / fx
+        d[:, 1] = (pixels[:, 1] - cy) / fy
+    if cam.has_distortion:
+        d[:, :2] = undistort_points(d[:, :2], cam.distortion)
     d[:, 2] = 1.0
     if prism:
         b = trace_rays(rig, d)
@@ -175,45 +184,29 @@ def sample_offsets(supersample: int) -> np.ndarray:
     return np.stack([du.ravel(), dv.ravel()], axis=1)
 
 
-def render_capture(
-    rig: Rig,
-    scene: Scene,
-    *,
-    supersample: int | None = None,
-    prism: bool = True,
-    noise: float | None = None,
-    seed: int | None = None,
-) -> Capture:
-    """Render what the real camera sees of ``scene`` through the rig's prism.
+def dispersed_indices(n_d: float, abbe: float) -> tuple[float, float, float]:
+    """Refractive indices (n_C, n_d, n_F) at 656.3, 587.6 and 486.1 nm of a Cauchy glass n = A + B/λ²
+    with index ``n_d`` and Abbe number ``abbe`` = (n_d − 1)/(n_F − n_C): the red, green, blue channels."""
+    lc, ld, lf = 0.6563, 0.5876, 0.4861  # µm
+    b = (n_d - 1.0) / abbe / (1.0 / lf**2 - 1.0 / lc**2)
+    a = n_d - b / ld**2
+    return (a + b / lc**2, n_d, a + b / lf**2)
 
-    Parameters
-    ----------
-    rig : Rig
-    scene : Scene
-    supersample : int, optional
-        s: s × s regular samples per pixel for antialiasing (default ``scene.supersample``).
-    prism : bool
-        False renders what the bare camera sees (no prism; every valid pixel gets face 0): a reference.
-    noise : float, optional
-        Std of additive Gaussian sensor noise in grey levels (default ``scene.noise``).
-    seed : int, optional
-        Seed of the sensor noise (default ``scene.seed``). The render is deterministic.
 
-    Returns
-    -------
-    Capture
-        ``image`` (H, W, 3) uint8, ``depth`` (H, W) float32 mm, ``faces`` (H, W) uint8, ``points``
-        (H, W, 3) float64, ``object_ids`` (H, W) int16.
-    """
-    t0 = time.perf_counter()
-    s = scene.supersample if supersample is None else supersample
-    if isinstance(s, bool) or not isinstance(s, int | np.integer) or not 1 <= s <= 16:
-        raise ConfigError(f"supersample: expected an integer in 1..16, got {s!r}")
-    s = int(s)
-    sigma = scene.noise if noise is None else float(noise)
-    if not np.isfinite(sigma) or sigma < 0:
-        raise ConfigError(f"noise: expected a non-negative number of grey levels, got {sigma!r}")
-    compiled = compile_scene(scene)
+def vignetting_gain(rig: Rig, strength: float) -> np.ndarray:
+    """(H, W) float32 irradiance factor 1 − strength·(r / r_corner)², r the distance to the principal point."""
+    W, H = rig.camera.width, rig.camera.height
+    cx, cy = rig.camera.center
+    vv, uu = np.mgrid[0:H, 0:W].astype(np.float64)
+    r2 = (uu - cx) ** 2 + (vv - cy) ** 2
+    r2max = max((x - cx) ** 2 + (y - cy) ** 2 for x in (0, W - 1) for y in (0, H - 1))
+    return (1.0 - strength * r2 / r2max).astype(np.float32)
+
+
+def _render_pass(
+    rig: Rig, scene: Scene, compiled: CompiledScene, s: int, prism: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One render of the linear image (H, W, 3) float32 in [0, 1] and the pixel-centre ground truth."""
     W, H = rig.camera.width, rig.camera.height
     offsets = sample_offsets(s)
     n_samp = s * s
@@ -282,7 +275,66 @@ def render_capture(
             average_samples_kernel(hits.colors[k0:], np.ascontiguousarray(valid[k0:]), n_samp, background, avg)
             image[r0:r1] = avg.reshape(h, W, 3)
 
+    return image, depth, faces, points, object_ids
+
+
+def render_capture(
+    rig: Rig,
+    scene: Scene,
+    *,
+    supersample: int | None = None,
+    prism: bool = True,
+    noise: float | None = None,
+    seed: int | None = None,
+) -> Capture:
+    """Render what the real camera sees of ``scene`` through the rig's prism.
+
+    Parameters
+    ----------
+    rig : Rig
+    scene : Scene
+    supersample : int, optional
+        s: s × s regular samples per pixel for antialiasing (default ``scene.supersample``).
+    prism : bool
+        False renders what the bare camera sees (no prism; every valid pixel gets face 0): a reference.
+    noise : float, optional
+        Std of additive Gaussian sensor noise in grey levels (default ``scene.noise``).
+    seed : int, optional
+        Seed of the sensor noise (default ``scene.seed``). The render is deterministic.
+
+    Notes
+    -----
+    The camera model is the rig's: a distorting lens (``rig.camera.distortion``) and a misaligned prism
+    (``tilt``, ``decenter``) are rendered exactly. The sensor then applies, in this order, the scene's
+    vignetting, dispersion (red and blue channels traced with their own index when ``scene.abbe`` is set),
+    additive Gaussian noise and rounding to 8 bits.
+
+    Returns
+    -------
+    Capture
+        ``image`` (H, W, 3) uint8, ``depth`` (H, W) float32 mm, ``faces`` (H, W) uint8, ``points``
+        (H, W, 3) float64, ``object_ids`` (H, W) int16.
+    """
+    t0 = time.perf_counter()
+    s = scene.supersample if supersample is None else supersample
+    if isinstance(s, bool) or not isinstance(s, int | np.integer) or not 1 <= s <= 16:
+        raise ConfigError(f"supersample: expected an integer in 1..16, got {s!r}")
+    s = int(s)
+    sigma = scene.noise if noise is None else float(noise)
+    if not np.isfinite(sigma) or sigma < 0:
+        raise ConfigError(f"noise: expected a non-negative number of grey levels, got {sigma!r}")
+    compiled = compile_scene(scene)
+    image, depth, faces, points, object_ids = _render_pass(rig, scene, compiled, s, prism)
+    if prism and scene.abbe is not None:
+        # dispersion: red and blue through the glass of their own index; the ground truth stays the green's
+        for channel, n_c in ((0, dispersed_indices(rig.prism.refractive_index, scene.abbe)[0]),
+                             (2, dispersed_indices(rig.prism.refractive_index, scene.abbe)[2])):
+            other = _render_pass(rig.with_prism(refractive_index=n_c), scene, compiled, s, prism)[0]
+            image[..., channel] = other[..., channel]
+    W, H = rig.camera.width, rig.camera.height
     out = image * np.float32(255.0)
+    if scene.vignetting > 0:
+        out *= vignetting_gain(rig, scene.vignetting)[..., None]
     if sigma > 0:
         rng = np.random.default_rng(scene.seed if seed is None else seed)
         out += rng.normal(0.0, sigma, size=out.shape).astype(np.float32)

@@ -357,6 +357,13 @@ class Scene:
     supersample : int
         Default samples per pixel side.
     name : str
+    vignetting : float
+        Fraction of light lost at the image corners, in [0, 1): the irradiance falls off as
+        1 − vignetting·(r / r_corner)² with the distance r from the principal point (0 = none).
+    abbe : float or None
+        Abbe number V_d of the glass for dispersion: the red, green and blue channels are rendered with
+        the refractive indices of the C (656 nm), d (588 nm) and F (486 nm) lines of a Cauchy glass with
+        n_d = the rig's index and n_F − n_C = (n_d − 1) / V_d, which gives colour fringes. None = no dispersion.
     """
 
     objects: tuple[SceneObject, ...] = ()
@@ -366,9 +373,14 @@ class Scene:
     seed: int = 0
     supersample: int = 2
     name: str = "scene"
+    vignetting: float = 0.0
+    abbe: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "objects", tuple(self.objects))
         _vec(self, "background", 3, lo=0.0, hi=1.0)
         _scalar(self, "shading", lo=0.0, hi=1.0)
         _scalar(self, "noise", lo=0.0, hi=255.0)
+        _scalar(self, "vignetting", lo=0.0, hi=0.99)
+        if self.abbe is not None:
+            _scalar(self, "abbe", lo=10.0, hi=120.0)

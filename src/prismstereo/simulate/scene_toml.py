@@ -20,7 +20,9 @@ Example::
     seed = 0                      # sensor-noise seed; default seed of noise textures (seed + object index)
     background = [0.0, 0.0, 0.0]  # RGB in [0, 1] of rays that pass the prism and hit nothing
     shading = 0.3                 # Lambertian light strength in [0, 1] (view-independent)
-    noise = 0.0                   # sensor noise std, grey levels
+    noise = 0.0                   # sensor noise std, grey levels (the capture is rounded to 8 bits after it)
+    vignetting = 0.0              # fraction of light lost at the image corners, [0, 0.99]
+    # abbe = 64.2                 # Abbe number of the glass: per-channel index, colour fringes (default none)
 
     [[objects]]
     type = "box"                  # "rectangle" | "box" | "sphere" | "plane"
@@ -70,7 +72,7 @@ from prismstereo.simulate.scene import (
     rotation_from_normal,
 )
 
-_RENDER_KEYS = {"supersample", "seed", "background", "shading", "noise"}
+_RENDER_KEYS = {"supersample", "seed", "background", "shading", "noise", "vignetting", "abbe"}
 _OBJECT_KEYS = {
     "rectangle": {"type", "name", "center", "size", "rotation", "normal", "spin", "texture"},
     "box": {"type", "name", "center", "size", "rotation", "normal", "spin", "texture"},
@@ -260,13 +262,15 @@ def scene_from_dict(data: Mapping[str, Any], *, base_dir: str | os.PathLike[str]
     background = _color("[render]", "background", render.get("background", [0.0, 0.0, 0.0]))
     shading = _num("[render]", "shading", render.get("shading", 0.0), lo=0.0, hi=1.0)
     noise = _num("[render]", "noise", render.get("noise", 0.0), lo=0.0, hi=255.0)
+    vignetting = _num("[render]", "vignetting", render.get("vignetting", 0.0), lo=0.0, hi=0.99)
+    abbe = None if "abbe" not in render else _num("[render]", "abbe", render["abbe"], lo=10.0, hi=120.0)
     objs = data.get("objects", [])
     if not isinstance(objs, list) or not objs:
         raise ConfigError(f"[[objects]]: expected at least one [[objects]] table, got {objs!r}")
     base = Path(base_dir)
     objects = tuple(_object(i, o, seed=seed, base_dir=base) for i, o in enumerate(objs))
     scene = Scene(objects=objects, background=background, shading=shading, noise=noise, seed=seed,
-                  supersample=ss, name=name)
+                  supersample=ss, name=name, vignetting=vignetting, abbe=abbe)
     return rig, scene
 
 
@@ -312,7 +316,9 @@ def scene_to_dict(rig: Rig, scene: Scene) -> dict[str, Any]:
     """The resolved scene file (every default filled in) as a TOML-ready mapping."""
     data = rig.to_dict()
     data["render"] = {"supersample": scene.supersample, "seed": scene.seed, "background": list(scene.background),
-                      "shading": scene.shading, "noise": scene.noise}
+                      "shading": scene.shading, "noise": scene.noise, "vignetting": scene.vignetting}
+    if scene.abbe is not None:
+        data["render"]["abbe"] = scene.abbe
     data["objects"] = [object_to_dict(o) for o in scene.objects]
     return data
 
