@@ -54,7 +54,7 @@ class Matcher(Protocol):
 
 _REGISTRY: dict[str, Callable[..., Matcher]] = {}
 #: modules that register built-in matchers when imported
-_BUILTIN_MODULES = ("prismstereo.matching.matchers", "prismstereo.matching.sgbm")
+_BUILTIN_MODULES = ("prismstereo.matching.matchers", "prismstereo.matching.sgbm", "prismstereo.matching.sgm")
 #: optional modules (other issues) that may not exist yet
 _OPTIONAL_MODULES = ("prismstereo.matching.coop",)
 _loaded = False
