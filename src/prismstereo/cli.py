@@ -229,7 +229,9 @@ def _add_depth(sub: argparse._SubParsersAction) -> None:
     p.add_argument("rig", help="rig TOML (DESIGN.md §4)")
     p.add_argument("image", help="the capture (the rig's sensor size)")
     p.add_argument("-o", "--output", required=True, help="output folder")
-    p.add_argument("--method", default="bpasw", help="matcher name (any registered: bpasw, sad, sgbm, coop, ...)")
+    p.add_argument("--method", default=None, help="matcher name (any registered: bpasw (default), sgm, coop, ...)")
+    p.add_argument("--preset", default=None, metavar="fast|balanced|accurate",
+                   help="fast = sgm, balanced = bpasw, accurate = coop (instead of --method)")
     p.add_argument("-p", "--param", action="append", metavar="KEY=VALUE", help="matcher tuning parameter")
     p.add_argument("--depth-range", default="800,5000", metavar="MIN,MAX",
                    help="scene depths to search, mm (default 800,5000); sets the disparity range")
@@ -251,7 +253,11 @@ def _cmd_depth(args: argparse.Namespace) -> int:
 
     views = _parse_views(args.views)
     lo, hi = _parse_pair(args.depth_range, "--depth-range")
-    print(depth_command(args.rig, args.image, args.output, method=args.method, params=_parse_params(args.param),
+    from prismstereo.matching.registry import resolve_preset
+
+    method, preset = resolve_preset(args.preset, args.method)
+    print(depth_command(args.rig, args.image, args.output, method=method, preset=preset,
+                        params=_parse_params(args.param),
                         depth_range=(lo, hi), roi=_parse_roi(args.roi), views=views,
                         triangulation=args.triangulation, calibration=args.calibration, gt=args.gt,
                         refine=not args.no_refine))

@@ -52,31 +52,42 @@ def _path_update(c: np.ndarray, prev: np.ndarray, pmin: int, p1: int, p2: int, d
                  acc: np.ndarray) -> int:  # pragma: no cover - numba
     """One step of the path recursion for all disparities; adds the result to ``acc``; returns its min."""
     nd = c.shape[0]
-    jump = pmin + p2
-    best = 1 << 30
-    for d in range(nd):
-        v = prev[d]
-        if d > 0:
-            v = min(v, prev[d - 1] + p1)
-        if d < nd - 1:
-            v = min(v, prev[d + 1] + p1)
-        v = min(v, jump)
-        v = int(c[d]) + v - pmin
+    # int32 throughout: twice the SIMD lanes of numba's default int64
+    m = np.int32(pmin)
+    q1 = np.int32(p1)
+    jump = np.int32(pmin + p2)
+    if nd == 1:
+        v = np.int32(c[0])
+        dst[0] = v
+        acc[0] += v
+        return int(v)
+    # the ends of the range apart, so that the loop over the inner disparities has no branches (SIMD)
+    v = min(min(prev[0], prev[1] + q1), jump) - m + np.int32(c[0])
+    dst[0] = v
+    acc[0] += v
+    for d in range(1, nd - 1):
+        v = min(min(prev[d], prev[d - 1] + q1), min(prev[d + 1] + q1, jump)) - m + np.int32(c[d])
         dst[d] = v
         acc[d] += v
-        best = min(best, v)
-    return best
+    v = min(min(prev[nd - 1], prev[nd - 2] + q1), jump) - m + np.int32(c[nd - 1])
+    dst[nd - 1] = v
+    acc[nd - 1] += v
+    best = dst[0]
+    for d in range(1, nd):
+        best = min(best, dst[d])
+    return int(best)
 
 
 @njit(cache=True, inline="always")
 def _path_start(c: np.ndarray, dst: np.ndarray, acc: np.ndarray) -> int:  # pragma: no cover - numba
-    best = 1 << 30
     for d in range(c.shape[0]):
-        v = int(c[d])
+        v = np.int32(c[d])
         dst[d] = v
         acc[d] += v
-        best = min(best, v)
-    return best
+    best = dst[0]
+    for d in range(1, c.shape[0]):
+        best = min(best, dst[d])
+    return int(best)
 
 
 @njit(cache=True, inline="always")

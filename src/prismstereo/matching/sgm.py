@@ -244,9 +244,12 @@ class SGMMatcher:
         extras = {"rejected_unique": int((code == 1).sum()), "rejected_lr": int((code == 2).sum())}
         if self.fill and not valid.all() and valid.any():
             t = time.perf_counter()
-            dense = selection.fill_holes(disp, valid, image=left)
             if self.median_radius > 0:
+                # the whole-map median below also smooths the filled pixels: no separate median of the holes
+                dense = selection.fill_holes(disp, valid, median_radius=0)
                 dense = selection.weighted_median_filter(dense, left, radius=self.median_radius)
+            else:
+                dense = selection.fill_holes(disp, valid, image=left)
             timings["fill"] = time.perf_counter() - t
             return MatchResult(dense, valid, disp, timings, extras)
         return MatchResult(disp, valid, None, timings, extras)
