@@ -304,6 +304,24 @@ def _cmd_multiview(args: argparse.Namespace) -> int:
 _ADDERS.append(_add_multiview)
 
 
+# --------------------------------------------------------------------------- warmup (issue 19)
+def _add_warmup(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("warmup", help="compile the numba kernels once into numba's disk cache (first-run cost)")
+    p.add_argument("--methods", default=None, help="comma-separated matchers to warm (default: all)")
+    p.set_defaults(handler=_cmd_warmup)
+
+
+def _cmd_warmup(args: argparse.Namespace) -> int:
+    from prismstereo.warmup import warmup
+
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
+    print(warmup(methods).summary())
+    return 0
+
+
+_ADDERS.append(_add_warmup)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="prismstereo",
