@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["census_kernel", "select_kernel", "sgm_kernel"]
+__all__ = ["census_codes", "census_kernel", "select_kernel", "sgm_kernel"]
 
 _M1 = np.uint64(0x5555555555555555)
 _M2 = np.uint64(0x3333333333333333)
@@ -23,6 +23,25 @@ def _popcount(v: np.uint64) -> int:  # pragma: no cover - numba
     v = (v & _M2) + ((v >> _S2) & _M2)
     v = (v + (v >> _S4)) & _M4
     return int((v * _H01) >> _S56)
+
+
+@njit(cache=True, parallel=True)
+def census_codes(padded: np.ndarray, ry: int, rx: int) -> np.ndarray:  # pragma: no cover - numba
+    """Census codes of an edge-padded float32 image (``ry``, ``rx`` border), bit for bit those of
+    ``costs.census_transform``: one bit per window pixel darker than the centre, row-major."""
+    h, w = padded.shape[0] - 2 * ry, padded.shape[1] - 2 * rx
+    out = np.empty((h, w), dtype=np.uint64)
+    for y in prange(h):
+        for x in range(w):
+            c = padded[y + ry, x + rx]
+            code = np.uint64(0)
+            for dy in range(2 * ry + 1):
+                for dx in range(2 * rx + 1):
+                    if dy == ry and dx == rx:
+                        continue
+                    code = (code << np.uint64(1)) | np.uint64(padded[y + dy, x + dx] < c)
+            out[y, x] = code
+    return out
 
 
 @njit(cache=True, parallel=True)

@@ -59,8 +59,14 @@ def census_cost_volume(left: np.ndarray, right: np.ndarray, *, max_disp: int, mi
     ndarray, uint16, (H, W, max_disp - min_disp + 1)
         Out-of-range matches (``x - d < 0``) get the largest value the cost can take.
     """
-    cl = costs.census_transform(left, window=window)
-    cr = costs.census_transform(right, window=window)
+    from prismstereo.matching._sgm import census_codes, census_kernel
+
+    wh, ww = int(window[0]), int(window[1])
+    if wh % 2 == 0 or ww % 2 == 0 or wh < 1 or ww < 1 or wh * ww - 1 > 64:
+        raise ConfigError(f"expected an odd census window with at most 65 pixels, got {window}")
+    pad = ((wh // 2, wh // 2), (ww // 2, ww // 2))
+    cl = census_codes(np.pad(costs.to_gray(left), pad, mode="edge"), wh // 2, ww // 2)
+    cr = census_codes(np.pad(costs.to_gray(right), pad, mode="edge"), wh // 2, ww // 2)
     gxl, _ = costs.image_gradients(left)
     gxr, _ = costs.image_gradients(right)
     nbits = int(window[0]) * int(window[1]) - 1
@@ -68,8 +74,6 @@ def census_cost_volume(left: np.ndarray, right: np.ndarray, *, max_disp: int, mi
     if invalid > 65535:
         raise ConfigError(f"expected a cost that fits uint16 (scale·bits + grad_weight·grad_tau <= 65535), "
                           f"got {invalid}")
-    from prismstereo.matching._sgm import census_kernel
-
     return census_kernel(cl, cr, gxl, gxr, int(min_disp), int(max_disp) - int(min_disp) + 1, int(scale),
                           float(grad_weight), float(grad_tau), invalid)
 
@@ -193,7 +197,7 @@ class SGMMatcher:
     speckle_window: int = 100
     speckle_range: float = 2.0
     fill: bool = True
-    median_radius: int = 4
+    median_radius: int = 3
 
     def __post_init__(self) -> None:
         if self.cost not in ("census", "bpasw"):
