@@ -92,7 +92,7 @@ def depth_command(rig_path: str, image_path: str, out_dir: str, *, method: str =
                     f"({100.0 * c['points'] / max(c['region_pixels'], 1):.1f} % of the view), {t['total']:.1f} s "
                     f"(" + ", ".join(f"{k} {v:.1f}" for k, v in t.items() if k not in ("total", "validate")) + ")")
     if preset is not None:
-        lines.insert(1, f"preset {preset}: method {config.method}")
+        lines.append(f"preset {preset}: method {config.method}")
     lines.append(f"wrote {', '.join(p.name for p in outputs.values())} to {out_dir}")
     return "\n".join(lines)
 
