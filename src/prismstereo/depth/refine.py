@@ -6,12 +6,12 @@ disparity continuously (Lucas–Kanade along the epipolar line): it minimises, o
 
     E(d) = Σ ( L(x, y) − R(x − d, y) )²   (window means removed)
 
-with R sampled bilinearly, by Gauss–Newton steps ``Δd = −Σ r·J / Σ J²`` (``r = L − R(x − d)``,
-``J = ∂r/∂d = R_x(x − d)``), the whole window of each pixel shifted by that pixel's d (a parallel numba
-kernel over pixels, accumulating window sums). Means are removed per window (zero-mean SSD), so an
-offset between the two faces' brightness does not bias d. The update is bounded to ±``max_shift`` px around the matcher's disparity; pixels
-without texture (small Σ J²) keep the matcher's value and get no confidence. The returned confidence
-(ZNCC of the final windows) lets the pipeline drop matches the refinement could not confirm.
+with R sampled bilinearly, by Gauss–Newton steps ``Δd = −Σ r·J / Σ J²`` (``r = L − R(x − d)``, ``J = ∂r/∂d =
+R_x(x − d)``), the whole window of each pixel shifted by that pixel's d (a parallel numba kernel over pixels,
+accumulating window sums). Means are removed per window (zero-mean SSD), so an offset between the two faces'
+brightness does not bias d. The update is bounded to ±``max_shift`` px around the matcher's disparity; pixels
+without texture (small Σ J²) keep the matcher's value and get no confidence. The returned confidence (ZNCC of
+the final windows) lets the pipeline drop matches the refinement could not confirm.
 """
 
 from __future__ import annotations
