@@ -170,7 +170,7 @@ class SGMMatcher:
         Parabola sub-pixel refinement of the aggregated cost.
     speckle_window, speckle_range : int, float
         Regions of fewer pixels whose disparities differ by at most ``speckle_range`` are removed
-        (OpenCV ``filterSpeckles``); window 0 switches it off.
+        (OpenCV ``filterSpeckles``); window 0 switches it off. At most a twentieth of the image.
     fill : bool
         Fill rejected pixels (scanline background fill + colour-weighted median, as the local matchers).
     median_radius : int
@@ -242,7 +242,10 @@ class SGMMatcher:
         disp, code = sgm_select(fwd, bwd, min_disp=min_disp, uniqueness=self.uniqueness,
                                 tolerance=self.tolerance, subpixel=self.subpixel)
         del fwd, bwd
-        disp = _speckle_filter(disp, window=self.speckle_window, max_diff=self.speckle_range)
+        # a speckle is small against the image: on tiny images (a small region of interest) the window
+        # would otherwise remove every region
+        window = min(self.speckle_window, disp.size // 20)
+        disp = _speckle_filter(disp, window=window, max_diff=self.speckle_range)
         valid = np.isfinite(disp)
         timings["selection"] = time.perf_counter() - t
         extras = {"rejected_unique": int((code == 1).sum()), "rejected_lr": int((code == 2).sum())}
