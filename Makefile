@@ -12,6 +12,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
+	$(BIN)/prismstereo warmup
 	$(BIN)/prismstereo demo -o demo_out
 
 test: $(STAMP)

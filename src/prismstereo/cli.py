@@ -258,7 +258,9 @@ def _add_depth(sub: argparse._SubParsersAction) -> None:
     p.add_argument("rig", help="rig TOML (docs/rig.md)")
     p.add_argument("image", help="the capture (the rig's sensor size)")
     p.add_argument("-o", "--output", required=True, help="output folder")
-    p.add_argument("--method", default="bpasw", help="matcher name (any registered: bpasw, sad, sgbm, coop, ...)")
+    p.add_argument("--method", default=None, help="matcher name (any registered: bpasw (default), sgm, coop, ...)")
+    p.add_argument("--preset", default=None, metavar="fast|balanced|accurate",
+                   help="fast = sgm, balanced = bpasw, accurate = coop (instead of --method)")
     p.add_argument("-p", "--param", action="append", metavar="KEY=VALUE", help="matcher tuning parameter")
     p.add_argument("--depth-range", default=None, metavar="MIN,MAX",
                    help="world depths to search, mm (MIN > the prism's back_distance); default: derived from the "
@@ -282,7 +284,11 @@ def _cmd_depth(args: argparse.Namespace) -> int:
 
     views = _parse_views(args.views)
     depth_range = None if args.depth_range is None else _parse_pair(args.depth_range, "--depth-range")
-    print(depth_command(args.rig, args.image, args.output, method=args.method, params=_parse_params(args.param),
+    from prismstereo.matching.registry import resolve_preset
+
+    method, preset = resolve_preset(args.preset, args.method)
+    print(depth_command(args.rig, args.image, args.output, method=method, preset=preset,
+                        params=_parse_params(args.param),
                         depth_range=depth_range, roi=_parse_roi(args.roi), views=views,
                         triangulation=args.triangulation, calibration=args.calibration, gt=args.gt,
                         refine=not args.no_refine))
@@ -365,6 +371,23 @@ def _add_common(p: argparse.ArgumentParser) -> None:
 from prismstereo.cli_calibration import add_calibrate_camera, add_calibrate_prism  # noqa: E402
 
 _ADDERS += [add_calibrate_camera, add_calibrate_prism]
+
+# --------------------------------------------------------------------------- warmup (issue 19)
+def _add_warmup(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("warmup", help="compile the numba kernels once into numba's disk cache (first-run cost)")
+    p.add_argument("--methods", default=None, help="comma-separated matchers to warm (default: all)")
+    p.set_defaults(handler=_cmd_warmup)
+
+
+def _cmd_warmup(args: argparse.Namespace) -> int:
+    from prismstereo.warmup import warmup
+
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
+    print(warmup(methods).summary())
+    return 0
+
+
+_ADDERS.append(_add_warmup)
 
 
 def build_parser() -> argparse.ArgumentParser:

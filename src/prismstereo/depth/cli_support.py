@@ -30,8 +30,8 @@ def depth_command(rig_path: str, image_path: str, out_dir: str, *, method: str =
                   params: dict[str, Any] | None = None, depth_range: tuple[float, float] | None = None,
                   roi: tuple[int, int, int, int] | None = None, views: Any = None,
                   triangulation: str = "exact", calibration: str = "fit", gt: str | None = None,
-                  refine: bool = True) -> str:
-    """Run ``prismstereo depth`` and return the lines to print."""
+                  refine: bool = True, preset: str | None = None) -> str:
+    """Run ``prismstereo depth`` and return the lines to print (``preset``: its name, for the report)."""
     from prismstereo.config import load_rig
     from prismstereo.depth.outputs import write_depth_outputs
     from prismstereo.depth.pipeline import DepthConfig, run_depth, validate_inputs
@@ -78,7 +78,8 @@ def depth_command(rig_path: str, image_path: str, out_dir: str, *, method: str =
         acc = evaluate_depth(res, depth_gt=depth_gt)
         lines.append(format_accuracy(acc))
     outputs = write_depth_outputs(res, out_dir, extra={"inputs": {"rig": str(rig_path), "image": str(image_path),
-                                                                 "gt": gt}})
+                                                                 "gt": gt},
+                                                                 "preset": preset})
     c = res.counts()
     t = res.timings
     zr = res.depth_range
@@ -88,6 +89,8 @@ def depth_command(rig_path: str, image_path: str, out_dir: str, *, method: str =
                     f"d in [{res.disparity_range[0]}, {res.disparity_range[1]}] px, {c['points']} points "
                     f"({100.0 * c['points'] / max(c['region_pixels'], 1):.1f} % of the view), {t['total']:.1f} s "
                     f"(" + ", ".join(f"{k} {v:.1f}" for k, v in t.items() if k not in ("total", "validate")) + ")")
+    if preset is not None:
+        lines.append(f"preset {preset}: method {config.method}")
     lines.append(f"wrote {', '.join(p.name for p in outputs.values())} to {out_dir}")
     return "\n".join(lines)
 

@@ -6,20 +6,100 @@ disparity continuously (Lucas–Kanade along the epipolar line): it minimises, o
 
     E(d) = Σ ( L(x, y) − R(x − d, y) )²   (window means removed)
 
-with R sampled bilinearly, by Gauss–Newton steps ``Δd = −Σ r·J / Σ J²`` (``r = L − R(x − d)``,
-``J = ∂r/∂d = R_x(x − d)``), the whole window of each pixel shifted by that pixel's d (vectorised over
-pixels). Means are removed per window (zero-mean SSD), so an offset between the two faces' brightness
-does not bias d. The update is bounded to ±``max_shift`` px around the matcher's disparity; pixels
-without texture (small Σ J²) keep the matcher's value and get no confidence. The returned confidence
-(ZNCC of the final windows) lets the pipeline drop matches the refinement could not confirm.
+with R sampled bilinearly, by Gauss–Newton steps ``Δd = −Σ r·J / Σ J²`` (``r = L − R(x − d)``, ``J = ∂r/∂d =
+R_x(x − d)``), the whole window of each pixel shifted by that pixel's d (a parallel numba kernel over pixels,
+accumulating window sums). Means are removed per window (zero-mean SSD), so an offset between the two faces'
+brightness does not bias d. The update is bounded to ±``max_shift`` px around the matcher's disparity; pixels
+without texture (small Σ J²) keep the matcher's value and get no confidence. The returned confidence (ZNCC of
+the final windows) lets the pipeline drop matches the refinement could not confirm.
 """
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
+from numba import njit, prange
 
 __all__ = ["refine_disparity"]
+
+
+@njit(cache=True, inline="always")
+def _sample(img: np.ndarray, y: int, xf: float) -> float:  # pragma: no cover - numba
+    """Linear interpolation along row ``y`` at column ``xf``, edge-replicated (cv2 BORDER_REPLICATE)."""
+    w = img.shape[1]
+    x0 = int(np.floor(xf))
+    a = xf - x0
+    xa = min(max(x0, 0), w - 1)
+    xb = min(max(x0 + 1, 0), w - 1)
+    return (1.0 - a) * img[y, xa] + a * img[y, xb]
+
+
+@njit(cache=True, parallel=True, fastmath=True)
+def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray, xs: np.ndarray, d0: np.ndarray,
+                   radius: int, iterations: int, max_shift: float,
+                   min_texture: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - numba
+    """Gauss–Newton per pixel (module docstring); window sums instead of stored windows.
+
+    With zero-mean windows ``Lz``, ``Rz = R - mean R``, ``Jz = J - mean J`` over ``m`` pixels:
+    ``Σ r·Jz = Σ Lz·J - (Σ R·J - m·mean R·mean J)`` and ``Σ Jz² = Σ J² - m·mean J²`` (``Σ Lz = 0``).
+    Returns the refined disparities, the final ZNCC and whether the pixel may keep its refinement.
+    """
+    n = ys.size
+    m = (2 * radius + 1) ** 2
+    d_out = np.empty(n, dtype=np.float32)
+    zncc = np.empty(n, dtype=np.float32)
+    keep = np.zeros(n, dtype=np.bool_)
+    for i in prange(n):
+        y, x = ys[i], xs[i]
+        init = float(d0[y, x])
+        lmean = 0.0
+        for dy in range(-radius, radius + 1):
+            for dx in range(-radius, radius + 1):
+                lmean += L[y + dy, x + dx]
+        lmean /= m
+        d = init
+        textured = True
+        for _ in range(iterations):
+            sr = 0.0
+            sj = 0.0
+            slj = 0.0
+            srj = 0.0
+            sjj = 0.0
+            for dy in range(-radius, radius + 1):
+                for dx in range(-radius, radius + 1):
+                    xf = x + dx - d
+                    rv = _sample(R, y + dy, xf)
+                    jv = _sample(Rx, y + dy, xf)
+                    lz = L[y + dy, x + dx] - lmean
+                    sr += rv
+                    sj += jv
+                    slj += lz * jv
+                    srj += rv * jv
+                    sjj += jv * jv
+            num = slj - (srj - sr * sj / m)
+            den = sjj - sj * sj / m
+            textured = den > min_texture * m
+            step = num / den if textured else 0.0
+            step = min(max(step, -0.5), 0.5)
+            d = min(max(d - step, init - max_shift), init + max_shift)
+        sr = 0.0
+        srr = 0.0
+        slr = 0.0
+        sll = 0.0
+        for dy in range(-radius, radius + 1):
+            for dx in range(-radius, radius + 1):
+                rv = _sample(R, y + dy, x + dx - d)
+                lz = L[y + dy, x + dx] - lmean
+                sr += rv
+                srr += rv * rv
+                slr += lz * rv
+                sll += lz * lz
+        var_r = srr - sr * sr / m
+        den = np.sqrt(sll * var_r)
+        zncc[i] = slr / den if den > 0.0 else np.nan
+        d_out[i] = d
+        keep[i] = textured and np.isfinite(d) and abs(d - init) < max_shift - 1e-3
+    return d_out, zncc, keep
 
 
 def _gray(img: np.ndarray) -> np.ndarray:
@@ -88,48 +168,15 @@ def refine_disparity(
     if ys.size == 0:
         return out, conf
     Rx = cv2.Sobel(R, cv2.CV_32F, 1, 0, ksize=3, scale=1.0 / 8.0)
-    oy, ox = np.mgrid[-radius:radius + 1, -radius:radius + 1]
-    ox = ox.ravel().astype(np.float32)
-    oy = oy.ravel().astype(np.int64)
-    bad_r = None
+    d, zncc, keep = _refine_kernel(L, R, Rx, ys.astype(np.int64), xs.astype(np.int64), d0, int(radius),
+                                   int(iterations), float(max_shift), float(min_texture))
     if valid_right is not None:
         bad_r = cv2.dilate((~np.asarray(valid_right, dtype=bool)).astype(np.uint8), np.ones((k, k), np.uint8)) > 0
-    chunk = max(1, min(30_000, 2_000_000 // ox.size))  # cv2.remap needs < 32767 rows
-    for c0 in range(0, ys.size, chunk):
-        y, x = ys[c0:c0 + chunk], xs[c0:c0 + chunk]
-        init = d0[y, x].astype(np.float32)
-        d = init.copy()
-        Lw = L[y[:, None] + oy[None, :], x[:, None] + ox.astype(np.int64)[None, :]]
-        Lw = Lw - Lw.mean(axis=1, keepdims=True)
-        Ym = (y[:, None] + oy[None, :]).astype(np.float32)
-        textured = np.ones(y.size, dtype=bool)
-        for _ in range(iterations):
-            Xm = (x[:, None].astype(np.float32) + ox[None, :]) - d[:, None]
-            Rw = cv2.remap(R, Xm, Ym, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-            J = cv2.remap(Rx, Xm, Ym, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-            r = Lw - (Rw - Rw.mean(axis=1, keepdims=True))
-            Jz = J - J.mean(axis=1, keepdims=True)
-            num = np.einsum("nm,nm->n", r, Jz)
-            den = np.einsum("nm,nm->n", Jz, Jz)
-            textured = den > min_texture * ox.size
-            with np.errstate(divide="ignore", invalid="ignore"):
-                step = np.where(textured, num / den, 0.0).astype(np.float32)
-            # r = L − R(x − d): dr/dd = +R_x, so the Gauss–Newton step is −Σ r J / Σ J²
-            d = np.clip(d - np.clip(step, -0.5, 0.5), init - max_shift, init + max_shift)
-        # final correlation of the windows
-        Xm = (x[:, None].astype(np.float32) + ox[None, :]) - d[:, None]
-        Rw = cv2.remap(R, Xm, Ym, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        Rz = Rw - Rw.mean(axis=1, keepdims=True)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            zncc = np.einsum("nm,nm->n", Lw, Rz) / np.sqrt(np.einsum("nm,nm->n", Lw, Lw) *
-                                                             np.einsum("nm,nm->n", Rz, Rz))
-        keep = textured & np.isfinite(d) & (np.abs(d - init) < max_shift - 1e-3)
-        if bad_r is not None:
-            xr = np.rint(x - d).astype(np.int64)
-            inside = (xr >= 0) & (xr < w)
-            hit = np.ones(y.size, dtype=bool)
-            hit[inside] = bad_r[y[inside], xr[inside]]
-            keep &= ~hit
-        out[y[keep], x[keep]] = d[keep]
-        conf[y[keep], x[keep]] = zncc[keep]
+        xr = np.rint(xs - d).astype(np.int64)
+        inside = (xr >= 0) & (xr < w)
+        hit = np.ones(ys.size, dtype=bool)
+        hit[inside] = bad_r[ys[inside], xr[inside]]
+        keep &= ~hit
+    out[ys[keep], xs[keep]] = d[keep]
+    conf[ys[keep], xs[keep]] = zncc[keep]
     return out, conf

@@ -19,7 +19,8 @@ import numpy as np
 
 from prismstereo.errors import ConfigError
 
-__all__ = ["MatchResult", "Matcher", "available_matchers", "get_matcher", "register_matcher"]
+__all__ = ["PRESETS", "MatchResult", "Matcher", "available_matchers", "get_matcher", "register_matcher",
+           "resolve_preset"]
 
 
 @dataclass(frozen=True)
@@ -53,8 +54,10 @@ class Matcher(Protocol):
 
 
 _REGISTRY: dict[str, Callable[..., Matcher]] = {}
+#: speed/accuracy presets of ``depth`` and ``batch``: preset name -> matcher name
+PRESETS: dict[str, str] = {"fast": "sgm", "balanced": "bpasw", "accurate": "coop"}
 #: modules that register built-in matchers when imported
-_BUILTIN_MODULES = ("prismstereo.matching.matchers", "prismstereo.matching.sgbm")
+_BUILTIN_MODULES = ("prismstereo.matching.matchers", "prismstereo.matching.sgbm", "prismstereo.matching.sgm")
 #: optional modules (other issues) that may not exist yet
 _OPTIONAL_MODULES = ("prismstereo.matching.coop",)
 _loaded = False
@@ -150,3 +153,30 @@ def _check_param_types(key: str, factory: Callable[..., Matcher], params: dict[s
         if not ok:
             raise ConfigError(f"expected parameter {name!r} of method {key!r} to be {want.__name__}, "
                               f"got {value!r}")
+
+
+def resolve_preset(preset: str | None, method: str | None, *, default: str = "bpasw") -> tuple[str, str | None]:
+    """The matcher to run for a ``--preset`` / ``--method`` pair, and the preset's name (None if none).
+
+    Parameters
+    ----------
+    preset : str or None
+        A key of :data:`PRESETS`.
+    method : str or None
+        An explicit matcher name; naming both is a conflict.
+    default : str
+        Method used when neither is given.
+
+    Raises
+    ------
+    ConfigError
+        Unknown preset, or both a preset and a method.
+    """
+    if preset is None:
+        return (default if method is None else method), None
+    key = str(preset).lower()
+    if key not in PRESETS:
+        raise ConfigError(f"--preset: expected one of {', '.join(PRESETS)}, got {preset!r}")
+    if method is not None:
+        raise ConfigError(f"expected --preset or --method, got both (--preset {key} means --method {PRESETS[key]})")
+    return PRESETS[key], key

@@ -1,0 +1,262 @@
+"""Semi-global matching (Hirschmüller, PAMI 2008) in numba: the fast preset's matcher.
+
+Pipeline: a census cost (optionally plus a truncated horizontal-gradient term, or BPASW's initial
+S_AD + census cost, thesis Eq. 5.6) in a ``uint16`` volume, semi-global aggregation along 8 paths,
+winner-take-all with a uniqueness test, parabola sub-pixel, a left–right check (thesis Eq. 6.7) on the
+right view's disparities read along the diagonals of the same aggregated volume, OpenCV's speckle
+filter, then (optional) hole filling and a colour-weighted median.
+
+The path costs follow Hirschmüller's recursion
+
+    L_r(p, d) = C(p, d) + min(L_r(p-r, d), L_r(p-r, d±1) + P1, min_k L_r(p-r, k) + P2) - min_k L_r(p-r, k)
+
+with ``P2`` lowered across intensity edges, ``P2' = max(P1, P2 / (1 + |I(p) - I(p-r)| / γ))``. The 8 paths
+are run as two raster scans (forward: left, up-left, up, up-right; backward: the opposite four), one per
+thread, each keeping only the previous image row of its path costs; the two partial sums stay ``uint16``.
+
+Volumes are ``(H, W, D)`` with slice ``i`` = disparity ``min_disp + i`` and ``d = x_left - x_right``, as
+in :mod:`prismstereo.matching.costs`.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from typing import Literal
+
+import cv2
+import numpy as np
+
+from prismstereo.errors import ConfigError
+from prismstereo.matching import costs, selection
+from prismstereo.matching.registry import MatchResult, register_matcher
+
+log = logging.getLogger(__name__)
+
+__all__ = ["SGMMatcher", "census_cost_volume", "sgm_aggregate", "sgm_select"]
+
+def census_cost_volume(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int = 0,
+                       window: tuple[int, int] = (7, 9), scale: int = 1, grad_weight: float = 0.0,
+                       grad_tau: float = 8.0) -> np.ndarray:
+    """Census Hamming cost (plus an optional truncated horizontal-gradient term) as a uint16 volume.
+
+    Parameters
+    ----------
+    left, right : ndarray, (H, W) or (H, W, 3)
+        Rectified pair, 0..255 scale.
+    max_disp, min_disp : int
+        Inclusive disparity range.
+    window : (int, int)
+        Odd census window (height, width), at most 65 pixels.
+    scale : int
+        Integer weight of one differing census bit.
+    grad_weight, grad_tau : float
+        Weight and truncation (grey levels) of ``|∂x I_l(x) - ∂x I_r(x - d)|``; 0 switches it off.
+
+    Returns
+    -------
+    ndarray, uint16, (H, W, max_disp - min_disp + 1)
+        Out-of-range matches (``x - d < 0``) get the largest value the cost can take.
+    """
+    from prismstereo.matching._sgm import census_codes, census_kernel
+
+    wh, ww = int(window[0]), int(window[1])
+    if wh % 2 == 0 or ww % 2 == 0 or wh < 1 or ww < 1 or wh * ww - 1 > 64:
+        raise ConfigError(f"expected an odd census window with at most 65 pixels, got {window}")
+    pad = ((wh // 2, wh // 2), (ww // 2, ww // 2))
+    cl = census_codes(np.pad(costs.to_gray(left), pad, mode="edge"), wh // 2, ww // 2)
+    cr = census_codes(np.pad(costs.to_gray(right), pad, mode="edge"), wh // 2, ww // 2)
+    gxl, _ = costs.image_gradients(left)
+    gxr, _ = costs.image_gradients(right)
+    nbits = int(window[0]) * int(window[1]) - 1
+    invalid = int(scale * nbits + grad_weight * grad_tau + 0.5)
+    if invalid > 65535:
+        raise ConfigError(f"expected a cost that fits uint16 (scale·bits + grad_weight·grad_tau <= 65535), "
+                          f"got {invalid}")
+    return census_kernel(cl, cr, gxl, gxr, int(min_disp), int(max_disp) - int(min_disp) + 1, int(scale),
+                          float(grad_weight), float(grad_tau), invalid)
+
+
+def sgm_aggregate(cost: np.ndarray, gray: np.ndarray, *, p1: int, p2: int,
+                  p2_gamma: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Semi-global aggregation along 8 paths (Hirschmüller 2008, Eq. 13).
+
+    Parameters
+    ----------
+    cost : ndarray, uint16, (H, W, D)
+        Matching cost per pixel and disparity.
+    gray : ndarray, float32, (H, W)
+        Guidance image for the edge-adaptive ``P2``.
+    p1, p2 : int
+        Penalties for a disparity change of 1 and of more than 1 between path neighbours.
+    p2_gamma : float
+        ``P2' = max(P1, P2 / (1 + |ΔI| / γ))``; 0 keeps ``P2`` constant.
+
+    Returns
+    -------
+    (ndarray, ndarray), uint16, (H, W, D) each
+        Sums of the four forward and of the four backward path costs; the aggregated cost is their sum.
+    """
+    c = np.ascontiguousarray(cost, dtype=np.uint16)
+    h, w, nd = c.shape
+    top = int(c.max(initial=0)) + int(p2)
+    if 4 * top > 65535:
+        raise ConfigError(f"expected 4·(max cost + P2) <= 65535 for uint16 path sums, got {4 * top}")
+    if not 0 <= p1 <= p2:
+        raise ConfigError(f"expected 0 <= P1 <= P2, got P1={p1}, P2={p2}")
+    from prismstereo.matching._sgm import sgm_kernel
+
+    return sgm_kernel(c, np.ascontiguousarray(gray, dtype=np.float32), int(p1), int(p2), float(p2_gamma))
+
+
+def sgm_select(fwd: np.ndarray, bwd: np.ndarray, *, min_disp: int = 0, uniqueness: int = 10,
+               tolerance: int = 1, subpixel: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Disparity from the two partial SGM sums: WTA, uniqueness, sub-pixel, left–right check.
+
+    Parameters
+    ----------
+    fwd, bwd : ndarray, uint16, (H, W, D)
+        Outputs of :func:`sgm_aggregate`.
+    uniqueness : int
+        Percent margin by which the winner must beat every disparity not adjacent to it (0: off).
+    tolerance : int
+        Left–right check tolerance in integer disparities (thesis Eq. 6.7).
+
+    Returns
+    -------
+    disparity : ndarray, float32, (H, W)
+        NaN where a check rejected the pixel.
+    reject : ndarray, uint8, (H, W)
+        0 kept, 1 not unique, 2 failed the left–right check.
+    """
+    from prismstereo.matching._sgm import select_kernel
+
+    disp, _, code = select_kernel(np.ascontiguousarray(fwd), np.ascontiguousarray(bwd), int(min_disp),
+                                   int(uniqueness), int(tolerance), bool(subpixel))
+    return disp, code
+
+
+def _speckle_filter(disp: np.ndarray, *, window: int, max_diff: float) -> np.ndarray:
+    """Invalidate connected regions of fewer than ``window`` pixels (neighbours within ``max_diff``)."""
+    if window <= 0:
+        return disp
+    finite = np.isfinite(disp)
+    d16 = np.where(finite, np.rint(disp * 16.0), -16).astype(np.int16)
+    cv2.filterSpeckles(d16, -16, int(window), int(round(16 * max_diff)))
+    out = disp.copy()
+    out[d16 == -16] = np.nan
+    return out
+
+
+@register_matcher("sgm")
+@dataclass(frozen=True, kw_only=True)
+class SGMMatcher:
+    """Semi-global matching (Hirschmüller 2008) on a census cost, numba, 8 paths (see module doc).
+
+    Parameters
+    ----------
+    cost : {"census", "bpasw"}
+        ``census``: Hamming distance of ``census_window`` census codes (``census_scale`` per bit) plus
+        ``grad_weight``·min(|∂x I_l - ∂x I_r|, ``grad_tau``). ``bpasw``: BPASW's initial cost, S_AD (thesis
+        Eq. 5.6, ω = 0.5, truncations 20 / 8) + 0.5 × census 7×9, times ``bpasw_scale``, rounded.
+    p1, p2, p2_gamma : int, int, float
+        Path penalties in cost units and the edge adaptation of ``P2`` (:func:`sgm_aggregate`).
+    uniqueness : int
+        Percent; 0 switches the uniqueness test off.
+    tolerance : int
+        Left–right check tolerance (integer disparities).
+    subpixel : bool
+        Parabola sub-pixel refinement of the aggregated cost.
+    speckle_window, speckle_range : int, float
+        Regions of fewer pixels whose disparities differ by at most ``speckle_range`` are removed
+        (OpenCV ``filterSpeckles``); window 0 switches it off. At most a twentieth of the image.
+    fill : bool
+        Fill rejected pixels (scanline background fill + colour-weighted median, as the local matchers).
+    median_radius : int
+        After filling, a colour-weighted median of this radius over the whole map (0: off). The median
+        works on whole-disparity bins, so the dense map then holds whole disparities, like ``bpasw``'s;
+        ``disparity_raw`` keeps the sub-pixel values, and ``depth`` refines to sub-pixel on its own.
+
+    One parameter set for every scene; the defaults were chosen on the four Middlebury v2 scenes and
+    checked on the validation scenes (docs/EXPERIMENTS.md, issue 19).
+    """
+
+    cost: Literal["census", "bpasw"] = "census"
+    census_window: tuple[int, int] = (7, 9)
+    census_scale: int = 1
+    grad_weight: float = 2.0
+    grad_tau: float = 8.0
+    bpasw_scale: float = 1.0
+    p1: int = 8
+    p2: int = 96
+    p2_gamma: float = 10.0
+    uniqueness: int = 5
+    tolerance: int = 1
+    subpixel: bool = True
+    speckle_window: int = 100
+    speckle_range: float = 2.0
+    fill: bool = True
+    median_radius: int = 3
+
+    def __post_init__(self) -> None:
+        if self.cost not in ("census", "bpasw"):
+            raise ConfigError(f"expected cost 'census' or 'bpasw', got {self.cost!r}")
+        if not 0 <= self.p1 <= self.p2:
+            raise ConfigError(f"expected 0 <= p1 <= p2, got p1={self.p1}, p2={self.p2}")
+        if not 0 <= self.uniqueness < 100 or self.tolerance < 0 or self.speckle_window < 0:
+            raise ConfigError(f"expected 0 <= uniqueness < 100, tolerance >= 0, speckle_window >= 0, got "
+                              f"{self.uniqueness}, {self.tolerance}, {self.speckle_window}")
+        if self.census_scale < 1 or self.grad_weight < 0 or self.bpasw_scale <= 0 or self.median_radius < 0:
+            raise ConfigError(f"expected census_scale >= 1, grad_weight >= 0, bpasw_scale > 0, median_radius >= 0, "
+                              f"got {self.census_scale}, {self.grad_weight}, {self.bpasw_scale}, "
+                              f"{self.median_radius}")
+
+    def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int) -> np.ndarray:
+        """The uint16 matching cost volume ``(H, W, D)`` before aggregation."""
+        if self.cost == "bpasw":
+            vol = costs.cost_s_ad(left, right, max_disp=max_disp, min_disp=min_disp, omega=0.5,
+                                  tau_color=20.0, tau_gradient=8.0)
+            vol += np.float32(0.5) * costs.cost_census(left, right, max_disp=max_disp, min_disp=min_disp)
+            vol *= np.float32(self.bpasw_scale)
+            np.rint(vol, out=vol)
+            if float(vol.max(initial=0.0)) > 65535:
+                raise ConfigError(f"expected bpasw_scale to keep the cost within uint16, got {self.bpasw_scale}")
+            return vol.astype(np.uint16)
+        return census_cost_volume(left, right, max_disp=max_disp, min_disp=min_disp,
+                                  window=(int(self.census_window[0]), int(self.census_window[1])),
+                                  scale=self.census_scale, grad_weight=self.grad_weight, grad_tau=self.grad_tau)
+
+    def compute(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
+                min_disp: int = 0) -> MatchResult:
+        """Disparity of ``left`` (float32 H×W) for ``min_disp <= d <= max_disp``; see the class doc."""
+        timings: dict[str, float] = {}
+        t = time.perf_counter()
+        vol = self.cost_volume(left, right, max_disp=max_disp, min_disp=min_disp)
+        timings["cost"] = time.perf_counter() - t
+        t = time.perf_counter()
+        fwd, bwd = sgm_aggregate(vol, costs.to_gray(left), p1=self.p1, p2=self.p2, p2_gamma=self.p2_gamma)
+        del vol
+        timings["aggregation"] = time.perf_counter() - t
+        t = time.perf_counter()
+        disp, code = sgm_select(fwd, bwd, min_disp=min_disp, uniqueness=self.uniqueness,
+                                tolerance=self.tolerance, subpixel=self.subpixel)
+        del fwd, bwd
+        # a speckle is small against the image: on tiny images (a small region of interest) the window
+        # would otherwise remove every region
+        window = min(self.speckle_window, disp.size // 20)
+        disp = _speckle_filter(disp, window=window, max_diff=self.speckle_range)
+        valid = np.isfinite(disp)
+        timings["selection"] = time.perf_counter() - t
+        extras = {"rejected_unique": int((code == 1).sum()), "rejected_lr": int((code == 2).sum())}
+        if self.fill and not valid.all() and valid.any():
+            t = time.perf_counter()
+            if self.median_radius > 0:
+                # the whole-map median below also smooths the filled pixels: no separate median of the holes
+                dense = selection.fill_holes(disp, valid, median_radius=0)
+                dense = selection.weighted_median_filter(dense, left, radius=self.median_radius)
+            else:
+                dense = selection.fill_holes(disp, valid, image=left)
+            timings["fill"] = time.perf_counter() - t
+            return MatchResult(dense, valid, disp, timings, extras)
+        return MatchResult(disp, valid, None, timings, extras)
