@@ -1,8 +1,8 @@
 """Depth for many frames on Dask: one set-up per rig, one task per frame.
 
 :func:`run_batch` prepares the per-rig part of the depth pipeline once (virtual cameras, rectification maps,
-common view, disparity range: :func:`prismstereo.depth.pipeline.prepare_depth`), broadcasts it to every
-worker (``Client.scatter(..., broadcast=True)``) and submits one task per frame. A task reads its frame
+common view, disparity range: :func:`prismstereo.depth.pipeline.prepare_depth`), ships it to the cluster
+once (one task whose result every worker fetches once) and submits one task per frame. A task reads its frame
 (a video frame is decoded on the worker, by index), runs :func:`~prismstereo.depth.pipeline.run_depth_frame`
 and writes the frame's folder all-or-nothing; it returns only its summary row, so a worker holds about
 one frame per thread and the client only rows. At most a few tasks per worker thread are submitted at a
@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import pickle
 import sys
 import threading
 import time
@@ -128,7 +129,7 @@ def _limit_threads(host_threads: dict[str, int], client_pid: int) -> int:
         on_host = host_threads.get(worker.address, worker.state.nthreads)
     except (ImportError, ValueError):  # not on a Dask worker (called directly)
         pass
-    n = max(1, min(machine_cores() // max(on_host, 1), numba.config.NUMBA_NUM_THREADS))
+    n = max(1, min(machine_cores() // max(on_host, 1), int(numba.config.NUMBA_NUM_THREADS)))  # type: ignore[attr-defined]
     numba.set_num_threads(n)  # thread-local in numba: set in the thread that runs the frame
     if os.getpid() != client_pid:  # OpenCV's setting is process-wide: leave the user's own process alone
         import cv2
@@ -200,7 +201,7 @@ def process_frame(setup: DepthSetup, frame: Frame, frames_dir: str, outputs: Seq
 # --------------------------------------------------------------------------- the client
 @contextlib.contextmanager
 def _dask_client(client: Any, scheduler: str | None, workers: int | None, threads_per_worker: int,
-                 processes: bool) -> Iterator[tuple[Any, dict[str, Any]]]:
+                 processes: bool, retries: int) -> Iterator[tuple[Any, dict[str, Any]]]:
     """The client to use and a description of it; clients and clusters made here are closed on exit."""
     if client is not None:
         yield client, {"kind": "client", "address": str(client.scheduler.address)}
@@ -218,9 +219,13 @@ def _dask_client(client: Any, scheduler: str | None, workers: int | None, thread
         finally:
             own.close()
         return
+    import dask
+
     n = workers if workers is not None else max(1, machine_cores() // threads_per_worker)
-    cluster = LocalCluster(n_workers=n, threads_per_worker=threads_per_worker, processes=processes,
-                           dashboard_address=":0", silence_logs=logging.ERROR)
+    # a task whose worker dies is rerun by the scheduler up to allowed-failures times (then KilledWorker)
+    with dask.config.set({"distributed.scheduler.allowed-failures": retries}):
+        cluster = LocalCluster(n_workers=n, threads_per_worker=threads_per_worker, processes=processes,
+                               dashboard_address=":0", silence_logs=logging.ERROR)
     own = Client(cluster)
     try:
         yield own, {"kind": "local", "workers": n, "threads_per_worker": threads_per_worker, "processes": processes}
@@ -309,7 +314,9 @@ def run_batch(rig: Rig | str | os.PathLike[str], inputs: Sequence[str | os.PathL
         The local cluster made when neither ``client`` nor ``scheduler`` is given: by default one
         single-threaded worker process per core.
     retries : int
-        Times a frame is rerun when its worker dies.
+        Times a frame is rerun when its worker dies (the local cluster's ``allowed-failures``; with
+        ``client`` or ``scheduler``, that scheduler's own setting applies) or its task fails outside the
+        frame's own error handling (``Client.submit(retries=...)``).
     progress : bool, optional
         Progress bar over frames; default: when stderr is a terminal.
     echo : callable, optional
@@ -379,7 +386,7 @@ def run_batch(rig: Rig | str | os.PathLike[str], inputs: Sequence[str | os.PathL
     t_compute = time.perf_counter()
     if todo:
         try:
-            with _dask_client(client, scheduler, workers, threads_per_worker, processes) as (c, sched):
+            with _dask_client(client, scheduler, workers, threads_per_worker, processes, retries) as (c, sched):
                 run["scheduler"] = {**sched, "dashboard": _dashboard(c)}
                 interrupted = _submit_all(c, setup, todo, frames_dir, chosen, rows, retries=retries,
                                           progress=_progress_bar(len(frames), len(rows), progress), say=say,
@@ -419,8 +426,12 @@ def _submit_all(c: Any, setup: DepthSetup, todo: list[Frame], frames_dir: Path, 
     host_threads = _host_threads(c)
     nthreads = max(1, sum(c.nthreads().values()))
     say(f"batch: {len(todo)} frames on {len(host_threads)} Dask workers ({nthreads} threads)")
-    setup_f = c.scatter(setup, broadcast=True)  # the per-rig tables go to every worker once
     token = uuid.uuid4().hex[:8]
+    # The per-rig tables travel once, as one task that every frame depends on: each worker fetches its
+    # result once and keeps it while it has frames. Unlike scattered data, a task's result is rebuilt
+    # from its recipe (these bytes, held by the scheduler) when the workers that hold it die.
+    setup_f = c.submit(pickle.loads, pickle.dumps(setup, protocol=pickle.HIGHEST_PROTOCOL),
+                       key=f"prismstereo-setup-{token}", pure=False, retries=retries)
     window = 2 * nthreads + 2
     pending = iter(todo)
     by_key: dict[str, Frame] = {}
