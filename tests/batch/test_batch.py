@@ -226,7 +226,8 @@ def test_cli_exit_codes(tmp_path, rig, frames_dir, capsys):
     assert main(args[:3] + args[4:]) == 0  # without the corrupt frame: f0 is finished, nothing to do
     assert "1 of 1 frames already finished" in capsys.readouterr().err
     # bad arguments: exit 2, one line, nothing written
-    for bad in (["--outputs", "depth.exr"], ["--workers", "0"], ["--method", "nope"], ["--depth-range", "100,50"]):
+    for bad in (["--outputs", "depth.exr"], ["--workers", "0"], ["--method", "nope"], ["--depth-range", "100,50"],
+                ["--scheduler", "localhost"]):
         out2 = tmp_path / "bad"
         assert main(["batch", str(rig_path), str(frames_dir / "f0.png"), "-o", str(out2), *bad]) == 2
         err = capsys.readouterr().err.strip().splitlines()

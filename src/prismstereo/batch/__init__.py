@@ -9,7 +9,14 @@ from __future__ import annotations
 
 from prismstereo.batch.frames import Frame, list_frames, read_frame, video_frame_count
 from prismstereo.batch.outputs import DEFAULT_OUTPUTS, OUTPUT_CHOICES, SUMMARY_FIELDS, depth_png, parse_outputs
-from prismstereo.batch.runner import EXIT_OK, EXIT_SOME_FAILED, BatchSummary, process_frame, run_batch
+from prismstereo.batch.runner import (
+    EXIT_OK,
+    EXIT_SOME_FAILED,
+    BatchSummary,
+    local_cluster,
+    process_frame,
+    run_batch,
+)
 
 __all__ = [
     "DEFAULT_OUTPUTS",
@@ -21,6 +28,7 @@ __all__ = [
     "Frame",
     "depth_png",
     "list_frames",
+    "local_cluster",
     "parse_outputs",
     "process_frame",
     "read_frame",

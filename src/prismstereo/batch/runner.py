@@ -46,7 +46,8 @@ from prismstereo.io import to_jsonable, write_json
 
 log = logging.getLogger(__name__)
 
-__all__ = ["EXIT_OK", "EXIT_SOME_FAILED", "BatchSummary", "machine_cores", "process_frame", "run_batch"]
+__all__ = ["EXIT_OK", "EXIT_SOME_FAILED", "BatchSummary", "local_cluster", "machine_cores", "process_frame",
+           "run_batch"]
 
 EXIT_OK = 0
 #: exit code of ``prismstereo batch`` when some frames failed (the others are written)
@@ -199,6 +200,45 @@ def process_frame(setup: DepthSetup, frame: Frame, frames_dir: str, outputs: Seq
 
 
 # --------------------------------------------------------------------------- the client
+def local_cluster(workers: int | None = None, *, threads_per_worker: int = 1, processes: bool = True,
+                  retries: int = 2, dashboard_address: str | None = ":0") -> Any:
+    """A ``distributed.LocalCluster`` set up for depth frames (what ``run_batch`` makes when given no client).
+
+    Parameters
+    ----------
+    workers : int, optional
+        Worker processes (threads with ``processes=False``); default: cores // ``threads_per_worker``.
+    threads_per_worker : int
+    processes : bool
+        Workers in their own processes (default; the numba kernels hold the GIL) or as threads here.
+    retries : int
+        Times a frame is rerun when its worker dies (the scheduler's ``allowed-failures``).
+    dashboard_address : str or None
+        Where the dashboard listens (``:0`` = a free port; it needs ``bokeh``); None for none.
+
+    Notes
+    -----
+    Dask starts worker processes with ``MALLOC_TRIM_THRESHOLD_=65536``, which turns off glibc's adaptive
+    mmap threshold: every large temporary array of the pipeline is then mapped and page-faulted afresh,
+    about 40 % more CPU per frame (docs/EXPERIMENTS.md, issue 18). These workers keep glibc's default.
+    """
+    import dask
+    from distributed import LocalCluster
+
+    n = workers if workers is not None else max(1, machine_cores() // threads_per_worker)
+    settings = {"distributed.scheduler.allowed-failures": retries,
+                "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
+    # an earlier cluster's nanny may have left Dask's value in this process's environment: not inherited
+    inherited = os.environ.pop("MALLOC_TRIM_THRESHOLD_", None) if processes else None
+    try:
+        with dask.config.set(settings):
+            return LocalCluster(n_workers=n, threads_per_worker=threads_per_worker, processes=processes,
+                                dashboard_address=dashboard_address, silence_logs=logging.ERROR)
+    finally:
+        if inherited is not None:
+            os.environ["MALLOC_TRIM_THRESHOLD_"] = inherited
+
+
 @contextlib.contextmanager
 def _dask_client(client: Any, scheduler: str | None, workers: int | None, threads_per_worker: int,
                  processes: bool, retries: int) -> Iterator[tuple[Any, dict[str, Any]]]:
@@ -206,7 +246,7 @@ def _dask_client(client: Any, scheduler: str | None, workers: int | None, thread
     if client is not None:
         yield client, {"kind": "client", "address": str(client.scheduler.address)}
         return
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
     if scheduler:
         try:
@@ -219,13 +259,8 @@ def _dask_client(client: Any, scheduler: str | None, workers: int | None, thread
         finally:
             own.close()
         return
-    import dask
-
     n = workers if workers is not None else max(1, machine_cores() // threads_per_worker)
-    # a task whose worker dies is rerun by the scheduler up to allowed-failures times (then KilledWorker)
-    with dask.config.set({"distributed.scheduler.allowed-failures": retries}):
-        cluster = LocalCluster(n_workers=n, threads_per_worker=threads_per_worker, processes=processes,
-                               dashboard_address=":0", silence_logs=logging.ERROR)
+    cluster = local_cluster(n, threads_per_worker=threads_per_worker, processes=processes, retries=retries)
     own = Client(cluster)
     try:
         yield own, {"kind": "local", "workers": n, "threads_per_worker": threads_per_worker, "processes": processes}
@@ -351,6 +386,8 @@ def run_batch(rig: Rig | str | os.PathLike[str], inputs: Sequence[str | os.PathL
         raise ConfigError(f"--threads-per-worker: expected a positive number, got {threads_per_worker}")
     if retries < 0:
         raise ConfigError(f"retries: expected 0 or more, got {retries}")
+    if scheduler is not None and client is None and "://" not in scheduler:
+        raise ConfigError(f"--scheduler: expected an address like tcp://HOST:8786, got {scheduler!r}")
     out_dir = Path(out)
     check_output_dir(out_dir)
     frames = list_frames(inputs)
