@@ -17,8 +17,10 @@ frame (``--outputs``).
    (target ≥ 1.7× on two cores).
 
 Numba gets cores // worker threads per worker (2 threads with one worker on two cores, 1 with two), as
-``run_batch`` does. The best of ``--repeat`` runs is kept for each. The timings are wall clock on a
-machine that may be shared: run it on an idle machine for numbers to quote.
+``run_batch`` does; a fourth run has one worker limited to one numba thread (pure scaling over workers).
+The best of ``--repeat`` runs is kept for each. The timings are wall clock on a machine that may be
+shared: run it on an idle machine for numbers to quote; the CPU columns (client, scheduler and worker
+processes) are less sensitive to other load.
 """
 
 from __future__ import annotations
@@ -83,7 +85,7 @@ def _cpu_of_workers(client) -> float:
 
 
 def _batch(rig, paths: list[Path], warm: list[Path], config: DepthConfig, out: Path, workers: int, repeat: int,
-           outputs: str) -> tuple[float, float, float, float]:
+           outputs: str, numba_threads: int | None = None) -> tuple[float, float, float, float]:
     """(best wall time of run_batch over paths, cluster start time, peak worker RSS MB, best CPU seconds)."""
     from distributed import Client
 
@@ -91,13 +93,15 @@ def _batch(rig, paths: list[Path], warm: list[Path], config: DepthConfig, out: P
     t = time.perf_counter()
     with local_cluster(workers, dashboard_address=None) as cl, Client(cl) as client:
         start = time.perf_counter() - t
-        run_batch(rig, warm, out / "warm", config=config, client=client, outputs=outputs, progress=False)
+        run_batch(rig, warm, out / "warm", config=config, client=client, outputs=outputs, progress=False,
+                  numba_threads=numba_threads)
         best, best_cpu, rss = float("inf"), float("inf"), 0.0
         for r in range(repeat):
             dest = out / f"run{r}"
             w0, c0 = _cpu_of_workers(client), time.process_time()
             t = time.perf_counter()
-            s = run_batch(rig, paths, dest, config=config, client=client, outputs=outputs, progress=False)
+            s = run_batch(rig, paths, dest, config=config, client=client, outputs=outputs, progress=False,
+                          numba_threads=numba_threads)
             best = min(best, time.perf_counter() - t)
             # CPU of the client (scheduler included: it runs in this process) and of the worker processes
             best_cpu = min(best_cpu, time.process_time() - c0 + _cpu_of_workers(client) - w0)
@@ -130,6 +134,7 @@ def main() -> None:
         reference_cpu = depth_cpu - (args.frames - 1) * setup_cpu
         t1, start1, rss1, cpu1 = _batch(rig, paths, warm, config, tmp / "b1", 1, args.repeat, args.outputs)
         t2, start2, rss2, cpu2 = _batch(rig, paths, warm, config, tmp / "b2", 2, args.repeat, args.outputs)
+        t1s, _, _, cpu1s = _batch(rig, paths, warm, config, tmp / "b1s", 1, args.repeat, args.outputs, 1)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     n = args.frames
@@ -144,12 +149,14 @@ def main() -> None:
           f"{n / reference:.2f} | 1.000 | {reference_cpu:.2f} | 1.000 | - | - |")
     print(f"| batch, 1 worker | {t1:.2f} | {n / t1:.2f} | {t1 / reference:.3f} | {cpu1:.2f} | "
           f"{cpu1 / reference_cpu:.3f} | {start1:.1f} | {rss1:.0f} |")
+    print(f"| batch, 1 worker, 1 numba thread | {t1s:.2f} | {n / t1s:.2f} | {t1s / reference:.3f} | {cpu1s:.2f} | "
+          f"{cpu1s / reference_cpu:.3f} | - | - |")
     print(f"| batch, 2 workers | {t2:.2f} | {n / t2:.2f} | {t2 / reference:.3f} | {cpu2:.2f} | "
           f"{cpu2 / reference_cpu:.3f} | {start2:.1f} | {rss2:.0f} |")
     print(f"overhead of batch (1 worker) over the reference: wall {100 * (t1 / reference - 1):+.1f} %, "
           f"CPU {100 * (cpu1 / reference_cpu - 1):+.1f} % (target <= 10 %)")
-    print(f"speed-up 2 workers vs 1: {t1 / t2:.2f}x (target >= 1.7x); load average after: "
-          f"{os.getloadavg()[0]:.1f}")
+    print(f"speed-up 2 workers vs 1: {t1 / t2:.2f}x vs 1 worker with 2 numba threads, {t1s / t2:.2f}x vs 1 worker "
+          f"with 1 numba thread (target >= 1.7x); load average after: {os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":

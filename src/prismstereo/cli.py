@@ -325,6 +325,8 @@ def _add_batch(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--threads-per-worker", type=int, default=1, help="local cluster: threads per worker (default 1)")
     p.add_argument("--in-process", action="store_true",
                    help="local cluster: workers as threads of this process (small runs, debugging)")
+    p.add_argument("--numba-threads", type=int, default=None,
+                   help="numba/OpenCV threads per task (default: cores // worker threads on the host)")
     p.add_argument("--retries", type=int, default=2, help="reruns of a frame whose worker died (default 2)")
     p.set_defaults(handler=_cmd_batch)
 
@@ -338,7 +340,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
                          triangulation=args.triangulation, calibration=args.calibration, refine=not args.no_refine,
                          outputs=args.outputs, scheduler=args.scheduler, workers=args.workers,
                          threads_per_worker=args.threads_per_worker, processes=not args.in_process,
-                         retries=args.retries)
+                         retries=args.retries, numba_threads=args.numba_threads)
 
 
 _ADDERS.append(_add_batch)

@@ -25,7 +25,7 @@ def batch_command(rig_path: str, inputs: Sequence[str], out_dir: str, *, method:
                   roi: tuple[int, int, int, int] | None = None, views: Any = None, triangulation: str = "exact",
                   calibration: str = "fit", refine: bool = True, outputs: str | None = None,
                   scheduler: str | None = None, workers: int | None = None, threads_per_worker: int = 1,
-                  processes: bool = True, retries: int = 2) -> int:
+                  processes: bool = True, retries: int = 2, numba_threads: int | None = None) -> int:
     """Run ``prismstereo batch``: print the summary, return the exit code (0, or 3 when frames failed)."""
     from prismstereo.batch.runner import run_batch
     from prismstereo.config import load_rig
@@ -50,6 +50,7 @@ def batch_command(rig_path: str, inputs: Sequence[str], out_dir: str, *, method:
         print(line, file=sys.stderr)
 
     summary = run_batch(rig, inputs, out_dir, config=config, outputs=outputs, scheduler=scheduler, workers=workers,
-                        threads_per_worker=threads_per_worker, processes=processes, retries=retries, echo=echo)
+                        threads_per_worker=threads_per_worker, processes=processes, retries=retries,
+                        numba_threads=numba_threads, echo=echo)
     print(summary.text())
     return summary.exit_code

@@ -118,7 +118,7 @@ class _FrameLog(logging.Handler):
             self.lines.append(record.getMessage().splitlines()[0] if record.getMessage() else record.levelname)
 
 
-def _limit_threads(host_threads: dict[str, int], client_pid: int) -> int:
+def _limit_threads(host_threads: dict[str, int], client_pid: int, numba_threads: int | None) -> int:
     """Give this task's numba (and OpenCV) a share of the cores: cores // worker threads on this host."""
     import numba
 
@@ -130,7 +130,8 @@ def _limit_threads(host_threads: dict[str, int], client_pid: int) -> int:
         on_host = host_threads.get(worker.address, worker.state.nthreads)
     except (ImportError, ValueError):  # not on a Dask worker (called directly)
         pass
-    n = max(1, min(machine_cores() // max(on_host, 1), int(numba.config.NUMBA_NUM_THREADS)))  # type: ignore[attr-defined]
+    want = numba_threads if numba_threads is not None else machine_cores() // max(on_host, 1)
+    n = max(1, min(want, int(numba.config.NUMBA_NUM_THREADS)))  # type: ignore[attr-defined]
     numba.set_num_threads(n)  # thread-local in numba: set in the thread that runs the frame
     if os.getpid() != client_pid:  # OpenCV's setting is process-wide: leave the user's own process alone
         import cv2
@@ -162,7 +163,7 @@ def _base_row(frame: Frame) -> dict[str, Any]:
 
 def process_frame(setup: DepthSetup, frame: Frame, frames_dir: str, outputs: Sequence[str], *,
                   host_threads: dict[str, int] | None = None, client_pid: int = -1,
-                  extra: dict[str, Any] | None = None) -> dict[str, Any]:
+                  numba_threads: int | None = None, extra: dict[str, Any] | None = None) -> dict[str, Any]:
     """Depth of one frame with a prepared set-up, written to ``frames_dir/<name>/``; returns its summary row.
 
     Errors of the frame (bad capture, pipeline failure) are returned in the row (``status`` ``failed``,
@@ -171,7 +172,7 @@ def process_frame(setup: DepthSetup, frame: Frame, frames_dir: str, outputs: Seq
     t0 = time.perf_counter()
     row = _base_row(frame)
     row["worker"] = f"{os.uname().nodename}:{os.getpid()}"
-    row["numba_threads"] = _limit_threads(host_threads or {}, client_pid)
+    row["numba_threads"] = _limit_threads(host_threads or {}, client_pid, numba_threads)
     handler = _FrameLog()
     pkg_log = logging.getLogger("prismstereo")
     pkg_log.addHandler(handler)
@@ -328,7 +329,8 @@ def run_batch(rig: Rig | str | os.PathLike[str], inputs: Sequence[str | os.PathL
               out: str | os.PathLike[str], *, config: DepthConfig | None = None,
               outputs: str | Sequence[str] | None = None, client: Any = None, scheduler: str | None = None,
               workers: int | None = None, threads_per_worker: int = 1, processes: bool = True, retries: int = 2,
-              progress: bool | None = None, echo: Callable[[str], None] | None = None,
+              numba_threads: int | None = None, progress: bool | None = None,
+              echo: Callable[[str], None] | None = None,
               on_frame: Callable[[dict[str, Any]], None] | None = None) -> BatchSummary:
     """Depth of every frame of ``inputs`` into ``out/frames/<name>/``, on Dask.
 
@@ -352,6 +354,8 @@ def run_batch(rig: Rig | str | os.PathLike[str], inputs: Sequence[str | os.PathL
         Times a frame is rerun when its worker dies (the local cluster's ``allowed-failures``; with
         ``client`` or ``scheduler``, that scheduler's own setting applies) or its task fails outside the
         frame's own error handling (``Client.submit(retries=...)``).
+    numba_threads : int, optional
+        Numba (and OpenCV) threads per task; default: the host's cores // its worker threads.
     progress : bool, optional
         Progress bar over frames; default: when stderr is a terminal.
     echo : callable, optional
@@ -386,6 +390,8 @@ def run_batch(rig: Rig | str | os.PathLike[str], inputs: Sequence[str | os.PathL
         raise ConfigError(f"--threads-per-worker: expected a positive number, got {threads_per_worker}")
     if retries < 0:
         raise ConfigError(f"retries: expected 0 or more, got {retries}")
+    if numba_threads is not None and numba_threads < 1:
+        raise ConfigError(f"--numba-threads: expected a positive number, got {numba_threads}")
     if scheduler is not None and client is None and "://" not in scheduler:
         raise ConfigError(f"--scheduler: expected an address like tcp://HOST:8786, got {scheduler!r}")
     out_dir = Path(out)
@@ -424,8 +430,9 @@ def run_batch(rig: Rig | str | os.PathLike[str], inputs: Sequence[str | os.PathL
     if todo:
         try:
             with _dask_client(client, scheduler, workers, threads_per_worker, processes, retries) as (c, sched):
-                run["scheduler"] = {**sched, "dashboard": _dashboard(c)}
+                run["scheduler"] = {**sched, "numba_threads": numba_threads or "auto", "dashboard": _dashboard(c)}
                 interrupted = _submit_all(c, setup, todo, frames_dir, chosen, rows, retries=retries,
+                                          numba_threads=numba_threads,
                                           progress=_progress_bar(len(frames), len(rows), progress), say=say,
                                           on_frame=on_frame, run=run)
         finally:
@@ -453,7 +460,8 @@ def run_batch(rig: Rig | str | os.PathLike[str], inputs: Sequence[str | os.PathL
 
 
 def _submit_all(c: Any, setup: DepthSetup, todo: list[Frame], frames_dir: Path, outputs: tuple[str, ...],
-                rows: dict[str, dict[str, Any]], *, retries: int, progress: Any, say: Callable[[str], None],
+                rows: dict[str, dict[str, Any]], *, retries: int, numba_threads: int | None, progress: Any,
+                say: Callable[[str], None],
                 on_frame: Callable[[dict[str, Any]], None] | None, run: dict[str, Any]) -> bool:
     """Submit the frames a window at a time and collect their rows; returns True when interrupted."""
     from distributed import as_completed
@@ -480,7 +488,8 @@ def _submit_all(c: Any, setup: DepthSetup, todo: list[Frame], frames_dir: Path, 
         if f is None:
             return
         fut = c.submit(process_frame, setup_f, f, str(frames_dir), outputs, host_threads=host_threads,
-                       client_pid=os.getpid(), extra=extra, key=f"prismstereo-frame-{token}-{f.name}",
+                       client_pid=os.getpid(), numba_threads=numba_threads, extra=extra,
+                       key=f"prismstereo-frame-{token}-{f.name}",
                        retries=retries, pure=False)
         by_key[fut.key] = f
         futures.add(fut)
