@@ -441,7 +441,7 @@ def run_batch(rig: Rig | str | os.PathLike[str], inputs: Sequence[str | os.PathL
     wall = time.perf_counter() - t_compute
     ordered = []
     for f in frames:
-        row = rows.get(f.name)
+        row = rows.get(f.name) or finished_row(frames_dir, f.name, chosen)  # done as Ctrl-C came: on disk
         if row is None:
             row = {**_base_row(f), "status": "interrupted", "error": "KeyboardInterrupt: not finished"}
         ordered.append(row)
