@@ -389,6 +389,54 @@ def _cmd_warmup(args: argparse.Namespace) -> int:
 
 _ADDERS.append(_add_warmup)
 
+# --------------------------------------------------------------------------- batch (issue 18)
+def _add_batch(sub: argparse._SubParsersAction) -> None:
+    from prismstereo.batch.cli_support import BATCH_EPILOG
+
+    p = sub.add_parser("batch", help="depth of many frames (images, folders, globs, videos) on Dask",
+                       epilog=BATCH_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("rig", help="rig TOML (DESIGN.md §4)")
+    p.add_argument("inputs", nargs="+", metavar="INPUT", help="image files, folders, globs or video files")
+    p.add_argument("-o", "--output", required=True, help="output folder")
+    p.add_argument("--method", default="bpasw", help="matcher name (any registered: bpasw, sad, sgbm, coop, ...)")
+    p.add_argument("-p", "--param", action="append", metavar="KEY=VALUE", help="matcher tuning parameter")
+    p.add_argument("--depth-range", default=None, metavar="MIN,MAX",
+                   help="scene depths to search, mm (default: every depth at which the views share a field, "
+                        "from the rig); sets the disparity range")
+    p.add_argument("--roi", default=None, metavar="X,Y,W,H", help="region of the rectified left view")
+    p.add_argument("--views", default=None, metavar="I,J", help="faces to pair (default: 1,0 for a bi-prism)")
+    p.add_argument("--triangulation", default="exact", choices=["exact", "midpoint", "dlt", "q"],
+                   help="exact refractive rays (default), virtual-pinhole midpoint or DLT, or Q (Eq. 7.23)")
+    p.add_argument("--calibration", default="fit", choices=["fit", "thesis"], help="virtual camera model")
+    p.add_argument("--no-refine", action="store_true", help="skip the sub-pixel disparity refinement")
+    p.add_argument("--outputs", default=None, metavar="FILES",
+                   help="files per frame, comma-separated, among disparity.pfm, disparity.png, depth.pfm, "
+                        "depth.png (16-bit, mm), points.ply, report.png, run.json (default: depth's files)")
+    p.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="use a running Dask scheduler")
+    p.add_argument("--workers", type=int, default=None, help="local cluster: worker processes (default: one per core)")
+    p.add_argument("--threads-per-worker", type=int, default=1, help="local cluster: threads per worker (default 1)")
+    p.add_argument("--in-process", action="store_true",
+                   help="local cluster: workers as threads of this process (small runs, debugging)")
+    p.add_argument("--numba-threads", type=int, default=None,
+                   help="numba/OpenCV threads per task (default: cores // worker threads on the host)")
+    p.add_argument("--retries", type=int, default=2, help="reruns of a frame whose worker died (default 2)")
+    p.set_defaults(handler=_cmd_batch)
+
+
+def _cmd_batch(args: argparse.Namespace) -> int:
+    from prismstereo.batch.cli_support import batch_command
+
+    depth_range = None if args.depth_range is None else _parse_pair(args.depth_range, "--depth-range")
+    return batch_command(args.rig, args.inputs, args.output, method=args.method, params=_parse_params(args.param),
+                         depth_range=depth_range, roi=_parse_roi(args.roi), views=_parse_views(args.views),
+                         triangulation=args.triangulation, calibration=args.calibration, refine=not args.no_refine,
+                         outputs=args.outputs, scheduler=args.scheduler, workers=args.workers,
+                         threads_per_worker=args.threads_per_worker, processes=not args.in_process,
+                         retries=args.retries, numba_threads=args.numba_threads)
+
+
+_ADDERS.append(_add_batch)
+
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(

@@ -43,8 +43,11 @@ __all__ = [
     "TRIANGULATIONS",
     "DepthConfig",
     "DepthResult",
+    "DepthSetup",
     "default_views",
+    "prepare_depth",
     "run_depth",
+    "run_depth_frame",
     "validate_inputs",
 ]
 
@@ -335,6 +338,8 @@ def register_stage(name: str) -> Callable[[Stage], Stage]:
 def _stage_cameras(st: DepthResult) -> None:
     from prismstereo.cameras import calibrate_rig
 
+    if st.views:  # prepared once for many frames (prepare_depth)
+        return
     st.views = calibrate_rig(st.rig, method=st.config.calibration)
 
 
@@ -399,6 +404,10 @@ def _stage_rectify(st: DepthResult) -> None:
     except ImportError:  # the package may not re-export it
         from prismstereo.rectify.rectification import rectify_pair
 
+    if st.pair is not None:  # geometry prepared once for many frames (prepare_depth): only warp the capture
+        left, right = st.pair.rectify_images(st.image)
+        st.left, st.right = np.asarray(left), np.asarray(right)
+        return
     assert st.config.views is not None
     by_face = {v.face: v for v in st.views}
     a, b = st.config.views
@@ -635,6 +644,10 @@ def run_depth(rig: Rig, image: Any, *, config: DepthConfig | None = None,
     img, cfg = validate_inputs(rig, image, config or DepthConfig())
     st = DepthResult(config=cfg, rig=rig, image=img)
     st.timings["validate"] = time.perf_counter() - t0
+    return _run_stages(st, t0, progress)
+
+
+def _run_stages(st: DepthResult, t0: float, progress: bool | None) -> DepthResult:
     bar = _progress(len(STAGES)) if progress is not False else None
     try:
         for name, stage in STAGES.items():
@@ -653,3 +666,102 @@ def run_depth(rig: Rig, image: Any, *, config: DepthConfig | None = None,
     for line in st.warnings:
         log.warning("%s", line)
     return st
+
+
+# --------------------------------------------------------------------------- one set-up, many frames
+@dataclass(frozen=True, eq=False)
+class DepthSetup:
+    """The per-rig part of a depth run, computed once and shared by every frame of a sequence (batch).
+
+    Attributes
+    ----------
+    rig : Rig
+    config : DepthConfig
+        Resolved (views filled in).
+    views : list of VirtualView
+        The virtual cameras (stage ``cameras``).
+    pair : RectifiedPair
+        Rectification of the chosen pair, with its remap tables (stage ``rectify``).
+    roi_mask : (h, w) bool
+        Pixels matched in the rectified left view: region of interest ∩ common view in the depth range.
+    disparity_range : (min, max)
+        Integer disparity search range.
+    timings : dict
+        Seconds spent on the set-up stages.
+    depth_range : (min, max)
+        Depths searched, mm.
+    depth_range_source : str
+        ``"given"`` (the configuration's) or ``"rig"``: without a configured range a sequence is searched over
+        every depth at which the views share a field, since one frame's content says nothing of the next's.
+    """
+
+    rig: Rig
+    config: DepthConfig
+    views: list[Any]
+    pair: Any
+    roi_mask: np.ndarray
+    disparity_range: tuple[int, int]
+    timings: dict[str, float] = field(default_factory=dict)
+    depth_range: tuple[float, float] = (0.0, 0.0)
+    depth_range_source: str = "given"
+
+
+def prepare_depth(rig: Rig, *, config: DepthConfig | None = None) -> DepthSetup:
+    """Run the stages of :func:`run_depth` that depend only on the rig and the configuration.
+
+    The virtual cameras, the rectification maps, the common view and the disparity range are the same
+    for every capture of a rig; :func:`run_depth_frame` then does the per-capture work.
+    ``run_depth_frame(prepare_depth(rig, config=c), image)`` gives the same arrays as
+    ``run_depth(rig, image, config=c)``.
+
+    Raises
+    ------
+    ConfigError, GeometryError
+        As :func:`run_depth`, before any per-frame work.
+    """
+    # the configuration checks of validate_inputs do not look at the pixels: a blank capture stands in
+    blank = np.zeros((rig.camera.height, rig.camera.width, 3), dtype=np.uint8)
+    _, cfg = validate_inputs(rig, blank, config or DepthConfig())
+    st = DepthResult(config=cfg, rig=rig, image=blank)
+    timings = {}
+    for name in ("cameras", "rectify"):
+        t = time.perf_counter()
+        STAGES[name](st)
+        timings[name] = time.perf_counter() - t
+    assert st.roi_mask is not None
+    # the blank stand-in cannot narrow the range by matching: the rig's whole range is searched, and the
+    # "not a capture" warning the blank image raised says nothing about the frames to come
+    source = "given" if cfg.depth_range is not None else "rig"
+    return DepthSetup(rig=rig, config=st.config, views=list(st.views), pair=st.pair, roi_mask=st.roi_mask,
+                      disparity_range=st.disparity_range, timings=timings, depth_range=st.depth_range,
+                      depth_range_source=source)
+
+
+def run_depth_frame(setup: DepthSetup, image: Any, *, progress: bool | None = False) -> DepthResult:
+    """Recover depth from one capture with a prepared set-up (:func:`prepare_depth`).
+
+    Parameters
+    ----------
+    setup : DepthSetup
+    image : (H, W) or (H, W, 3) array
+        The capture (RGB); its size must be the rig camera's.
+    progress : bool, optional
+        Show a progress bar per stage (default: no).
+
+    Returns
+    -------
+    DepthResult
+        As :func:`run_depth`; the set-up stages cost (almost) nothing in its timings.
+
+    Raises
+    ------
+    ImageError
+        If the capture does not fit the rig.
+    """
+    t0 = time.perf_counter()
+    img = validate_image(setup.rig, image)
+    st = DepthResult(config=setup.config, rig=setup.rig, image=img, views=list(setup.views), pair=setup.pair,
+                     roi_mask=setup.roi_mask, disparity_range=setup.disparity_range,
+                     depth_range=setup.depth_range, depth_range_source=setup.depth_range_source)
+    st.timings["validate"] = time.perf_counter() - t0
+    return _run_stages(st, t0, progress)
