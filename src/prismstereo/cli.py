@@ -162,23 +162,24 @@ def _cmd_match(args: argparse.Namespace) -> int:
 def _add_evaluate(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("evaluate", help="evaluate a matcher on a benchmark (middlebury)")
     p.add_argument("benchmark", choices=["middlebury"], help="benchmark name")
-    p.add_argument("--data", default=None, help="Middlebury folder (default ../shared/data/middlebury)")
+    p.add_argument("--data", default=None, help="folder of scenes (shared layout with manifest.json, or the "
+                   "Middlebury 2014 layout), or one scene folder (default ../shared/data/middlebury)")
     p.add_argument("--method", default="bpasw", help="matcher name")
     p.add_argument("-o", "--output", required=True, help="output folder")
-    p.add_argument("--scenes", default=None, help="comma-separated subset of tsukuba,venus,teddy,cones")
+    p.add_argument("--scenes", default=None, help="comma-separated scene folder names (default: every scene in --data)")
     p.add_argument("-p", "--param", action="append", metavar="KEY=VALUE", help="matcher tuning parameter")
     p.set_defaults(handler=_cmd_evaluate)
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
-    from prismstereo.evaluation.middlebury import SCENES, evaluate_method, format_results_table
+    from prismstereo.evaluation.middlebury import evaluate_method, format_results_table
     from prismstereo.matching import get_matcher
 
     params = _parse_params(args.param)
     get_matcher(args.method, **params)
-    scenes = tuple(s.strip().lower() for s in args.scenes.split(",")) if args.scenes else SCENES
+    scenes = tuple(s.strip() for s in args.scenes.split(",") if s.strip()) if args.scenes else None
     res = evaluate_method(args.method, data_dir=args.data, out_dir=args.output, scenes=scenes, **params)
-    print(format_results_table(res, title=f"{args.method} on Middlebury v2 (bad % at 1.0 px unless noted)"))
+    print(format_results_table(res, title=f"{args.method} on {res['data']} (bad % at 1.0 px unless noted)"))
     print(f"wrote {args.output}/results.json")
     return 0
 
