@@ -58,6 +58,7 @@ from prismstereo.matching.planes import (
     build_segment_index,
     fill_missing_planes,
     fit_planes,
+    fit_planes_splitting,
     group_refit_planes,
     merge_planes,
     render_planes,
@@ -91,6 +92,7 @@ class CoopResult:
     assign_initial, assign : (K,) int32   plane index per segment before / after §6.2.
     info : dict                     energies before/after, sweeps, counts.
     timings : dict                  seconds per stage.
+    stages : dict                   map after each step (name -> (H, W) float32; only with ``keep_stages``).
     """
 
     labels: npt.NDArray[np.int32]
@@ -103,6 +105,7 @@ class CoopResult:
     assign: npt.NDArray[np.int32]
     info: dict[str, float] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
+    stages: dict[str, F32] = field(default_factory=dict)
 
 
 def _as_rgb8(image: npt.NDArray[np.generic], name: str) -> npt.NDArray[np.uint8]:
@@ -557,7 +560,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
                sweep_nbr: bool = False, sweep_dil: int = 3, fine_hr: float = 3.0,
                fine_min: int = 10, fine_check: int = 1,
                data_slopes: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0),
-               group_moves: bool = True) -> CoopResult:
+               group_moves: bool = True, keep_stages: bool = False) -> CoopResult:
     """Run the whole segment-based cooperative pipeline (thesis §5.1, §5.2, §6.1, §6.2).
 
     Parameters
@@ -732,8 +735,10 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     tm["segmentation"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    index = build_segment_index(labels)
-    fitted, _ = fit_planes(index, initial, reliable, params=pp)
+    # the evidence of the safety tests: both cross-checked initial maps (differently aggregated) agree
+    evidence = reliable & brel0 & (np.abs(bdisp0 - initial) <= pixel_tol) if bvol is not None else reliable
+    labels, index, fitted, ancestor = fit_planes_splitting(labels, lft, initial, reliable, evidence, params=pp,
+                                                           min_region=sp.min_region)
     pairs, _length, contrast = segment_adjacency(labels, lft)
     cluster, cplanes = merge_planes(index, fitted, pairs, initial, reliable, params=pp)
     k = fitted.shape[0]
@@ -742,6 +747,12 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     own = np.full((k, 2), -1, np.int64)
     own[fin, 0] = np.arange(fin.size)
     own[cluster >= 0, 1] = cluster[cluster >= 0] + fin.size
+    split = np.flatnonzero(np.isfinite(ancestor[:, 0]))
+    if split.size:
+        # pieces of a split segment are offered their unsplit plane: the data term decides between them
+        uniq, inv = np.unique(ancestor[split], axis=0, return_inverse=True)
+        own[split, 1] = plane_set.shape[0] + inv.ravel()
+        plane_set = np.concatenate([plane_set, uniq])
     assign0 = fill_missing_planes(np.where(cluster >= 0, cluster + fin.size, -1).astype(np.int32), pairs,
                                   contrast)
     if (assign0 < 0).any():  # isolated segment without any plane in its component
@@ -779,8 +790,20 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         return cooperative_optimize(a, pset, index, graph, dcost, reliable, own=own_, min_disp=min_disp,
                                     params=prm, slopes=slopes)
 
+    stages: dict[str, F32] = {}
+
+    def snap(name: str) -> None:
+        if keep_stages:
+            stages[name] = render_planes(index, plane_set, assign).astype(np.float32)
+
+    if keep_stages:
+        stages["initial"] = initial.copy()
+        stages["bpasw"] = bdisp0.copy()
+        stages["evidence"] = evidence.astype(np.float32)
+        stages["plane_map"] = plane_map.copy()
     assign, plane_set, info = resume(assign0, plane_set, own)
     e_first = info["energy_before"]
+    snap("coop")
     for _ in range(refit_rounds):
         # refit one plane per group of segments sharing a label (wider support), offer it as a candidate
         refit = group_refit_planes(assign, plane_set, index, initial, reliable, params=pp)
@@ -791,11 +814,13 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         own2[:, 1] = group_ids
         assign, plane_set, info2 = resume(assign, plane_set, own2)
         info = {**info2, "energy_before": e_first}
+    snap("refit")
     # second plane hypotheses per segment from the cross-checked BPASW map, resuming the optimisation
     assign, plane_set, info3, bfit_ids = bpasw_candidate_rounds(assign, plane_set, own, index, pairs, bdisp0, brel0,
                                                                 resume, planes=pp, rounds=bpasw_planes)
     if info3 is not None:
         info = {**info3, "energy_before": e_first}
+    snap("bpasw_planes")
     if sweep_frac > 0:
         plane_set, sw_ids = segment_sweep_candidates(lft, rgt, labels, index, assign, plane_set, min_disp=min_disp,
                                               max_disp=max_disp, frac=sweep_frac, slopes=tuple(sweep_slopes),
@@ -823,6 +848,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
                 assign, plane_set, info2 = resume(assign, plane_set, own6, sw_op)
                 info = {**info2, "energy_before": e_first}
         info = {**info, "sweep_segments": float((sw_ids[:, 0] >= 0).sum())}
+        snap("sweep")
         if group_moves:
             # sweep candidates and the planes across each segment's boundary, moved over whole regions
             cands = np.concatenate([sw_ids, neighbour_plane_candidates(graph, assign)], axis=1)
@@ -830,6 +856,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
                                           min_disp=min_disp, params=op, slopes=slopes)
             assign, plane_set, info2 = resume(assign, plane_set, own)
             info = {**info2, **ginfo, "energy_before": e_first}
+            snap("group_moves")
     for _ in range(seg_slanted):
         assign = _segment_slanted_step(lft, rgt, labels, assign, plane_set, pairs,
                                        [own[:, 0], own[:, 1]] + ([bfit_ids] if bfit_ids is not None else []),
@@ -874,6 +901,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         own = own[fs.parent]
         if bfit_ids is not None:
             bfit_ids = bfit_ids[fs.parent]
+        snap("fine")
     tm["cooperative"] = time.perf_counter() - t
     t = time.perf_counter()
     if pixel_radius > 0:
@@ -893,6 +921,8 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
                               float(pixel_tol), bagree if pixel_agree else brel, bown)
     else:
         final = render_planes(index, plane_set, assign)
+    if keep_stages:
+        stages["boundary"] = final.copy()
     if slanted_boundary:
         from prismstereo.matching.slanted import refine_plane_labels
 
@@ -924,6 +954,8 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
                                                 assign.astype(np.int32), plane_set,
                                                 (dr_int + min_disp).astype(np.float32), rrel, float(occ_tol),
                                                 bdisp0, brel0, int(pixel_radius) if occ_rematch else 0)
+        if keep_stages:
+            stages["occlusion"] = final.copy()
     if post_median > 0:
         wm = weighted_median_filter(final, lft, radius=post_median)
         # the median works on integer bins: keep the subpixel plane disparity where it agrees within 1 px
@@ -935,7 +967,8 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     log.info("coop: %d segments, %d planes, E %.0f -> %.0f", k, len(plane_set), info["energy_before"],
              info["energy_after"])
     return CoopResult(labels=labels, initial=initial, reliable=reliable, plane_map=plane_map, disparity=final,
-                      planes=plane_set, assign_initial=assign0, assign=assign, info=info, timings=tm)
+                      planes=plane_set, assign_initial=assign0, assign=assign, info=info, timings=tm,
+                      stages=stages)
 
 
 @register_matcher("coop")
