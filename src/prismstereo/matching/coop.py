@@ -6,7 +6,9 @@ Stages (each callable on its own, and all kept in :class:`CoopResult`):
 2. initial disparity map: adaptive-weight aggregated cost, WTA, parabola subpixel, left-right
    cross-check (§5.2, Eq. 6.7)                                -> ``initial``, ``reliable``
 3. robust plane per segment (Eqs. 6.1-6.10) and merging of similar neighbours (Eqs. 6.14-6.17); segments
-   without a plane take their most similar neighbour's       -> ``plane_map`` (thesis Table 6.1)
+   without a plane take their most similar neighbour's; a large segment whose plane the evidence (both
+   cross-checked initial maps agree) does not support is split in quarters and refitted (issue 14: mean
+   shift's huge segments on curved or repetitive surfaces)  -> ``plane_map`` (thesis Table 6.1)
 4. cooperative optimisation of the plane labels (Eqs. 6.18-6.25), then one round in which segments that
    share a plane are refitted together and the optimisation resumes, then one in which planes fitted to
    issue 3's cross-checked BPASW map (and their merged clusters) are offered and it resumes again; then
@@ -72,7 +74,8 @@ log = logging.getLogger(__name__)
 
 __all__ = ["CoopMatcher", "CoopResult", "FineSegments", "boundary_pixel_planes",
            "bpasw_candidate_rounds", "coop_match", "initial_disparity",
-           "occlusion_background_fill", "refine_fine_segments", "segment_sweep_candidates"]
+           "occlusion_background_fill", "plane_data_costs", "refine_fine_segments",
+           "segment_sweep_candidates"]
 
 F32 = npt.NDArray[np.float32]
 
@@ -344,37 +347,6 @@ def occlusion_background_fill(disp: F32, seg: npt.NDArray[np.int32], assign: npt
     return out, occ
 
 
-def _segment_slanted_step(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uint8], labels: npt.NDArray[np.int32],
-                          assign: npt.NDArray[np.int32], plane_set: npt.NDArray[np.float64],
-                          pairs: npt.NDArray[np.int32], own_lists: list[npt.NDArray[np.int64]], *, min_disp: int,
-                          max_disp: int, margin: float) -> npt.NDArray[np.int32]:
-    """Each segment takes, among its current plane, its neighbours' current planes and its own fitted planes,
-    the one of lowest mean slanted-window cost (:mod:`slanted`), when cheaper than the current by ``margin``."""
-    from prismstereo.matching.slanted import segment_plane_costs
-
-    k = assign.shape[0]
-    nb: list[set[int]] = [set() for _ in range(k)]
-    for p, q in np.asarray(pairs):
-        nb[int(p)].add(int(assign[q]))
-        nb[int(q)].add(int(assign[p]))
-    for lst in own_lists:
-        for s in range(k):
-            if lst[s] >= 0:
-                nb[s].add(int(lst[s]))
-    m = 1 + max(len(v) for v in nb)
-    cand = np.full((k, m), -1, np.int64)
-    cand[:, 0] = assign
-    for s in range(k):
-        v = [c for c in nb[s] if c != assign[s]]
-        cand[s, 1:1 + len(v)] = v
-    cost = segment_plane_costs(lft, rgt, labels, cand, plane_set, min_disp=min_disp, max_disp=max_disp)
-    cost[:, 1:] += margin
-    best = cost.argmin(axis=1)
-    ok = np.isfinite(cost[np.arange(k), best])
-    new = np.where(ok, cand[np.arange(k), best], assign).astype(np.int32)
-    return new
-
-
 def segment_sweep_candidates(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uint8], labels: npt.NDArray[np.int32],
                       index: Any, assign: npt.NDArray[np.int32], plane_set: npt.NDArray[np.float64], *,
                       min_disp: int, max_disp: int, frac: float, slopes: tuple[float, ...], keep: int,
@@ -449,6 +421,41 @@ def segment_sweep_candidates(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uin
     if not chosen:
         return plane_set, out_ids
     return np.concatenate([plane_set, np.asarray(chosen)]), out_ids
+
+
+def plane_data_costs(cost: F32, pixels: npt.NDArray[np.int64], planes: npt.NDArray[np.float64], *, width: int,
+                     min_disp: int = 0, slopes: tuple[float, ...] | None = None,
+                     trunc: float = 1.5, outside: float = 1.0) -> npt.NDArray[np.float64]:
+    """Truncated pixel cost (the data term of Eq. 6.21, without visibility) of each pixel under its plane.
+
+    Parameters
+    ----------
+    cost : (H, W, D) or (S, H, W, D) float32 data-term volume(s) (one per vertical slope in ``slopes``).
+    pixels : (N,) flat pixel indices; planes : (N, 3) the plane of each pixel.
+    width : int  image width.
+
+    Returns
+    -------
+    (N,) float64 costs; ``outside`` where the plane leaves the search range or the right image.
+    """
+    c = np.asarray(cost)
+    if c.ndim == 3:
+        c = c[None]
+    ns, _h, _w, nd = c.shape
+    flat = c.reshape(ns, -1, nd)
+    x = (pixels % width).astype(np.float64)
+    y = (pixels // width).astype(np.float64)
+    d = planes[:, 0] * x + planes[:, 1] * y + planes[:, 2]
+    k = d - min_disp
+    bad = (k < -0.5) | (k > nd - 0.5) | (x - d < -0.5)
+    k = np.clip(k, 0.0, nd - 1.0)
+    k0 = np.floor(k).astype(np.int64)
+    k1 = np.minimum(k0 + 1, nd - 1)
+    f = k - k0
+    lev = (np.abs(np.asarray(slopes)[None, :] - planes[:, 1:2]).argmin(axis=1) if slopes and ns > 1
+           else np.zeros(pixels.size, np.int64))
+    v = (1.0 - f) * flat[lev, pixels, k0] + f * flat[lev, pixels, k1]
+    return np.where(bad, outside, np.minimum(v, trunc))
 
 
 @dataclass(frozen=True)
@@ -549,18 +556,14 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
                pixel_tol: float = 1.0, pixel_agree: int = 0, post_median: int = 4,
                occlusion_fill: bool = True, occ_tol: float = 1.0,
                bpasw_planes: int = 3, occ_rematch: bool = True,
-               pixel_bplanes: int = 2, slanted: int = -1, slanted_radius: int = 6,
-               slanted_margin: float = 0.0, seg_slanted: int = 0,
-               seg_slanted_margin: float = 0.0, plane_refine: bool = False,
-               plane_refine_margin: float = 2.0, plane_refine_mode: str = "replace",
-               plane_refine_px: int = 32, plane_refine_dil: int = 3, slanted_boundary: bool = False,
-               slanted_boundary_margin: float = 1.0, sweep_frac: float = 0.5,
+               pixel_bplanes: int = 2, sweep_frac: float = 0.5,
                sweep_slopes: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0), sweep_keep: int = 2,
                sweep_min_px: int = 20, sweep_step: int = 4, sweep_hbox: int = 1,
                sweep_nbr: bool = False, sweep_dil: int = 3, fine_hr: float = 3.0,
                fine_min: int = 10, fine_check: int = 1,
                data_slopes: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0),
-               group_moves: bool = True, keep_stages: bool = False) -> CoopResult:
+               group_moves: bool = True, split_check: bool = True,
+               keep_stages: bool = False) -> CoopResult:
     """Run the whole segment-based cooperative pipeline (thesis §5.1, §5.2, §6.1, §6.2).
 
     Parameters
@@ -617,36 +620,6 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         Planes the boundary step may pick besides the current planes of nearby segments: those segments'
         planes fitted to the BPASW map (1) and to the initial map (2) (0 = current planes only; average
         4.83 -> 4.78 -> 4.75).
-    slanted, slanted_radius, slanted_margin : keyword-only
-        Per-pixel slanted-window refinement (:func:`prismstereo.matching.slanted.refine_plane_labels`, the cost
-        of PatchMatch Stereo, Bleyer et al. 2011) after the boundary step: each pixel picks the cheapest plane
-        among the segments within ``slanted_radius`` px, then ``slanted`` red-black propagation passes; another
-        plane must be cheaper by ``slanted_margin`` (-1 = off, the default: measured worse, the average 5.13 ->
-        5.38 with margin 1 and no boundary step, 6.16 with 2 passes — per-pixel choices are noisier than planes
-        chosen by segments).
-    seg_slanted, seg_slanted_margin : keyword-only
-        Rounds in which every segment takes, among its current plane, its neighbours' current planes and its
-        own fitted planes, the one of lowest mean slanted-window cost (0 = off, the default: 4.75 -> 5.50; the
-        data term alone, without the occlusion and smoothness terms, moves segments next to occlusions).
-    plane_refine, plane_refine_margin, plane_refine_mode, plane_refine_px, plane_refine_dil : keyword-only
-        Segment-plane refinement (:func:`prismstereo.matching.slanted.refine_segment_planes`, PatchMatch
-        Stereo's plane refinement applied per segment): a pattern search over ``(a, b, d_centre)`` minimising the
-        segment's mean slanted-window cost over ``plane_refine_px`` of its pixels (window sampled every
-        ``plane_refine_dil`` px). Refined planes cheaper by ``plane_refine_margin`` either replace the segment's
-        plane (``"replace"``) or are offered to the cooperative optimisation as candidates (``"candidate"``;
-        ``"candidate2"`` also refines the BPASW-fitted plane). Off by default (average with it off: 4.752).
-        With an axis-wise pattern search only: replace 4.94 (margin 2) / 4.84 (margin 4); candidate 4.77
-        (margin 0) / 4.750 (margin 1) / 4.78 (64 px, dilation 2); candidate2 4.83. With the joint slope x
-        centre-disparity grid (the default search, which finds the synthetic slant): candidate 4.756 (margin
-        1, Teddy cooperative stage 3 -> 9 s), replace 5.13 (margin 2). The segment-mean slanted cost prefers
-        the ground-truth plane on most wrong segments of Teddy, but its minimum over a searched plane space
-        is not a better plane on the other segments (occluded and textureless pixels of a segment, narrow
-        cost basins), and the candidates it adds are seldom taken by the cooperative energy.
-    slanted_boundary, slanted_boundary_margin : keyword-only
-        After the boundary step, pixels where both cross-checked initial maps agree may take the plane of a
-        segment within ``pixel_radius`` whose slanted-window cost (:mod:`slanted`) is lower than their
-        segment plane's by ``slanted_boundary_margin`` and which lies within ``pixel_tol`` of the BPASW map.
-        Off by default: 4.84 (margin 1), 4.77 (margin 4) against 4.75.
     fine_hr, fine_min, fine_check : keyword-only
         Finer segments (an addition to §6.2): the segmentation is repeated with range radius ``fine_hr`` and
         minimum size ``fine_min`` and intersected with the segments; the fine segments that touch a segment on
@@ -678,6 +651,11 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         ``dy`` compared ``b dy`` px away). Square windows charge a steep floor more at its true plane than at an
         aliased fronto-parallel one. Empty = one unsheared volume. Average 4.44 -> 4.21 (Teddy 4.80/8.49/13.37
         -> 4.19/7.74/11.83; 3 slopes 4.20, 7 slopes to ±1.5 4.21); Teddy peak RSS 1.07 -> 1.22 GB.
+    split_check : bool, keyword-only
+        Segments split by the plane support test (:func:`~prismstereo.matching.planes.fit_planes_splitting`)
+        start the optimisation on their unsplit plane when it does not raise the summed data term of their
+        pieces (:func:`plane_data_costs`): the split stands only where the images, not just the initial maps,
+        ask for it.
     group_moves : bool, keyword-only
         Group moves after the sweep (:func:`prismstereo.matching.cooperative.expand_planes`, an addition to
         §6.2): each sweep candidate and each plane held across a segment boundary may move a connected region
@@ -801,7 +779,30 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         stages["bpasw"] = bdisp0.copy()
         stages["evidence"] = evidence.astype(np.float32)
         stages["plane_map"] = plane_map.copy()
+        stages["split"] = np.isfinite(ancestor[:, 0])[labels].astype(np.float32)
+    if split.size and split_check:
+        # a split must lower the data term of the region itself: pieces whose unsplit plane costs no more in
+        # total (per split segment) start on it, so the split only stands where the images ask for it
+        pix = index.order
+        seg_of = np.repeat(np.arange(k), np.diff(index.starts))
+        on_split = np.isin(seg_of, split)
+        pix, seg_of = pix[on_split], seg_of[on_split]
+        c_own = plane_data_costs(dcost, pix, plane_set[assign0[seg_of]], width=lft.shape[1], min_disp=min_disp,
+                                 slopes=slopes, trunc=op.data_trunc, outside=op.omega_occ)
+        c_anc = plane_data_costs(dcost, pix, plane_set[own[seg_of, 1]], width=lft.shape[1], min_disp=min_disp,
+                                 slopes=slopes, trunc=op.data_trunc, outside=op.omega_occ)
+        grp = own[:, 1]
+        g_own = np.bincount(grp[seg_of], weights=c_own, minlength=plane_set.shape[0])
+        g_anc = np.bincount(grp[seg_of], weights=c_anc, minlength=plane_set.shape[0])
+        keep_whole = split[g_anc[grp[split]] <= g_own[grp[split]]]
+        assign0 = assign0.copy()
+        assign0[keep_whole] = grp[keep_whole]
+        info_split = {"split_pieces": float(split.size), "split_undone": float(keep_whole.size)}
+    else:
+        info_split = {}
+
     assign, plane_set, info = resume(assign0, plane_set, own)
+    info.update(info_split)
     e_first = info["energy_before"]
     snap("coop")
     for _ in range(refit_rounds):
@@ -813,13 +814,13 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         own2 = own.copy()
         own2[:, 1] = group_ids
         assign, plane_set, info2 = resume(assign, plane_set, own2)
-        info = {**info2, "energy_before": e_first}
+        info = {**info, **info2, "energy_before": e_first}
     snap("refit")
     # second plane hypotheses per segment from the cross-checked BPASW map, resuming the optimisation
     assign, plane_set, info3, bfit_ids = bpasw_candidate_rounds(assign, plane_set, own, index, pairs, bdisp0, brel0,
                                                                 resume, planes=pp, rounds=bpasw_planes)
     if info3 is not None:
-        info = {**info3, "energy_before": e_first}
+        info = {**info, **info3, "energy_before": e_first}
     snap("bpasw_planes")
     if sweep_frac > 0:
         plane_set, sw_ids = segment_sweep_candidates(lft, rgt, labels, index, assign, plane_set, min_disp=min_disp,
@@ -846,7 +847,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
             own6[:, :min(2, sw_ids.shape[1] - col)] = sw_ids[:, col:col + 2]
             if (own6 >= 0).any():
                 assign, plane_set, info2 = resume(assign, plane_set, own6, sw_op)
-                info = {**info2, "energy_before": e_first}
+                info = {**info, **info2, "energy_before": e_first}
         info = {**info, "sweep_segments": float((sw_ids[:, 0] >= 0).sum())}
         snap("sweep")
         if group_moves:
@@ -855,47 +856,14 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
             assign, ginfo = expand_planes(assign, plane_set, index, graph, dcost, reliable, cands,
                                           min_disp=min_disp, params=op, slopes=slopes)
             assign, plane_set, info2 = resume(assign, plane_set, own)
-            info = {**info2, **ginfo, "energy_before": e_first}
+            info = {**info, **info2, **ginfo, "energy_before": e_first}
             snap("group_moves")
-    for _ in range(seg_slanted):
-        assign = _segment_slanted_step(lft, rgt, labels, assign, plane_set, pairs,
-                                       [own[:, 0], own[:, 1]] + ([bfit_ids] if bfit_ids is not None else []),
-                                       min_disp=min_disp, max_disp=max_disp, margin=seg_slanted_margin)
-    if plane_refine:
-        from prismstereo.matching.slanted import refine_segment_planes
-
-        newp, c0, c1 = refine_segment_planes(lft, rgt, index.order, index.starts, plane_set[assign],
-                                             min_disp=min_disp, max_disp=max_disp, max_px=plane_refine_px,
-                                             dilation=plane_refine_dil)
-        acc = np.flatnonzero(c1 < c0 - plane_refine_margin)
-        if acc.size and plane_refine_mode in ("candidate", "candidate2"):
-            own5 = np.full((k, 2), -1, np.int64)
-            own5[acc, 0] = plane_set.shape[0] + np.arange(acc.size)
-            plane_set = np.concatenate([plane_set, newp[acc]])
-            if plane_refine_mode == "candidate2" and bfit_ids is not None:
-                hasb = np.flatnonzero(bfit_ids >= 0)
-                newb, _b0, b1 = refine_segment_planes(lft, rgt, index.order, index.starts,
-                                                      plane_set[bfit_ids[hasb]], min_disp=min_disp,
-                                                      max_disp=max_disp, max_px=plane_refine_px,
-                                                      dilation=plane_refine_dil)
-                accb = hasb[np.isfinite(b1) & (b1 < c0[hasb] - plane_refine_margin)]
-                selb = np.isin(hasb, accb)
-                own5[accb, 1] = plane_set.shape[0] + np.arange(accb.size)
-                plane_set = np.concatenate([plane_set, newb[selb]])
-            assign, plane_set, info2 = resume(assign, plane_set, own5)
-            info = {**info2, "energy_before": e_first}
-        elif acc.size:
-            assign = assign.copy()
-            assign[acc] = plane_set.shape[0] + np.arange(acc.size)
-            plane_set = np.concatenate([plane_set, newp[acc]])
-        info = {**info, "planes_refined": float(acc.size)}
     if fine_hr > 0:
-        ev = reliable & brel0 & (np.abs(bdisp0 - initial) <= pixel_tol)
-        fs = refine_fine_segments(lft, labels, assign, plane_set, dcost, reliable, ev, initial,
+        fs = refine_fine_segments(lft, labels, assign, plane_set, dcost, reliable, evidence, initial,
                                   segmentation=dataclasses.replace(sp, hr=fine_hr, min_region=fine_min),
                                   coop=op, min_disp=min_disp, beta_scale=beta_scale, check=fine_check,
                                   slopes=slopes)
-        info = {**fs.info, "energy_before": e_first}
+        info = {**info, **fs.info, "energy_before": e_first}
         labels, index, assign, plane_set, k = fs.labels, fs.index, fs.assign, fs.planes, int(fs.parent.size)
         assign0 = assign0[fs.parent]
         own = own[fs.parent]
@@ -923,25 +891,6 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         final = render_planes(index, plane_set, assign)
     if keep_stages:
         stages["boundary"] = final.copy()
-    if slanted_boundary:
-        from prismstereo.matching.slanted import refine_plane_labels
-
-        act = brel0 & reliable & (np.abs(bdisp0 - initial) <= pixel_tol)
-        plab = refine_plane_labels(lft, rgt, labels, assign, plane_set, min_disp=min_disp, max_disp=max_disp,
-                                   seg_radius=max(pixel_radius, 1), iterations=0, margin=slanted_boundary_margin,
-                                   active=act, dref=bdisp0, tol=pixel_tol)
-        moved = plab != assign[labels]
-        yy, xx = np.mgrid[0:final.shape[0], 0:final.shape[1]]
-        pl = plane_set[plab]
-        final = np.where(moved, pl[..., 0] * xx + pl[..., 1] * yy + pl[..., 2], final).astype(np.float32)
-    if slanted >= 0:
-        from prismstereo.matching.slanted import refine_plane_labels
-
-        plab = refine_plane_labels(lft, rgt, labels, assign, plane_set, min_disp=min_disp, max_disp=max_disp,
-                                   seg_radius=slanted_radius, iterations=slanted, margin=slanted_margin)
-        yy, xx = np.mgrid[0:final.shape[0], 0:final.shape[1]]
-        pl = plane_set[plab]
-        final = (pl[..., 0] * xx + pl[..., 1] * yy + pl[..., 2]).astype(np.float32)
     if occlusion_fill:
         assert bvol is not None
         rvol = right_cost_volume(bvol, min_disp=min_disp)

@@ -51,11 +51,12 @@ class PlaneParams:
         Largest accepted ``|a|`` and ``|b|`` (px per px); steeper fits fall back to a constant plane.
     delta : float
         ``δ`` of Eq. 6.17: neighbours merge when their similarity (Eq. 6.16) exceeds it.
-    min_support, split_min_pixels, split_rounds : float, int, int
+    min_support, split_min_pixels, piece_min_pixels, split_rounds : float, int, int, int
         Plane support test (:func:`fit_planes_splitting`, an addition to §6.1): a segment of at least
         ``split_min_pixels`` pixels whose plane lies within ``t_outlier`` of fewer than ``min_support`` of its
-        reliable pixels is not one plane (a curved surface, or two surfaces of one colour); it is split into
-        quarters and refitted, at most ``split_rounds`` times (0 = off).
+        evidence pixels is not one plane (a curved surface, or two surfaces of one colour); it is split into
+        quarters and refitted, at most ``split_rounds`` times (0 = off); pieces of a split segment may be split
+        again down to ``piece_min_pixels``.
     """
 
     gamma_segment: float = 0.9
@@ -68,6 +69,7 @@ class PlaneParams:
     delta: float = 0.8
     min_support: float = 0.8
     split_min_pixels: int = 2000
+    piece_min_pixels: int = 200
     split_rounds: int = 4
 
 
@@ -313,7 +315,8 @@ def fit_planes_splitting(labels: npt.NDArray[np.integer], image: npt.NDArray[np.
                      <= p.t_outlier)
         nev = np.bincount(lab.ravel(), weights=ev.ravel(), minlength=k)
         nin = np.bincount(lab.ravel(), weights=near.ravel(), minlength=k)
-        weak = fitted & (sizes >= p.split_min_pixels) & (nin < p.min_support * nev)
+        big = (sizes >= p.split_min_pixels) | (np.isfinite(ancestor[:, 0]) & (sizes >= p.piece_min_pixels))
+        weak = fitted & big & (nin < p.min_support * nev)
         if not weak.any():
             break
         log.debug("plane support: splitting %d segments (%d px)", int(weak.sum()), int(sizes[weak].sum()))
