@@ -98,3 +98,15 @@ def test_planar_segment_with_some_wrong_evidence_is_not_split() -> None:
     d2 = np.where(np.arange(40)[None, :] < 20, 5.0, 15.0).astype(np.float32) * np.ones((30, 1), np.float32)
     lab2, *_ = fit_planes_splitting(small, np.full((30, 40, 3), 90, np.uint8), d2, np.ones((30, 40), bool))
     assert lab2.max() == 0
+
+
+def test_bpasw_dense_map_is_the_bpasw_matcher_output() -> None:
+    """The fallback map of non-planar segments is exactly issue 3's ``bpasw`` matcher (defaults)."""
+    from prismstereo.matching import match
+    from prismstereo.matching.coop import bpasw_dense_map, bpasw_volume
+
+    left, right = _repetitive_pair(6, 8, h=32, w=64)
+    vol = bpasw_volume(left, right, max_disp=16)
+    ours = bpasw_dense_map(vol, left)
+    ref = match(left, right, max_disp=16, method="bpasw").disparity
+    np.testing.assert_array_equal(ours, ref)

@@ -247,6 +247,23 @@ def boundary_pixel_planes(seg: npt.NDArray[np.int32], assign: npt.NDArray[np.int
     return out
 
 
+def bpasw_dense_map(vol: F32, image: npt.NDArray[np.uint8], *, min_disp: int = 0) -> F32:
+    """Issue 3's ``bpasw`` matcher output from its cost volume: WTA, cross-check (1 px), background fill and
+    colour-weighted median (radius 9), as :class:`prismstereo.matching.matchers.BPASWMatcher` with defaults.
+    Returns (H, W) float32, dense."""
+    from prismstereo.matching import selection
+
+    disp = selection.winner_take_all(vol, min_disp=min_disp)
+    valid = selection.cross_check(disp, selection.right_disparity(vol, min_disp=min_disp), tolerance=1.0)
+    raw = np.where(valid, disp, np.float32(np.nan)).astype(np.float32)
+    if valid.all():
+        return raw
+    dense = selection.fill_holes(raw, valid, image=image)
+    if np.isfinite(dense).all():
+        dense = selection.weighted_median_filter(dense, image, radius=9)
+    return np.asarray(dense, np.float32)
+
+
 def _bpasw_reliable(vol: F32, min_disp: int) -> tuple[npt.NDArray[np.bool_], F32]:
     d, rel = initial_disparity(vol, right_cost_volume(vol, min_disp=min_disp), min_disp=min_disp)
     return rel, d
@@ -562,7 +579,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
                sweep_nbr: bool = False, sweep_dil: int = 3, fine_hr: float = 3.0,
                fine_min: int = 10, fine_check: int = 1,
                data_slopes: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0),
-               group_moves: bool = True, split_check: bool = True,
+               group_moves: bool = True, split_check: bool = True, split_evidence: int = 2,
                keep_stages: bool = False) -> CoopResult:
     """Run the whole segment-based cooperative pipeline (thesis §5.1, §5.2, §6.1, §6.2).
 
@@ -651,6 +668,13 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         ``dy`` compared ``b dy`` px away). Square windows charge a steep floor more at its true plane than at an
         aliased fronto-parallel one. Empty = one unsheared volume. Average 4.44 -> 4.21 (Teddy 4.80/8.49/13.37
         -> 4.19/7.74/11.83; 3 slopes 4.20, 7 slopes to ±1.5 4.21); Teddy peak RSS 1.07 -> 1.22 GB.
+    split_evidence : {0, 1, 2}, keyword-only
+        The segments that failed the plane support test (split, see ``planes``) are not one plane (Bowling1's
+        ball): their pieces' planes approximate the surface but miss its rim. With 1, their pixels whose plane
+        disparity differs by more than ``pixel_tol`` from the initial map where both cross-checked initial maps
+        agree take the initial disparity (after the boundary step); with 2 (the default), those segments take
+        the ``bpasw`` matcher's map (:func:`bpasw_dense_map`, at the end). Other segments passed the test and
+        keep their planes. 0 = off.
     split_check : bool, keyword-only
         Segments split by the plane support test (:func:`~prismstereo.matching.planes.fit_planes_splitting`)
         start the optimisation on their unsplit plane when it does not raise the summed data term of their
@@ -726,6 +750,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     own[fin, 0] = np.arange(fin.size)
     own[cluster >= 0, 1] = cluster[cluster >= 0] + fin.size
     split = np.flatnonzero(np.isfinite(ancestor[:, 0]))
+    nonplanar = np.isfinite(ancestor[:, 0])[labels]  # pixels of segments that failed the plane support test
     if split.size:
         # pieces of a split segment are offered their unsplit plane: the data term decides between them
         uniq, inv = np.unique(ancestor[split], axis=0, return_inverse=True)
@@ -797,6 +822,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         keep_whole = split[g_anc[grp[split]] <= g_own[grp[split]]]
         assign0 = assign0.copy()
         assign0[keep_whole] = grp[keep_whole]
+        nonplanar &= ~np.isin(labels, keep_whole)  # the unsplit plane explains these pieces' images
         info_split = {"split_pieces": float(split.size), "split_undone": float(keep_whole.size)}
     else:
         info_split = {}
@@ -891,6 +917,12 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         final = render_planes(index, plane_set, assign)
     if keep_stages:
         stages["boundary"] = final.copy()
+    if split_evidence == 1:
+        # where the support test rejected one plane for the segment (a curved surface), the pieces' planes
+        # still miss its rim: pixels there where both cross-checked initial maps agree keep the initial map
+        off = nonplanar & evidence & (np.abs(final - initial) > pixel_tol)
+        final = np.where(off, initial, final).astype(np.float32)
+        info = {**info, "split_evidence_pixels": float(off.sum())}
     if occlusion_fill:
         assert bvol is not None
         rvol = right_cost_volume(bvol, min_disp=min_disp)
@@ -909,6 +941,11 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         wm = weighted_median_filter(final, lft, radius=post_median)
         # the median works on integer bins: keep the subpixel plane disparity where it agrees within 1 px
         final = np.where(np.abs(wm - final) <= 1.0, final, wm)
+    if split_evidence == 2 and nonplanar.any():
+        assert bvol is not None
+        # the segments that failed the plane support test are not planar: the local matcher's map there
+        final = np.where(nonplanar, bpasw_dense_map(bvol, lft, min_disp=min_disp), final)
+        info = {**info, "split_evidence_pixels": float(nonplanar.sum())}
     final = np.clip(final, min_disp, max_disp).astype(np.float32)
     tm["boundary"] = time.perf_counter() - t
     info = {**info, "segments": float(k), "planes_fitted": float(fin.size), "planes": float(len(plane_set)),
