@@ -22,7 +22,8 @@ Stages (each callable on its own, and all kept in :class:`CoopResult`):
    adaptive weights, §5.2) clearly prefers it and both cross-checked initial maps agree with it (fixes
    fattened boundaries); pixels whose right-view match reliably sees a farther surface take the background
    plane (occlusion); then a colour-weighted median that only overrides disparities it moves by more than
-   1 px                                                       -> ``disparity`` (thesis Table 6.2)
+   1 px; segments that failed the plane support test of stage 3 (not one plane) take the ``bpasw``
+   matcher's map                                              -> ``disparity`` (thesis Table 6.2)
 
 Default parameters (the same for every scene): hs = 5, hr = 4, M = 20; guided filter r = 9, ε = 1e-4;
 γ_segment = 0.9, t_outlier = 1, ε(6.10) = 0.99, δ = 0.8; κ = 0.5, μ = 1, ω_occ = 1, γ = 0.5;
@@ -579,7 +580,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
                sweep_nbr: bool = False, sweep_dil: int = 3, fine_hr: float = 3.0,
                fine_min: int = 10, fine_check: int = 1,
                data_slopes: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0),
-               group_moves: bool = True, split_check: bool = True, split_evidence: int = 2,
+               group_moves: bool = True, split_check: bool = True, split_evidence: bool = True,
                keep_stages: bool = False) -> CoopResult:
     """Run the whole segment-based cooperative pipeline (thesis §5.1, §5.2, §6.1, §6.2).
 
@@ -668,13 +669,11 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         ``dy`` compared ``b dy`` px away). Square windows charge a steep floor more at its true plane than at an
         aliased fronto-parallel one. Empty = one unsheared volume. Average 4.44 -> 4.21 (Teddy 4.80/8.49/13.37
         -> 4.19/7.74/11.83; 3 slopes 4.20, 7 slopes to ±1.5 4.21); Teddy peak RSS 1.07 -> 1.22 GB.
-    split_evidence : {0, 1, 2}, keyword-only
-        The segments that failed the plane support test (split, see ``planes``) are not one plane (Bowling1's
-        ball): their pieces' planes approximate the surface but miss its rim. With 1, their pixels whose plane
-        disparity differs by more than ``pixel_tol`` from the initial map where both cross-checked initial maps
-        agree take the initial disparity (after the boundary step); with 2 (the default), those segments take
-        the ``bpasw`` matcher's map (:func:`bpasw_dense_map`, at the end). Other segments passed the test and
-        keep their planes. 0 = off.
+    split_evidence : bool, keyword-only
+        The segments that failed the plane support test (split, see ``planes``; and the split stood after
+        ``split_check``) are not one plane (Bowling1's ball): their pieces' planes approximate the surface but
+        miss its rim. Their pixels take the ``bpasw`` matcher's map (:func:`bpasw_dense_map`) at the end; the
+        other segments passed the test and keep their planes.
     split_check : bool, keyword-only
         Segments split by the plane support test (:func:`~prismstereo.matching.planes.fit_planes_splitting`)
         start the optimisation on their unsplit plane when it does not raise the summed data term of their
@@ -917,12 +916,6 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         final = render_planes(index, plane_set, assign)
     if keep_stages:
         stages["boundary"] = final.copy()
-    if split_evidence == 1:
-        # where the support test rejected one plane for the segment (a curved surface), the pieces' planes
-        # still miss its rim: pixels there where both cross-checked initial maps agree keep the initial map
-        off = nonplanar & evidence & (np.abs(final - initial) > pixel_tol)
-        final = np.where(off, initial, final).astype(np.float32)
-        info = {**info, "split_evidence_pixels": float(off.sum())}
     if occlusion_fill:
         assert bvol is not None
         rvol = right_cost_volume(bvol, min_disp=min_disp)
@@ -941,7 +934,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         wm = weighted_median_filter(final, lft, radius=post_median)
         # the median works on integer bins: keep the subpixel plane disparity where it agrees within 1 px
         final = np.where(np.abs(wm - final) <= 1.0, final, wm)
-    if split_evidence == 2 and nonplanar.any():
+    if split_evidence and nonplanar.any():
         assert bvol is not None
         # the segments that failed the plane support test are not planar: the local matcher's map there
         final = np.where(nonplanar, bpasw_dense_map(bvol, lft, min_disp=min_disp), final)
