@@ -31,7 +31,6 @@ ROOT = Path(__file__).resolve().parents[1]
 STEPS: dict[str, dict[str, Any]] = {
     "full": {},
     "split": {"planes": PlaneParams(split_rounds=0)},
-    "split_check": {"split_check": False},
     "split_evidence": {"split_evidence": 0},
     "refit": {"refit_rounds": 0},
     "bpasw_planes": {"bpasw_planes": 0},

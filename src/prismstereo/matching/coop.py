@@ -75,7 +75,7 @@ log = logging.getLogger(__name__)
 
 __all__ = ["CoopMatcher", "CoopResult", "FineSegments", "boundary_pixel_planes",
            "bpasw_candidate_rounds", "coop_match", "initial_disparity",
-           "occlusion_background_fill", "plane_data_costs", "refine_fine_segments",
+           "occlusion_background_fill", "refine_fine_segments",
            "segment_sweep_candidates"]
 
 F32 = npt.NDArray[np.float32]
@@ -441,41 +441,6 @@ def segment_sweep_candidates(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uin
     return np.concatenate([plane_set, np.asarray(chosen)]), out_ids
 
 
-def plane_data_costs(cost: F32, pixels: npt.NDArray[np.int64], planes: npt.NDArray[np.float64], *, width: int,
-                     min_disp: int = 0, slopes: tuple[float, ...] | None = None,
-                     trunc: float = 1.5, outside: float = 1.0) -> npt.NDArray[np.float64]:
-    """Truncated pixel cost (the data term of Eq. 6.21, without visibility) of each pixel under its plane.
-
-    Parameters
-    ----------
-    cost : (H, W, D) or (S, H, W, D) float32 data-term volume(s) (one per vertical slope in ``slopes``).
-    pixels : (N,) flat pixel indices; planes : (N, 3) the plane of each pixel.
-    width : int  image width.
-
-    Returns
-    -------
-    (N,) float64 costs; ``outside`` where the plane leaves the search range or the right image.
-    """
-    c = np.asarray(cost)
-    if c.ndim == 3:
-        c = c[None]
-    ns, _h, _w, nd = c.shape
-    flat = c.reshape(ns, -1, nd)
-    x = (pixels % width).astype(np.float64)
-    y = (pixels // width).astype(np.float64)
-    d = planes[:, 0] * x + planes[:, 1] * y + planes[:, 2]
-    k = d - min_disp
-    bad = (k < -0.5) | (k > nd - 0.5) | (x - d < -0.5)
-    k = np.clip(k, 0.0, nd - 1.0)
-    k0 = np.floor(k).astype(np.int64)
-    k1 = np.minimum(k0 + 1, nd - 1)
-    f = k - k0
-    lev = (np.abs(np.asarray(slopes)[None, :] - planes[:, 1:2]).argmin(axis=1) if slopes and ns > 1
-           else np.zeros(pixels.size, np.int64))
-    v = (1.0 - f) * flat[lev, pixels, k0] + f * flat[lev, pixels, k1]
-    return np.where(bad, outside, np.minimum(v, trunc))
-
-
 @dataclass(frozen=True)
 class FineSegments:
     """Result of :func:`refine_fine_segments`.
@@ -580,7 +545,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
                sweep_nbr: bool = False, sweep_dil: int = 3, fine_hr: float = 3.0,
                fine_min: int = 10, fine_check: int = 1,
                data_slopes: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0),
-               group_moves: bool = True, split_check: bool = True, split_evidence: bool = True,
+               group_moves: bool = True, split_evidence: bool = True,
                keep_stages: bool = False) -> CoopResult:
     """Run the whole segment-based cooperative pipeline (thesis §5.1, §5.2, §6.1, §6.2).
 
@@ -670,15 +635,10 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         aliased fronto-parallel one. Empty = one unsheared volume. Average 4.44 -> 4.21 (Teddy 4.80/8.49/13.37
         -> 4.19/7.74/11.83; 3 slopes 4.20, 7 slopes to ±1.5 4.21); Teddy peak RSS 1.07 -> 1.22 GB.
     split_evidence : bool, keyword-only
-        The segments that failed the plane support test (split, see ``planes``; and the split stood after
-        ``split_check``) are not one plane (Bowling1's ball): their pieces' planes approximate the surface but
-        miss its rim. Their pixels take the ``bpasw`` matcher's map (:func:`bpasw_dense_map`) at the end; the
-        other segments passed the test and keep their planes.
-    split_check : bool, keyword-only
-        Segments split by the plane support test (:func:`~prismstereo.matching.planes.fit_planes_splitting`)
-        start the optimisation on their unsplit plane when it does not raise the summed data term of their
-        pieces (:func:`plane_data_costs`): the split stands only where the images, not just the initial maps,
-        ask for it.
+        The segments that failed the plane support test (split, see ``planes``) are not one plane (Bowling1's
+        ball): their pieces' planes approximate the surface but miss its rim. Their pixels take the ``bpasw``
+        matcher's map (:func:`bpasw_dense_map`) at the end; the other segments passed the test and keep their
+        planes.
     group_moves : bool, keyword-only
         Group moves after the sweep (:func:`prismstereo.matching.cooperative.expand_planes`, an addition to
         §6.2): each sweep candidate and each plane held across a segment boundary may move a connected region
@@ -804,30 +764,8 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         stages["evidence"] = evidence.astype(np.float32)
         stages["plane_map"] = plane_map.copy()
         stages["split"] = np.isfinite(ancestor[:, 0])[labels].astype(np.float32)
-    if split.size and split_check:
-        # a split must lower the data term of the region itself: pieces whose unsplit plane costs no more in
-        # total (per split segment) start on it, so the split only stands where the images ask for it
-        pix = index.order
-        seg_of = np.repeat(np.arange(k), np.diff(index.starts))
-        on_split = np.isin(seg_of, split)
-        pix, seg_of = pix[on_split], seg_of[on_split]
-        c_own = plane_data_costs(dcost, pix, plane_set[assign0[seg_of]], width=lft.shape[1], min_disp=min_disp,
-                                 slopes=slopes, trunc=op.data_trunc, outside=op.omega_occ)
-        c_anc = plane_data_costs(dcost, pix, plane_set[own[seg_of, 1]], width=lft.shape[1], min_disp=min_disp,
-                                 slopes=slopes, trunc=op.data_trunc, outside=op.omega_occ)
-        grp = own[:, 1]
-        g_own = np.bincount(grp[seg_of], weights=c_own, minlength=plane_set.shape[0])
-        g_anc = np.bincount(grp[seg_of], weights=c_anc, minlength=plane_set.shape[0])
-        keep_whole = split[g_anc[grp[split]] <= g_own[grp[split]]]
-        assign0 = assign0.copy()
-        assign0[keep_whole] = grp[keep_whole]
-        nonplanar &= ~np.isin(labels, keep_whole)  # the unsplit plane explains these pieces' images
-        info_split = {"split_pieces": float(split.size), "split_undone": float(keep_whole.size)}
-    else:
-        info_split = {}
-
     assign, plane_set, info = resume(assign0, plane_set, own)
-    info.update(info_split)
+    info["split_pieces"] = float(split.size)
     e_first = info["energy_before"]
     snap("coop")
     for _ in range(refit_rounds):
