@@ -27,7 +27,7 @@ def _repetitive_pair(d_true: int = 10, period: int = 8, h: int = 60, w: int = 14
 
 
 def test_large_repetitive_plane_keeps_its_plane_when_part_of_the_initial_map_takes_the_alias() -> None:
-    """A large plane of repetitive texture whose initial map fell for the alias (one period off) on 14 % of it:
+    """A large plane of repetitive texture whose initial map fell for the alias (one period off) on 7 % of it:
     the alias is tempting (the pixel cost barely tells them apart), but the plane is supported by the rest of
     the evidence, so the segment is neither split nor moved: coop keeps the true plane."""
     period, d_true, max_disp = 8, 10, 24
@@ -40,7 +40,7 @@ def test_large_repetitive_plane_keeps_its_plane_when_part_of_the_initial_map_tak
     labels = np.zeros((h, w), np.int32)
     labels[:, :max_disp] = 1  # the left border (no match in the right view) apart
     initial = np.full((h, w), float(d_true), np.float32)
-    initial[: h // 6, w // 3:] = d_true + period  # the initial map fell for the alias on 14 % of the plane
+    initial[: h // 12, w // 3:] = d_true + period  # the initial map fell for the alias on 7 % of the plane
     ok = np.ones((h, w), bool)
     prm = PlaneParams(split_min_pixels=1000)
     lab, _, planes, ancestor = fit_planes_splitting(labels, left, initial, ok, params=prm)
@@ -74,10 +74,10 @@ def test_large_segment_on_a_curved_surface_is_split_until_planes_fit() -> None:
 
 
 def test_planar_segment_with_some_wrong_evidence_is_not_split() -> None:
-    """A plane supported by most of its evidence stays one segment even when 15 % of the pixels are wrong."""
+    """A plane supported by most of its evidence stays one segment even when 7.5 % of the pixels are wrong."""
     h, w = 80, 120
     disp = np.full((h, w), 12.0, np.float32)
-    disp[:12, :] = 20.0  # a wrong patch of the initial map (15 %)
+    disp[:6, :] = 20.0  # a wrong patch of the initial map (7.5 %)
     labels = np.zeros((h, w), np.int32)
     ok = np.ones((h, w), bool)
     lab, _, planes, ancestor = fit_planes_splitting(labels, np.full((h, w, 3), 90, np.uint8), disp, ok)

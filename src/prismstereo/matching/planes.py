@@ -67,7 +67,7 @@ class PlaneParams:
     ransac_trials: int = 48
     max_slope: float = 1.0
     delta: float = 0.8
-    min_support: float = 0.8
+    min_support: float = 0.9
     split_min_pixels: int = 2000
     piece_min_pixels: int = 200
     split_rounds: int = 4
