@@ -96,7 +96,8 @@ class CoopResult:
     assign_initial, assign : (K,) int32   plane index per segment before / after §6.2.
     info : dict                     energies before/after, sweeps, counts.
     timings : dict                  seconds per stage.
-    stages : dict                   map after each step (name -> (H, W) float32; only with ``keep_stages``).
+    stages : dict                   map after each step (name -> (H, W) float32; only with ``keep_stages``),
+                                    plus the 0/1 masks ``evidence`` and ``split`` (non-planar segments).
     """
 
     labels: npt.NDArray[np.int32]
