@@ -84,7 +84,9 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
-_MIDDLEBURY_HELP = ("Middlebury folder (default $PRISMSTEREO_MIDDLEBURY, else ../shared/data/middlebury). "
+_MIDDLEBURY_HELP = ("Middlebury folder of scenes, or one scene folder (default $PRISMSTEREO_MIDDLEBURY, else "
+                     "../shared/data/middlebury); the Middlebury 2014 layout (im0.png, im1.png, disp0GT.pfm, "
+                     "mask0nocc.png, calib.txt) is read too. "
                      "The v2 scenes come from https://vision.middlebury.edu/stereo/data/ (2003: teddy, cones; "
                      "2001: tsukuba, venus); layout: DIR/<scene>/left.png, right.png, disp_left.png "
                      "(ground truth x scale, 0 = unknown), nonocc.png, all.png, disc.png (see docs/formats.md)")
@@ -194,20 +196,20 @@ def _add_evaluate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--data", default=None, help=_MIDDLEBURY_HELP)
     p.add_argument("--method", default="bpasw", help="matcher name")
     p.add_argument("-o", "--output", required=True, help="output folder")
-    p.add_argument("--scenes", default=None, help="comma-separated subset of tsukuba,venus,teddy,cones")
+    p.add_argument("--scenes", default=None, help="comma-separated scene folder names (default: every scene in --data)")
     p.add_argument("-p", "--param", action="append", metavar="KEY=VALUE", help="matcher tuning parameter")
     p.set_defaults(handler=_cmd_evaluate)
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
-    from prismstereo.evaluation.middlebury import SCENES, evaluate_method, format_results_table
+    from prismstereo.evaluation.middlebury import evaluate_method, format_results_table
     from prismstereo.matching import get_matcher
 
     params = _parse_params(args.param)
     get_matcher(args.method, **params)
-    scenes = tuple(s.strip().lower() for s in args.scenes.split(",")) if args.scenes else SCENES
+    scenes = tuple(s.strip() for s in args.scenes.split(",") if s.strip()) if args.scenes else None
     res = evaluate_method(args.method, data_dir=args.data, out_dir=args.output, scenes=scenes, **params)
-    print(format_results_table(res, title=f"{args.method} on Middlebury v2 (bad % at 1.0 px unless noted)"))
+    print(format_results_table(res, title=f"{args.method} on {res['data']} (bad % at 1.0 px unless noted)"))
     print(f"wrote {args.output}/results.json")
     return 0
 

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from prismstereo.errors import ConfigError
 from prismstereo.evaluation.metrics import bad_pixel_rate, mean_abs_error
 from prismstereo.evaluation.middlebury import (
     SCENES,
@@ -15,6 +16,7 @@ from prismstereo.evaluation.middlebury import (
     evaluate_disparity,
     evaluate_method,
     load_scene,
+    load_scene_folder,
 )
 
 
@@ -65,3 +67,68 @@ def test_tsukuba_bpasw_and_sgbm_bounds(middlebury_dir: Path, tmp_path: Path) -> 
     assert data["method"] == "bpasw" and "tsukuba" in data["scenes"]
     res2 = evaluate_method("sgbm", data_dir=middlebury_dir, scenes=("tsukuba",))
     assert res2["scenes"]["tsukuba"]["bad"]["1.0"]["nonocc"] < 8.0
+
+
+def _synthetic_pair(h: int = 24, w: int = 40, d: int = 5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(3)
+    right = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    left = np.roll(right, d, axis=1)
+    gt = np.full((h, w), float(d), np.float32)
+    gt[:, :d] = np.nan  # occluded/unknown left border
+    return left, right, gt
+
+
+def test_load_shared_layout_reads_scale_and_range_from_manifest(tmp_path: Path) -> None:
+    from prismstereo.io import write_image
+
+    left, right, gt = _synthetic_pair()
+    scene = tmp_path / "data" / "myscene"
+    scene.mkdir(parents=True)
+    write_image(scene / "left.png", left)
+    write_image(scene / "right.png", right)
+    write_image(scene / "disp_left.png", np.nan_to_num(gt * 3, nan=0).astype(np.uint8))
+    known = np.isfinite(gt)
+    for m in ("nonocc", "all", "disc"):
+        write_image(scene / f"{m}.png", (known * 255).astype(np.uint8))
+    (scene / "manifest.json").write_text(json.dumps({"ground_truth": {"scale_factor": 3},
+                                                     "disparity_search_range": {"min": 0, "max": 11}}))
+    (tmp_path / "data" / "notes").mkdir()  # a non-scene folder is ignored
+    from prismstereo.evaluation.middlebury import list_scenes
+
+    assert list_scenes(tmp_path / "data") == ("myscene",)
+    sc = load_scene("myscene", tmp_path / "data")
+    assert sc.max_disp == 11 and sc.scale == 3
+    np.testing.assert_allclose(sc.gt[known], 5.0)
+    assert np.isnan(sc.gt[~known]).all() and sc.masks["nonocc"].sum() == known.sum()
+    res = evaluate_method("bpasw", data_dir=tmp_path / "data")
+    assert list(res["scenes"]) == ["myscene"] and res["scenes"]["myscene"]["bad"]["1.0"]["nonocc"] < 20.0
+    (scene / "manifest.json").write_text(json.dumps({"ground_truth": {}}))
+    with pytest.raises(ConfigError, match="scale_factor"):
+        load_scene("myscene", tmp_path / "data")
+    with pytest.raises(ConfigError, match="expected a scene among"):
+        load_scene("other", tmp_path / "data")
+
+
+def test_load_middlebury2014_layout(tmp_path: Path) -> None:
+    from prismstereo.io import write_image, write_pfm
+
+    left, right, gt = _synthetic_pair()
+    scene = tmp_path / "Adiron-perfect"
+    scene.mkdir()
+    write_image(scene / "im0.png", left)
+    write_image(scene / "im1.png", right)
+    write_pfm(scene / "disp0GT.pfm", np.where(np.isfinite(gt), gt, np.inf).astype(np.float32))
+    mask = np.where(np.isfinite(gt), 255, 0).astype(np.uint8)
+    mask[:, 5:7] = 128  # occluded
+    write_image(scene / "mask0nocc.png", mask)
+    (scene / "calib.txt").write_text("cam0=[100 0 20; 0 100 12; 0 0 1]\ndoffs=0\nbaseline=100\nwidth=40\n"
+                                     "height=24\nndisp=16\nvmin=3\nvmax=7\n")
+    sc = load_scene("Adiron-perfect", tmp_path)
+    assert sc.max_disp == 15 and sc.left.shape == (24, 40, 3)
+    assert sc.masks["nonocc"].sum() == (mask == 255).sum() and sc.masks["all"].sum() == np.isfinite(gt).sum()
+    assert not sc.masks["disc"].any()  # a single plane has no discontinuity
+    np.testing.assert_allclose(sc.gt[sc.masks["all"]], 5.0)
+    assert load_scene_folder(scene).name == "Adiron-perfect"  # the folder itself as the data dir
+    (scene / "calib.txt").write_text("width=40\n")
+    with pytest.raises(ConfigError, match="ndisp"):
+        load_scene_folder(scene)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from prismstereo.matching.slanted import plane_cost, refine_plane_labels, refine_segment_planes
+from prismstereo.matching.slanted import plane_cost
 
 A, B, C = 0.3, 0.15, 4.0  # d = A x + B y + C
 
@@ -35,24 +35,3 @@ def test_true_slanted_plane_beats_every_fronto_parallel_hypothesis() -> None:
     d_int = np.rint(A * xx + B * yy + C).astype(int)
     tangent = np.take_along_axis(fronto, d_int[..., None], 2)[..., 0]
     assert np.median(true[inner]) < 0.5 * np.median(tangent[inner])
-
-
-def test_segment_plane_refinement_recovers_the_slant() -> None:
-    left, right = _pair()
-    h, w = left.shape[:2]
-    order = np.arange(h * w, dtype=np.int64)
-    starts = np.array([0, h * w], np.int64)
-    cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
-    dc = A * cx + B * cy + C
-    init = np.array([[0.0, 0.0, dc + 0.6]])  # fronto-parallel, 0.6 px off at the centre
-    ref, c0, c1 = refine_segment_planes(left, right, order, starts, init, min_disp=0, max_disp=60, max_px=64)
-    assert c1[0] < c0[0]
-    # a local (pattern) search: closer to the true slant than the fronto-parallel start
-    assert abs(ref[0, 0] - A) < 0.05 and abs(ref[0, 1] - B) < B
-    assert abs(ref[0, 0] * cx + ref[0, 1] * cy + ref[0, 2] - dc) < 0.6
-    # the per-pixel refinement picks the true plane over a fronto-parallel one where both are offered
-    planes = np.array([[0.0, 0.0, dc], [A, B, C]])
-    segs = (np.arange(w)[None, :] >= w // 2).astype(np.int32).repeat(h, axis=0)
-    lab = refine_plane_labels(left, right, segs, np.array([0, 1], np.int32), planes, min_disp=0, max_disp=60,
-                              seg_radius=w, iterations=0)
-    assert (lab[16:-16, 40:-16] == 1).mean() > 0.95

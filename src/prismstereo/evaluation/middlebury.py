@@ -1,19 +1,30 @@
-"""Middlebury v2 scenes (Tsukuba, Venus, Teddy, Cones): loading, evaluation and a whole-method harness.
+"""Middlebury scenes: loading (two folder layouts), evaluation and a whole-method harness.
 
-The data live outside the repository (``../shared/data/middlebury``; see its README): ``left.png``,
-``right.png``, ``disp_left.png`` (ground truth × scale, 0 = unknown) and the v2 masks ``nonocc``, ``all``,
-``disc`` (255 = evaluated).
+A data folder holds one sub-folder per scene (or is itself one scene), in either layout:
+
+* **shared layout** (``../shared/data/middlebury`` with the v2 scenes Tsukuba, Venus, Teddy, Cones, and
+  ``../shared/data/middlebury-extra`` with validation scenes; see their READMEs): ``left.png``, ``right.png``,
+  ``disp_left.png`` (ground truth × scale factor, 0 = unknown), the masks ``nonocc.png``, ``all.png``,
+  ``disc.png`` (255 = evaluated) and ``manifest.json``, whose ``ground_truth.scale_factor`` and
+  ``disparity_search_range.max`` give the decoding and the search range of each scene;
+* **Middlebury 2014 layout** (as distributed): ``im0.png``, ``im1.png``, ``disp0GT.pfm`` (pixels, inf =
+  unknown), ``mask0nocc.png`` (255 = non-occluded, 128 = occluded, 0 = unknown) and ``calib.txt``, whose
+  ``ndisp`` gives the search range ``0 .. ndisp - 1``. The 2014 set has no discontinuity mask: ``disc`` is
+  derived as in the validation manifests (non-occluded pixels within 4 px of a ground-truth jump > 2 px).
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import os
+import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from prismstereo.errors import ConfigError, ImageError
@@ -29,28 +40,30 @@ __all__ = [
     "evaluate_disparity",
     "evaluate_method",
     "format_results_table",
+    "list_scenes",
     "load_scene",
+    "load_scene_folder",
 ]
 
+#: the four v2 scenes of ``../shared/data/middlebury`` (the thesis's Table 6.2)
 SCENES: tuple[str, ...] = ("tsukuba", "venus", "teddy", "cones")
 MASKS: tuple[str, ...] = ("nonocc", "all", "disc")
-#: ground-truth scale factor and number of disparity levels (README of the data folder)
-_SCALE = {"tsukuba": 16, "venus": 8, "teddy": 4, "cones": 4}
-_LEVELS = {"tsukuba": 16, "venus": 20, "teddy": 60, "cones": 60}
+_SHARED_FILES = ("left.png", "right.png", "disp_left.png", "manifest.json")
+_M2014_FILES = ("im0.png", "im1.png", "disp0GT.pfm", "calib.txt")
 
 
 @dataclass(frozen=True)
 class MiddleburyScene:
-    """One v2 scene.
+    """One scene.
 
     Attributes
     ----------
     name : str
     left, right : ndarray, uint8, (H, W, 3)  RGB pair.
     gt : ndarray, float32, (H, W)  ground-truth disparity of the left image in pixels, NaN unknown.
-    masks : dict[str, ndarray]  bool (H, W) for ``nonocc``, ``all``, ``disc`` (value 255 in the files).
-    max_disp : int  largest disparity searched (levels − 1: 15, 19, 59, 59).
-    scale : int  ground-truth file scale factor.
+    masks : dict[str, ndarray]  bool (H, W) for ``nonocc``, ``all``, ``disc``.
+    max_disp : int  largest disparity searched (from the manifest or ``calib.txt``; v2: 15, 19, 59, 59).
+    scale : float  ground-truth file scale factor (1 for PFM ground truth).
     """
 
     name: str
@@ -59,7 +72,7 @@ class MiddleburyScene:
     gt: np.ndarray
     masks: dict[str, np.ndarray]
     max_disp: int
-    scale: int
+    scale: float
 
 
 def _repo_root() -> Path:
@@ -94,24 +107,143 @@ def _resolve(data_dir: str | os.PathLike[str] | None) -> Path:
     return p
 
 
-def load_scene(name: str, data_dir: str | os.PathLike[str] | None = None) -> MiddleburyScene:
-    """Load a scene by name (one of :data:`SCENES`)."""
+def _layout(folder: Path) -> str | None:
+    if all((folder / f).is_file() for f in _SHARED_FILES):
+        return "shared"
+    if all((folder / f).is_file() for f in _M2014_FILES):
+        return "2014"
+    return None
+
+
+def list_scenes(data_dir: str | os.PathLike[str] | None = None) -> tuple[str, ...]:
+    """Names of the scene folders (either layout) in ``data_dir``, sorted; the folder's own name when it
+    is itself a scene."""
+    root = _resolve(data_dir)
+    if _layout(root) is not None:
+        return (root.name,)
+    return tuple(sorted(p.name for p in root.iterdir() if p.is_dir() and _layout(p) is not None))
+
+
+def _derived_disc(gt: np.ndarray, nonocc: np.ndarray, *, jump: float = 2.0, radius: int = 4) -> np.ndarray:
+    # pixels next to a ground-truth jump: the neighbour differences above ``jump`` (unknown counts as none)
+    g = np.asarray(gt, np.float32)
+    edge = np.zeros(gt.shape, bool)
+    dx = np.abs(np.diff(g, axis=1)) > jump
+    dy = np.abs(np.diff(g, axis=0)) > jump
+    edge[:, 1:] |= dx
+    edge[:, :-1] |= dx
+    edge[1:, :] |= dy
+    edge[:-1, :] |= dy
+    k = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
+    return (cv2.dilate(edge.astype(np.uint8), k) > 0) & nonocc
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"expected a readable JSON manifest, got {str(path)!r} ({exc})") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"expected a JSON object in {str(path)!r}, got {type(data).__name__}")
+    return data
+
+
+def _load_shared(folder: Path, name: str) -> MiddleburyScene:
     from prismstereo.io import read_image
 
-    key = name.lower()
-    if key not in SCENES:
-        raise ConfigError(f"expected a scene among {', '.join(SCENES)}, got {name!r}")
-    folder = _resolve(data_dir) / key
-    if not folder.is_dir():
-        raise ConfigError(f"expected scene folder {str(folder)!r}, got nothing there")
+    man = _read_json(folder / "manifest.json")
+    try:
+        scale = float(man["ground_truth"]["scale_factor"])
+        max_disp = int(man["disparity_search_range"]["max"])
+    except (KeyError, TypeError, ValueError):
+        raise ConfigError(f"expected ground_truth.scale_factor and disparity_search_range.max in "
+                          f"{str(folder / 'manifest.json')!r}, got {sorted(man)}") from None
+    if scale <= 0 or max_disp < 1:
+        raise ConfigError(f"expected a positive scale factor and search range in {str(folder)!r}, "
+                          f"got scale {scale} and max {max_disp}")
     left = read_image(folder / "left.png")
     right = read_image(folder / "right.png")
-    if left.shape != right.shape:
-        raise ImageError(f"expected a pair of one size in {folder}, got {left.shape} and {right.shape}")
     raw = read_image(folder / "disp_left.png", gray=True).astype(np.float32)
-    gt = np.where(raw > 0, raw / np.float32(_SCALE[key]), np.float32(np.nan)).astype(np.float32)
+    gt = np.where(raw > 0, raw / np.float32(scale), np.float32(np.nan)).astype(np.float32)
     masks = {m: read_image(folder / f"{m}.png", gray=True) == 255 for m in MASKS}
-    return MiddleburyScene(key, left, right, gt, masks, _LEVELS[key] - 1, _SCALE[key])
+    return MiddleburyScene(name, left, right, gt, masks, max_disp, scale)
+
+
+def _read_calib(path: Path) -> dict[str, str]:
+    out = {}
+    for line in path.read_text().splitlines():
+        m = re.match(r"\s*(\w+)\s*=\s*(.*?)\s*$", line)
+        if m:
+            out[m.group(1)] = m.group(2)
+    return out
+
+
+def _load_2014(folder: Path, name: str) -> MiddleburyScene:
+    from prismstereo.io import read_image, read_pfm
+
+    calib = _read_calib(folder / "calib.txt")
+    try:
+        ndisp = int(calib["ndisp"])
+    except (KeyError, ValueError):
+        raise ConfigError(f"expected 'ndisp=<int>' in {str(folder / 'calib.txt')!r}, got keys "
+                          f"{sorted(calib)}") from None
+    if ndisp < 2:
+        raise ConfigError(f"expected ndisp >= 2 in {str(folder / 'calib.txt')!r}, got {ndisp}")
+    left = read_image(folder / "im0.png")
+    right = read_image(folder / "im1.png")
+    gt = read_pfm(folder / "disp0GT.pfm")
+    if gt.ndim != 2:
+        raise ImageError(f"expected a one-channel disp0GT.pfm in {str(folder)!r}, got shape {gt.shape}")
+    gt = np.where(np.isfinite(gt) & (gt > 0), gt, np.nan).astype(np.float32)
+    known = np.isfinite(gt)
+    if (folder / "mask0nocc.png").is_file():
+        mk = read_image(folder / "mask0nocc.png", gray=True)
+        if mk.shape != gt.shape:
+            raise ImageError(f"expected mask0nocc.png of shape {gt.shape} in {str(folder)!r}, got {mk.shape}")
+        nonocc = (mk == 255) & known
+        allm = (mk > 0) & known
+    else:
+        nonocc = allm = known
+    masks = {"nonocc": nonocc, "all": allm, "disc": _derived_disc(gt, nonocc)}
+    return MiddleburyScene(name, left, right, gt, masks, ndisp - 1, 1.0)
+
+
+def load_scene_folder(folder: str | os.PathLike[str]) -> MiddleburyScene:
+    """Load one scene folder in either layout (see the module docstring).
+
+    Raises
+    ------
+    ConfigError
+        If the folder holds neither layout or its manifest / calib lacks the search range.
+    ImageError
+        If the images, ground truth and masks differ in size.
+    """
+    f = Path(folder)
+    if not f.is_dir():
+        raise ConfigError(f"expected a scene folder, got {str(f)!r} (not a directory)")
+    kind = _layout(f)
+    if kind is None:
+        raise ConfigError(f"expected {', '.join(_SHARED_FILES)} (or the 2014 files {', '.join(_M2014_FILES)}) "
+                          f"in {str(f)!r}, got {sorted(p.name for p in f.iterdir())[:12]}")
+    sc = _load_shared(f, f.name) if kind == "shared" else _load_2014(f, f.name)
+    shapes = {sc.left.shape[:2], sc.right.shape[:2], sc.gt.shape, *(m.shape for m in sc.masks.values())}
+    if len(shapes) != 1:
+        raise ImageError(f"expected the pair, ground truth and masks of one size in {str(f)!r}, got {sorted(shapes)}")
+    return sc
+
+
+def load_scene(name: str, data_dir: str | os.PathLike[str] | None = None) -> MiddleburyScene:
+    """Load the scene folder ``name`` of ``data_dir`` (default :func:`default_data_dir`), either layout."""
+    root = _resolve(data_dir)
+    if _layout(root) is not None and root.name.lower() == name.lower():
+        return load_scene_folder(root)
+    folder = root / name
+    if not folder.is_dir():
+        folder = root / name.lower()
+    if not folder.is_dir():
+        raise ConfigError(f"expected a scene among {', '.join(list_scenes(root)) or '(none)'} in {str(root)!r}, "
+                          f"got {name!r}")
+    return load_scene_folder(folder)
 
 
 def evaluate_disparity(disp: np.ndarray, scene: MiddleburyScene, *,
@@ -154,7 +286,7 @@ def format_results_table(results: dict[str, Any], *, title: str = "") -> str:
 
 
 def evaluate_method(method: str, *, data_dir: str | os.PathLike[str] | None = None,
-                    out_dir: str | os.PathLike[str] | None = None, scenes: tuple[str, ...] = SCENES,
+                    out_dir: str | os.PathLike[str] | None = None, scenes: tuple[str, ...] | None = None,
                     **params: Any) -> dict[str, Any]:
     """Run a registered matcher on the scenes; write ``<scene>.pfm``, ``<scene>.png``, ``results.json``.
 
@@ -163,7 +295,9 @@ def evaluate_method(method: str, *, data_dir: str | os.PathLike[str] | None = No
     method : str
         Registered matcher name (validated before any image is read).
     data_dir : path, optional
-        Middlebury folder (default :func:`default_data_dir`).
+        Folder of scenes in either layout, or one scene folder (default :func:`default_data_dir`).
+    scenes : tuple of str, optional
+        Scene folder names (default: every scene of ``data_dir``, :func:`list_scenes`).
     out_dir : path, optional
         Output folder; nothing is written when None.
     **params
@@ -181,9 +315,17 @@ def evaluate_method(method: str, *, data_dir: str | os.PathLike[str] | None = No
 
     get_matcher(method, **params)  # validates name and parameters first
     root = _resolve(data_dir)
-    for s in scenes:
-        if s.lower() not in SCENES:
-            raise ConfigError(f"expected scenes among {', '.join(SCENES)}, got {s!r}")
+    found = list_scenes(root)
+    if scenes is None:
+        scenes = found
+    if not scenes:
+        raise ConfigError(f"expected scene folders (left.png/right.png/disp_left.png/manifest.json or "
+                          f"im0.png/im1.png/disp0GT.pfm/calib.txt) in {str(root)!r}, got none")
+    lower = {f.lower(): f for f in found}
+    missing = [s for s in scenes if s.lower() not in lower]
+    if missing:
+        raise ConfigError(f"expected scenes among {', '.join(found)}, got {', '.join(map(repr, missing))}")
+    scenes = tuple(lower[s.lower()] for s in scenes)
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
         check_output_dir(out)  # before any work; nothing is created until every scene is done
@@ -211,7 +353,7 @@ def evaluate_method(method: str, *, data_dir: str | os.PathLike[str] | None = No
     avg["mae_nonocc"] = float(np.mean([per[s]["mae"]["nonocc"] for s in per]))
     avg["seconds"] = float(np.mean([per[s]["seconds"] for s in per]))
     results = {"method": method, "params": params, "protocol": "Middlebury v2, bad if |d-gt|>t over "
-               "mask==255, NaN estimates bad", "scenes": per, "average": avg}
+               "the mask, NaN estimates bad", "data": str(root), "scenes": per, "average": avg}
     if out is not None:  # all scenes' files appear together, or none (a broken scene, Ctrl-C)
         with output_dir(out) as stage:
             for name, (disp, max_disp) in maps.items():

@@ -6,7 +6,9 @@ Stages (each callable on its own, and all kept in :class:`CoopResult`):
 2. initial disparity map: adaptive-weight aggregated cost, WTA, parabola subpixel, left-right
    cross-check (§5.2, Eq. 6.7)                                -> ``initial``, ``reliable``
 3. robust plane per segment (Eqs. 6.1-6.10) and merging of similar neighbours (Eqs. 6.14-6.17); segments
-   without a plane take their most similar neighbour's       -> ``plane_map`` (thesis Table 6.1)
+   without a plane take their most similar neighbour's; a large segment whose plane the evidence (both
+   cross-checked initial maps agree) does not support is split in quarters and refitted (issue 14: mean
+   shift's huge segments on curved or repetitive surfaces)  -> ``plane_map`` (thesis Table 6.1)
 4. cooperative optimisation of the plane labels (Eqs. 6.18-6.25), then one round in which segments that
    share a plane are refitted together and the optimisation resumes, then one in which planes fitted to
    issue 3's cross-checked BPASW map (and their merged clusters) are offered and it resumes again; then
@@ -20,7 +22,8 @@ Stages (each callable on its own, and all kept in :class:`CoopResult`):
    adaptive weights, §5.2) clearly prefers it and both cross-checked initial maps agree with it (fixes
    fattened boundaries); pixels whose right-view match reliably sees a farther surface take the background
    plane (occlusion); then a colour-weighted median that only overrides disparities it moves by more than
-   1 px                                                       -> ``disparity`` (thesis Table 6.2)
+   1 px; segments that failed the plane support test of stage 3 (not one plane) take the ``bpasw``
+   matcher's map                                              -> ``disparity`` (thesis Table 6.2)
 
 Default parameters (the same for every scene): hs = 5, hr = 4, M = 20; guided filter r = 9, ε = 1e-4;
 γ_segment = 0.9, t_outlier = 1, ε(6.10) = 0.99, δ = 0.8; κ = 0.5, μ = 1, ω_occ = 1, γ = 0.5;
@@ -58,6 +61,7 @@ from prismstereo.matching.planes import (
     build_segment_index,
     fill_missing_planes,
     fit_planes,
+    fit_planes_splitting,
     group_refit_planes,
     merge_planes,
     render_planes,
@@ -71,7 +75,8 @@ log = logging.getLogger(__name__)
 
 __all__ = ["CoopMatcher", "CoopResult", "FineSegments", "boundary_pixel_planes",
            "bpasw_candidate_rounds", "coop_match", "initial_disparity",
-           "occlusion_background_fill", "refine_fine_segments", "segment_sweep_candidates"]
+           "occlusion_background_fill", "refine_fine_segments",
+           "segment_sweep_candidates"]
 
 F32 = npt.NDArray[np.float32]
 
@@ -91,6 +96,8 @@ class CoopResult:
     assign_initial, assign : (K,) int32   plane index per segment before / after §6.2.
     info : dict                     energies before/after, sweeps, counts.
     timings : dict                  seconds per stage.
+    stages : dict                   map after each step (name -> (H, W) float32; only with ``keep_stages``),
+                                    plus the 0/1 masks ``evidence`` and ``split`` (non-planar segments).
     """
 
     labels: npt.NDArray[np.int32]
@@ -103,6 +110,7 @@ class CoopResult:
     assign: npt.NDArray[np.int32]
     info: dict[str, float] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
+    stages: dict[str, F32] = field(default_factory=dict)
 
 
 def _as_rgb8(image: npt.NDArray[np.generic], name: str) -> npt.NDArray[np.uint8]:
@@ -241,6 +249,23 @@ def boundary_pixel_planes(seg: npt.NDArray[np.int32], assign: npt.NDArray[np.int
     return out
 
 
+def bpasw_dense_map(vol: F32, image: npt.NDArray[np.uint8], *, min_disp: int = 0) -> F32:
+    """Issue 3's ``bpasw`` matcher output from its cost volume: WTA, cross-check (1 px), background fill and
+    colour-weighted median (radius 9), as :class:`prismstereo.matching.matchers.BPASWMatcher` with defaults.
+    Returns (H, W) float32, dense."""
+    from prismstereo.matching import selection
+
+    disp = selection.winner_take_all(vol, min_disp=min_disp)
+    valid = selection.cross_check(disp, selection.right_disparity(vol, min_disp=min_disp), tolerance=1.0)
+    raw = np.where(valid, disp, np.float32(np.nan)).astype(np.float32)
+    if valid.all():
+        return raw
+    dense = selection.fill_holes(raw, valid, image=image)
+    if np.isfinite(dense).all():
+        dense = selection.weighted_median_filter(dense, image, radius=9)
+    return np.asarray(dense, np.float32)
+
+
 def _bpasw_reliable(vol: F32, min_disp: int) -> tuple[npt.NDArray[np.bool_], F32]:
     d, rel = initial_disparity(vol, right_cost_volume(vol, min_disp=min_disp), min_disp=min_disp)
     return rel, d
@@ -339,37 +364,6 @@ def occlusion_background_fill(disp: F32, seg: npt.NDArray[np.int32], assign: npt
             if best < 1e29 and best < disp[y, x]:
                 out[y, x] = best
     return out, occ
-
-
-def _segment_slanted_step(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uint8], labels: npt.NDArray[np.int32],
-                          assign: npt.NDArray[np.int32], plane_set: npt.NDArray[np.float64],
-                          pairs: npt.NDArray[np.int32], own_lists: list[npt.NDArray[np.int64]], *, min_disp: int,
-                          max_disp: int, margin: float) -> npt.NDArray[np.int32]:
-    """Each segment takes, among its current plane, its neighbours' current planes and its own fitted planes,
-    the one of lowest mean slanted-window cost (:mod:`slanted`), when cheaper than the current by ``margin``."""
-    from prismstereo.matching.slanted import segment_plane_costs
-
-    k = assign.shape[0]
-    nb: list[set[int]] = [set() for _ in range(k)]
-    for p, q in np.asarray(pairs):
-        nb[int(p)].add(int(assign[q]))
-        nb[int(q)].add(int(assign[p]))
-    for lst in own_lists:
-        for s in range(k):
-            if lst[s] >= 0:
-                nb[s].add(int(lst[s]))
-    m = 1 + max(len(v) for v in nb)
-    cand = np.full((k, m), -1, np.int64)
-    cand[:, 0] = assign
-    for s in range(k):
-        v = [c for c in nb[s] if c != assign[s]]
-        cand[s, 1:1 + len(v)] = v
-    cost = segment_plane_costs(lft, rgt, labels, cand, plane_set, min_disp=min_disp, max_disp=max_disp)
-    cost[:, 1:] += margin
-    best = cost.argmin(axis=1)
-    ok = np.isfinite(cost[np.arange(k), best])
-    new = np.where(ok, cand[np.arange(k), best], assign).astype(np.int32)
-    return new
 
 
 def segment_sweep_candidates(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uint8], labels: npt.NDArray[np.int32],
@@ -546,18 +540,14 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
                pixel_tol: float = 1.0, pixel_agree: int = 0, post_median: int = 4,
                occlusion_fill: bool = True, occ_tol: float = 1.0,
                bpasw_planes: int = 3, occ_rematch: bool = True,
-               pixel_bplanes: int = 2, slanted: int = -1, slanted_radius: int = 6,
-               slanted_margin: float = 0.0, seg_slanted: int = 0,
-               seg_slanted_margin: float = 0.0, plane_refine: bool = False,
-               plane_refine_margin: float = 2.0, plane_refine_mode: str = "replace",
-               plane_refine_px: int = 32, plane_refine_dil: int = 3, slanted_boundary: bool = False,
-               slanted_boundary_margin: float = 1.0, sweep_frac: float = 0.5,
+               pixel_bplanes: int = 2, sweep_frac: float = 0.5,
                sweep_slopes: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0), sweep_keep: int = 2,
                sweep_min_px: int = 20, sweep_step: int = 4, sweep_hbox: int = 1,
                sweep_nbr: bool = False, sweep_dil: int = 3, fine_hr: float = 3.0,
                fine_min: int = 10, fine_check: int = 1,
                data_slopes: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0),
-               group_moves: bool = True) -> CoopResult:
+               group_moves: bool = True, split_evidence: bool = True,
+               keep_stages: bool = False) -> CoopResult:
     """Run the whole segment-based cooperative pipeline (thesis §5.1, §5.2, §6.1, §6.2).
 
     Parameters
@@ -614,36 +604,6 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         Planes the boundary step may pick besides the current planes of nearby segments: those segments'
         planes fitted to the BPASW map (1) and to the initial map (2) (0 = current planes only; average
         4.83 -> 4.78 -> 4.75).
-    slanted, slanted_radius, slanted_margin : keyword-only
-        Per-pixel slanted-window refinement (:func:`prismstereo.matching.slanted.refine_plane_labels`, the cost
-        of PatchMatch Stereo, Bleyer et al. 2011) after the boundary step: each pixel picks the cheapest plane
-        among the segments within ``slanted_radius`` px, then ``slanted`` red-black propagation passes; another
-        plane must be cheaper by ``slanted_margin`` (-1 = off, the default: measured worse, the average 5.13 ->
-        5.38 with margin 1 and no boundary step, 6.16 with 2 passes — per-pixel choices are noisier than planes
-        chosen by segments).
-    seg_slanted, seg_slanted_margin : keyword-only
-        Rounds in which every segment takes, among its current plane, its neighbours' current planes and its
-        own fitted planes, the one of lowest mean slanted-window cost (0 = off, the default: 4.75 -> 5.50; the
-        data term alone, without the occlusion and smoothness terms, moves segments next to occlusions).
-    plane_refine, plane_refine_margin, plane_refine_mode, plane_refine_px, plane_refine_dil : keyword-only
-        Segment-plane refinement (:func:`prismstereo.matching.slanted.refine_segment_planes`, PatchMatch
-        Stereo's plane refinement applied per segment): a pattern search over ``(a, b, d_centre)`` minimising the
-        segment's mean slanted-window cost over ``plane_refine_px`` of its pixels (window sampled every
-        ``plane_refine_dil`` px). Refined planes cheaper by ``plane_refine_margin`` either replace the segment's
-        plane (``"replace"``) or are offered to the cooperative optimisation as candidates (``"candidate"``;
-        ``"candidate2"`` also refines the BPASW-fitted plane). Off by default (average with it off: 4.752).
-        With an axis-wise pattern search only: replace 4.94 (margin 2) / 4.84 (margin 4); candidate 4.77
-        (margin 0) / 4.750 (margin 1) / 4.78 (64 px, dilation 2); candidate2 4.83. With the joint slope x
-        centre-disparity grid (the default search, which finds the synthetic slant): candidate 4.756 (margin
-        1, Teddy cooperative stage 3 -> 9 s), replace 5.13 (margin 2). The segment-mean slanted cost prefers
-        the ground-truth plane on most wrong segments of Teddy, but its minimum over a searched plane space
-        is not a better plane on the other segments (occluded and textureless pixels of a segment, narrow
-        cost basins), and the candidates it adds are seldom taken by the cooperative energy.
-    slanted_boundary, slanted_boundary_margin : keyword-only
-        After the boundary step, pixels where both cross-checked initial maps agree may take the plane of a
-        segment within ``pixel_radius`` whose slanted-window cost (:mod:`slanted`) is lower than their
-        segment plane's by ``slanted_boundary_margin`` and which lies within ``pixel_tol`` of the BPASW map.
-        Off by default: 4.84 (margin 1), 4.77 (margin 4) against 4.75.
     fine_hr, fine_min, fine_check : keyword-only
         Finer segments (an addition to §6.2): the segmentation is repeated with range radius ``fine_hr`` and
         minimum size ``fine_min`` and intersected with the segments; the fine segments that touch a segment on
@@ -675,6 +635,11 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         ``dy`` compared ``b dy`` px away). Square windows charge a steep floor more at its true plane than at an
         aliased fronto-parallel one. Empty = one unsheared volume. Average 4.44 -> 4.21 (Teddy 4.80/8.49/13.37
         -> 4.19/7.74/11.83; 3 slopes 4.20, 7 slopes to ±1.5 4.21); Teddy peak RSS 1.07 -> 1.22 GB.
+    split_evidence : bool, keyword-only
+        The segments that failed the plane support test (split, see ``planes``) are not one plane (Bowling1's
+        ball): their pieces' planes approximate the surface but miss its rim. Their pixels take the ``bpasw``
+        matcher's map (:func:`bpasw_dense_map`) at the end; the other segments passed the test and keep their
+        planes.
     group_moves : bool, keyword-only
         Group moves after the sweep (:func:`prismstereo.matching.cooperative.expand_planes`, an addition to
         §6.2): each sweep candidate and each plane held across a segment boundary may move a connected region
@@ -732,8 +697,10 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     tm["segmentation"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    index = build_segment_index(labels)
-    fitted, _ = fit_planes(index, initial, reliable, params=pp)
+    # the evidence of the safety tests: both cross-checked initial maps (differently aggregated) agree
+    evidence = reliable & brel0 & (np.abs(bdisp0 - initial) <= pixel_tol) if bvol is not None else reliable
+    labels, index, fitted, ancestor = fit_planes_splitting(labels, lft, initial, reliable, evidence, params=pp,
+                                                           min_region=sp.min_region)
     pairs, _length, contrast = segment_adjacency(labels, lft)
     cluster, cplanes = merge_planes(index, fitted, pairs, initial, reliable, params=pp)
     k = fitted.shape[0]
@@ -742,6 +709,13 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     own = np.full((k, 2), -1, np.int64)
     own[fin, 0] = np.arange(fin.size)
     own[cluster >= 0, 1] = cluster[cluster >= 0] + fin.size
+    split = np.flatnonzero(np.isfinite(ancestor[:, 0]))
+    nonplanar = np.isfinite(ancestor[:, 0])[labels]  # pixels of segments that failed the plane support test
+    if split.size:
+        # pieces of a split segment are offered their unsplit plane: the data term decides between them
+        uniq, inv = np.unique(ancestor[split], axis=0, return_inverse=True)
+        own[split, 1] = plane_set.shape[0] + inv.ravel()
+        plane_set = np.concatenate([plane_set, uniq])
     assign0 = fill_missing_planes(np.where(cluster >= 0, cluster + fin.size, -1).astype(np.int32), pairs,
                                   contrast)
     if (assign0 < 0).any():  # isolated segment without any plane in its component
@@ -779,8 +753,22 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         return cooperative_optimize(a, pset, index, graph, dcost, reliable, own=own_, min_disp=min_disp,
                                     params=prm, slopes=slopes)
 
+    stages: dict[str, F32] = {}
+
+    def snap(name: str) -> None:
+        if keep_stages:
+            stages[name] = render_planes(index, plane_set, assign).astype(np.float32)
+
+    if keep_stages:
+        stages["initial"] = initial.copy()
+        stages["bpasw"] = bdisp0.copy()
+        stages["evidence"] = evidence.astype(np.float32)
+        stages["plane_map"] = plane_map.copy()
+        stages["split"] = np.isfinite(ancestor[:, 0])[labels].astype(np.float32)
     assign, plane_set, info = resume(assign0, plane_set, own)
+    info["split_pieces"] = float(split.size)
     e_first = info["energy_before"]
+    snap("coop")
     for _ in range(refit_rounds):
         # refit one plane per group of segments sharing a label (wider support), offer it as a candidate
         refit = group_refit_planes(assign, plane_set, index, initial, reliable, params=pp)
@@ -790,12 +778,14 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         own2 = own.copy()
         own2[:, 1] = group_ids
         assign, plane_set, info2 = resume(assign, plane_set, own2)
-        info = {**info2, "energy_before": e_first}
+        info = {**info, **info2, "energy_before": e_first}
+    snap("refit")
     # second plane hypotheses per segment from the cross-checked BPASW map, resuming the optimisation
     assign, plane_set, info3, bfit_ids = bpasw_candidate_rounds(assign, plane_set, own, index, pairs, bdisp0, brel0,
                                                                 resume, planes=pp, rounds=bpasw_planes)
     if info3 is not None:
-        info = {**info3, "energy_before": e_first}
+        info = {**info, **info3, "energy_before": e_first}
+    snap("bpasw_planes")
     if sweep_frac > 0:
         plane_set, sw_ids = segment_sweep_candidates(lft, rgt, labels, index, assign, plane_set, min_disp=min_disp,
                                               max_disp=max_disp, frac=sweep_frac, slopes=tuple(sweep_slopes),
@@ -821,59 +811,29 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
             own6[:, :min(2, sw_ids.shape[1] - col)] = sw_ids[:, col:col + 2]
             if (own6 >= 0).any():
                 assign, plane_set, info2 = resume(assign, plane_set, own6, sw_op)
-                info = {**info2, "energy_before": e_first}
+                info = {**info, **info2, "energy_before": e_first}
         info = {**info, "sweep_segments": float((sw_ids[:, 0] >= 0).sum())}
+        snap("sweep")
         if group_moves:
             # sweep candidates and the planes across each segment's boundary, moved over whole regions
             cands = np.concatenate([sw_ids, neighbour_plane_candidates(graph, assign)], axis=1)
             assign, ginfo = expand_planes(assign, plane_set, index, graph, dcost, reliable, cands,
                                           min_disp=min_disp, params=op, slopes=slopes)
             assign, plane_set, info2 = resume(assign, plane_set, own)
-            info = {**info2, **ginfo, "energy_before": e_first}
-    for _ in range(seg_slanted):
-        assign = _segment_slanted_step(lft, rgt, labels, assign, plane_set, pairs,
-                                       [own[:, 0], own[:, 1]] + ([bfit_ids] if bfit_ids is not None else []),
-                                       min_disp=min_disp, max_disp=max_disp, margin=seg_slanted_margin)
-    if plane_refine:
-        from prismstereo.matching.slanted import refine_segment_planes
-
-        newp, c0, c1 = refine_segment_planes(lft, rgt, index.order, index.starts, plane_set[assign],
-                                             min_disp=min_disp, max_disp=max_disp, max_px=plane_refine_px,
-                                             dilation=plane_refine_dil)
-        acc = np.flatnonzero(c1 < c0 - plane_refine_margin)
-        if acc.size and plane_refine_mode in ("candidate", "candidate2"):
-            own5 = np.full((k, 2), -1, np.int64)
-            own5[acc, 0] = plane_set.shape[0] + np.arange(acc.size)
-            plane_set = np.concatenate([plane_set, newp[acc]])
-            if plane_refine_mode == "candidate2" and bfit_ids is not None:
-                hasb = np.flatnonzero(bfit_ids >= 0)
-                newb, _b0, b1 = refine_segment_planes(lft, rgt, index.order, index.starts,
-                                                      plane_set[bfit_ids[hasb]], min_disp=min_disp,
-                                                      max_disp=max_disp, max_px=plane_refine_px,
-                                                      dilation=plane_refine_dil)
-                accb = hasb[np.isfinite(b1) & (b1 < c0[hasb] - plane_refine_margin)]
-                selb = np.isin(hasb, accb)
-                own5[accb, 1] = plane_set.shape[0] + np.arange(accb.size)
-                plane_set = np.concatenate([plane_set, newb[selb]])
-            assign, plane_set, info2 = resume(assign, plane_set, own5)
-            info = {**info2, "energy_before": e_first}
-        elif acc.size:
-            assign = assign.copy()
-            assign[acc] = plane_set.shape[0] + np.arange(acc.size)
-            plane_set = np.concatenate([plane_set, newp[acc]])
-        info = {**info, "planes_refined": float(acc.size)}
+            info = {**info, **info2, **ginfo, "energy_before": e_first}
+            snap("group_moves")
     if fine_hr > 0:
-        ev = reliable & brel0 & (np.abs(bdisp0 - initial) <= pixel_tol)
-        fs = refine_fine_segments(lft, labels, assign, plane_set, dcost, reliable, ev, initial,
+        fs = refine_fine_segments(lft, labels, assign, plane_set, dcost, reliable, evidence, initial,
                                   segmentation=dataclasses.replace(sp, hr=fine_hr, min_region=fine_min),
                                   coop=op, min_disp=min_disp, beta_scale=beta_scale, check=fine_check,
                                   slopes=slopes)
-        info = {**fs.info, "energy_before": e_first}
+        info = {**info, **fs.info, "energy_before": e_first}
         labels, index, assign, plane_set, k = fs.labels, fs.index, fs.assign, fs.planes, int(fs.parent.size)
         assign0 = assign0[fs.parent]
         own = own[fs.parent]
         if bfit_ids is not None:
             bfit_ids = bfit_ids[fs.parent]
+        snap("fine")
     tm["cooperative"] = time.perf_counter() - t
     t = time.perf_counter()
     if pixel_radius > 0:
@@ -893,25 +853,8 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
                               float(pixel_tol), bagree if pixel_agree else brel, bown)
     else:
         final = render_planes(index, plane_set, assign)
-    if slanted_boundary:
-        from prismstereo.matching.slanted import refine_plane_labels
-
-        act = brel0 & reliable & (np.abs(bdisp0 - initial) <= pixel_tol)
-        plab = refine_plane_labels(lft, rgt, labels, assign, plane_set, min_disp=min_disp, max_disp=max_disp,
-                                   seg_radius=max(pixel_radius, 1), iterations=0, margin=slanted_boundary_margin,
-                                   active=act, dref=bdisp0, tol=pixel_tol)
-        moved = plab != assign[labels]
-        yy, xx = np.mgrid[0:final.shape[0], 0:final.shape[1]]
-        pl = plane_set[plab]
-        final = np.where(moved, pl[..., 0] * xx + pl[..., 1] * yy + pl[..., 2], final).astype(np.float32)
-    if slanted >= 0:
-        from prismstereo.matching.slanted import refine_plane_labels
-
-        plab = refine_plane_labels(lft, rgt, labels, assign, plane_set, min_disp=min_disp, max_disp=max_disp,
-                                   seg_radius=slanted_radius, iterations=slanted, margin=slanted_margin)
-        yy, xx = np.mgrid[0:final.shape[0], 0:final.shape[1]]
-        pl = plane_set[plab]
-        final = (pl[..., 0] * xx + pl[..., 1] * yy + pl[..., 2]).astype(np.float32)
+    if keep_stages:
+        stages["boundary"] = final.copy()
     if occlusion_fill:
         assert bvol is not None
         rvol = right_cost_volume(bvol, min_disp=min_disp)
@@ -924,10 +867,17 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
                                                 assign.astype(np.int32), plane_set,
                                                 (dr_int + min_disp).astype(np.float32), rrel, float(occ_tol),
                                                 bdisp0, brel0, int(pixel_radius) if occ_rematch else 0)
+        if keep_stages:
+            stages["occlusion"] = final.copy()
     if post_median > 0:
         wm = weighted_median_filter(final, lft, radius=post_median)
         # the median works on integer bins: keep the subpixel plane disparity where it agrees within 1 px
         final = np.where(np.abs(wm - final) <= 1.0, final, wm)
+    if split_evidence and nonplanar.any():
+        assert bvol is not None
+        # the segments that failed the plane support test are not planar: the local matcher's map there
+        final = np.where(nonplanar, bpasw_dense_map(bvol, lft, min_disp=min_disp), final)
+        info = {**info, "split_evidence_pixels": float(nonplanar.sum())}
     final = np.clip(final, min_disp, max_disp).astype(np.float32)
     tm["boundary"] = time.perf_counter() - t
     info = {**info, "segments": float(k), "planes_fitted": float(fin.size), "planes": float(len(plane_set)),
@@ -935,7 +885,8 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     log.info("coop: %d segments, %d planes, E %.0f -> %.0f", k, len(plane_set), info["energy_before"],
              info["energy_after"])
     return CoopResult(labels=labels, initial=initial, reliable=reliable, plane_map=plane_map, disparity=final,
-                      planes=plane_set, assign_initial=assign0, assign=assign, info=info, timings=tm)
+                      planes=plane_set, assign_initial=assign0, assign=assign, info=info, timings=tm,
+                      stages=stages)
 
 
 @register_matcher("coop")

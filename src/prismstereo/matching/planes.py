@@ -21,7 +21,8 @@ from numba import njit
 
 log = logging.getLogger(__name__)
 
-__all__ = ["PlaneParams", "SegmentIndex", "build_segment_index", "fit_planes", "merge_planes", "segment_label_map",
+__all__ = ["PlaneParams", "SegmentIndex", "build_segment_index", "fit_planes", "fit_planes_splitting", "merge_planes",
+           "segment_label_map",
            "plane_similarity", "render_planes", "fill_missing_planes"]
 
 F64 = npt.NDArray[np.float64]
@@ -50,6 +51,12 @@ class PlaneParams:
         Largest accepted ``|a|`` and ``|b|`` (px per px); steeper fits fall back to a constant plane.
     delta : float
         ``δ`` of Eq. 6.17: neighbours merge when their similarity (Eq. 6.16) exceeds it.
+    min_support, split_min_pixels, piece_min_pixels, split_rounds : float, int, int, int
+        Plane support test (:func:`fit_planes_splitting`, an addition to §6.1): a segment of at least
+        ``split_min_pixels`` pixels whose plane lies within ``t_outlier`` of fewer than ``min_support`` of its
+        evidence pixels is not one plane (a curved surface, or two surfaces of one colour); it is split into
+        quarters and refitted, at most ``split_rounds`` times (0 = off); pieces of a split segment may be split
+        again down to ``piece_min_pixels``.
     """
 
     gamma_segment: float = 0.9
@@ -60,6 +67,10 @@ class PlaneParams:
     ransac_trials: int = 48
     max_slope: float = 1.0
     delta: float = 0.8
+    min_support: float = 0.9
+    split_min_pixels: int = 2000
+    piece_min_pixels: int = 200
+    split_rounds: int = 4
 
 
 @dataclass(frozen=True)
@@ -253,6 +264,71 @@ def fit_planes(index: SegmentIndex, disparity: npt.NDArray[np.floating], reliabl
     rel = np.asarray(reliable, dtype=np.bool_).ravel() & np.isfinite(np.asarray(disparity).ravel())
     return _fit_all(index.order, index.starts, index.shape[1], d, rel, p.gamma_segment, p.t_outlier,
                     p.epsilon, p.max_iter, p.min_pixels, p.ransac_trials, p.max_slope)
+
+
+def fit_planes_splitting(labels: npt.NDArray[np.integer], image: npt.NDArray[np.generic],
+                         disparity: npt.NDArray[np.floating], reliable: npt.NDArray[np.bool_],
+                         evidence: npt.NDArray[np.bool_] | None = None, *,
+                         params: PlaneParams | None = None, min_region: int = 20
+                         ) -> tuple[I32, SegmentIndex, F64, F64]:
+    """:func:`fit_planes`, splitting segments whose plane the cross-checked evidence does not support.
+
+    One plane per segment (§6.1) is only right when the segment is one planar surface. Mean shift (§5.1)
+    makes very large segments on low-texture or repetitive surfaces (a third of the image on Middlebury
+    *Bowling1*), and their robust fit then keeps the plane of a minority of the pixels. A segment of at least
+    ``params.split_min_pixels`` pixels whose plane agrees (within ``t_outlier``) with fewer than
+    ``params.min_support`` of its ``evidence`` pixels is split into quarters at its centroid
+    (:func:`~prismstereo.matching.segmentation.split_segments`) and the pieces refitted, up to
+    ``params.split_rounds`` times. The split is only a hypothesis (where the reliable pixels are wrong in one
+    part of the segment, the pieces follow them): each piece keeps its unsplit segment's plane in
+    ``ancestor`` so that the data term can choose between them.
+
+    Parameters
+    ----------
+    labels : (H, W) int segments 0..K-1; image : (H, W, 3) reference image (for merging tiny pieces).
+    disparity, reliable : (H, W) initial map and its cross-check mask, as :func:`fit_planes`.
+    evidence : (H, W) bool, optional
+        Pixels whose ``disparity`` is trusted for the support test (default ``reliable``; ``coop`` passes the
+        pixels where two differently aggregated cross-checked maps agree).
+    min_region : int, keyword-only  pieces smaller than this merge into a neighbour.
+
+    Returns
+    -------
+    labels : (H, W) int32 (split) segments; index : their SegmentIndex;
+    planes : (K', 3) float64 as :func:`fit_planes`;
+    ancestor : (K', 3) float64 plane of the original segment a piece was split from (NaN rows: not split).
+    """
+    from prismstereo.matching.segmentation import split_segments
+
+    p = params or PlaneParams()
+    lab = np.asarray(labels).astype(np.int32)
+    dmap = np.asarray(disparity, np.float64)
+    ev = np.asarray(reliable if evidence is None else evidence, bool) & np.isfinite(dmap)
+    index = build_segment_index(lab)
+    planes, _ = fit_planes(index, disparity, reliable, params=p)
+    ancestor = np.full(planes.shape, np.nan)
+    for _r in range(max(p.split_rounds, 0)):
+        k = planes.shape[0]
+        sizes = np.diff(index.starts)
+        fitted = np.isfinite(planes[:, 0])
+        near = ev & (np.abs(render_planes(index, np.nan_to_num(planes), np.arange(k, dtype=np.int32)) - dmap)
+                     <= p.t_outlier)
+        nev = np.bincount(lab.ravel(), weights=ev.ravel(), minlength=k)
+        nin = np.bincount(lab.ravel(), weights=near.ravel(), minlength=k)
+        big = (sizes >= p.split_min_pixels) | (np.isfinite(ancestor[:, 0]) & (sizes >= p.piece_min_pixels))
+        weak = fitted & big & (nin < p.min_support * nev)
+        if not weak.any():
+            break
+        log.debug("plane support: splitting %d segments (%d px)", int(weak.sum()), int(sizes[weak].sum()))
+        new = split_segments(lab, image, weak, min_region=min_region)
+        old_of_new = np.zeros(int(new.max()) + 1, np.int64)
+        old_of_new[new.ravel()] = lab.ravel()  # every piece lies inside one old segment
+        anc = np.where(np.isfinite(ancestor[:, :1]) | ~weak[:, None], ancestor, planes)
+        ancestor = anc[old_of_new]
+        lab = new
+        index = build_segment_index(lab)
+        planes, _ = fit_planes(index, disparity, reliable, params=p)
+    return lab, index, planes, ancestor
 
 
 def plane_similarity(pa: F64, pb: F64, ca: F64, cb: F64) -> F64:

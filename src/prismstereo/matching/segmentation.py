@@ -21,7 +21,8 @@ from prismstereo.errors import ImageError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SegmentationParams", "mean_shift_segment", "relabel_consecutive", "segment_adjacency"]
+__all__ = ["SegmentationParams", "mean_shift_segment", "relabel_consecutive", "segment_adjacency",
+           "split_segments"]
 
 
 @dataclass(frozen=True)
@@ -231,6 +232,41 @@ def _split_large(labels: npt.NDArray[np.int32], max_region: int) -> npt.NDArray[
     # a grid cell may cut a region into disconnected pieces: relabel by connectivity
     comp = _label_modes(inv.reshape(h, w, 1).astype(np.float32), 0.25)
     out, _ = _compact(comp)
+    return out.reshape(h, w)
+
+
+def split_segments(labels: npt.NDArray[np.integer], image: npt.NDArray[np.generic],
+                   selected: npt.NDArray[np.bool_], *, min_region: int = 20) -> npt.NDArray[np.int32]:
+    """Split each selected segment into quarters at its centroid (connected pieces), others unchanged.
+
+    Parameters
+    ----------
+    labels : (H, W) int label map 0..K-1.
+    image : (H, W, 3) RGB or (H, W) grey reference image (colour of the small-piece merge).
+    selected : (K,) bool segments to split.
+    min_region : int, keyword-only
+        Pieces smaller than this are merged into their closest-colour neighbour (as ``M`` of §5.1).
+
+    Returns
+    -------
+    (H, W) int32 labels 0..K'-1, every segment 4-connected.
+    """
+    lab = np.asarray(labels).astype(np.int64)
+    h, w = lab.shape
+    k = int(lab.max()) + 1
+    sel = np.asarray(selected, bool)
+    yy, xx = np.mgrid[0:h, 0:w]
+    n = np.maximum(np.bincount(lab.ravel(), minlength=k), 1)
+    cx = np.bincount(lab.ravel(), weights=xx.ravel(), minlength=k) / n
+    cy = np.bincount(lab.ravel(), weights=yy.ravel(), minlength=k) / n
+    quad = (yy >= cy[lab]).astype(np.int64) * 2 + (xx >= cx[lab])
+    key = np.where(sel[lab], lab * 4 + quad, lab * 4)
+    _, inv = np.unique(key.ravel(), return_inverse=True)
+    comp = _label_modes(inv.reshape(h, w, 1).astype(np.float32), 0.25)
+    out, nlab = _compact(comp)
+    if min_region > 1:
+        labf = _to_lab8(image).reshape(-1, 3).astype(np.float32)
+        out, nlab = _merge_small(out, nlab, labf, h, w, int(min_region))
     return out.reshape(h, w)
 
 

@@ -1,0 +1,102 @@
+"""Safety rules of ``coop`` on synthetic scenes where the unsafe move is tempting."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from prismstereo.matching.coopcost import raw_cost
+from prismstereo.matching.planes import (
+    PlaneParams,
+    build_segment_index,
+    fit_planes,
+    fit_planes_splitting,
+    render_planes,
+)
+
+
+def _repetitive_pair(d_true: int = 10, period: int = 8, h: int = 60, w: int = 140) -> tuple[np.ndarray, np.ndarray]:
+    """A large fronto-parallel plane at ``d_true`` textured by a pattern repeating every ``period`` columns
+    (a printed dot pattern) with a weak non-repeating part, and independent sensor noise in each view."""
+    rng = np.random.default_rng(7)
+    tile = rng.integers(40, 215, size=(h, period, 3)).astype(np.float64)
+    pattern = np.tile(tile, (1, w // period + 2, 1))[:, : w + d_true]
+    pattern += rng.normal(0.0, 2.0, pattern.shape)  # the weak non-repeating part: the only tie-breaker
+    left = np.clip(pattern[:, :w] + rng.normal(0.0, 3.0, (h, w, 3)), 0, 255).astype(np.uint8)
+    right = np.clip(pattern[:, d_true:d_true + w] + rng.normal(0.0, 3.0, (h, w, 3)), 0, 255).astype(np.uint8)
+    return left, right  # x_right = x_left - d_true
+
+
+def test_large_repetitive_plane_keeps_its_plane_when_part_of_the_initial_map_takes_the_alias() -> None:
+    """A large plane of repetitive texture whose initial map fell for the alias (one period off) on 7 % of it:
+    the alias is tempting (the pixel cost barely tells them apart), but the plane is supported by the rest of
+    the evidence, so the segment is neither split nor moved: coop keeps the true plane."""
+    period, d_true, max_disp = 8, 10, 24
+    left, right = _repetitive_pair(d_true, period)
+    raw = raw_cost(left, right, max_disp=max_disp)
+    inner = (slice(5, -5), slice(max_disp + 5, -5))
+    c_true, c_alias = raw[inner][..., d_true].mean(), raw[inner][..., d_true + period].mean()
+    assert abs(c_alias - c_true) < 0.25 * (raw[inner].mean() - c_true)
+    h, w = left.shape[:2]
+    labels = np.zeros((h, w), np.int32)
+    labels[:, :max_disp] = 1  # the left border (no match in the right view) apart
+    initial = np.full((h, w), float(d_true), np.float32)
+    initial[: h // 12, w // 3:] = d_true + period  # the initial map fell for the alias on 7 % of the plane
+    ok = np.ones((h, w), bool)
+    prm = PlaneParams(split_min_pixels=1000)
+    lab, _, planes, ancestor = fit_planes_splitting(labels, left, initial, ok, params=prm)
+    assert lab.max() == 1 and np.isnan(ancestor).all()
+    np.testing.assert_allclose(planes[0], [0.0, 0.0, float(d_true)], atol=1e-6)
+    from prismstereo.matching.coop import coop_match
+
+    res = coop_match(left, right, max_disp=max_disp, planes=PlaneParams(split_min_pixels=1000))
+    assert np.mean(np.abs(res.disparity[inner] - d_true) <= 1.0) > 0.9
+
+
+def _curved_scene(h: int = 80, w: int = 120) -> tuple[np.ndarray, np.ndarray]:
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    # a ball-like surface: 20 px at the centre falling to ~8 px at the corners
+    d = 20.0 - 0.0035 * ((xx - w / 2) ** 2 + (yy - h / 2) ** 2)
+    return d.astype(np.float32), np.full((h, w, 3), 128, np.uint8)
+
+
+def test_large_segment_on_a_curved_surface_is_split_until_planes_fit() -> None:
+    disp, image = _curved_scene()
+    labels = np.zeros(disp.shape, np.int32)  # mean shift's one segment over a uniformly coloured ball
+    ok = np.ones(disp.shape, bool)
+    index = build_segment_index(labels)
+    one, _ = fit_planes(index, disp, ok)
+    single = render_planes(index, one, np.zeros(1, np.int32))
+    assert np.mean(np.abs(single - disp) <= 1.0) < 0.6  # one plane cannot follow the ball
+    lab, idx, planes, ancestor = fit_planes_splitting(labels, image, disp, ok, params=PlaneParams())
+    assert lab.max() > 0 and np.isfinite(ancestor[:, 0]).all()  # split, every piece remembers its parent
+    pieces = render_planes(idx, planes, np.arange(planes.shape[0], dtype=np.int32))
+    assert np.mean(np.abs(pieces - disp) <= 1.0) > 0.9
+
+
+def test_planar_segment_with_some_wrong_evidence_is_not_split() -> None:
+    """A plane supported by most of its evidence stays one segment even when 7.5 % of the pixels are wrong."""
+    h, w = 80, 120
+    disp = np.full((h, w), 12.0, np.float32)
+    disp[:6, :] = 20.0  # a wrong patch of the initial map (7.5 %)
+    labels = np.zeros((h, w), np.int32)
+    ok = np.ones((h, w), bool)
+    lab, _, planes, ancestor = fit_planes_splitting(labels, np.full((h, w, 3), 90, np.uint8), disp, ok)
+    assert lab.max() == 0 and planes.shape[0] == 1 and np.isnan(ancestor).all()
+    np.testing.assert_allclose(planes[0], [0.0, 0.0, 12.0], atol=1e-6)
+    # a small segment is never split, whatever its support
+    small = np.zeros((30, 40), np.int32)
+    d2 = np.where(np.arange(40)[None, :] < 20, 5.0, 15.0).astype(np.float32) * np.ones((30, 1), np.float32)
+    lab2, *_ = fit_planes_splitting(small, np.full((30, 40, 3), 90, np.uint8), d2, np.ones((30, 40), bool))
+    assert lab2.max() == 0
+
+
+def test_bpasw_dense_map_is_the_bpasw_matcher_output() -> None:
+    """The fallback map of non-planar segments is exactly issue 3's ``bpasw`` matcher (defaults)."""
+    from prismstereo.matching import match
+    from prismstereo.matching.coop import bpasw_dense_map, bpasw_volume
+
+    left, right = _repetitive_pair(6, 8, h=32, w=64)
+    vol = bpasw_volume(left, right, max_disp=16)
+    ours = bpasw_dense_map(vol, left)
+    ref = match(left, right, max_disp=16, method="bpasw").disparity
+    np.testing.assert_array_equal(ours, ref)
