@@ -87,7 +87,7 @@ def test_batch_matches_depth_and_records_bad_frames(tmp_path, rig, frames_dir, c
     assert [r["name"] for r in s.rows] == ["corrupt", "f0", "f1", "f2", "small", "missing"]
     assert s.exit_code == 3 and len(rows_seen) == 6
     assert {n for n, r in by.items() if r["status"] == "ok"} == {"f0", "f1", "f2"}
-    assert "cannot decode" in by["corrupt"]["error"]
+    assert "damaged" in by["corrupt"]["error"]
     assert "expected a 256×192 capture" in by["small"]["error"]
     assert "no such file" in by["missing"]["error"]
     assert all("\n" not in r["error"] for r in s.rows)
