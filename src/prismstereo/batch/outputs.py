@@ -74,7 +74,7 @@ def _write_files(result: DepthResult, stage: Path, outputs: Sequence[str], extra
     if "disparity.pfm" in outputs:
         write_pfm(stage / "disparity.pfm", result.disparity)
     if "disparity.png" in outputs:
-        write_image(stage / "disparity.png", colorize_disparity(result.disparity))
+        write_image(stage / "disparity.png", colorize_disparity(result.disparity, colorbar="disparity (px)"))
     if "depth.pfm" in outputs:
         write_pfm(stage / "depth.pfm", result.depth)
     if "depth.png" in outputs:
