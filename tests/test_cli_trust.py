@@ -184,6 +184,8 @@ def _middlebury_like(root: Path, names: tuple[str, ...], broken: str | None = No
         write_image(d / "disp_left.png", np.full((40, 60), 4 * 16, np.uint8))
         for m in ("nonocc", "all", "disc"):
             write_image(d / f"{m}.png", np.full((40, 60), 255, np.uint8))
+        (d / "manifest.json").write_text(json.dumps({"ground_truth": {"scale_factor": 16},
+                                                     "disparity_search_range": {"min": 0, "max": 15}}))
         if name == broken:
             (d / "left.png").write_bytes((d / "left.png").read_bytes()[:100])
 
