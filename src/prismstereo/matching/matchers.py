@@ -179,15 +179,21 @@ class BPASWMatcher(LocalMatcher):
     continuity: bool = False
     continuity_weight: float = 0.2
 
-    def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
-                    min_disp: int) -> np.ndarray:
-        from prismstereo.matching import aggregation
-
+    def pixel_cost(self, left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int) -> np.ndarray:
+        """The per-pixel cost before aggregation, float32 ``(H, W, D)``: S_AD (thesis Eq. 5.6) plus
+        ``census_weight`` × the census Hamming distance."""
         vol = costs.cost_s_ad(left, right, max_disp=max_disp, min_disp=min_disp, omega=self.omega,
                               tau_color=self.tau_color, tau_gradient=self.tau_gradient)
         if self.census_weight > 0:
             cen = costs.cost_census(left, right, max_disp=max_disp, min_disp=min_disp)
             vol += np.float32(self.census_weight) * cen
+        return vol
+
+    def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
+                    min_disp: int) -> np.ndarray:
+        from prismstereo.matching import aggregation
+
+        vol = self.pixel_cost(left, right, max_disp=max_disp, min_disp=min_disp)
         kw: dict[str, Any] = dict(radius=self.radius, dilation=self.dilation, min_disp=min_disp, kernel=self.kernel,
                   similarity_s0=self.similarity_s0, gamma_color=self.gamma_color,
                   gamma_proximity=self.gamma_proximity)

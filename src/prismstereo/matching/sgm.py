@@ -30,6 +30,7 @@ import numpy as np
 
 from prismstereo.errors import ConfigError
 from prismstereo.matching import costs, selection
+from prismstereo.matching.matchers import BPASWMatcher
 from prismstereo.matching.registry import MatchResult, register_matcher
 
 log = logging.getLogger(__name__)
@@ -215,9 +216,7 @@ class SGMMatcher:
     def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int) -> np.ndarray:
         """The uint16 matching cost volume ``(H, W, D)`` before aggregation."""
         if self.cost == "bpasw":
-            vol = costs.cost_s_ad(left, right, max_disp=max_disp, min_disp=min_disp, omega=0.5,
-                                  tau_color=20.0, tau_gradient=8.0)
-            vol += np.float32(0.5) * costs.cost_census(left, right, max_disp=max_disp, min_disp=min_disp)
+            vol = BPASWMatcher().pixel_cost(left, right, max_disp=max_disp, min_disp=min_disp)
             vol *= np.float32(self.bpasw_scale)
             np.rint(vol, out=vol)
             if float(vol.max(initial=0.0)) > 65535:

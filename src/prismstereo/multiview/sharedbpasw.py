@@ -156,7 +156,6 @@ def bpasw_pair_costs(reference: np.ndarray, views: Sequence[np.ndarray], ratios:
     -------
     list of PairCost, one per view (``raw`` None)
     """
-    from prismstereo.matching import costs
     from prismstereo.matching.matchers import BPASWMatcher
     from prismstereo.matching.selection import cross_check, right_disparity, subpixel_refine, winner_take_all
 
@@ -194,11 +193,7 @@ def bpasw_pair_costs(reference: np.ndarray, views: Sequence[np.ndarray], ratios:
         max_s = int(min(w - 1, math.ceil(a * max_disp) + 1))  # as pair_cost
         lft, rgt = ((reference, v) if r > 0 else
                     (np.ascontiguousarray(reference[:, ::-1]), np.ascontiguousarray(v[:, ::-1])))
-        # BPASWMatcher.cost_volume's pixel cost: S_AD (Eq. 5.6) plus the weighted census distance
-        raw = costs.cost_s_ad(lft, rgt, max_disp=max_s, min_disp=0, omega=m.omega, tau_color=m.tau_color,
-                              tau_gradient=m.tau_gradient)
-        if m.census_weight > 0:
-            raw += np.float32(m.census_weight) * costs.cost_census(lft, rgt, max_disp=max_s, min_disp=0)
+        raw = m.pixel_cost(lft, rgt, max_disp=max_s, min_disp=0)
         tab_view = _half_weights(to_lab(rgt), dys, dxs, half, prox, kid, s0, s_min)
         vol = _bpasw_pair_kernel(np.ascontiguousarray(raw, dtype=np.float32), tab_ref, tab_view, bool(r < 0), dys,
                                  dxs, hidx, kneg, kmir)
