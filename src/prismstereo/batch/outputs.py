@@ -22,10 +22,10 @@ from typing import Any
 
 import numpy as np
 
-from prismstereo.depth.outputs import OUTPUT_FILES
+from prismstereo.depth.outputs import OUTPUT_FILES, write_depth_files
 from prismstereo.depth.pipeline import DepthResult
 from prismstereo.errors import ConfigError
-from prismstereo.io import atomic_write_text, write_image, write_json, write_pfm, write_ply
+from prismstereo.io import atomic_write_text, write_image, write_json
 
 __all__ = ["DEFAULT_OUTPUTS", "OUTPUT_CHOICES", "SUMMARY_FIELDS", "depth_png", "finished_row", "parse_outputs",
            "remove_partial", "write_frame_folder", "write_summary"]
@@ -65,30 +65,10 @@ def depth_png(depth: np.ndarray) -> np.ndarray:
 
 
 def _write_files(result: DepthResult, stage: Path, outputs: Sequence[str], extra: dict[str, Any]) -> None:
-    from prismstereo.viz.colorize import colorize_disparity
-
-    assert result.disparity is not None and result.depth is not None
-    summary = {**result.summary(), **extra}
-    pts, cols = result.point_cloud()
-    # the same writers, in the same way, as prismstereo.depth.outputs.write_depth_outputs
-    if "disparity.pfm" in outputs:
-        write_pfm(stage / "disparity.pfm", result.disparity)
-    if "disparity.png" in outputs:
-        write_image(stage / "disparity.png", colorize_disparity(result.disparity, colorbar="disparity (px)"))
-    if "depth.pfm" in outputs:
-        write_pfm(stage / "depth.pfm", result.depth)
+    assert result.depth is not None
     if "depth.png" in outputs:
         write_image(stage / "depth.png", depth_png(result.depth))
-    if "points.ply" in outputs:
-        write_ply(stage / "points.ply", pts, cols)
-    if "report.png" in outputs:
-        from prismstereo.viz.report import write_depth_report
-
-        assert result.right is not None and result.left is not None
-        write_depth_report(stage / "report.png", capture=result.image, left=result.left, right=result.right,
-                           disparity=result.disparity, depth=result.depth, points=pts, colors=cols, summary=summary)
-    if "run.json" in outputs:
-        write_json(stage / "run.json", summary)
+    write_depth_files(result, stage, [n for n in outputs if n in OUTPUT_FILES], {**result.summary(), **extra})
 
 
 def write_frame_folder(result: DepthResult, frames_dir: Path, name: str, outputs: Sequence[str], *,

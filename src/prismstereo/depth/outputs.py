@@ -8,14 +8,14 @@ and ``run.json``. If anything fails, the output folder is left as it was.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 from prismstereo.depth.pipeline import DepthResult
 from prismstereo.io import output_dir, write_image, write_json, write_pfm, write_ply
 
-__all__ = ["OUTPUT_FILES", "write_depth_outputs"]
+__all__ = ["OUTPUT_FILES", "write_depth_files", "write_depth_outputs"]
 
 OUTPUT_FILES = ("disparity.pfm", "disparity.png", "depth.pfm", "points.ply", "report.png", "run.json")
 
@@ -41,28 +41,42 @@ def write_depth_outputs(result: DepthResult, out_dir: str | os.PathLike[str], *,
     -------
     dict file name -> final path.
     """
-    from prismstereo.viz.colorize import colorize_disparity
-
-    assert result.disparity is not None and result.depth is not None and result.left is not None
     summary = result.summary()
     if extra:
         summary.update(extra)
-    pts, cols = result.point_cloud()
+    names = [n for n in OUTPUT_FILES if report or n != "report.png"]
     target = Path(out_dir)
     with output_dir(target) as stage:
-        write_pfm(stage / "disparity.pfm", result.disparity)
-        write_image(stage / "disparity.png", colorize_disparity(result.disparity, colorbar="disparity (px)"))
-        write_pfm(stage / "depth.pfm", result.depth)
-        write_ply(stage / "points.ply", pts, cols)
-        if report:
-            from prismstereo.viz.report import write_depth_report
-
-            assert result.right is not None
-            write_depth_report(stage / "report.png", capture=result.image, left=result.left, right=result.right,
-                               disparity=result.disparity, depth=result.depth, points=pts, colors=cols,
-                               summary=summary)
+        write_depth_files(result, stage, names, summary)
         if also is not None:
             also(stage)
-        write_json(stage / "run.json", summary)
-    names = [n for n in OUTPUT_FILES if report or n != "report.png"]
     return {n: target / n for n in names}
+
+
+def write_depth_files(result: DepthResult, folder: Path, names: Sequence[str], summary: dict[str, Any]) -> None:
+    """Write the files ``names`` (among :data:`OUTPUT_FILES`) of ``result`` into an existing ``folder``.
+
+    The one writer of a depth run's files, for :func:`write_depth_outputs` and the per-frame folders of a
+    batch; ``folder`` is a staging folder, so the caller decides how the files appear together.
+    ``summary`` is what ``run.json`` and the report show.
+    """
+    from prismstereo.viz.colorize import colorize_disparity
+
+    assert result.disparity is not None and result.depth is not None
+    pts, cols = result.point_cloud()
+    if "disparity.pfm" in names:
+        write_pfm(folder / "disparity.pfm", result.disparity)
+    if "disparity.png" in names:
+        write_image(folder / "disparity.png", colorize_disparity(result.disparity, colorbar="disparity (px)"))
+    if "depth.pfm" in names:
+        write_pfm(folder / "depth.pfm", result.depth)
+    if "points.ply" in names:
+        write_ply(folder / "points.ply", pts, cols)
+    if "report.png" in names:
+        from prismstereo.viz.report import write_depth_report
+
+        assert result.right is not None and result.left is not None
+        write_depth_report(folder / "report.png", capture=result.image, left=result.left, right=result.right,
+                           disparity=result.disparity, depth=result.depth, points=pts, colors=cols, summary=summary)
+    if "run.json" in names:
+        write_json(folder / "run.json", summary)
