@@ -6,20 +6,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from prismstereo.optics.distortion import distort_points
 from prismstereo.optics.refraction import normalize
-
-
-def distort_normalized(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    """Apply OpenCV's (k1, k2, p1, p2, k3) distortion to normalised coordinates (..., 2)."""
-    d = np.zeros(5)
-    d[: len(dist)] = dist
-    k1, k2, p1, p2, k3 = d
-    x, y = xy[..., 0], xy[..., 1]
-    r2 = x * x + y * y
-    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-    return np.stack([xd, yd], axis=-1)
 
 
 def project_points(
@@ -47,7 +35,7 @@ def project_points(
         xy = xc[..., :2] / xc[..., 2:3]
     xy = np.where(xc[..., 2:3] > 0, xy, np.nan)
     if dist is not None and len(dist):
-        xy = distort_normalized(xy, np.asarray(dist, dtype=np.float64))
+        xy = distort_points(xy, np.asarray(dist, dtype=np.float64))
     K = np.asarray(K, dtype=np.float64)
     u = K[0, 0] * xy[..., 0] + K[0, 1] * xy[..., 1] + K[0, 2]
     v = K[1, 1] * xy[..., 1] + K[1, 2]
@@ -55,14 +43,15 @@ def project_points(
 
 
 def undistort_normalized(xy_distorted: np.ndarray, dist: np.ndarray, *, iterations: int = 8) -> np.ndarray:
-    """Invert :func:`distort_normalized` (..., 2) with Newton's method (finite-difference Jacobian)."""
+    """Invert :func:`~prismstereo.optics.distortion.distort_points` (..., 2) with Newton's method
+    (finite-difference Jacobian)."""
     target = np.asarray(xy_distorted, dtype=np.float64)
     xy = target.copy()
     h = 1e-7
     for _ in range(iterations):
-        r = distort_normalized(xy, dist) - target
-        jx = (distort_normalized(xy + [h, 0.0], dist) - distort_normalized(xy - [h, 0.0], dist)) / (2 * h)
-        jy = (distort_normalized(xy + [0.0, h], dist) - distort_normalized(xy - [0.0, h], dist)) / (2 * h)
+        r = distort_points(xy, dist) - target
+        jx = (distort_points(xy + [h, 0.0], dist) - distort_points(xy - [h, 0.0], dist)) / (2 * h)
+        jy = (distort_points(xy + [0.0, h], dist) - distort_points(xy - [0.0, h], dist)) / (2 * h)
         det = jx[..., 0] * jy[..., 1] - jy[..., 0] * jx[..., 1]
         dx = (jy[..., 1] * r[..., 0] - jy[..., 0] * r[..., 1]) / det
         dy = (-jx[..., 1] * r[..., 0] + jx[..., 0] * r[..., 1]) / det
