@@ -34,3 +34,22 @@ def middlebury_dir() -> Path:
     if not (path / "tsukuba" / "left.png").is_file():
         pytest.skip(f"Middlebury data not found at {path}")
     return path
+
+
+@pytest.fixture(scope="session")
+def capture_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A simulated capture folder like ``prismstereo simulate`` writes: capture.png, depth_gt.pfm, rig.toml.
+
+    The demo bi-prism looking at a plane 1.6 m away, tilted by 20°; read-only for the tests that use it.
+    """
+    from prismstereo.depth.demo import demo_rig, plane_scene
+    from prismstereo.io import write_image, write_pfm
+    from prismstereo.simulate import render_capture
+
+    folder = tmp_path_factory.mktemp("capture")
+    rig = demo_rig()
+    cap = render_capture(rig, plane_scene(1600.0, tilt_deg=-20.0, seed=5))
+    write_image(folder / "capture.png", cap.image)
+    write_pfm(folder / "depth_gt.pfm", cap.depth)
+    rig.save(folder / "rig.toml")
+    return folder

@@ -10,23 +10,9 @@ import pytest
 
 from prismstereo.cli import main
 from prismstereo.config import thesis_biprism
-from prismstereo.depth.demo import demo_rig, plane_scene, scaled_rig
+from prismstereo.depth.demo import plane_scene, scaled_rig
 from prismstereo.depth.outputs import OUTPUT_FILES
-from prismstereo.io import read_ply, write_image, write_pfm
-
-
-@pytest.fixture(scope="module")
-def capture_folder(tmp_path_factory):
-    """A simulated capture folder like ``prismstereo simulate`` writes: capture.png, depth_gt.pfm, rig.toml."""
-    from prismstereo.simulate import render_capture
-
-    folder = tmp_path_factory.mktemp("capture")
-    rig = demo_rig()
-    cap = render_capture(rig, plane_scene(1600.0, tilt_deg=-20.0, seed=5))
-    write_image(folder / "capture.png", cap.image)
-    write_pfm(folder / "depth_gt.pfm", cap.depth)
-    rig.save(folder / "rig.toml")
-    return folder
+from prismstereo.io import read_ply, write_image
 
 
 def _run(argv, capsys):

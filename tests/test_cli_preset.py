@@ -7,23 +7,8 @@ import json
 import pytest
 
 from prismstereo.cli import main
-from prismstereo.depth.demo import demo_rig, plane_scene
 from prismstereo.errors import ConfigError
-from prismstereo.io import write_image, write_pfm
 from prismstereo.matching import PRESETS, available_matchers, resolve_preset
-
-
-@pytest.fixture(scope="module")
-def capture_folder(tmp_path_factory):
-    from prismstereo.simulate import render_capture
-
-    folder = tmp_path_factory.mktemp("capture")
-    rig = demo_rig()
-    cap = render_capture(rig, plane_scene(1600.0, tilt_deg=-20.0, seed=5))
-    write_image(folder / "capture.png", cap.image)
-    write_pfm(folder / "depth_gt.pfm", cap.depth)
-    rig.save(folder / "rig.toml")
-    return folder
 
 
 def test_preset_table() -> None:

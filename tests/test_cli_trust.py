@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import resource
+import shutil
 import signal
 import stat
 import struct
@@ -21,8 +22,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from prismstereo.depth.demo import demo_rig, plane_scene
-from prismstereo.io import write_image, write_pfm
+from prismstereo.depth.demo import demo_rig
+from prismstereo.io import write_image
 
 REPO = Path(__file__).resolve().parents[1]
 RIG = REPO / "examples" / "rigs" / "biprism.toml"
@@ -60,15 +61,12 @@ def _one_error(proc: subprocess.CompletedProcess[str], command: str, *needles: s
 
 
 @pytest.fixture(scope="module")
-def capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from prismstereo.simulate import render_capture
-
+def capture(capture_folder: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The shared capture folder's files plus noise.png, an image of the capture's size that no prism made."""
     folder = tmp_path_factory.mktemp("capture")
+    for name in ("capture.png", "depth_gt.pfm", "rig.toml"):
+        shutil.copyfile(capture_folder / name, folder / name)
     rig = demo_rig()
-    cap = render_capture(rig, plane_scene(1600.0, tilt_deg=-20.0, seed=5))
-    write_image(folder / "capture.png", cap.image)
-    write_pfm(folder / "depth_gt.pfm", cap.depth)
-    rig.save(folder / "rig.toml")
     rng = np.random.default_rng(0)
     write_image(folder / "noise.png", rng.integers(0, 256, (rig.camera.height, rig.camera.width, 3), np.uint8))
     return folder
