@@ -36,11 +36,11 @@ from pathlib import Path
 
 import numpy as np
 
+from prismstereo.apps.demo import plane_scene, scaled_rig
 from prismstereo.batch import local_cluster, run_batch
 from prismstereo.batch.runner import machine_cores
 from prismstereo.config import thesis_biprism
 from prismstereo.depth import DepthConfig, prepare_depth, run_depth
-from prismstereo.depth.demo import plane_scene, scaled_rig
 from prismstereo.io import read_image, write_image, write_pfm, write_ply
 from prismstereo.simulate import render_capture
 

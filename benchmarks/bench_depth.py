@@ -19,9 +19,9 @@ from typing import Any
 
 import numpy as np
 
+from prismstereo.apps.demo import demo_scene, plane_scene, robot_scene, scaled_rig
 from prismstereo.config import Rig, pyramid_rig, thesis_biprism, thesis_triprism
 from prismstereo.depth import DepthConfig, run_depth, triangulate_matches
-from prismstereo.depth.demo import demo_scene, plane_scene, robot_scene, scaled_rig
 from prismstereo.evaluation.depth_metrics import DepthGroundTruth, depth_accuracy, evaluate_depth
 from prismstereo.simulate import render_capture
 

@@ -27,8 +27,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _middlebury(scenes: list[str], repeat: int = 1) -> dict[str, Any]:
+    from prismstereo.apps.tables.table7_1 import TSUKUBA_VIEWS, cones_views
     from prismstereo.evaluation.middlebury import _resolve, evaluate_disparity, load_scene
-    from prismstereo.evaluation.table7_1 import TSUKUBA_VIEWS, cones_views
     from prismstereo.io import read_image
     from prismstereo.matching.api import match
     from prismstereo.multiview.api import match_multiview

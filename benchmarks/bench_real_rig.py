@@ -26,10 +26,10 @@ import time
 
 import numpy as np
 
+from prismstereo.apps.demo import plane_scene, scaled_rig
 from prismstereo.calibration import Board, calibrate_camera, calibrate_prism
 from prismstereo.config import Rig, thesis_biprism
 from prismstereo.depth import DepthConfig, run_depth
-from prismstereo.depth.demo import plane_scene, scaled_rig
 from prismstereo.errors import PrismStereoError
 from prismstereo.evaluation.depth_metrics import evaluate_depth
 from prismstereo.simulate import render_capture

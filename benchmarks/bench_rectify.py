@@ -62,8 +62,8 @@ def _cell(rig: Rig, views: list[VirtualView], a: int, b: int, remap: str, region
 
 def figures(out: Path) -> None:
     """Render a box in front of a textured wall through each rig and rectify it (DESIGN.md §5 ``rectify``)."""
+    from prismstereo.apps.rectify_folder import rectify_to_folder
     from prismstereo.io import write_image
-    from prismstereo.rectify.folder import rectify_to_folder
     from prismstereo.simulate import Box, NoiseTexture, Plane, Scene, render_capture
 
     # (name, rig, box depth, wall depth): the 20° bi-prism's views meet only at 0.27-0.35 m

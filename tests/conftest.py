@@ -42,7 +42,7 @@ def capture_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
     The demo bi-prism looking at a plane 1.6 m away, tilted by 20°; read-only for the tests that use it.
     """
-    from prismstereo.depth.demo import demo_rig, plane_scene
+    from prismstereo.apps.demo import demo_rig, plane_scene
     from prismstereo.io import write_image, write_pfm
     from prismstereo.simulate import render_capture
 

@@ -8,9 +8,9 @@ import os
 import numpy as np
 import pytest
 
+from prismstereo.apps.demo import plane_scene, scaled_rig
 from prismstereo.cli import main
 from prismstereo.config import thesis_biprism
-from prismstereo.depth.demo import plane_scene, scaled_rig
 from prismstereo.depth.outputs import OUTPUT_FILES
 from prismstereo.io import read_ply, write_image
 

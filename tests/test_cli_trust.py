@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from prismstereo.depth.demo import demo_rig
+from prismstereo.apps.demo import demo_rig
 from prismstereo.io import write_image
 
 REPO = Path(__file__).resolve().parents[1]

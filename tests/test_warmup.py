@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
+from prismstereo.apps.warmup import numba_cache_location, warmup
 from prismstereo.cli import main
 from prismstereo.errors import ConfigError
-from prismstereo.warmup import numba_cache_location, warmup
 
 
 def test_warmup_selected_methods() -> None:

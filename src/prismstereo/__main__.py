@@ -1,5 +1,5 @@
 import sys
 
-from prismstereo.cli import main
+from prismstereo.apps.cli import main
 
 sys.exit(main())

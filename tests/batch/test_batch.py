@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
+from prismstereo.apps.demo import plane_scene, scaled_rig
 from prismstereo.batch import (
     Frame,
     list_frames,
@@ -22,7 +23,6 @@ from prismstereo.batch import (
 from prismstereo.cli import main
 from prismstereo.config import thesis_biprism
 from prismstereo.depth import DepthConfig, run_depth
-from prismstereo.depth.demo import plane_scene, scaled_rig
 from prismstereo.depth.outputs import write_depth_outputs
 from prismstereo.depth.pipeline import prepare_depth, run_depth_frame
 from prismstereo.errors import ConfigError

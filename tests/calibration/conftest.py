@@ -6,8 +6,8 @@ import dataclasses
 
 import pytest
 
+from prismstereo.apps.demo import scaled_rig
 from prismstereo.config import thesis_biprism
-from prismstereo.depth.demo import scaled_rig
 
 DIST = (-0.10, 0.12, 0.0, 0.0, 0.0)
 POSE = {"rotation": 1.4, "tilt": (1.0, -0.8), "decenter": (1.0, -0.5)}

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from prismstereo.depth.demo import demo_rig, plane_scene
+from prismstereo.apps.demo import demo_rig, plane_scene
 
 
 @pytest.fixture(scope="session")

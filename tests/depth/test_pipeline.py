@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from prismstereo.apps.demo import demo_scene, scaled_rig
 from prismstereo.config import pyramid_rig, thesis_triprism
 from prismstereo.depth import DepthConfig, run_depth, triangulate_matches, validate_inputs
-from prismstereo.depth.demo import demo_scene, scaled_rig
 from prismstereo.depth.outputs import OUTPUT_FILES, write_depth_outputs
 from prismstereo.depth.refine import refine_disparity
 from prismstereo.errors import ConfigError, ImageError

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 
+from prismstereo.apps.demo import demo_rig, plane_scene
 from prismstereo.depth import DepthConfig, run_depth
-from prismstereo.depth.demo import demo_rig, plane_scene
 from prismstereo.evaluation.depth_metrics import evaluate_depth
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from prismstereo.evaluation.table7_2 import COLUMNS, measure, render_markdown
+from prismstereo.apps.tables.table7_2 import COLUMNS, measure, render_markdown
 
 
 def test_table7_2_small():

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from prismstereo.apps.reproduce import reproduce_table
 from prismstereo.config import thesis_biprism
-from prismstereo.evaluation.reproduce import reproduce_table
 from prismstereo.rectify.baseline import (
     ZHANG_MODELS,
     detect_corners,

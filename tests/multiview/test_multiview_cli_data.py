@@ -54,8 +54,8 @@ def test_cli_writes_pfm_and_png(tmp_path: Path) -> None:
 
 
 def test_tsukuba_five_views_global_beats_two_view_coop(middlebury_dir: Path) -> None:
+    from prismstereo.apps.tables.table7_1 import TSUKUBA_VIEWS
     from prismstereo.evaluation.middlebury import evaluate_disparity, load_scene
-    from prismstereo.evaluation.table7_1 import TSUKUBA_VIEWS
     from prismstereo.io import read_image
     from prismstereo.matching.api import match
     from prismstereo.multiview.api import match_multiview

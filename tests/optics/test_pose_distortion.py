@@ -127,7 +127,7 @@ def test_posed_biprism_apex_line_moves_with_decenter_and_rotation():
 
 
 def test_sub_image_split_follows_the_real_apex_line():
-    from prismstereo.depth.demo import scaled_rig
+    from prismstereo.apps.demo import scaled_rig
     from prismstereo.rectify.regions import view_regions
 
     rig = scaled_rig(thesis_biprism(), 4).with_prism(decenter=(1.0, 0.0))  # 256×192, f = 1344 px

@@ -7,13 +7,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import prismstereo.simulate.folder as folder_mod
+import prismstereo.apps.simulate_folder as folder_mod
+from prismstereo.apps.simulate_folder import OUTPUT_FILES, simulate_to_folder
 from prismstereo.cli import main
 from prismstereo.config import load_rig
 from prismstereo.errors import ConfigError
 from prismstereo.io import read_image, read_pfm
-from prismstereo.simulate import load_scene, simulate_to_folder
-from prismstereo.simulate.folder import OUTPUT_FILES
+from prismstereo.simulate import load_scene
 
 SCENE = """
 [camera]

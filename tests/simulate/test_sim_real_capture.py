@@ -7,8 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
+from prismstereo.apps.demo import scaled_rig
 from prismstereo.config import thesis_biprism
-from prismstereo.depth.demo import scaled_rig
 from prismstereo.errors import ConfigError
 from prismstereo.optics import project_exact
 from prismstereo.simulate import render_capture

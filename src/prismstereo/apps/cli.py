@@ -50,7 +50,7 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from prismstereo.simulate import simulate_to_folder
+    from prismstereo.apps.simulate_folder import simulate_to_folder
 
     result = simulate_to_folder(args.scene, args.output, supersample=args.supersample)
     if result.capture.coverage < 0.01:
@@ -105,7 +105,7 @@ def _add_reproduce(sub: argparse._SubParsersAction) -> None:
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from prismstereo.evaluation.reproduce import reproduce_table
+    from prismstereo.apps.reproduce import reproduce_table
 
     result = reproduce_table(args.table, args.output, data_dir=Path(args.data) if args.data else None,
                              quick=args.quick)
@@ -233,7 +233,7 @@ def _add_rectify(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_rectify(args: argparse.Namespace) -> int:
-    from prismstereo.rectify.folder import rectify_to_folder
+    from prismstereo.apps.rectify_folder import rectify_to_folder
 
     res = rectify_to_folder(args.rig, args.image, args.output, views=_parse_views(args.views), method=args.method,
                             remap=args.remap)
@@ -282,7 +282,7 @@ def _add_depth(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_depth(args: argparse.Namespace) -> int:
-    from prismstereo.depth.cli_support import depth_command
+    from prismstereo.apps.depth_command import depth_command
 
     views = _parse_views(args.views)
     depth_range = None if args.depth_range is None else _parse_pair(args.depth_range, "--depth-range")
@@ -305,7 +305,7 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from prismstereo.depth.cli_support import demo_command
+    from prismstereo.apps.depth_command import demo_command
 
     print(demo_command(args.output, method=args.method))
     return 0
@@ -370,7 +370,7 @@ def _add_common(p: argparse.ArgumentParser) -> None:
                        help="no progress bars (they show only on a terminal anyway)")
 
 # --------------------------------------------------------------------------- real rigs (issue 15)
-from prismstereo.cli_calibration import add_calibrate_camera, add_calibrate_prism  # noqa: E402
+from prismstereo.apps.cli_calibration import add_calibrate_camera, add_calibrate_prism  # noqa: E402
 
 _ADDERS += [add_calibrate_camera, add_calibrate_prism]
 
@@ -382,7 +382,7 @@ def _add_warmup(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_warmup(args: argparse.Namespace) -> int:
-    from prismstereo.warmup import warmup
+    from prismstereo.apps.warmup import warmup
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
     print(warmup(methods).summary())
@@ -393,7 +393,7 @@ _ADDERS.append(_add_warmup)
 
 # --------------------------------------------------------------------------- batch (issue 18)
 def _add_batch(sub: argparse._SubParsersAction) -> None:
-    from prismstereo.batch.cli_support import BATCH_EPILOG
+    from prismstereo.apps.batch_command import BATCH_EPILOG
 
     p = sub.add_parser("batch", help="depth of many frames (images, folders, globs, videos) on Dask",
                        epilog=BATCH_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -426,7 +426,7 @@ def _add_batch(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_batch(args: argparse.Namespace) -> int:
-    from prismstereo.batch.cli_support import batch_command
+    from prismstereo.apps.batch_command import batch_command
 
     depth_range = None if args.depth_range is None else _parse_pair(args.depth_range, "--depth-range")
     return batch_command(args.rig, args.inputs, args.output, method=args.method, params=_parse_params(args.param),

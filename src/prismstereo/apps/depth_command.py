@@ -97,7 +97,7 @@ def depth_command(rig_path: str, image_path: str, out_dir: str, *, method: str =
 
 def demo_command(out_dir: str, *, method: str = "bpasw") -> str:
     """Run ``prismstereo demo`` and return the lines to print."""
-    from prismstereo.depth.demo import run_demo
+    from prismstereo.apps.demo import run_demo
     from prismstereo.depth.pipeline import DepthConfig
 
     check_output_dir(out_dir)

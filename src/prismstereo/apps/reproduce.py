@@ -21,13 +21,13 @@ from prismstereo.io.jsonio import write_json
 
 #: table name -> module that implements it
 TABLE_MODULES: dict[str, str] = {
-    "table3.4": "prismstereo.evaluation.table3_4",
-    "table4.3": "prismstereo.evaluation.table4_3",
-    "table5.1": "prismstereo.evaluation.table5_1",
-    "table6.1": "prismstereo.evaluation.table6_1",
-    "table6.2": "prismstereo.evaluation.table6_2",
-    "table7.1": "prismstereo.evaluation.table7_1",
-    "table7.2": "prismstereo.evaluation.table7_2",
+    "table3.4": "prismstereo.apps.tables.table3_4",
+    "table4.3": "prismstereo.apps.tables.table4_3",
+    "table5.1": "prismstereo.apps.tables.table5_1",
+    "table6.1": "prismstereo.apps.tables.table6_1",
+    "table6.2": "prismstereo.apps.tables.table6_2",
+    "table7.1": "prismstereo.apps.tables.table7_1",
+    "table7.2": "prismstereo.apps.tables.table7_2",
 }
 
 

@@ -101,8 +101,8 @@ def warmup(methods: Sequence[str] | None = None, *, parts: Sequence[str] = PARTS
         seconds[f"match {name}"] = time.perf_counter() - t
         log.info("warmed %s in %.1f s", name, seconds[f"match {name}"])
     if "depth" in parts:
+        from prismstereo.apps.demo import demo_rig, plane_scene, scaled_rig
         from prismstereo.depth import DepthConfig, run_depth
-        from prismstereo.depth.demo import demo_rig, plane_scene, scaled_rig
         from prismstereo.simulate import render_capture
 
         t = time.perf_counter()

@@ -375,8 +375,8 @@ def run_batch(rig: Rig | str | os.PathLike[str], inputs: Sequence[str | os.PathL
     KeyboardInterrupt
         After cancelling the tasks and writing the summary of the finished frames.
     """
+    from prismstereo.apps.depth_command import check_output_dir
     from prismstereo.config import load_rig
-    from prismstereo.depth.cli_support import check_output_dir
     from prismstereo.depth.pipeline import _versions
     from prismstereo.matching import get_matcher
 

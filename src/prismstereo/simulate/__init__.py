@@ -7,8 +7,8 @@
 * :func:`intersect_scene` — nearest hit, point, object and colour of N rays (numba).
 * :func:`render_capture` — the real camera's image through the prism with s × s supersampling, plus depth,
   face map, hit points and object ids of the pixel-centre rays (:class:`Capture`).
-* Scene files (:mod:`.scene_toml`): :func:`load_scene`, :func:`scene_from_dict`, :func:`scene_to_toml`;
-  :func:`simulate_to_folder` writes the outputs of ``prismstereo simulate`` atomically.
+* Scene files (:mod:`.scene_toml`): :func:`load_scene`, :func:`scene_from_dict`, :func:`scene_to_toml`
+  (``prismstereo simulate`` writes its folder with :func:`prismstereo.apps.simulate_folder.simulate_to_folder`).
 * :func:`checkerboard_poses` — boards seen whole through every face, with exact corners (:class:`BoardPose`).
 * :func:`robot_scene` — the built-in bi-prism scene of ``examples/biprism_robot.toml``.
 """
@@ -23,7 +23,6 @@ from prismstereo.simulate.checkerboard import (
     board_visible,
     checkerboard_poses,
 )
-from prismstereo.simulate.folder import SimulationResult, simulate_to_folder, write_capture
 from prismstereo.simulate.render import Capture, SceneHits, intersect_scene, render_capture, sample_offsets
 from prismstereo.simulate.scene import (
     Box,
@@ -45,7 +44,6 @@ from prismstereo.simulate.scene_toml import load_scene, scene_from_dict, scene_t
 
 __all__ = [
     "BoardPose",
-    "SimulationResult",
     "board_corners",
     "board_rectangle",
     "board_visible",
@@ -57,8 +55,6 @@ __all__ = [
     "scene_from_dict",
     "scene_to_dict",
     "scene_to_toml",
-    "simulate_to_folder",
-    "write_capture",
     "Box",
     "Capture",
     "CheckerTexture",

@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from prismstereo.apps.reproduce import TableResult
 from prismstereo.config import thesis_biprism
-from prismstereo.evaluation.reproduce import TableResult
 from prismstereo.rectify.baseline import TransferExperiment, biprism_experiment
 
 __all__ = ["THESIS_TABLE_3_4", "format_experiment", "reproduce"]

@@ -13,9 +13,9 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+from prismstereo.apps.reproduce import TableResult
+from prismstereo.apps.tables.table3_4 import format_experiment
 from prismstereo.config import thesis_triprism
-from prismstereo.evaluation.reproduce import TableResult
-from prismstereo.evaluation.table3_4 import format_experiment
 from prismstereo.rectify.baseline import triprism_experiment
 
 __all__ = ["THESIS_AVG_4_3", "reproduce"]

@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from prismstereo.apps.reproduce import TableResult
 from prismstereo.evaluation.middlebury import evaluate_disparity, load_scene
-from prismstereo.evaluation.reproduce import TableResult
 
 __all__ = ["THESIS_TABLE_5_1", "reproduce"]
 

@@ -14,9 +14,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+from prismstereo.apps.reproduce import TableResult
 from prismstereo.errors import ConfigError
 from prismstereo.evaluation.middlebury import default_data_dir, evaluate_disparity, load_scene
-from prismstereo.evaluation.reproduce import TableResult
 
 log = logging.getLogger(__name__)
 

@@ -8,9 +8,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+from prismstereo.apps.reproduce import TableResult
+from prismstereo.apps.tables.table6_1 import run_coop_stages
 from prismstereo.evaluation.middlebury import MASKS, default_data_dir, evaluate_disparity, load_scene
-from prismstereo.evaluation.reproduce import TableResult
-from prismstereo.evaluation.table6_1 import run_coop_stages
 
 log = logging.getLogger(__name__)
 

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from prismstereo.evaluation.reproduce import TableResult
+from prismstereo.apps.reproduce import TableResult
 
 log = logging.getLogger(__name__)
 

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from prismstereo.evaluation.reproduce import TableResult
+from prismstereo.apps.reproduce import TableResult
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +47,7 @@ THESIS_ROWS = [  # actual depth, pixel, Lim & Xiao, error 1 %, disparity map, er
 ]
 THESIS_MEAN = {"disparity map (thesis)": 0.4839, "Lim and Xiao": 0.62025}
 
-#: (name, x, y) on the front faces of the robot of :func:`~prismstereo.depth.demo.robot_scene`
+#: (name, x, y) on the front faces of the robot of :func:`~prismstereo.apps.demo.robot_scene`
 SAMPLE_POINTS = [("head", 0.0, -75.0), ("body top", 0.0, -40.0), ("body", 5.0, -10.0), ("left arm", -40.0, -20.0),
                  ("right arm", 40.0, -30.0), ("left leg", -14.0, 50.0), ("right leg", 14.0, 60.0),
                  ("base", 0.0, 92.0)]
@@ -90,9 +90,9 @@ def _overall(depth: np.ndarray, valid: np.ndarray, gt_depth: np.ndarray, robot: 
 
 def measure(*, scale: int = 1, method: str = "bpasw") -> dict[str, Any]:
     """Render the robot, run the pipeline twice (fit and thesis rectification) and measure every column."""
+    from prismstereo.apps.demo import robot_scene, scaled_rig
     from prismstereo.config import thesis_biprism
     from prismstereo.depth import DepthConfig, run_depth, triangulate_matches
-    from prismstereo.depth.demo import robot_scene, scaled_rig
     from prismstereo.evaluation.depth_metrics import ground_truth_for_run
     from prismstereo.optics import project_exact
     from prismstereo.simulate import render_capture

@@ -1,0 +1,1 @@
+"""The thesis-table reproductions behind ``prismstereo reproduce`` (one module per table)."""
