@@ -46,7 +46,9 @@ def test_depth_options(capture_folder, tmp_path, capsys):
                          "--roi", "40,40,120,120", "--views", "1,0", "-p", "radius=3"], capsys)
     assert code == 0, err
     run = json.loads((out / "run.json").read_text())
-    assert run["config"]["roi"] == [40, 40, 120, 120] and run["config"]["matcher_params"] == {"radius": 3}
+    assert run["config"]["roi"] == [40, 40, 120, 120] and run["config"]["matcher_params"]["radius"] == 3
+    # the resolved configuration: every matcher parameter with its default
+    assert run["config"]["matcher_params"]["cross_check"] is True and "subpixel" in run["config"]["matcher_params"]
     assert run["config"]["depth_range"] == [1000.0, 3000.0]
 
 

@@ -409,12 +409,23 @@ def load_rig(path: str | os.PathLike[str], *, extra_sections: set[str] | None = 
     return rig_from_dict(read_toml(path), name=Path(path).stem, extra_sections=extra_sections)
 
 
+#: World depths searched when nothing narrows them (mm): the thesis's experiments lie within (§7.3)
+DEFAULT_DEPTH_RANGE_MM: tuple[float, float] = (800.0, 5000.0)
+
+#: The thesis's camera (Table 3.2): 1024×768 px of 4.65 µm behind a 25 mm lens
+THESIS_CAMERA = CameraSpec(width=1024, height=768, focal_length=25.0, pixel_size=0.00465)
+#: The thesis's glass (n) and the distance of the prism's apex from the camera centre (mm, Table 3.2)
+THESIS_REFRACTIVE_INDEX = 1.5
+THESIS_APEX_DISTANCE_MM = 210.0
+
+
 def thesis_biprism(corner_angle: float = 6.4) -> Rig:
     """The thesis's bi-prism rig (Table 3.2): 1024×768, 4.65 µm, f = 25 mm, n = 1.5, apex 210, back 215.6."""
     return Rig(
-        camera=CameraSpec(width=1024, height=768, focal_length=25.0, pixel_size=0.00465),
+        camera=THESIS_CAMERA,
         prism=PrismSpec(
-            faces=2, corner_angle=corner_angle, refractive_index=1.5, apex_distance=210.0, back_distance=215.6
+            faces=2, corner_angle=corner_angle, refractive_index=THESIS_REFRACTIVE_INDEX,
+            apex_distance=THESIS_APEX_DISTANCE_MM, back_distance=215.6
         ),
         name=f"thesis-biprism-{corner_angle:g}",
     )
@@ -425,13 +436,13 @@ def thesis_triprism() -> Rig:
     h, t, r, n_faces = 4.0, 6.8, 37.3, 3
     alpha = math.degrees(math.atan(h / (r * math.cos(math.pi / n_faces))))
     return Rig(
-        camera=CameraSpec(width=1024, height=768, focal_length=25.0, pixel_size=0.00465),
+        camera=THESIS_CAMERA,
         prism=PrismSpec(
             faces=n_faces,
             corner_angle=alpha,
-            refractive_index=1.5,
-            apex_distance=210.0,
-            back_distance=210.0 + h + t,
+            refractive_index=THESIS_REFRACTIVE_INDEX,
+            apex_distance=THESIS_APEX_DISTANCE_MM,
+            back_distance=THESIS_APEX_DISTANCE_MM + h + t,
             height=h,
         ),
         name="thesis-triprism",
@@ -441,12 +452,12 @@ def thesis_triprism() -> Rig:
 def pyramid_rig(faces: int = 4, *, corner_angle: float = 12.1, rotation: float = 0.0) -> Rig:
     """An N-face pyramid prism rig on the thesis camera, built like the tri-prism (h = 4, t = 6.8 mm)."""
     return Rig(
-        camera=CameraSpec(width=1024, height=768, focal_length=25.0, pixel_size=0.00465),
+        camera=THESIS_CAMERA,
         prism=PrismSpec(
             faces=faces,
             corner_angle=corner_angle,
-            refractive_index=1.5,
-            apex_distance=210.0,
+            refractive_index=THESIS_REFRACTIVE_INDEX,
+            apex_distance=THESIS_APEX_DISTANCE_MM,
             back_distance=220.8,
             height=4.0,
             rotation=rotation,

@@ -18,12 +18,25 @@ def plane_capture():
 
 
 @pytest.fixture(scope="session")
-def plane_run(plane_capture):
-    """The default depth run on :func:`plane_capture`, evaluated against the scene."""
+def _plane_evaluated(plane_capture):
+    import dataclasses
+
     from prismstereo.depth import DepthConfig, run_depth
-    from prismstereo.evaluation.depth_metrics import evaluate_depth
+    from prismstereo.evaluation.depth_metrics import evaluate_depth, ground_truth_for_run
 
     rig, scene, cap = plane_capture
     res = run_depth(rig, cap.image, config=DepthConfig())
-    evaluate_depth(res, scene=scene)
-    return res
+    gt = ground_truth_for_run(res, scene=scene)
+    return dataclasses.replace(res, accuracy=evaluate_depth(res, gt=gt)), gt
+
+
+@pytest.fixture(scope="session")
+def plane_run(_plane_evaluated):
+    """The default depth run on :func:`plane_capture`, with its accuracy against the scene."""
+    return _plane_evaluated[0]
+
+
+@pytest.fixture(scope="session")
+def plane_gt(_plane_evaluated):
+    """The ground truth of :func:`plane_run` on its grid (:class:`~prismstereo.evaluation.depth_metrics.DepthGroundTruth`)."""
+    return _plane_evaluated[1]

@@ -23,14 +23,14 @@ def test_accuracy_targets_on_a_slanted_plane(plane_run):
     assert acc["n_points"] > 10_000
 
 
-def test_triangulations_agree_on_the_same_matches(plane_run):
+def test_triangulations_agree_on_the_same_matches(plane_run, plane_gt):
     res = plane_run
     ys, xs = np.nonzero(res.valid)
     d = res.disparity[ys, xs].astype(np.float64)
-    zgt = res.ground_truth.depth[ys, xs]
+    zgt = plane_gt.depth[ys, xs]
     meds = {}
     for method in ("exact", "midpoint", "dlt", "q"):
-        tri = triangulate_matches(res, method, ys, xs, d)
+        tri = triangulate_matches(res.rig, res.pair, ys, xs, d, method=method, views=res.views)
         assert tri.valid.mean() > 0.99
         meds[method] = float(np.nanmedian(np.abs(tri.points[:, 2] - zgt) / zgt))
     assert meds["exact"] <= 0.0025
@@ -38,12 +38,12 @@ def test_triangulations_agree_on_the_same_matches(plane_run):
         assert meds[method] < 0.01  # the fitted pinhole approximates refraction well at these depths
 
 
-def test_exact_triangulation_with_true_disparities_is_exact(plane_run):
+def test_exact_triangulation_with_true_disparities_is_exact(plane_run, plane_gt):
     """Geometry alone does not limit accuracy: true correspondences give the true points."""
     from prismstereo.optics import project_exact
 
     res = plane_run
-    gt = res.ground_truth
+    gt = plane_gt
     ys, xs = np.nonzero(gt.common)
     sel = slice(None, None, 97)
     ys, xs = ys[sel], xs[sel]
@@ -51,7 +51,7 @@ def test_exact_triangulation_with_true_disparities_is_exact(plane_run):
     pr, ok = project_exact(X, res.rig, res.pair.right_face, tolerance_px=1e-9)
     rr = res.pair.real_to_rectified(pr, "right")
     d = xs - rr[:, 0]
-    tri = triangulate_matches(res, "exact", ys, xs, d)
+    tri = triangulate_matches(res.rig, res.pair, ys, xs, d, method="exact", views=res.views)
     ok &= tri.valid
     assert ok.mean() > 0.95
     rel = np.linalg.norm(tri.points[ok] - X[ok], axis=1) / np.linalg.norm(X[ok], axis=1)

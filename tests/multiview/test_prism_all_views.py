@@ -7,7 +7,7 @@ import pytest
 
 from prismstereo.config import CameraSpec, Rig, thesis_triprism
 from prismstereo.errors import ConfigError, ImageError
-from prismstereo.multiview.prism import SweepParams, _multi_ray_point, depth_accuracy, depth_all_views
+from prismstereo.multiview.prism import AllViewsDepth, SweepParams, _multi_ray_point, depth_all_views
 
 
 def test_multi_ray_point_exact() -> None:
@@ -34,17 +34,25 @@ def small_capture() -> tuple[Rig, np.ndarray, np.ndarray, np.ndarray]:
     return rig, cap.image, cap.depth, cap.faces
 
 
+def _coverage_and_median(res: AllViewsDepth, depth: np.ndarray, faces: np.ndarray) -> tuple[float, float]:
+    """Share of the reference face's pixels with a depth, and their median relative error."""
+    ev = np.isfinite(depth) & (faces == res.reference)
+    ok = ev & np.isfinite(res.depth)
+    rel = np.abs(res.depth[ok] - depth[ok]) / depth[ok]
+    return float(ok.sum() / ev.sum()), float(np.median(rel))
+
+
 def test_all_views_plane(small_capture: tuple[Rig, np.ndarray, np.ndarray, np.ndarray]) -> None:
     rig, image, depth, faces = small_capture
     p = SweepParams(radius=2, n_depths=40)
     res = depth_all_views(rig, image, depth_range=(420.0, 620.0), params=p)
-    acc = depth_accuracy(res, depth, faces=faces)
-    assert acc["median_rel_err"] < 0.5
-    assert acc["coverage"] > 50.0
+    coverage, median = _coverage_and_median(res, depth, faces)
+    assert median < 0.005
+    assert coverage > 0.5
     assert res.points.shape == (int(res.valid.sum()), 3) and res.colors.shape == res.points.shape
     assert res.counts.max() == 3
     single = depth_all_views(rig, image, depth_range=(420.0, 620.0), params=p, views=[res.views[0]])
-    assert depth_accuracy(single, depth, faces=faces)["coverage"] <= acc["coverage"] + 1e-9
+    assert _coverage_and_median(single, depth, faces)[0] <= coverage + 1e-9
 
 
 def test_all_views_errors(small_capture: tuple[Rig, np.ndarray, np.ndarray, np.ndarray]) -> None:
@@ -59,13 +67,31 @@ def test_all_views_errors(small_capture: tuple[Rig, np.ndarray, np.ndarray, np.n
         depth_all_views(rig, image[:-1], depth_range=(400.0, 600.0))
 
 
+def test_all_views_through_the_depth_pipeline(small_capture: tuple[Rig, np.ndarray, np.ndarray, np.ndarray]
+                                              ) -> None:
+    """``views="all"`` runs the one depth pipeline: one result type, measured by the one accuracy function."""
+    import dataclasses
+
+    from prismstereo.depth import DepthConfig, run_depth
+    from prismstereo.evaluation.depth_metrics import evaluate_depth
+
+    rig, image, depth, _ = small_capture
+    res = run_depth(rig, image, config=DepthConfig(views="all", depth_range=(420.0, 620.0)))
+    assert res.pair is None and res.faces[0] not in res.faces[1:] and len(res.faces) == 3
+    assert res.depth.shape == depth.shape and res.view_counts is not None and res.view_counts.max() == 3
+    acc = evaluate_depth(res, depth_gt=depth)
+    assert acc["median_rel"] < 0.005 and acc["coverage"] > 0.5
+    assert dataclasses.replace(res, accuracy=acc).summary()["accuracy"]["median_rel"] == acc["median_rel"]
+
+
 def test_all_views_command_writes_outputs(small_capture: tuple[Rig, np.ndarray, np.ndarray, np.ndarray],
-                                          tmp_path: object) -> None:
+                                          tmp_path: object, capsys: pytest.CaptureFixture[str]) -> None:
     import json
     from pathlib import Path
 
+    from prismstereo.cli import main
+    from prismstereo.depth.outputs import ALL_VIEW_FILES
     from prismstereo.io import read_pfm, read_ply, write_image, write_pfm
-    from prismstereo.multiview.prism import all_views_command
 
     rig, image, depth, _ = small_capture
     tmp = Path(str(tmp_path))
@@ -77,12 +103,15 @@ def test_all_views_command_writes_outputs(small_capture: tuple[Rig, np.ndarray, 
         f"back_distance = {pr.back_distance}\nheight = {pr.height}\n")
     write_image(tmp / "cap.png", image)
     write_pfm(tmp / "gt.pfm", np.where(np.isfinite(depth), depth, np.inf).astype(np.float32))
-    text = all_views_command(tmp / "rig.toml", tmp / "cap.png", tmp / "out", depth_range=(420.0, 620.0),
-                             gt=tmp / "gt.pfm")
-    assert "coverage" in text
+    code = main(["depth", str(tmp / "rig.toml"), str(tmp / "cap.png"), "-o", str(tmp / "out"), "--views", "all",
+                 "--depth-range", "420,620", "--gt", str(tmp / "gt.pfm")])
+    text, err = capsys.readouterr()
+    assert code == 0, err
+    assert "coverage" in text and "all views" in text
+    assert sorted(p.name for p in (tmp / "out").iterdir()) == sorted(ALL_VIEW_FILES)
     d = read_pfm(tmp / "out" / "depth.pfm")
     assert d.shape == depth.shape
     run = json.loads((tmp / "out" / "run.json").read_text())
-    assert run["accuracy"]["median_rel_err"] < 0.5
+    assert run["config"]["views"] == "all" and run["accuracy"]["median_rel"] < 0.005
     pts = read_ply(tmp / "out" / "points.ply")
-    assert len(pts[0]) == run["points"]
+    assert len(pts[0]) == run["counts"]["points"]

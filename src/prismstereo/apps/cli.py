@@ -14,7 +14,26 @@ import sys
 from collections.abc import Callable, Sequence
 
 from prismstereo import __version__
+from prismstereo.apps.batch_command import BATCH_EPILOG, batch_command
+from prismstereo.apps.cli_calibration import add_calibrate_camera, add_calibrate_prism
+from prismstereo.apps.depth_command import demo_command, depth_command
+from prismstereo.apps.multiview_command import multiview_command
+from prismstereo.apps.rectify_folder import rectify_to_folder
+from prismstereo.apps.reproduce import reproduce_table
+from prismstereo.apps.simulate_folder import simulate_to_folder
+from prismstereo.apps.warmup import warmup
+from prismstereo.cameras import calibrate_rig, cameras_table, write_cameras_json
+from prismstereo.config import load_rig
 from prismstereo.errors import ConfigError, PrismStereoError
+from prismstereo.evaluation.middlebury import evaluate_method, format_results_table
+from prismstereo.io import check_output_file, output_files, read_image, write_image, write_pfm
+from prismstereo.io.atomic import os_error_reason
+from prismstereo.io.images import image_size
+from prismstereo.io.memory import check_fits_in_memory
+from prismstereo.matching import get_matcher, match
+from prismstereo.matching.diagnostics import limit_warnings
+from prismstereo.matching.registry import resolve_preset
+from prismstereo.viz.colorize import colorize_disparity
 
 log = logging.getLogger("prismstereo")
 
@@ -50,7 +69,6 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from prismstereo.apps.simulate_folder import simulate_to_folder
 
     result = simulate_to_folder(args.scene, args.output, supersample=args.supersample)
     if result.capture.coverage < 0.01:
@@ -71,9 +89,6 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from prismstereo.cameras import calibrate_rig, cameras_table, write_cameras_json
-    from prismstereo.config import load_rig
-    from prismstereo.io import check_output_file
 
     rig = load_rig(args.rig)
     check_output_file(args.output)
@@ -105,7 +120,6 @@ def _add_reproduce(sub: argparse._SubParsersAction) -> None:
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from prismstereo.apps.reproduce import reproduce_table
 
     result = reproduce_table(args.table, args.output, data_dir=Path(args.data) if args.data else None,
                              quick=args.quick)
@@ -147,12 +161,6 @@ def _cmd_match(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from prismstereo.io import check_output_file, output_files, read_image, write_image, write_pfm
-    from prismstereo.io.images import image_size
-    from prismstereo.io.memory import check_fits_in_memory
-    from prismstereo.matching import get_matcher, match
-    from prismstereo.matching.diagnostics import limit_warnings
-    from prismstereo.viz.colorize import colorize_disparity
 
     params = _parse_params(args.param)
     get_matcher(args.method, **params)  # method and parameters checked before reading images
@@ -202,8 +210,6 @@ def _add_evaluate(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
-    from prismstereo.evaluation.middlebury import evaluate_method, format_results_table
-    from prismstereo.matching import get_matcher
 
     params = _parse_params(args.param)
     get_matcher(args.method, **params)
@@ -233,7 +239,6 @@ def _add_rectify(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_rectify(args: argparse.Namespace) -> int:
-    from prismstereo.apps.rectify_folder import rectify_to_folder
 
     res = rectify_to_folder(args.rig, args.image, args.output, views=_parse_views(args.views), method=args.method,
                             remap=args.remap)
@@ -244,7 +249,7 @@ def _cmd_rectify(args: argparse.Namespace) -> int:
 _ADDERS.append(_add_rectify)
 
 
-# --------------------------------------------------------------------------- depth (issue 6)
+# --------------------------------------------------------------------------- depth
 def _parse_roi(text: str | None) -> tuple[int, int, int, int] | None:
     if text is None:
         return None
@@ -257,9 +262,14 @@ def _parse_roi(text: str | None) -> tuple[int, int, int, int] | None:
 
 def _add_depth(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("depth", help="depth from one prism capture -> disparity, depth, points.ply, report")
-    p.add_argument("rig", help="rig TOML (docs/rig.md)")
-    p.add_argument("image", help="the capture (the rig's sensor size)")
+    p.add_argument("rig", nargs="?", default=None, help="rig TOML (docs/rig.md); with --config: the run's")
+    p.add_argument("image", nargs="?", default=None,
+                   help="the capture (the rig's sensor size); with --config: the run's")
     p.add_argument("-o", "--output", required=True, help="output folder")
+    p.add_argument("--config", default=None, metavar="RUN.json",
+                   help="replay an earlier run: its rig, capture, ground truth and resolved configuration (every "
+                        "step's parameters, the matcher's included) from its run.json; options given here "
+                        "override them")
     p.add_argument("--method", default=None, help="matcher name (any registered: bpasw (default), sgm, coop, ...)")
     p.add_argument("--preset", default=None, metavar="fast|balanced|accurate",
                    help="fast = sgm, balanced = bpasw, accurate = coop (instead of --method)")
@@ -271,10 +281,10 @@ def _add_depth(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--roi", default=None, metavar="X,Y,W,H", help="region of the rectified left view")
     p.add_argument("--views", default=None, metavar="I,J|all",
                    help="faces to pair (default: 1,0 for a bi-prism, else 0,1); 'all' uses every face (N >= 3)")
-    p.add_argument("--triangulation", default="exact", choices=["exact", "midpoint", "dlt", "q"],
+    p.add_argument("--triangulation", default=None, choices=["exact", "midpoint", "dlt", "q"],
                    help="exact refractive rays (default), virtual-pinhole midpoint or DLT, or Q (Eq. 7.23)")
-    p.add_argument("--calibration", default="fit", choices=["fit", "thesis"],
-                   help="virtual camera model for rectification and pinhole triangulation")
+    p.add_argument("--calibration", default=None, choices=["fit", "thesis"],
+                   help="virtual camera model for rectification and pinhole triangulation (default fit)")
     p.add_argument("--gt", default=None, metavar="DEPTH_GT.pfm",
                    help="ground-truth depth per real pixel (simulate's depth_gt.pfm): adds accuracy to run.json")
     p.add_argument("--no-refine", action="store_true", help="skip the sub-pixel disparity refinement")
@@ -282,18 +292,15 @@ def _add_depth(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_depth(args: argparse.Namespace) -> int:
-    from prismstereo.apps.depth_command import depth_command
-
     views = _parse_views(args.views)
     depth_range = None if args.depth_range is None else _parse_pair(args.depth_range, "--depth-range")
-    from prismstereo.matching.registry import resolve_preset
-
-    method, preset = resolve_preset(args.preset, args.method)
+    method, preset = (args.method, None) if args.preset is None and args.config is not None \
+        else resolve_preset(args.preset, args.method)
     print(depth_command(args.rig, args.image, args.output, method=method, preset=preset,
                         params=_parse_params(args.param),
                         depth_range=depth_range, roi=_parse_roi(args.roi), views=views,
                         triangulation=args.triangulation, calibration=args.calibration, gt=args.gt,
-                        refine=not args.no_refine))
+                        refine=False if args.no_refine else None, config_path=args.config))
     return 0
 
 
@@ -305,7 +312,6 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from prismstereo.apps.depth_command import demo_command
 
     print(demo_command(args.output, method=args.method))
     return 0
@@ -314,7 +320,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 _ADDERS.extend([_add_depth, _add_demo])
 
 
-# --------------------------------------------------------------------------- multiview (issue 7)
+# --------------------------------------------------------------------------- multiview
 def _add_multiview(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("multiview", help="disparity of a reference image from several collinear views")
     p.add_argument("--reference", required=True, help="reference image (rectified with the views)")
@@ -328,7 +334,6 @@ def _add_multiview(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_multiview(args: argparse.Namespace) -> int:
-    from prismstereo.multiview.api import multiview_command
 
     print(multiview_command(args.reference, args.view, args.output, max_disp=args.max_disp, method=args.method))
     return 0
@@ -369,12 +374,11 @@ def _add_common(p: argparse.ArgumentParser) -> None:
         p.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
                        help="no progress bars (they show only on a terminal anyway)")
 
-# --------------------------------------------------------------------------- real rigs (issue 15)
-from prismstereo.apps.cli_calibration import add_calibrate_camera, add_calibrate_prism  # noqa: E402
+# --------------------------------------------------------------------------- real rigs
 
 _ADDERS += [add_calibrate_camera, add_calibrate_prism]
 
-# --------------------------------------------------------------------------- warmup (issue 19)
+# --------------------------------------------------------------------------- warmup
 def _add_warmup(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("warmup", help="compile the numba kernels once into numba's disk cache (first-run cost)")
     p.add_argument("--methods", default=None, help="comma-separated matchers to warm (default: all)")
@@ -382,7 +386,6 @@ def _add_warmup(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_warmup(args: argparse.Namespace) -> int:
-    from prismstereo.apps.warmup import warmup
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
     print(warmup(methods).summary())
@@ -391,9 +394,8 @@ def _cmd_warmup(args: argparse.Namespace) -> int:
 
 _ADDERS.append(_add_warmup)
 
-# --------------------------------------------------------------------------- batch (issue 18)
+# --------------------------------------------------------------------------- batch
 def _add_batch(sub: argparse._SubParsersAction) -> None:
-    from prismstereo.apps.batch_command import BATCH_EPILOG
 
     p = sub.add_parser("batch", help="depth of many frames (images, folders, globs, videos) on Dask",
                        epilog=BATCH_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -426,7 +428,6 @@ def _add_batch(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_batch(args: argparse.Namespace) -> int:
-    from prismstereo.apps.batch_command import batch_command
 
     depth_range = None if args.depth_range is None else _parse_pair(args.depth_range, "--depth-range")
     return batch_command(args.rig, args.inputs, args.output, method=args.method, params=_parse_params(args.param),
@@ -489,10 +490,9 @@ def _setup_logging(command: str, verbose: int) -> None:
 
 
 def _os_error_line(exc: OSError) -> str:
-    from prismstereo.io.atomic import _why
 
     where = exc.filename if exc.filename is not None else ""
-    return f"{_why(exc)}: {where}" if where else _why(exc)
+    return f"{os_error_reason(exc)}: {where}" if where else os_error_reason(exc)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

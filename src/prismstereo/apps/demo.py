@@ -23,6 +23,10 @@ from typing import Any
 from prismstereo.config import Rig, thesis_biprism
 from prismstereo.depth.outputs import write_depth_outputs
 from prismstereo.depth.pipeline import DepthConfig, DepthResult, run_depth
+from prismstereo.evaluation.depth_metrics import evaluate_depth, format_accuracy
+from prismstereo.io import write_image, write_pfm
+from prismstereo.progress import progress_bar
+from prismstereo.simulate import Box, NoiseTexture, Plane, Rectangle, Scene, Sphere, render_capture
 
 log = logging.getLogger(__name__)
 
@@ -50,7 +54,6 @@ def demo_scene() -> Any:
     The common view of the bi-prism's two virtual cameras is narrow (about 130 × 205 mm at 1.5 m), so the
     objects are small.
     """
-    from prismstereo.simulate import Box, NoiseTexture, Plane, Rectangle, Scene, Sphere
 
     return Scene(
         objects=(
@@ -72,7 +75,6 @@ def robot_scene() -> Any:
 
     Like the thesis's robot of Table 7.2 (measured depths 1504–1523 mm).
     """
-    from prismstereo.simulate import Box, NoiseTexture, Plane, Scene
 
     def part(name: str, c: tuple[float, float, float], size: tuple[float, float, float], seed: int) -> Any:
         return Box(center=c, size=size, texture=NoiseTexture(scale=15.0, seed=seed), name=name)
@@ -95,7 +97,6 @@ def robot_scene() -> Any:
 
 def plane_scene(distance_mm: float = 1500.0, *, tilt_deg: float = 30.0, seed: int = 21) -> Any:
     """One textured plane through (0, 0, distance) turned by ``tilt_deg`` about the vertical axis."""
-    from prismstereo.simulate import NoiseTexture, Plane, Scene
 
     return Scene(
         objects=(Plane(center=(0.0, 0.0, float(distance_mm)), rotation=(0.0, float(tilt_deg), 0.0),
@@ -115,7 +116,6 @@ class DemoResult:
     seconds: dict[str, float]
 
     def summary(self) -> str:
-        from prismstereo.evaluation.depth_metrics import format_accuracy
 
         out_dir = next(iter(self.outputs.values())).parent if self.outputs else Path(".")
         t = self.seconds
@@ -142,9 +142,6 @@ def run_demo(out_dir: str | os.PathLike[str] = "demo_out", *, config: DepthConfi
     Writes the depth outputs (docs/cli.md) plus ``capture.png``, ``depth_gt.pfm`` (world Z per real
     pixel) and ``rig.toml`` into ``out_dir``, all or nothing.
     """
-    from prismstereo.evaluation.depth_metrics import evaluate_depth
-    from prismstereo.io import write_image, write_pfm
-    from prismstereo.simulate import render_capture
 
     t0 = time.perf_counter()
     if rig is None and scene is None:
@@ -153,7 +150,6 @@ def run_demo(out_dir: str | os.PathLike[str] = "demo_out", *, config: DepthConfi
         rig, scene = builtin_robot(width=512)  # = examples/biprism_demo.toml
     rig = rig if rig is not None else demo_rig()
     scene = scene if scene is not None else demo_scene()
-    from prismstereo.progress import progress_bar
 
     seconds: dict[str, float] = {}
     bar = progress_bar(total=4, desc="demo: render", unit="step", leave=False)  # a terminal only
@@ -169,6 +165,7 @@ def run_demo(out_dir: str | os.PathLike[str] = "demo_out", *, config: DepthConfi
     bar.update(1)
     t = time.perf_counter()
     acc = evaluate_depth(res, scene=scene)
+    res = replace(res, accuracy=acc)
     seconds["evaluate"] = time.perf_counter() - t
     bar.set_description("demo: write")
     bar.update(1)

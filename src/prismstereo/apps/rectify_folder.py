@@ -17,6 +17,7 @@ from prismstereo.errors import ConfigError
 from prismstereo.io import check_output_dir, output_dir, read_image, write_image, write_json
 from prismstereo.rectify.rectification import RectifiedPair, rectify_pair, rectify_views
 from prismstereo.rectify.regions import check_image_size, view_regions
+from prismstereo.viz.epipolar import epipolar_after, epipolar_after_views, epipolar_before, pick_points, with_title
 
 log = logging.getLogger(__name__)
 
@@ -67,13 +68,6 @@ def rectify_to_folder(
     Writes ``left.png``, ``right.png``, ``rectification.json``, ``epipolar_before.png``,
     ``epipolar_after.png``; with more than two views also ``view_<k>.png`` (shared orientation).
     """
-    from prismstereo.viz.epipolar import (
-        epipolar_after,
-        epipolar_after_views,
-        epipolar_before,
-        pick_points,
-        with_title,
-    )
 
     rig = load_rig(rig_path)
     check_output_dir(out_dir)  # before any work

@@ -18,6 +18,7 @@ from typing import Any
 from prismstereo.errors import ConfigError
 from prismstereo.io.atomic import atomic_write_text, check_output_dir, output_dir
 from prismstereo.io.jsonio import write_json
+from prismstereo.progress import progress_bar
 
 #: table name -> module that implements it
 TABLE_MODULES: dict[str, str] = {
@@ -60,7 +61,6 @@ def reproduce_table(name: str, out_dir: str | os.PathLike[str], *, data_dir: Pat
         raise
     out = Path(out_dir)
     check_output_dir(out)  # before the (long) measurement
-    from prismstereo.progress import progress_bar
 
     # one step per table (the modules do not report their inner progress): on a terminal the bar names the
     # table being measured and its elapsed time when done

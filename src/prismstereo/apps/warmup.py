@@ -18,6 +18,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from prismstereo.errors import ConfigError
+from prismstereo.matching import PRESETS, available_matchers, match
+
 log = logging.getLogger(__name__)
 
 __all__ = ["WarmupReport", "numba_cache_location", "warmup"]
@@ -83,8 +86,6 @@ def warmup(methods: Sequence[str] | None = None, *, parts: Sequence[str] = PARTS
     ConfigError
         Unknown method or part.
     """
-    from prismstereo.errors import ConfigError
-    from prismstereo.matching import PRESETS, available_matchers, match
 
     names = list(available_matchers()) if methods is None else [str(m).lower() for m in methods]
     unknown = sorted(set(names) - set(available_matchers()))

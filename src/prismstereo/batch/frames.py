@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from prismstereo.errors import ConfigError, ImageError
+from prismstereo.io import read_image
 
 __all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "Frame", "list_frames", "read_frame", "video_frame_count"]
 
@@ -139,7 +140,6 @@ def read_frame(frame: Frame) -> np.ndarray:
     ImageError
         Missing, empty or undecodable file; a video frame that cannot be read.
     """
-    from prismstereo.io import read_image
 
     if frame.index is None:
         return read_image(frame.source)

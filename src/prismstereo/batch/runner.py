@@ -39,10 +39,13 @@ from prismstereo.batch.outputs import (
     write_frame_folder,
     write_summary,
 )
-from prismstereo.config import Rig
+from prismstereo.config import Rig, load_rig
 from prismstereo.depth.pipeline import DepthConfig, DepthSetup, prepare_depth, run_depth_frame
 from prismstereo.errors import ConfigError
 from prismstereo.io import to_jsonable, write_json
+from prismstereo.io.atomic import check_output_dir
+from prismstereo.io.jsonio import library_versions
+from prismstereo.matching import get_matcher
 
 log = logging.getLogger(__name__)
 
@@ -375,10 +378,6 @@ def run_batch(rig: Rig | str | os.PathLike[str], inputs: Sequence[str | os.PathL
     KeyboardInterrupt
         After cancelling the tasks and writing the summary of the finished frames.
     """
-    from prismstereo.apps.depth_command import check_output_dir
-    from prismstereo.config import load_rig
-    from prismstereo.depth.pipeline import _versions
-    from prismstereo.matching import get_matcher
 
     t_start = time.perf_counter()
     say = echo or (lambda line: log.info("%s", line))
@@ -402,7 +401,7 @@ def run_batch(rig: Rig | str | os.PathLike[str], inputs: Sequence[str | os.PathL
     t_setup = time.perf_counter() - t
     get_matcher(setup.config.method, **setup.config.matcher_params)  # tuning parameters checked before any frame
     run: dict[str, Any] = {
-        "command": "batch", "prismstereo": __version__, "versions": _versions(),
+        "command": "batch", "prismstereo": __version__, "versions": library_versions(),
         "rig": rig_obj.to_dict(), "config": setup.config.to_dict(),
         "faces": {"left": int(setup.pair.left_face), "right": int(setup.pair.right_face)},
         "disparity_range": list(setup.disparity_range), "outputs": list(chosen),

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 from prismstereo.depth.pipeline import (
-    STAGES,
-    TRIANGULATIONS,
     DepthConfig,
     DepthResult,
     DepthSetup,
@@ -12,22 +10,22 @@ from prismstereo.depth.pipeline import (
     prepare_depth,
     run_depth,
     run_depth_frame,
-    triangulate_matches,
     validate_image,
     validate_inputs,
 )
 from prismstereo.depth.triangulation import (
+    TRIANGULATIONS,
     Triangulation,
     depth_from_disparity,
     rectified_to_world,
     reproject_disparity,
     triangulate_dlt,
     triangulate_exact,
+    triangulate_matches,
     triangulate_midpoint,
 )
 
 __all__ = [
-    "STAGES",
     "TRIANGULATIONS",
     "DepthConfig",
     "DepthResult",

@@ -1,8 +1,10 @@
 """Files of a depth run (docs/cli.md, docs/formats.md), written together through a staging folder.
 
-``disparity.pfm`` (px, inf = invalid), ``disparity.png`` (colourised), ``depth.pfm`` (world Z in mm on the
-rectified left grid, inf = invalid), ``points.ply`` (valid points, mm, world frame, RGB), ``report.png``
-and ``run.json``. If anything fails, the output folder is left as it was.
+A pair run: ``disparity.pfm`` (px, inf = invalid), ``disparity.png`` (colourised), ``depth.pfm`` (world Z in
+mm on the rectified left grid, inf = invalid), ``points.ply`` (valid points, mm, world frame, RGB),
+``report.png`` and ``run.json``. An all-view run (no disparity; its grid is the real capture):
+``depth.pfm``, ``depth.png`` and ``views.png`` (views that triangulated each pixel), ``points.ply`` and
+``run.json``. If anything fails, the output folder is left as it was.
 """
 
 from __future__ import annotations
@@ -12,12 +14,25 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from prismstereo.depth.pipeline import DepthResult
 from prismstereo.io import output_dir, write_image, write_json, write_pfm, write_ply
+from prismstereo.viz.colorize import colorize_depth, colorize_disparity
+from prismstereo.viz.report import write_depth_report
 
-__all__ = ["OUTPUT_FILES", "write_depth_files", "write_depth_outputs"]
+__all__ = ["ALL_VIEW_FILES", "OUTPUT_FILES", "output_files", "write_depth_files", "write_depth_outputs"]
 
+#: the files of a pair run
 OUTPUT_FILES = ("disparity.pfm", "disparity.png", "depth.pfm", "points.ply", "report.png", "run.json")
+#: the files of an all-view run
+ALL_VIEW_FILES = ("depth.pfm", "depth.png", "views.png", "points.ply", "run.json")
+
+
+def output_files(result: DepthResult, *, report: bool = True) -> list[str]:
+    """The names :func:`write_depth_outputs` writes for ``result``."""
+    names = OUTPUT_FILES if result.pair is not None else ALL_VIEW_FILES
+    return [n for n in names if report or n != "report.png"]
 
 
 def write_depth_outputs(result: DepthResult, out_dir: str | os.PathLike[str], *, report: bool = True,
@@ -44,7 +59,7 @@ def write_depth_outputs(result: DepthResult, out_dir: str | os.PathLike[str], *,
     summary = result.summary()
     if extra:
         summary.update(extra)
-    names = [n for n in OUTPUT_FILES if report or n != "report.png"]
+    names = output_files(result, report=report)
     target = Path(out_dir)
     with output_dir(target) as stage:
         write_depth_files(result, stage, names, summary)
@@ -54,29 +69,33 @@ def write_depth_outputs(result: DepthResult, out_dir: str | os.PathLike[str], *,
 
 
 def write_depth_files(result: DepthResult, folder: Path, names: Sequence[str], summary: dict[str, Any]) -> None:
-    """Write the files ``names`` (among :data:`OUTPUT_FILES`) of ``result`` into an existing ``folder``.
+    """Write the files ``names`` (among :data:`OUTPUT_FILES` and :data:`ALL_VIEW_FILES`) of ``result`` into an
+    existing ``folder``.
 
     The one writer of a depth run's files, for :func:`write_depth_outputs` and the per-frame folders of a
     batch; ``folder`` is a staging folder, so the caller decides how the files appear together.
-    ``summary`` is what ``run.json`` and the report show.
+    ``summary`` is what ``run.json`` and the report show. Files that need what the run has not (a
+    disparity or a report of an all-view run, the view counts of a pair run) are skipped.
     """
-    from prismstereo.viz.colorize import colorize_disparity
-
-    assert result.disparity is not None and result.depth is not None
     pts, cols = result.point_cloud()
-    if "disparity.pfm" in names:
-        write_pfm(folder / "disparity.pfm", result.disparity)
-    if "disparity.png" in names:
-        write_image(folder / "disparity.png", colorize_disparity(result.disparity, colorbar="disparity (px)"))
+    disparity = result.disparity
+    if "disparity.pfm" in names and disparity is not None:
+        write_pfm(folder / "disparity.pfm", disparity)
+    if "disparity.png" in names and disparity is not None:
+        write_image(folder / "disparity.png", colorize_disparity(disparity, colorbar="disparity (px)"))
     if "depth.pfm" in names:
         write_pfm(folder / "depth.pfm", result.depth)
+    if "depth.png" in names and result.pair is None:
+        write_image(folder / "depth.png", colorize_depth(result.depth, colorbar="depth Z (mm)"))
+    if "views.png" in names and result.view_counts is not None:
+        counts = result.view_counts
+        write_image(folder / "views.png", colorize_disparity(
+            np.where(counts > 0, counts.astype(np.float32), np.float32(np.nan)), vmin=0.0,
+            vmax=float(len(result.faces)), colorbar="views per pixel"))
     if "points.ply" in names:
         write_ply(folder / "points.ply", pts, cols)
-    if "report.png" in names:
-        from prismstereo.viz.report import write_depth_report
-
-        assert result.right is not None and result.left is not None
+    if "report.png" in names and disparity is not None and result.right is not None:
         write_depth_report(folder / "report.png", capture=result.image, left=result.left, right=result.right,
-                           disparity=result.disparity, depth=result.depth, points=pts, colors=cols, summary=summary)
+                           disparity=disparity, depth=result.depth, points=pts, colors=cols, summary=summary)
     if "run.json" in names:
         write_json(folder / "run.json", summary)

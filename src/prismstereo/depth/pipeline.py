@@ -1,79 +1,114 @@
-"""The end-to-end depth pipeline: capture → virtual cameras → rectify → match → triangulate.
+"""The depth pipeline: capture → virtual cameras → rectify → match → refine → triangulate, as ordered steps.
 
-``run_depth(rig, image, config=DepthConfig(...))`` runs a registry of named stages (pandora style) over
-one shared state and returns a :class:`DepthResult`; :func:`write_depth_outputs` writes the files of
-docs/cli.md (``disparity.pfm``, ``disparity.png``, ``depth.pfm``, ``points.ply``, ``report.png``,
-``run.json``) through a staging folder, so a failed run leaves nothing behind.
+``run_depth(rig, image, config=DepthConfig(...))`` returns one :class:`DepthResult` for a pair of faces
+or for every face of an N-face prism (``views="all"``). Each step is a plain function that takes typed
+values and returns a small frozen dataclass, in this order:
+
+pair of faces
+    :func:`validate_inputs` → :func:`virtual_cameras` → :func:`rectify_geometry` → (the capture warped,
+    :func:`search_region`) → :func:`match_pair` → :func:`refine_matches` → :func:`remove_speckles` →
+    :func:`triangulate_disparity` → :func:`diagnose`
+all faces (N ≥ 3)
+    :func:`validate_inputs` → :func:`search_region_all_views` → :func:`sweep_all_views` → :func:`diagnose`
+
+The per-rig part of a pair run (cameras, rectification, search region) is a :class:`DepthSetup`
+(:func:`prepare_depth`) that a sequence computes once and shares between frames (:func:`run_depth_frame`).
 
 Everything the user can get wrong (image size, views, depth range, region of interest, method) is checked
-in :func:`validate_inputs` before any heavy work.
+in :func:`validate_inputs` before any heavy work. The files of a run are written by
+:func:`prismstereo.depth.outputs.write_depth_outputs`; its accuracy against ground truth is
+:func:`prismstereo.evaluation.depth_metrics.evaluate_depth`.
 
-The depth map is the world Z (mm, real camera frame) of the point triangulated at each pixel of the
-RECTIFIED LEFT view; the point cloud holds the same points (valid ones only) in the world frame.
+The depth map of a pair run is the world Z (mm, real camera frame) of the point triangulated at each pixel
+of the RECTIFIED LEFT view; that of an all-view run is on the REAL capture's grid (the reference face's
+pixels). The point cloud holds the same points (valid ones only) in the world frame.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
-import platform
-import sys
 import time
-from collections.abc import Callable
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+import cv2
 import numpy as np
 
 from prismstereo import __version__
-from prismstereo.config import Rig
-from prismstereo.depth.triangulation import (
-    Triangulation,
-    rectified_to_world,
-    triangulate_dlt,
-    triangulate_exact,
-    triangulate_midpoint,
+from prismstereo.cameras import VirtualView, calibrate_rig
+from prismstereo.config import DEFAULT_DEPTH_RANGE_MM, Rig
+from prismstereo.depth.refine import refine_disparity
+from prismstereo.depth.search_range import (
+    SearchRange,
+    auto_search_range,
+    auto_search_range_of_capture,
+    depth_warnings,
+    rig_search_range,
 )
+from prismstereo.depth.triangulation import TRIANGULATIONS, triangulate_matches
 from prismstereo.errors import ConfigError, GeometryError, ImageError
+from prismstereo.io.jsonio import library_versions
+from prismstereo.matching import available_matchers, match
+from prismstereo.matching.registry import resolved_params
+from prismstereo.multiview.prism import SweepParams, depth_all_views
+from prismstereo.progress import progress_bar
+from prismstereo.rectify import RectifiedPair, common_view, rectify_pair
 
 log = logging.getLogger(__name__)
 
 __all__ = [
-    "STAGES",
+    "DEFAULT_DEPTH_RANGE_MM",
     "TRIANGULATIONS",
     "DepthConfig",
     "DepthResult",
     "DepthSetup",
+    "Disparities",
+    "Points",
+    "SearchRegion",
     "default_views",
+    "diagnose",
+    "match_pair",
     "prepare_depth",
+    "rectify_geometry",
+    "refine_matches",
+    "remove_speckles",
     "run_depth",
     "run_depth_frame",
+    "search_region",
+    "search_region_all_views",
+    "sweep_all_views",
+    "triangulate_disparity",
+    "validate_image",
     "validate_inputs",
+    "virtual_cameras",
 ]
-
-#: triangulation methods: exact refractive rays, midpoint / DLT of the virtual pinholes, Q of the pair
-TRIANGULATIONS = ("exact", "midpoint", "dlt", "q")
-DEFAULT_DEPTH_RANGE_MM = (800.0, 5000.0)
 
 
 @dataclass(frozen=True, kw_only=True)
 class DepthConfig:
-    """Resolved configuration of one depth run (all of it goes into ``run.json``).
+    """Configuration of one depth run (all of it, resolved, goes into ``run.json``).
 
     Attributes
     ----------
     method : str
         Matcher name (any of :func:`prismstereo.matching.available_matchers`).
     matcher_params : dict
-        Keyword tuning parameters of the matcher.
+        Keyword tuning parameters of the matcher; after :func:`validate_inputs`, every parameter of the
+        matcher with its default (:func:`prismstereo.matching.registry.resolved_params`).
     depth_range : (min, max) or None
         World depths to search, mm; the disparity search range follows from it (clipped to what the
         common view of the two sub-images allows). None: derived from the rig and the images
         (:func:`prismstereo.depth.search_range.auto_search_range`).
     roi : (x, y, w, h) or None
         Region of interest in the rectified left image, pixels; None = the whole view.
-    views : (i, j) or None
-        Faces to pair; None = the default pair (:func:`default_views`).
+    views : (i, j), "all" or None
+        Faces to pair; ``"all"``: every face of an N ≥ 3 prism (plane sweep in a reference view,
+        :func:`prismstereo.multiview.prism.depth_all_views`; a bi-prism's "all" is its pair); None = the
+        default pair (:func:`default_views`).
     triangulation : str
         ``exact`` (default; exact refractive rays), ``midpoint`` (virtual pinhole rays, thesis Eq. 7.19),
         ``dlt`` (linear, virtual pinholes' P) or ``q`` (rectified Q reprojection, thesis Eq. 7.23).
@@ -102,7 +137,7 @@ class DepthConfig:
     matcher_params: dict[str, Any] = field(default_factory=dict)
     depth_range: tuple[float, float] | None = None
     roi: tuple[int, int, int, int] | None = None
-    views: tuple[int, int] | None = None
+    views: tuple[int, int] | str | None = None
     triangulation: str = "exact"
     calibration: str = "fit"
     use_filled: bool = False
@@ -113,141 +148,293 @@ class DepthConfig:
     speckle_fraction: float | None = 0.001
 
     def to_dict(self) -> dict[str, Any]:
+        """Plain JSON types (tuples as lists); :meth:`from_dict` reads it back."""
         d = asdict(self)
         d["depth_range"] = list(self.depth_range) if self.depth_range is not None else None
         d["roi"] = list(self.roi) if self.roi is not None else None
-        d["views"] = list(self.views) if self.views is not None else None
+        d["views"] = list(self.views) if isinstance(self.views, tuple) else self.views
         return d
 
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> DepthConfig:
+        """The configuration recorded by :meth:`to_dict` (``run.json``'s ``config``).
 
-@dataclass
+        Raises
+        ------
+        ConfigError
+            A key that is not a field of the configuration.
+        """
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise ConfigError(f"expected depth configuration keys among {', '.join(sorted(names))}, got {unknown}")
+        d = dict(data)
+        for key, n in (("depth_range", 2), ("roi", 4), ("views", 2)):
+            v = d.get(key)
+            if isinstance(v, list):
+                if len(v) != n:
+                    raise ConfigError(f"{key}: expected {n} values, got {v}")
+                d[key] = tuple(v)
+        if "matcher_params" in d:
+            d["matcher_params"] = dict(d["matcher_params"] or {})
+        return cls(**d)
+
+
+# --------------------------------------------------------------------------- typed values between steps
+@dataclass(frozen=True, eq=False)
+class SearchRegion:
+    """What a pair run searches: the pixels of the rectified left view and the disparities.
+
+    Attributes
+    ----------
+    mask : (h, w) bool
+        Region of interest ∩ the common view of the two faces in the depth range.
+    disparity_range : (min, max)
+        Integer disparity search range, px.
+    depth_range : (min, max)
+        Depths searched, mm.
+    source : str
+        Where the depth range came from: ``"given"``, ``"rig"`` or ``"rig+images"``.
+    warnings : tuple of str
+    """
+
+    mask: np.ndarray
+    disparity_range: tuple[int, int]
+    depth_range: tuple[float, float]
+    source: str
+    warnings: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True, eq=False)
+class Disparities:
+    """The matcher's output on the rectified left grid (NaN invalid and outside the region).
+
+    Attributes
+    ----------
+    disparity : (h, w) float32
+        Cross-checked matches (or the dense map with ``use_filled``) that land inside the right view.
+    filled : (h, w) float32
+        The matcher's dense (hole-filled) output.
+    raw : (h, w) float32
+        The matcher's cross-checked output before the right-view check.
+    timings : dict
+        The matcher's own seconds per stage.
+    """
+
+    disparity: np.ndarray
+    filled: np.ndarray
+    raw: np.ndarray
+    timings: dict[str, float]
+
+
+@dataclass(frozen=True, eq=False)
+class Points:
+    """Triangulated points on a grid.
+
+    Attributes
+    ----------
+    points : (h, w, 3) float64
+        World points, mm, NaN invalid.
+    depth : (h, w) float32
+        Their world Z, mm, NaN invalid.
+    gaps : (h, w) float32
+        Ray gap of each point, mm (NaN for ``dlt``/``q`` and invalid).
+    valid : (h, w) bool
+    """
+
+    points: np.ndarray
+    depth: np.ndarray
+    gaps: np.ndarray
+    valid: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class DepthSetup:
+    """The per-rig part of a pair run, computed once and shared by every frame of a sequence (batch).
+
+    Attributes
+    ----------
+    rig : Rig
+    config : DepthConfig
+        Resolved (views filled in, matcher parameters with their defaults).
+    views : tuple of VirtualView
+        The virtual cameras.
+    pair : RectifiedPair
+        Rectification of the chosen pair, with its remap tables.
+    region : SearchRegion
+    timings : dict
+        Seconds spent on the set-up steps.
+    """
+
+    rig: Rig
+    config: DepthConfig
+    views: tuple[VirtualView, ...]
+    pair: RectifiedPair
+    region: SearchRegion
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def disparity_range(self) -> tuple[int, int]:
+        return self.region.disparity_range
+
+    @property
+    def depth_range(self) -> tuple[float, float]:
+        return self.region.depth_range
+
+    @property
+    def roi_mask(self) -> np.ndarray:
+        return self.region.mask
+
+
+@dataclass(frozen=True, eq=False)
 class DepthResult:
-    """Everything a depth run produced (arrays in the rectified LEFT view unless said otherwise).
+    """Everything a depth run produced.
+
+    The grid of the arrays is the rectified LEFT view for a pair run (``pair`` set) and the REAL capture
+    for an all-view run (``pair`` None).
 
     Attributes
     ----------
     config : DepthConfig
-        With ``views`` resolved.
+        Resolved.
     rig : Rig
     image : (H, W, 3) uint8
         The capture.
-    pair : RectifiedPair
-        The rectification of the two views (see :mod:`prismstereo.rectify`).
-    left, right : (h, w, 3) uint8
-        Rectified sub-images.
-    disparity : (h, w) float32
-        Disparity used for triangulation, px, NaN invalid (outside the ROI too).
-    disparity_filled : (h, w) float32
-        The matcher's dense output (NaN outside the ROI).
+    views : tuple of VirtualView
+        The virtual cameras (empty for an all-view run, which calibrates its own).
+    pair : RectifiedPair or None
+        The rectification of the two views (pair runs).
+    left : (h, w, 3) uint8
+        The image on the result's grid (rectified left sub-image, or the capture): the points' colours.
+    right : (h, w, 3) uint8 or None
+        Rectified right sub-image (pair runs).
+    disparity : (h, w) float32 or None
+        Disparity used for triangulation, px, NaN invalid (pair runs).
+    disparity_filled : (h, w) float32 or None
+        The matcher's dense output (NaN outside the region; pair runs).
+    raw_disparity : (h, w) float32 or None
+        The matcher's cross-checked output (pair runs).
     points : (h, w, 3) float64
         Triangulated world points, mm, NaN invalid.
     depth : (h, w) float32
         World Z of ``points``, mm, NaN invalid.
-    gaps : (h, w) float32
-        Ray gap of each point, mm (NaN for ``dlt``/``q`` and invalid).
+    gaps : (h, w) float32 or None
+        Ray gap of each point, mm.
     valid : (h, w) bool
-    disparity_range : (min, max)
-        Integer search range used.
-    timings : dict
-        Seconds per stage.
     roi_mask : (h, w) bool
-        The pixels matched: region of interest ∩ the common view of the two faces in the depth range.
+        The pixels searched: ROI ∩ common view (pair), or the reference face's region (all views).
+    disparity_range : (min, max)
+        Integer search range (pair runs; (0, 0) otherwise).
+    depth_range : (min, max)
+        The depths searched, mm.
+    depth_range_source : str
+        ``"given"``, ``"rig"`` or ``"rig+images"``.
+    faces : tuple of int
+        (left, right) of a pair; (reference, others...) of an all-view run.
     confidence : (h, w) float32 or None
         ZNCC of the refined matches (NaN where not refined).
+    view_counts : (h, w) uint8 or None
+        Views that triangulated each pixel (all-view runs).
     stage_counts : dict
-        Pixels left after each filtering stage (cross-checked matches, refined and confident, despeckled).
+        Pixels left after each filtering step (cross-checked matches, refined and confident, despeckled).
+    timings, match_timings : dict
+        Seconds per step, and the matcher's own seconds per stage.
+    warnings : tuple of str
+        One-line warnings: the result may be unreliable (also logged and written to run.json).
+    sweep : dict
+        The all-view plane sweep's hypotheses (``n``, ``min_mm``, ``max_mm``); empty for pairs.
     accuracy : dict or None
-        Filled by :func:`prismstereo.evaluation.depth_metrics.evaluate_depth` when ground truth is known
-        (``ground_truth`` then holds the :class:`~prismstereo.evaluation.depth_metrics.DepthGroundTruth`).
+        :func:`prismstereo.evaluation.depth_metrics.evaluate_depth`'s result, when the caller measured it
+        (``dataclasses.replace(result, accuracy=...)``).
     """
 
     config: DepthConfig
     rig: Rig
     image: np.ndarray
-    pair: Any = None
-    views: list[Any] = field(default_factory=list)
-    left: np.ndarray | None = None
-    right: np.ndarray | None = None
-    disparity: np.ndarray | None = None
-    disparity_filled: np.ndarray | None = None
-    points: np.ndarray | None = None
-    depth: np.ndarray | None = None
-    gaps: np.ndarray | None = None
-    valid: np.ndarray | None = None
-    roi_mask: np.ndarray | None = None  # pixels matched: ROI ∩ common view of the two faces
-    disparity_range: tuple[int, int] = (0, 0)
+    views: tuple[VirtualView, ...]
+    pair: RectifiedPair | None
+    left: np.ndarray
+    right: np.ndarray | None
+    disparity: np.ndarray | None
+    disparity_filled: np.ndarray | None
+    raw_disparity: np.ndarray | None
+    points: np.ndarray
+    depth: np.ndarray
+    gaps: np.ndarray | None
+    valid: np.ndarray
+    roi_mask: np.ndarray
+    disparity_range: tuple[int, int]
+    depth_range: tuple[float, float]
+    depth_range_source: str
+    faces: tuple[int, ...]
+    confidence: np.ndarray | None = None
+    view_counts: np.ndarray | None = None
+    stage_counts: dict[str, int] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
     match_timings: dict[str, float] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+    sweep: dict[str, Any] = field(default_factory=dict)
     accuracy: dict[str, Any] | None = None
-    ground_truth: Any = None
-    confidence: np.ndarray | None = None
-    stage_counts: dict[str, int] = field(default_factory=dict)
-    #: the depths searched (mm) and where they came from ("given", "rig", "rig+images")
-    depth_range: tuple[float, float] = (0.0, 0.0)
-    depth_range_source: str = "given"
-    #: one-line warnings: the result may be unreliable (also logged and written to run.json)
-    warnings: list[str] = field(default_factory=list)
-    raw_disparity: np.ndarray | None = None
-    raw_valid: np.ndarray | None = None
-
-    @property
-    def faces(self) -> tuple[int, int]:
-        """(left face, right face) of the rectified pair."""
-        return (int(self.pair.left_face), int(self.pair.right_face))
 
     def point_cloud(self) -> tuple[np.ndarray, np.ndarray]:
-        """Valid points (N, 3) mm (world frame) and their colours (N, 3) uint8 from the rectified left view."""
-        assert self.points is not None and self.valid is not None and self.left is not None
+        """Valid points (N, 3) mm (world frame) and their colours (N, 3) uint8 from :attr:`left`."""
         pts = self.points[self.valid]
         cols = self.left[self.valid] if self.left.ndim == 3 else np.repeat(self.left[self.valid][:, None], 3, 1)
         return pts, cols.astype(np.uint8)
 
+    def grid_to_real(self, px: np.ndarray) -> np.ndarray:
+        """Real capture pixels (N, 2) of grid pixels (N, 2) (x, y)."""
+        if self.pair is None:
+            return np.asarray(px, dtype=np.float64)
+        return np.asarray(self.pair.rectified_to_real(px, "left"), dtype=np.float64)
+
+    def searched(self) -> np.ndarray:
+        """(h, w) bool: the pixels that could get a point (the region, inside the left view's valid area)."""
+        if self.pair is None:
+            return self.roi_mask
+        return self.roi_mask & np.asarray(self.pair.valid_masks()[0], dtype=bool)
+
     def counts(self) -> dict[str, int]:
-        assert self.valid is not None and self.roi_mask is not None and self.disparity_filled is not None
-        region = self.roi_mask & self.pair_valid_left()
         return {
             "rectified_pixels": int(self.valid.size),
-            "region_pixels": int(region.sum()),
+            "region_pixels": int(self.searched().sum()),
             **self.stage_counts,
             "points": int(self.valid.sum()),
         }
 
-    def pair_valid_left(self) -> np.ndarray:
-        masks = self.pair.valid_masks()
-        return np.asarray(masks[0], dtype=bool)
+    def faces_dict(self) -> dict[str, Any]:
+        if self.pair is not None:
+            return {"left": self.faces[0], "right": self.faces[1]}
+        return {"reference": self.faces[0], "others": list(self.faces[1:])}
 
     def summary(self) -> dict[str, Any]:
-        """The JSON-able summary written to ``run.json``."""
-        return {
+        """The JSON-able summary written to ``run.json`` (the resolved configuration included)."""
+        out: dict[str, Any] = {
             "prismstereo": __version__,
-            "versions": _versions(),
+            "versions": library_versions(),
             "rig": self.rig.to_dict(),
             "config": self.config.to_dict(),
-            "faces": {"left": self.faces[0], "right": self.faces[1]},
+            "faces": self.faces_dict(),
             "image_size": [int(self.image.shape[1]), int(self.image.shape[0])],
-            "rectified_size": [int(self.left.shape[1]), int(self.left.shape[0])] if self.left is not None else None,
+            "rectified_size": [int(self.left.shape[1]), int(self.left.shape[0])] if self.pair is not None else None,
             "disparity_range": list(self.disparity_range),
             "depth_range_mm": [round(float(v), 1) for v in self.depth_range],
             "depth_range_source": self.depth_range_source,
             "warnings": list(self.warnings),
-            "baseline_mm": float(getattr(self.pair, "baseline_mm", float("nan"))),
+            "baseline_mm": float(self.pair.baseline_mm) if self.pair is not None else None,
             "timings_s": {k: round(v, 4) for k, v in self.timings.items()},
             "matcher_timings_s": {k: round(v, 4) for k, v in self.match_timings.items()},
             "counts": self.counts(),
             "accuracy": self.accuracy,
         }
+        if self.view_counts is not None:
+            per = np.bincount(self.view_counts.ravel(), minlength=len(self.faces) + 1)
+            out["all_views"] = {"depth_hypotheses": dict(self.sweep),
+                                "pixels_by_view_count": {str(k): int(v) for k, v in enumerate(per) if k > 0}}
+        return out
 
 
-def _versions() -> dict[str, str]:
-    import cv2
-    import numba
-    import scipy
-
-    return {"python": platform.python_version(), "numpy": np.__version__, "scipy": scipy.__version__,
-            "opencv": cv2.__version__, "numba": numba.__version__}
-
-
-# --------------------------------------------------------------------------- validation
+# --------------------------------------------------------------------------- step 1: validation
 def default_views(rig: Rig) -> tuple[int, int]:
     """The pair of faces used when none is given: (1, 0) for a bi-prism (left, right), else (0, 1)."""
     return (1, 0) if rig.prism.faces == 2 else (0, 1)
@@ -274,17 +461,14 @@ def validate_image(rig: Rig, image: Any) -> np.ndarray:
     return np.ascontiguousarray(img)
 
 
-def validate_inputs(rig: Rig, image: Any, config: DepthConfig) -> tuple[np.ndarray, DepthConfig]:
-    """Check everything a user can get wrong before any heavy work; return the image and resolved config.
+def validate_config(rig: Rig, config: DepthConfig) -> DepthConfig:
+    """Check the configuration against the rig; return it resolved (views, matcher parameters' defaults).
 
     Raises
     ------
-    ImageError, ConfigError, GeometryError
+    ConfigError
         One-line "expected …, got …" messages.
     """
-    from prismstereo.matching import available_matchers
-
-    img = validate_image(rig, image)
     if config.method.lower() not in available_matchers():
         raise ConfigError(f"--method: expected one of {', '.join(available_matchers())}, got {config.method!r}")
     if config.triangulation not in TRIANGULATIONS:
@@ -300,148 +484,114 @@ def validate_inputs(rig: Rig, image: Any, config: DepthConfig) -> tuple[np.ndarr
             raise ConfigError(f"--depth-range: expected MIN,MAX mm with {back:g} (the prism's back plane) < MIN "
                               f"< MAX, got {zmin:g},{zmax:g}")
         depth_range = (zmin, zmax)
-    views = config.views if config.views is not None else default_views(rig)
-    if len(views) != 2:
-        raise ConfigError(f"--views: expected two face indices I,J, got {list(views)}")
     n = rig.prism.faces
-    for v in views:
-        if not 0 <= int(v) < n:
-            raise ConfigError(f"--views: expected face indices in 0..{n - 1}, got {list(views)}")
-    if int(views[0]) == int(views[1]):
-        raise ConfigError(f"--views: expected two different faces, got {list(views)}")
+    views: tuple[int, int] | str
+    if isinstance(config.views, str):
+        if config.views.lower() != "all":
+            raise ConfigError(f"--views: expected face indices I,J or 'all', got {config.views!r}")
+        views = "all" if n >= 3 else default_views(rig)
+    else:
+        pair = config.views if config.views is not None else default_views(rig)
+        if len(pair) != 2:
+            raise ConfigError(f"--views: expected two face indices I,J, got {list(pair)}")
+        for v in pair:
+            if not 0 <= int(v) < n:
+                raise ConfigError(f"--views: expected face indices in 0..{n - 1}, got {list(pair)}")
+        if int(pair[0]) == int(pair[1]):
+            raise ConfigError(f"--views: expected two different faces, got {list(pair)}")
+        views = (int(pair[0]), int(pair[1]))
     if config.roi is not None:
         x, y, w, h = config.roi
         if w <= 0 or h <= 0 or x < 0 or y < 0:
             raise ConfigError(f"--roi: expected x,y,w,h with x, y >= 0 and w, h > 0, got {list(config.roi)}")
     if config.max_gap_mm is not None and not config.max_gap_mm > 0:
         raise ConfigError(f"max_gap_mm: expected a positive number, got {config.max_gap_mm!r}")
-    resolved = DepthConfig(**{**asdict(config), "views": (int(views[0]), int(views[1])),
-                              "method": config.method.lower(), "depth_range": depth_range})
-    return img, resolved
+    method = config.method.lower()
+    params = resolved_params(method, **config.matcher_params)
+    return dataclasses.replace(config, views=views, method=method, depth_range=depth_range, matcher_params=params)
 
 
-# --------------------------------------------------------------------------- stages
-Stage = Callable[[DepthResult], None]
-#: ordered registry of pipeline stages: name -> function(state)
-STAGES: dict[str, Stage] = {}
-
-
-def register_stage(name: str) -> Callable[[Stage], Stage]:
-    def deco(fn: Stage) -> Stage:
-        STAGES[name] = fn
-        return fn
-
-    return deco
-
-
-@register_stage("cameras")
-def _stage_cameras(st: DepthResult) -> None:
-    from prismstereo.cameras import calibrate_rig
-
-    if st.views:  # prepared once for many frames (prepare_depth)
-        return
-    st.views = calibrate_rig(st.rig, method=st.config.calibration)
-
-
-def common_view(pair: Any, depth_min_mm: float, depth_max_mm: float, *, n_depths: int = 12
-                ) -> tuple[np.ndarray, tuple[int, int]]:
-    """Where the two rectified views of a pair overlap for world depths in a range, and its disparities.
-
-    The ray of every valid rectified-left pixel is followed to ``n_depths`` world depths between the
-    bounds (geometric steps); a sample counts where its point projects into the valid region of the
-    rectified right image (thesis Eq. 7.22: d = f λ / Z along the rectified axis).
-
-    Returns
-    -------
-    mask : (h, w) bool
-        Left pixels that see a point of the right view at some depth in the range.
-    (min_disp, max_disp) : ints
-        Floor / ceil of the disparities of those samples: the search range clipped to the common view.
+def validate_inputs(rig: Rig, image: Any, config: DepthConfig) -> tuple[np.ndarray, DepthConfig]:
+    """Check everything a user can get wrong before any heavy work; return the image and resolved config.
 
     Raises
     ------
-    GeometryError
-        If no sample is seen by both views: the views do not overlap at these depths.
+    ImageError, ConfigError, GeometryError
+        One-line "expected …, got …" messages.
     """
-    vl, vr = (np.asarray(m, dtype=bool) for m in pair.valid_masks())
-    ys, xs = np.nonzero(vl)
-    mask = np.zeros(vl.shape, dtype=bool)
-    if ys.size == 0:
-        raise GeometryError("expected a rectified left view with valid pixels, got none")
-    px = np.stack([xs, ys], axis=1).astype(np.float64)
-    K = np.asarray(pair.K, dtype=np.float64)
-    R = np.asarray(pair.R_left, dtype=np.float64)
-    C = np.asarray(pair.C_left, dtype=np.float64)
-    rays = np.concatenate([px, np.ones((px.shape[0], 1))], axis=1) @ np.linalg.inv(K).T @ R  # world dirs
-    seen = np.zeros(ys.size, dtype=bool)
-    lo, hi = np.inf, -np.inf
-    for z in np.geomspace(depth_min_mm, depth_max_mm, n_depths):
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = (z - C[2]) / rays[:, 2]
-        X = C + np.where(s > 0, s, np.nan)[:, None] * rays
-        xr = np.asarray(pair.project(X, "right"), dtype=np.float64)
-        ok = np.all(np.isfinite(xr), axis=1)
-        ci = np.rint(np.where(ok, xr[:, 0], -1)).astype(np.int64)
-        ri = np.rint(np.where(ok, xr[:, 1], -1)).astype(np.int64)
-        ok &= (ci >= 0) & (ci < vr.shape[1]) & (ri >= 0) & (ri < vr.shape[0])
-        ok[ok] &= vr[ri[ok], ci[ok]]
-        if ok.any():
-            d = px[ok, 0] - xr[ok, 0]
-            lo, hi = min(lo, float(d.min())), max(hi, float(d.max()))
-        seen |= ok
-    if not seen.any():
-        raise GeometryError(f"expected faces {pair.left_face} and {pair.right_face} to see a common part of the "
-                            f"scene at {depth_min_mm:g}–{depth_max_mm:g} mm, got views that do not overlap "
-                            "(choose other --views or --depth-range)")
-    mask[ys[seen], xs[seen]] = True
-    return mask, (max(0, int(np.floor(lo))), int(np.ceil(hi)))
+    img = validate_image(rig, image)
+    return img, validate_config(rig, config)
 
 
-@register_stage("rectify")
-def _stage_rectify(st: DepthResult) -> None:
-    try:
-        from prismstereo.rectify import rectify_pair
-    except ImportError:  # the package may not re-export it
-        from prismstereo.rectify.rectification import rectify_pair
+# --------------------------------------------------------------------------- pair steps
+def virtual_cameras(rig: Rig, config: DepthConfig) -> tuple[VirtualView, ...]:
+    """The virtual cameras of every face, with the configuration's model (thesis §3.2, §4.1)."""
+    return tuple(calibrate_rig(rig, method=config.calibration))
 
-    if st.pair is not None:  # geometry prepared once for many frames (prepare_depth): only warp the capture
-        left, right = st.pair.rectify_images(st.image)
-        st.left, st.right = np.asarray(left), np.asarray(right)
-        return
-    assert st.config.views is not None
-    by_face = {v.face: v for v in st.views}
-    a, b = st.config.views
-    st.pair = rectify_pair(st.rig, by_face[a], by_face[b])
-    left, right = st.pair.rectify_images(st.image)
-    st.left, st.right = np.asarray(left), np.asarray(right)
-    width = st.left.shape[1]
-    if st.config.depth_range is None:
-        from prismstereo.depth.search_range import auto_search_range
 
-        found = auto_search_range(st.pair, st.rig.prism.back_distance, st.left, st.right)
-        st.warnings.extend(found.warnings)
+def _pair_faces(config: DepthConfig) -> tuple[int, int]:
+    if not isinstance(config.views, tuple):
+        raise ConfigError(f"expected a resolved pair of views, got {config.views!r}")
+    return config.views
+
+
+def rectify_geometry(rig: Rig, views: Sequence[VirtualView], config: DepthConfig) -> RectifiedPair:
+    """The rectification of the configuration's pair of faces (thesis §3.2.2), with its remap tables."""
+    by_face = {v.face: v for v in views}
+    a, b = _pair_faces(config)
+    return rectify_pair(rig, by_face[a], by_face[b])
+
+
+def rectify_capture(pair: RectifiedPair, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rectified left and right sub-images of a capture."""
+    left, right = pair.rectify_images(image)
+    return np.asarray(left), np.asarray(right)
+
+
+def search_region(rig: Rig, pair: RectifiedPair, config: DepthConfig, left: np.ndarray | None = None,
+                  right: np.ndarray | None = None) -> SearchRegion:
+    """The pixels and disparities to search.
+
+    With the configuration's depth range: its common view; without one, the range the rig allows,
+    narrowed by a coarse match of the rectified images when they are given
+    (:func:`~prismstereo.depth.search_range.auto_search_range`; a sequence passes none, since one frame's
+    content says nothing of the next's).
+
+    Raises
+    ------
+    ConfigError
+        A region of interest outside the rectified left view.
+    GeometryError
+        Views that do not overlap in the depth range.
+    """
+    width = pair.size[0] if left is None else left.shape[1]
+    if config.depth_range is None:
+        if left is not None and right is not None:
+            found = auto_search_range(pair, rig.prism.back_distance, left, right)
+        else:
+            found = rig_search_range(pair, rig.prism.back_distance)
         zmin, zmax = found.depth_mm
-        common, _ = common_view(st.pair, zmin, zmax)
+        common, _ = common_view(pair, zmin, zmax)
         lo, hi = found.disparity_px
-        st.depth_range_source = found.source
+        source, warnings = found.source, tuple(found.warnings)
     else:
-        zmin, zmax = st.config.depth_range
-        common, (lo, hi) = common_view(st.pair, zmin, zmax)
-    st.depth_range = (zmin, zmax)
+        zmin, zmax = config.depth_range
+        common, (lo, hi) = common_view(pair, zmin, zmax)
+        source, warnings = "given", ()
     hi = min(hi, width - 1)
     lo = min(lo, hi)
-    st.disparity_range = (lo, hi)
-    h = st.left.shape[0]
+    h = common.shape[0]
     mask = np.zeros((h, width), dtype=bool)
-    if st.config.roi is not None:
-        x, y, w_, h_ = st.config.roi
+    if config.roi is not None:
+        x, y, w_, h_ = config.roi
         if x >= width or y >= h:
             raise ConfigError(f"--roi: expected a region inside the {width}×{h} rectified left view, "
-                              f"got {list(st.config.roi)}")
+                              f"got {list(config.roi)}")
         mask[y:y + h_, x:x + w_] = True
     else:
         mask[:] = True
-    st.roi_mask = mask & common
+    return SearchRegion(mask=mask & common, disparity_range=(lo, hi), depth_range=(zmin, zmax), source=source,
+                        warnings=warnings)
 
 
 def _roi_box(mask: np.ndarray) -> tuple[int, int, int, int]:
@@ -452,34 +602,30 @@ def _roi_box(mask: np.ndarray) -> tuple[int, int, int, int]:
     return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
 
 
-@register_stage("match")
-def _stage_match(st: DepthResult) -> None:
-    from prismstereo.matching import match
-
-    assert st.left is not None and st.right is not None and st.roi_mask is not None
-    lo, hi = st.disparity_range
-    r0, r1, c0, c1 = _roi_box(st.roi_mask)
+def match_pair(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, region: SearchRegion,
+               config: DepthConfig) -> Disparities:
+    """Match the region's bounding box with the configuration's matcher; keep matches inside the right view."""
+    lo, hi = region.disparity_range
+    r0, r1, c0, c1 = _roi_box(region.mask)
     # the right image must reach hi pixels to the left of the region
     ca = max(0, c0 - hi)
-    left = st.left[r0:r1, ca:c1]
-    right = st.right[r0:r1, ca:c1]
-    hi_eff = min(hi, left.shape[1] - 1)
+    sub_l = left[r0:r1, ca:c1]
+    sub_r = right[r0:r1, ca:c1]
+    hi_eff = min(hi, sub_l.shape[1] - 1)
     lo_eff = min(lo, hi_eff)
-    params = dict(st.config.matcher_params)
-    res = match(left, right, max_disp=hi_eff, min_disp=lo_eff, method=st.config.method, **params)
-    raw = res.disparity_raw if res.disparity_raw is not None else np.where(res.valid, res.disparity, np.nan)
-    h, w = st.left.shape[:2]
-    disp = np.full((h, w), np.nan, dtype=np.float32)
+    res = match(sub_l, sub_r, max_disp=hi_eff, min_disp=lo_eff, method=config.method, **config.matcher_params)
+    raw_sub = res.disparity_raw if res.disparity_raw is not None else np.where(res.valid, res.disparity, np.nan)
+    h, w = left.shape[:2]
+    raw = np.full((h, w), np.nan, dtype=np.float32)
     dense = np.full((h, w), np.nan, dtype=np.float32)
-    disp[r0:r1, ca:c1] = raw
+    raw[r0:r1, ca:c1] = raw_sub
     dense[r0:r1, ca:c1] = res.disparity
-    out = ~st.roi_mask
-    disp[out] = np.nan
+    out = ~region.mask
+    raw[out] = np.nan
     dense[out] = np.nan
     # a match must land inside the right view's valid region
-    vr = np.asarray(st.pair.valid_masks()[1], dtype=bool)
-    st.disparity_filled = dense
-    src = dense if st.config.use_filled else disp
+    vr = np.asarray(pair.valid_masks()[1], dtype=bool)
+    src = dense if config.use_filled else raw
     ys, xs = np.nonzero(np.isfinite(src))
     xr = np.rint(xs - src[ys, xs]).astype(np.int64)
     inside = (xr >= 0) & (xr < w)
@@ -488,139 +634,161 @@ def _stage_match(st: DepthResult) -> None:
     bad[ys[~inside], xs[~inside]] = True
     src = src.copy()
     src[bad] = np.nan
-    st.disparity = src
-    st.match_timings = dict(res.timings)
-    st.stage_counts["matched"] = int(np.isfinite(src).sum())
-    st.raw_disparity = disp
+    return Disparities(disparity=src, filled=dense, raw=raw, timings=dict(res.timings))
 
 
-def _real_pixels(st: DepthResult, ys: np.ndarray, xs: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    left_px = np.stack([xs, ys], axis=1).astype(np.float64)
-    right_px = np.stack([xs - d, ys], axis=1).astype(np.float64)
-    return st.pair.rectified_to_real(left_px, "left"), st.pair.rectified_to_real(right_px, "right")
-
-
-def triangulate_matches(st: DepthResult, method: str, ys: np.ndarray, xs: np.ndarray, d: np.ndarray,
-                        *, views: list[Any] | None = None) -> Triangulation:
-    """Triangulate rectified-left matches (x, y) ↔ (x − d, y) of a finished run with ``method``.
-
-    ``views`` overrides the virtual cameras used by ``midpoint`` and ``dlt`` (e.g. the thesis's
-    construction while the rectification used the fitted model).
-    """
-    n = ys.size
-    if method == "q":
-        # thesis Eq. 7.23 on the listed (x, y, d), then from the rectified left frame to the world
-        Q = np.asarray(st.pair.Q, dtype=np.float64)
-        hom = np.stack([xs.astype(np.float64), ys.astype(np.float64), d, np.ones(n)], axis=1) @ Q.T
-        with np.errstate(divide="ignore", invalid="ignore"):
-            pts_rect = hom[:, :3] / hom[:, 3:4]
-        pts = rectified_to_world(pts_rect, st.pair.R_left, st.pair.C_left)
-        ok = np.all(np.isfinite(pts), axis=1) & (d > 0)
-        return Triangulation(np.where(ok[:, None], pts, np.nan), np.full(n, np.nan), ok)
-    pl, pr = _real_pixels(st, ys, xs, d)
-    fl, fr = st.faces
-    if method == "exact":
-        return triangulate_exact(st.rig, pl, pr, faces=(fl, fr))
-    by_face = {v.face: v for v in (views if views is not None else st.views)}
-    cam_l, cam_r = by_face[fl].camera, by_face[fr].camera
-    finite = np.all(np.isfinite(pl), axis=1) & np.all(np.isfinite(pr), axis=1)
-    pl0, pr0 = np.where(finite[:, None], pl, 0.0), np.where(finite[:, None], pr, 0.0)
-    if method == "midpoint":
-        ol, dl = cam_l.unproject(pl0)
-        orr, dr = cam_r.unproject(pr0)
-        tri = triangulate_midpoint(ol, dl, orr, dr)
-        ok = tri.valid & finite
-        return Triangulation(np.where(ok[:, None], tri.points, np.nan), np.where(ok, tri.gaps, np.nan), ok)
-    if method == "dlt":
-        ul = cam_l.undistort_pixels(pl0) @ cam_l.K[:2, :2].T + cam_l.K[:2, 2]
-        ur = cam_r.undistort_pixels(pr0) @ cam_r.K[:2, :2].T + cam_r.K[:2, 2]
-        pts = triangulate_dlt(cam_l.P, cam_r.P, ul, ur)
-        ok = finite & np.all(np.isfinite(pts), axis=1)
-        return Triangulation(np.where(ok[:, None], pts, np.nan), np.full(n, np.nan), ok)
-    raise ConfigError(f"triangulation: expected one of {', '.join(TRIANGULATIONS)}, got {method!r}")
-
-
-@register_stage("refine")
-def _stage_refine(st: DepthResult) -> None:
-    from prismstereo.depth.refine import refine_disparity
-
-    if not st.config.refine:
-        return
-    assert st.left is not None and st.right is not None and st.disparity is not None
-    vl, vr = st.pair.valid_masks()
-    disp, conf = refine_disparity(st.left, st.right, st.disparity, radius=st.config.refine_radius,
-                                  valid_left=vl, valid_right=vr)
-    st.confidence = conf
-    if st.config.min_confidence is not None:
+def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, disparity: np.ndarray,
+                   config: DepthConfig) -> tuple[np.ndarray, np.ndarray | None]:
+    """Sub-pixel refinement and the confidence filter; returns (disparity, ZNCC confidence or None)."""
+    if not config.refine:
+        return disparity, None
+    vl, vr = pair.valid_masks()
+    disp, conf = refine_disparity(left, right, disparity, radius=config.refine_radius, valid_left=vl,
+                                  valid_right=vr)
+    if config.min_confidence is not None:
         with np.errstate(invalid="ignore"):
-            disp = np.where(conf >= st.config.min_confidence, disp, np.float32(np.nan))
-    st.disparity = disp
-    st.stage_counts["refined"] = int(np.isfinite(disp).sum())
+            disp = np.where(conf >= config.min_confidence, disp, np.float32(np.nan))
+    return disp, conf
 
 
-@register_stage("speckles")
-def _stage_speckles(st: DepthResult) -> None:
-    import cv2
-
-    if st.config.speckle_fraction is None:
-        return
-    assert st.disparity is not None and st.roi_mask is not None
-    disp = st.disparity
-    finite = np.isfinite(disp)
-    if not finite.any() or float(np.nanmax(disp)) * 16 > 32000:
-        return
-    size = max(20, int(st.config.speckle_fraction * int(st.roi_mask.sum())))
-    d16 = np.where(finite, np.rint(disp * 16.0), -16).astype(np.int16)
+def remove_speckles(disparity: np.ndarray, region: SearchRegion, config: DepthConfig) -> np.ndarray:
+    """Remove small connected patches of disparity (OpenCV ``filterSpeckles``); see ``speckle_fraction``."""
+    if config.speckle_fraction is None:
+        return disparity
+    finite = np.isfinite(disparity)
+    if not finite.any() or float(np.nanmax(disparity)) * 16 > 32000:
+        return disparity
+    size = max(20, int(config.speckle_fraction * int(region.mask.sum())))
+    d16 = np.where(finite, np.rint(disparity * 16.0), -16).astype(np.int16)
     cv2.filterSpeckles(d16, -16, size, 16)
-    st.disparity = np.where(d16 == -16, np.float32(np.nan), disp).astype(np.float32)
-    st.stage_counts["despeckled"] = int(np.isfinite(st.disparity).sum())
+    return np.where(d16 == -16, np.float32(np.nan), disparity).astype(np.float32)
 
 
-@register_stage("triangulate")
-def _stage_triangulate(st: DepthResult) -> None:
-    assert st.disparity is not None and st.left is not None
-    h, w = st.disparity.shape
-    ys, xs = np.nonzero(np.isfinite(st.disparity))
-    d = st.disparity[ys, xs].astype(np.float64)
-    tri = triangulate_matches(st, st.config.triangulation, ys, xs, d)
+def triangulate_disparity(rig: Rig, pair: RectifiedPair, views: Sequence[VirtualView], disparity: np.ndarray,
+                          config: DepthConfig) -> Points:
+    """Triangulate every finite disparity of the rectified left grid (thesis §7.2); filter by gap and depth."""
+    h, w = disparity.shape
+    ys, xs = np.nonzero(np.isfinite(disparity))
+    d = disparity[ys, xs].astype(np.float64)
+    tri = triangulate_matches(rig, pair, ys, xs, d, method=config.triangulation, views=views)
     ok = tri.valid.copy()
-    if st.config.max_gap_mm is not None:
-        ok &= ~(tri.gaps > st.config.max_gap_mm)
-    ok &= tri.points[:, 2] > st.rig.prism.back_distance
+    if config.max_gap_mm is not None:
+        ok &= ~(tri.gaps > config.max_gap_mm)
+    ok &= tri.points[:, 2] > rig.prism.back_distance
     points = np.full((h, w, 3), np.nan)
     gaps = np.full((h, w), np.nan, dtype=np.float32)
     points[ys[ok], xs[ok]] = tri.points[ok]
     gaps[ys[ok], xs[ok]] = tri.gaps[ok]
     valid = np.zeros((h, w), dtype=bool)
     valid[ys[ok], xs[ok]] = True
-    st.points, st.gaps, st.valid = points, gaps, valid
-    st.depth = np.where(valid, points[..., 2], np.nan).astype(np.float32)
+    depth = np.where(valid, points[..., 2], np.nan).astype(np.float32)
+    return Points(points=points, depth=depth, gaps=gaps, valid=valid)
 
 
-@register_stage("diagnose")
-def _stage_diagnose(st: DepthResult) -> None:
-    from prismstereo.depth.search_range import depth_warnings
-
-    c = st.counts()
-    st.warnings.extend(depth_warnings(
+def diagnose(result: DepthResult) -> tuple[str, ...]:
+    """One-line warnings about a finished run (:func:`~prismstereo.depth.search_range.depth_warnings`)."""
+    c = result.counts()
+    return tuple(depth_warnings(
         points=c["points"], region_pixels=c["region_pixels"], matched=c.get("matched", 0),
-        confident=c.get("refined"), disparity=st.raw_disparity, valid=None,
-        disparity_range=st.disparity_range, depth_range=st.depth_range))
+        confident=c.get("refined"), disparity=result.raw_disparity, valid=None,
+        disparity_range=result.disparity_range, depth_range=result.depth_range))
 
 
-def _progress(total: int) -> Any:
-    if not sys.stderr.isatty():
-        return None
-    try:
-        from tqdm import tqdm
-    except ImportError:  # pragma: no cover
-        return None
-    return tqdm(total=total, desc="depth", unit="stage", leave=False)
+# --------------------------------------------------------------------------- all-view steps
+def search_region_all_views(rig: Rig, image: np.ndarray, config: DepthConfig) -> SearchRange:
+    """The depth range of an all-view run: the configuration's, else the default pair's automatic range."""
+    if config.depth_range is not None:
+        return SearchRange(config.depth_range, (0, 0), "given")
+    return auto_search_range_of_capture(rig, image, faces=default_views(rig), calibration=config.calibration)
+
+
+def sweep_all_views(rig: Rig, image: np.ndarray, config: DepthConfig, found: SearchRange,
+                    ) -> tuple[DepthResult, dict[str, float]]:
+    """Plane sweep over every face and multi-ray triangulation (:func:`~prismstereo.multiview.prism.
+    depth_all_views`), as a :class:`DepthResult` on the capture's grid; also the sweep's timings."""
+    params = SweepParams()
+    res = depth_all_views(rig, image, depth_range=found.depth_mm, calibration=config.calibration, params=params)
+    h, w = res.depth.shape
+    points = np.full((h, w, 3), np.nan)
+    points[res.pixels[:, 1], res.pixels[:, 0]] = res.points
+    region = res.region if res.region is not None else res.valid
+    sweep = {"n": int(res.depths.size), "min_mm": float(res.depths.min()), "max_mm": float(res.depths.max())}
+    result = DepthResult(
+        config=config, rig=rig, image=image, views=(), pair=None, left=image, right=None, disparity=None,
+        disparity_filled=None, raw_disparity=None, points=points, depth=res.depth, gaps=None, valid=res.valid,
+        roi_mask=region, disparity_range=(0, 0), depth_range=found.depth_mm, depth_range_source=found.source,
+        faces=(res.reference, *res.views), view_counts=res.counts, warnings=tuple(found.warnings), sweep=sweep)
+    return result, dict(res.timings)
+
+
+# --------------------------------------------------------------------------- running the steps
+class _Clock:
+    """Seconds per step, a progress bar on a terminal, and the step logged."""
+
+    def __init__(self, steps: Sequence[str], progress: bool | None) -> None:
+        self.timings: dict[str, float] = {}
+        self._bar = progress_bar(total=len(steps), desc="depth", unit="step", leave=False) \
+            if progress is not False else None
+
+    @contextmanager
+    def step(self, name: str) -> Iterator[None]:
+        if self._bar is not None:
+            self._bar.set_description(f"depth: {name}")
+        t = time.perf_counter()
+        yield
+        self.timings[name] = time.perf_counter() - t
+        log.info("step %s: %.2f s", name, self.timings[name])
+        if self._bar is not None:
+            self._bar.update(1)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+
+
+_SETUP_STEPS = ("cameras", "rectify")
+_FRAME_STEPS = ("match", "refine", "speckles", "triangulate", "diagnose")
+
+
+def _finish(result: DepthResult, clock: _Clock, t0: float) -> DepthResult:
+    with clock.step("diagnose"):
+        warnings = result.warnings + diagnose(result)
+    clock.close()
+    timings = {**result.timings, **clock.timings, "total": time.perf_counter() - t0}
+    for line in warnings:
+        log.warning("%s", line)
+    return dataclasses.replace(result, warnings=warnings, timings=timings)
+
+
+def _run_frame(setup: DepthSetup, image: np.ndarray, left: np.ndarray, right: np.ndarray, clock: _Clock,
+               t0: float) -> DepthResult:
+    cfg, pair, region = setup.config, setup.pair, setup.region
+    with clock.step("match"):
+        matched = match_pair(left, right, pair, region, cfg)
+    counts = {"matched": int(np.isfinite(matched.disparity).sum())}
+    with clock.step("refine"):
+        disp, conf = refine_matches(left, right, pair, matched.disparity, cfg)
+    if cfg.refine:
+        counts["refined"] = int(np.isfinite(disp).sum())
+    with clock.step("speckles"):
+        despeckled = remove_speckles(disp, region, cfg)
+    if despeckled is not disp:
+        counts["despeckled"] = int(np.isfinite(despeckled).sum())
+    with clock.step("triangulate"):
+        pts = triangulate_disparity(setup.rig, pair, setup.views, despeckled, cfg)
+    result = DepthResult(
+        config=cfg, rig=setup.rig, image=image, views=setup.views, pair=pair, left=left, right=right,
+        disparity=despeckled, disparity_filled=matched.filled, raw_disparity=matched.raw, points=pts.points,
+        depth=pts.depth, gaps=pts.gaps, valid=pts.valid, roi_mask=region.mask,
+        disparity_range=region.disparity_range, depth_range=region.depth_range, depth_range_source=region.source,
+        faces=(int(pair.left_face), int(pair.right_face)), confidence=conf, stage_counts=counts,
+        timings=dict(setup.timings), match_timings=matched.timings, warnings=region.warnings)
+    return _finish(result, clock, t0)
 
 
 def run_depth(rig: Rig, image: Any, *, config: DepthConfig | None = None,
               progress: bool | None = None) -> DepthResult:
-    """Recover depth from one prism capture.
+    """Recover depth from one prism capture (the steps of the module docstring).
 
     Parameters
     ----------
@@ -629,7 +797,7 @@ def run_depth(rig: Rig, image: Any, *, config: DepthConfig | None = None,
         The capture (RGB); its size must be the rig camera's.
     config : DepthConfig, optional
     progress : bool, optional
-        Show a progress bar per stage; default: only when stderr is a terminal.
+        Show a progress bar per step; default: only when stderr is a terminal.
 
     Returns
     -------
@@ -642,99 +810,53 @@ def run_depth(rig: Rig, image: Any, *, config: DepthConfig | None = None,
     """
     t0 = time.perf_counter()
     img, cfg = validate_inputs(rig, image, config or DepthConfig())
-    st = DepthResult(config=cfg, rig=rig, image=img)
-    st.timings["validate"] = time.perf_counter() - t0
-    return _run_stages(st, t0, progress)
-
-
-def _run_stages(st: DepthResult, t0: float, progress: bool | None) -> DepthResult:
-    bar = _progress(len(STAGES)) if progress is not False else None
-    try:
-        for name, stage in STAGES.items():
-            if bar is not None:
-                bar.set_description(f"depth: {name}")
-            t = time.perf_counter()
-            stage(st)
-            st.timings[name] = time.perf_counter() - t
-            log.info("stage %s: %.2f s", name, st.timings[name])
-            if bar is not None:
-                bar.update(1)
-    finally:
-        if bar is not None:
-            bar.close()
-    st.timings["total"] = time.perf_counter() - t0
-    for line in st.warnings:
-        log.warning("%s", line)
-    return st
+    validated = time.perf_counter() - t0
+    if cfg.views == "all":
+        clock = _Clock(("range", "sweep", "diagnose"), progress)
+        with clock.step("range"):
+            found = search_region_all_views(rig, img, cfg)
+        with clock.step("sweep"):
+            result, sweep_timings = sweep_all_views(rig, img, cfg, found)
+        result = dataclasses.replace(result, timings={"validate": validated}, match_timings=sweep_timings)
+        return _finish(result, clock, t0)
+    clock = _Clock(_SETUP_STEPS + _FRAME_STEPS, progress)
+    with clock.step("cameras"):
+        views = virtual_cameras(rig, cfg)
+    with clock.step("rectify"):
+        pair = rectify_geometry(rig, views, cfg)
+        left, right = rectify_capture(pair, img)
+        region = search_region(rig, pair, cfg, left, right)
+    setup = DepthSetup(rig=rig, config=cfg, views=views, pair=pair, region=region,
+                       timings={"validate": validated, **clock.timings})
+    return _run_frame(setup, img, left, right, clock, t0)
 
 
 # --------------------------------------------------------------------------- one set-up, many frames
-@dataclass(frozen=True, eq=False)
-class DepthSetup:
-    """The per-rig part of a depth run, computed once and shared by every frame of a sequence (batch).
-
-    Attributes
-    ----------
-    rig : Rig
-    config : DepthConfig
-        Resolved (views filled in).
-    views : list of VirtualView
-        The virtual cameras (stage ``cameras``).
-    pair : RectifiedPair
-        Rectification of the chosen pair, with its remap tables (stage ``rectify``).
-    roi_mask : (h, w) bool
-        Pixels matched in the rectified left view: region of interest ∩ common view in the depth range.
-    disparity_range : (min, max)
-        Integer disparity search range.
-    timings : dict
-        Seconds spent on the set-up stages.
-    depth_range : (min, max)
-        Depths searched, mm.
-    depth_range_source : str
-        ``"given"`` (the configuration's) or ``"rig"``: without a configured range a sequence is searched over
-        every depth at which the views share a field, since one frame's content says nothing of the next's.
-    """
-
-    rig: Rig
-    config: DepthConfig
-    views: list[Any]
-    pair: Any
-    roi_mask: np.ndarray
-    disparity_range: tuple[int, int]
-    timings: dict[str, float] = field(default_factory=dict)
-    depth_range: tuple[float, float] = (0.0, 0.0)
-    depth_range_source: str = "given"
-
-
 def prepare_depth(rig: Rig, *, config: DepthConfig | None = None) -> DepthSetup:
-    """Run the stages of :func:`run_depth` that depend only on the rig and the configuration.
+    """The steps of a pair run that depend only on the rig and the configuration.
 
     The virtual cameras, the rectification maps, the common view and the disparity range are the same
-    for every capture of a rig; :func:`run_depth_frame` then does the per-capture work.
-    ``run_depth_frame(prepare_depth(rig, config=c), image)`` gives the same arrays as
-    ``run_depth(rig, image, config=c)``.
+    for every capture of a rig; :func:`run_depth_frame` then does the per-capture work. Without a
+    configured depth range a sequence is searched over every depth at which the views share a field
+    (source ``"rig"``), since one frame's content says nothing of the next's.
 
     Raises
     ------
     ConfigError, GeometryError
-        As :func:`run_depth`, before any per-frame work.
+        As :func:`run_depth`, before any per-frame work; ``views="all"`` (the all-view sweep runs per
+        capture).
     """
-    # the configuration checks of validate_inputs do not look at the pixels: a blank capture stands in
-    blank = np.zeros((rig.camera.height, rig.camera.width, 3), dtype=np.uint8)
-    _, cfg = validate_inputs(rig, blank, config or DepthConfig())
-    st = DepthResult(config=cfg, rig=rig, image=blank)
-    timings = {}
-    for name in ("cameras", "rectify"):
-        t = time.perf_counter()
-        STAGES[name](st)
-        timings[name] = time.perf_counter() - t
-    assert st.roi_mask is not None
-    # the blank stand-in cannot narrow the range by matching: the rig's whole range is searched, and the
-    # "not a capture" warning the blank image raised says nothing about the frames to come
-    source = "given" if cfg.depth_range is not None else "rig"
-    return DepthSetup(rig=rig, config=st.config, views=list(st.views), pair=st.pair, roi_mask=st.roi_mask,
-                      disparity_range=st.disparity_range, timings=timings, depth_range=st.depth_range,
-                      depth_range_source=source)
+    cfg = validate_config(rig, config or DepthConfig())
+    if cfg.views == "all":
+        raise ConfigError("--views: expected a pair I,J for a sequence, got 'all' (the all-view sweep is "
+                          "depth-only)")
+    clock = _Clock(_SETUP_STEPS, False)
+    with clock.step("cameras"):
+        views = virtual_cameras(rig, cfg)
+    with clock.step("rectify"):
+        pair = rectify_geometry(rig, views, cfg)
+        region = search_region(rig, pair, cfg)
+    return DepthSetup(rig=rig, config=cfg, views=views, pair=pair, region=region, timings=dict(clock.timings))
 
 
 def run_depth_frame(setup: DepthSetup, image: Any, *, progress: bool | None = False) -> DepthResult:
@@ -746,12 +868,12 @@ def run_depth_frame(setup: DepthSetup, image: Any, *, progress: bool | None = Fa
     image : (H, W) or (H, W, 3) array
         The capture (RGB); its size must be the rig camera's.
     progress : bool, optional
-        Show a progress bar per stage (default: no).
+        Show a progress bar per step (default: no).
 
     Returns
     -------
     DepthResult
-        As :func:`run_depth`; the set-up stages cost (almost) nothing in its timings.
+        As :func:`run_depth`; the set-up steps cost (almost) nothing in its timings.
 
     Raises
     ------
@@ -760,8 +882,9 @@ def run_depth_frame(setup: DepthSetup, image: Any, *, progress: bool | None = Fa
     """
     t0 = time.perf_counter()
     img = validate_image(setup.rig, image)
-    st = DepthResult(config=setup.config, rig=setup.rig, image=img, views=list(setup.views), pair=setup.pair,
-                     roi_mask=setup.roi_mask, disparity_range=setup.disparity_range,
-                     depth_range=setup.depth_range, depth_range_source=setup.depth_range_source)
-    st.timings["validate"] = time.perf_counter() - t0
-    return _run_stages(st, t0, progress)
+    clock = _Clock(("rectify",) + _FRAME_STEPS, progress)
+    timings = {"validate": time.perf_counter() - t0}
+    with clock.step("rectify"):
+        left, right = rectify_capture(setup.pair, img)
+    frame_setup = dataclasses.replace(setup, timings=timings)
+    return _run_frame(frame_setup, img, left, right, clock, t0)

@@ -20,10 +20,14 @@ import logging
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
+from prismstereo.cameras import calibrate_rig
+from prismstereo.config import Rig
 from prismstereo.errors import GeometryError
 from prismstereo.matching.diagnostics import LIMIT_SHARE, limit_shares
+from prismstereo.rectify import RectifiedPair, common_view, rectify_pair
 
 log = logging.getLogger(__name__)
 
@@ -137,8 +141,6 @@ def estimate_disparity_range(left: np.ndarray, right: np.ndarray, region: np.nda
         The padded 1st–99th percentile of the coarse consistent disparities (None when fewer than
         :data:`MIN_SUPPORT` of the region matched), and the share of the region that matched.
     """
-    import cv2
-
     s = max(1, int(math.ceil((hi - lo) / float(COARSE_SPAN))))
     h, w = left.shape[:2]
     size = (max(8, w // s), max(8, h // s))
@@ -179,10 +181,18 @@ def estimate_disparity_range(left: np.ndarray, right: np.ndarray, region: np.nda
     return (rlo, rhi), support
 
 
-def auto_search_range(pair: object, back_mm: float, left: np.ndarray, right: np.ndarray) -> SearchRange:
-    """The depth and disparity range to search when the user gave none (see the module docstring)."""
-    from prismstereo.depth.pipeline import common_view
+def rig_search_range(pair: RectifiedPair, back_mm: float) -> SearchRange:
+    """Every depth at which the two views of ``pair`` share a field, and its disparities (source ``"rig"``).
 
+    What a sequence searches without a configured range: one frame's content says nothing of the next's.
+    """
+    _, _, (zmin, zmax) = _rig_range(pair, back_mm)
+    _, (dlo, dhi) = common_view(pair, zmin, zmax)
+    return SearchRange((zmin, zmax), (dlo, dhi), "rig")
+
+
+def auto_search_range(pair: RectifiedPair, back_mm: float, left: np.ndarray, right: np.ndarray) -> SearchRange:
+    """The depth and disparity range to search when the user gave none (see the module docstring)."""
     depths, disp, (zmin, zmax) = _rig_range(pair, back_mm)
     region, (dlo, dhi) = common_view(pair, zmin, zmax)
     dhi = min(dhi, left.shape[1] - 1)
@@ -238,13 +248,10 @@ def depth_warnings(*, points: int, region_pixels: int, matched: int, confident: 
     return out
 
 
-def auto_search_range_of_capture(rig: object, image: np.ndarray, *, faces: tuple[int, int],
+def auto_search_range_of_capture(rig: Rig, image: np.ndarray, *, faces: tuple[int, int],
                                  calibration: str = "fit") -> SearchRange:
     """:func:`auto_search_range` for a capture: calibrates and rectifies the pair ``faces`` first."""
-    from prismstereo.cameras import calibrate_rig
-    from prismstereo.rectify.rectification import rectify_pair
-
-    by_face = {v.face: v for v in calibrate_rig(rig, method=calibration)}  # type: ignore[arg-type]
-    pair = rectify_pair(rig, by_face[faces[0]], by_face[faces[1]])  # type: ignore[arg-type]
+    by_face = {v.face: v for v in calibrate_rig(rig, method=calibration)}
+    pair = rectify_pair(rig, by_face[faces[0]], by_face[faces[1]])
     left, right = pair.rectify_images(image)
-    return auto_search_range(pair, rig.prism.back_distance, np.asarray(left), np.asarray(right))  # type: ignore[attr-defined]
+    return auto_search_range(pair, rig.prism.back_distance, np.asarray(left), np.asarray(right))

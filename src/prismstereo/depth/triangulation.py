@@ -12,28 +12,38 @@ Four ways to turn a match into a point, all pure functions on arrays:
   is the midpoint of the two exact rays. No pinhole approximation is involved, so with exact
   correspondences it recovers the scene point to machine precision.
 
-Conventions (DESIGN.md §3): world frame = real camera frame, mm; pixels (u, v) with centres at integers;
+Conventions (docs/conventions.md): world frame = real camera frame, mm; pixels (u, v) with centres at integers;
 disparity ``d = x_left − x_right`` in pixels, NaN = invalid.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from prismstereo.cameras import VirtualView
 from prismstereo.config import Rig
+from prismstereo.errors import ConfigError
 from prismstereo.optics import trace_pixels
+from prismstereo.rectify import RectifiedPair
 
 __all__ = [
+    "TRIANGULATIONS",
     "Triangulation",
     "depth_from_disparity",
     "rectified_to_world",
     "reproject_disparity",
     "triangulate_dlt",
     "triangulate_exact",
+    "triangulate_matches",
     "triangulate_midpoint",
 ]
+
+#: triangulation methods of a rectified match: exact refractive rays, midpoint / DLT of the virtual
+#: pinholes, Q of the pair
+TRIANGULATIONS = ("exact", "midpoint", "dlt", "q")
 
 
 @dataclass(frozen=True)
@@ -276,3 +286,68 @@ def triangulate_exact(rig: Rig, pixels_a: np.ndarray, pixels_b: np.ndarray, *,
         gaps=np.where(ok, tri.gaps, np.nan),
         valid=ok,
     )
+
+
+def triangulate_matches(rig: Rig, pair: RectifiedPair, ys: np.ndarray, xs: np.ndarray, d: np.ndarray, *,
+                        method: str, views: Sequence[VirtualView]) -> Triangulation:
+    """Triangulate rectified-left matches (x, y) ↔ (x − d, y) of a rectified pair with ``method``.
+
+    Parameters
+    ----------
+    rig : Rig
+    pair : RectifiedPair
+        The rectification the matches were found in.
+    ys, xs : (N,) int
+        Rectified-left pixels.
+    d : (N,) float64
+        Their disparities, px.
+    method : {"exact", "midpoint", "dlt", "q"}, keyword-only
+        Exact refractive rays of the real pixels (:func:`triangulate_exact`), the virtual pinholes' rays
+        (:func:`triangulate_midpoint`, thesis Eq. 7.19) or projection matrices (:func:`triangulate_dlt`),
+        or the pair's Q (thesis Eq. 7.23).
+    views : sequence of VirtualView, keyword-only
+        The virtual cameras used by ``midpoint`` and ``dlt`` (by face).
+
+    Returns
+    -------
+    Triangulation
+        (N,) points in the world frame.
+
+    Raises
+    ------
+    ConfigError
+        Unknown method.
+    """
+    n = ys.size
+    if method == "q":
+        # thesis Eq. 7.23 on the listed (x, y, d), then from the rectified left frame to the world
+        Q = np.asarray(pair.Q, dtype=np.float64)
+        hom = np.stack([xs.astype(np.float64), ys.astype(np.float64), d, np.ones(n)], axis=1) @ Q.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            pts_rect = hom[:, :3] / hom[:, 3:4]
+        pts = rectified_to_world(pts_rect, pair.R_left, pair.C_left)
+        ok = np.all(np.isfinite(pts), axis=1) & (d > 0)
+        return Triangulation(np.where(ok[:, None], pts, np.nan), np.full(n, np.nan), ok)
+    left_px = np.stack([xs, ys], axis=1).astype(np.float64)
+    right_px = np.stack([xs - d, ys], axis=1).astype(np.float64)
+    pl, pr = pair.rectified_to_real(left_px, "left"), pair.rectified_to_real(right_px, "right")
+    fl, fr = int(pair.left_face), int(pair.right_face)
+    if method == "exact":
+        return triangulate_exact(rig, pl, pr, faces=(fl, fr))
+    by_face = {v.face: v for v in views}
+    cam_l, cam_r = by_face[fl].camera, by_face[fr].camera
+    finite = np.all(np.isfinite(pl), axis=1) & np.all(np.isfinite(pr), axis=1)
+    pl0, pr0 = np.where(finite[:, None], pl, 0.0), np.where(finite[:, None], pr, 0.0)
+    if method == "midpoint":
+        ol, dl = cam_l.unproject(pl0)
+        orr, dr = cam_r.unproject(pr0)
+        tri = triangulate_midpoint(ol, dl, orr, dr)
+        ok = tri.valid & finite
+        return Triangulation(np.where(ok[:, None], tri.points, np.nan), np.where(ok, tri.gaps, np.nan), ok)
+    if method == "dlt":
+        ul = cam_l.undistort_pixels(pl0) @ cam_l.K[:2, :2].T + cam_l.K[:2, 2]
+        ur = cam_r.undistort_pixels(pr0) @ cam_r.K[:2, :2].T + cam_r.K[:2, 2]
+        pts = triangulate_dlt(cam_l.P, cam_r.P, ul, ur)
+        ok = finite & np.all(np.isfinite(pts), axis=1)
+        return Triangulation(np.where(ok[:, None], pts, np.nan), np.full(n, np.nan), ok)
+    raise ConfigError(f"triangulation: expected one of {', '.join(TRIANGULATIONS)}, got {method!r}")

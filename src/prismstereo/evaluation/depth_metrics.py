@@ -17,6 +17,10 @@ whose ground-truth point (a) lies within the run's depth range, (b) is seen thro
 real pixel inside the image, with nothing in front of it (the right pixel's own ray hits the same point
 within 0.1 %), and (c) falls inside the valid region of the rectified right view. Coverage is the share
 of the common view that has a reconstructed point.
+
+An all-view run (``views="all"``) has its depth on the real capture's grid: its pixels are their own real
+pixels, the region is the reference face's, (b) asks for at least one of the other faces, and there is no
+rectified right view for (c).
 """
 
 from __future__ import annotations
@@ -28,11 +32,14 @@ from typing import Any
 import numpy as np
 
 from prismstereo.config import Rig
+from prismstereo.depth.pipeline import DepthResult
 from prismstereo.errors import ConfigError
 from prismstereo.io import read_pfm
 from prismstereo.optics import project_exact, trace_pixels
+from prismstereo.simulate import intersect_scene
 
-__all__ = ["DepthGroundTruth", "depth_accuracy", "evaluate_depth", "ground_truth_for_run"]
+__all__ = ["DepthGroundTruth", "depth_accuracy", "evaluate_depth", "format_accuracy", "ground_truth_for_run",
+           "read_depth_gt"]
 
 
 @dataclass(frozen=True)
@@ -105,8 +112,6 @@ def _gt_points(rig: Any, real_px: np.ndarray, *, scene: Any = None, depth_gt: np
     if not ok.any():
         return pts
     if scene is not None:
-        from prismstereo.simulate import intersect_scene
-
         hits = intersect_scene(rays.origins[ok], rays.directions[ok], scene, shading=0.0)
         pts[ok] = hits.points
     elif depth_gt is not None:
@@ -118,9 +123,9 @@ def _gt_points(rig: Any, real_px: np.ndarray, *, scene: Any = None, depth_gt: np
     return pts
 
 
-def ground_truth_for_run(result: Any, *, scene: Any = None, depth_gt: np.ndarray | None = None
+def ground_truth_for_run(result: DepthResult, *, scene: Any = None, depth_gt: np.ndarray | None = None
                          ) -> DepthGroundTruth:
-    """Ground truth of a finished :class:`~prismstereo.depth.DepthResult` on its rectified left grid.
+    """Ground truth of a finished :class:`~prismstereo.depth.DepthResult` on its grid.
 
     Parameters
     ----------
@@ -131,17 +136,23 @@ def ground_truth_for_run(result: Any, *, scene: Any = None, depth_gt: np.ndarray
         World Z per real pixel, mm, NaN where none (the simulator's ``depth_gt.pfm``).
     """
     rig, pair = result.rig, result.pair
-    # every valid left pixel of the ROI (not the pipeline's own common-view estimate: no circularity)
-    region = np.asarray(pair.valid_masks()[0], dtype=bool).copy()
-    h, w = region.shape
-    if result.config.roi is not None:
-        x, y, rw, rh = result.config.roi
-        roi = np.zeros((h, w), dtype=bool)
-        roi[y:y + rh, x:x + rw] = True
-        region &= roi
+    if pair is not None:
+        # every valid left pixel of the ROI (not the pipeline's own common-view estimate: no circularity)
+        region = np.asarray(pair.valid_masks()[0], dtype=bool).copy()
+        h, w = region.shape
+        if result.config.roi is not None:
+            x, y, rw, rh = result.config.roi
+            roi = np.zeros((h, w), dtype=bool)
+            roi[y:y + rh, x:x + rw] = True
+            region &= roi
+        other_faces: tuple[int, ...] = (int(pair.right_face),)
+    else:  # all views: the reference face's region (geometry only)
+        region = np.asarray(result.roi_mask, dtype=bool)
+        h, w = region.shape
+        other_faces = tuple(int(f) for f in result.faces[1:])
     ys, xs = np.nonzero(region)
     left_px = np.stack([xs, ys], axis=1).astype(np.float64)
-    real_l = np.asarray(pair.rectified_to_real(left_px, "left"), dtype=np.float64)
+    real_l = result.grid_to_real(left_px)
     gt = _gt_points(rig, real_l, scene=scene, depth_gt=depth_gt)
     points = np.full((h, w, 3), np.nan)
     points[ys, xs] = gt
@@ -154,24 +165,13 @@ def ground_truth_for_run(result: Any, *, scene: Any = None, depth_gt: np.ndarray
     common = np.zeros((h, w), dtype=bool)
     idx = np.flatnonzero(cand)
     if idx.size:
-        right_face = int(pair.right_face)
-        # (b) seen through the right face, inside the image, unoccluded
-        pr, ok = project_exact(gt[idx], rig, right_face)
-        W, H = rig.camera.width, rig.camera.height
-        ok &= (pr[:, 0] >= 0) & (pr[:, 0] <= W - 1) & (pr[:, 1] >= 0) & (pr[:, 1] <= H - 1)
-        sub = np.flatnonzero(ok)
-        if sub.size:
-            seen = _gt_points(rig, pr[sub], scene=scene, depth_gt=depth_gt)
-            target = gt[idx[sub]]
-            err = np.linalg.norm(seen - target, axis=1) / np.linalg.norm(target, axis=1)
-            if scene is None:  # depth maps are float32: allow for their rounding
-                vis = np.abs(seen[:, 2] - target[:, 2]) / target[:, 2] < 0.005
-            else:
-                vis = err < 1e-3
-            ok[sub] = np.where(np.isfinite(err), vis, False)
+        # (b) seen through another face, inside the image, unoccluded
+        ok = np.zeros(idx.size, dtype=bool)
+        for face in other_faces:
+            ok |= _seen_through(rig, face, gt[idx], scene=scene, depth_gt=depth_gt)
         # (c) inside the rectified right view (rectified right camera projection)
         sub = np.flatnonzero(ok)
-        if sub.size:
+        if sub.size and pair is not None:
             P = np.asarray(pair.P_right, dtype=np.float64)
             X = np.concatenate([gt[idx[sub]], np.ones((sub.size, 1))], axis=1) @ P.T
             xr = X[:, 0] / X[:, 2]
@@ -183,6 +183,25 @@ def ground_truth_for_run(result: Any, *, scene: Any = None, depth_gt: np.ndarray
             ok[sub] = inb
         common[ys[idx[ok]], xs[idx[ok]]] = True
     return DepthGroundTruth(points=points, common=common)
+
+
+def _seen_through(rig: Rig, face: int, target: np.ndarray, *, scene: Any, depth_gt: np.ndarray | None
+                  ) -> np.ndarray:
+    """(N,) bool: the points are seen through ``face`` by a real pixel inside the image, unoccluded."""
+    pr, ok = project_exact(target, rig, face)
+    W, H = rig.camera.width, rig.camera.height
+    ok &= (pr[:, 0] >= 0) & (pr[:, 0] <= W - 1) & (pr[:, 1] >= 0) & (pr[:, 1] <= H - 1)
+    sub = np.flatnonzero(ok)
+    if sub.size:
+        seen = _gt_points(rig, pr[sub], scene=scene, depth_gt=depth_gt)
+        tgt = target[sub]
+        err = np.linalg.norm(seen - tgt, axis=1) / np.linalg.norm(tgt, axis=1)
+        if scene is None:  # depth maps are float32: allow for their rounding
+            vis = np.abs(seen[:, 2] - tgt[:, 2]) / tgt[:, 2] < 0.005
+        else:
+            vis = err < 1e-3
+        ok[sub] = np.where(np.isfinite(err), vis, False)
+    return np.asarray(ok, dtype=bool)
 
 
 def depth_accuracy(depth: np.ndarray, valid: np.ndarray, gt: DepthGroundTruth) -> dict[str, Any]:
@@ -221,14 +240,23 @@ def depth_accuracy(depth: np.ndarray, valid: np.ndarray, gt: DepthGroundTruth) -
     }
 
 
-def evaluate_depth(result: Any, *, scene: Any = None, depth_gt: np.ndarray | None = None
-                   ) -> dict[str, Any]:
-    """Accuracy of a finished run; also stored in ``result.accuracy`` (and so in ``run.json``)."""
-    gt = ground_truth_for_run(result, scene=scene, depth_gt=depth_gt)
+def evaluate_depth(result: DepthResult, *, scene: Any = None, depth_gt: np.ndarray | None = None,
+                   gt: DepthGroundTruth | None = None) -> dict[str, Any]:
+    """Accuracy of a finished run (pair or all views) against the simulator's ground truth.
+
+    Give ``scene`` (exact), ``depth_gt`` (simulate's ``depth_gt.pfm``) or an already computed ``gt``
+    (:func:`ground_truth_for_run`). The run's ``run.json`` records it when the caller attaches it:
+    ``dataclasses.replace(result, accuracy=evaluate_depth(result, ...))``.
+
+    Returns
+    -------
+    dict
+        :func:`depth_accuracy`'s statistics (fractions) and ``ground_truth``: how it was found.
+    """
+    if gt is None:
+        gt = ground_truth_for_run(result, scene=scene, depth_gt=depth_gt)
     acc = depth_accuracy(result.depth, result.valid, gt)
     acc["ground_truth"] = "scene rays (exact)" if scene is not None else "depth_gt map (bilinear)"
-    result.accuracy = acc
-    result.ground_truth = gt
     return acc
 
 

@@ -29,6 +29,10 @@ import numpy as np
 
 from prismstereo.errors import ConfigError, ImageError
 from prismstereo.evaluation.metrics import bad_pixel_rate, mean_abs_error
+from prismstereo.io import check_output_dir, output_dir, read_image, read_pfm, write_image, write_json, write_pfm
+from prismstereo.matching import get_matcher, match
+from prismstereo.progress import progress_bar
+from prismstereo.viz.colorize import colorize_disparity
 
 log = logging.getLogger(__name__)
 
@@ -149,7 +153,6 @@ def _read_json(path: Path) -> dict[str, Any]:
 
 
 def _load_shared(folder: Path, name: str) -> MiddleburyScene:
-    from prismstereo.io import read_image
 
     man = _read_json(folder / "manifest.json")
     try:
@@ -179,7 +182,6 @@ def _read_calib(path: Path) -> dict[str, str]:
 
 
 def _load_2014(folder: Path, name: str) -> MiddleburyScene:
-    from prismstereo.io import read_image, read_pfm
 
     calib = _read_calib(folder / "calib.txt")
     try:
@@ -308,10 +310,6 @@ def evaluate_method(method: str, *, data_dir: str | os.PathLike[str] | None = No
     dict
         ``{"method", "params", "scenes": {name: {bad, mae, seconds, ...}}, "average": {...}}``.
     """
-    from prismstereo.io import check_output_dir, output_dir, write_image, write_json, write_pfm
-    from prismstereo.matching import get_matcher, match
-    from prismstereo.progress import progress_bar
-    from prismstereo.viz.colorize import colorize_disparity
 
     get_matcher(method, **params)  # validates name and parameters first
     root = _resolve(data_dir)

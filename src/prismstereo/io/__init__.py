@@ -12,7 +12,7 @@ from prismstereo.io.atomic import (
     output_files,
 )
 from prismstereo.io.images import read_image, write_image
-from prismstereo.io.jsonio import to_jsonable, write_json
+from prismstereo.io.jsonio import library_versions, to_jsonable, write_json
 from prismstereo.io.pfm import read_pfm, write_pfm
 from prismstereo.io.ply import read_ply, write_ply
 
@@ -20,6 +20,7 @@ __all__ = [
     "atomic_path",
     "atomic_write_bytes",
     "atomic_write_text",
+    "library_versions",
     "check_output_dir",
     "check_output_file",
     "output_dir",

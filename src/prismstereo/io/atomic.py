@@ -33,6 +33,7 @@ __all__ = [
     "atomic_write_text",
     "check_output_dir",
     "check_output_file",
+    "os_error_reason",
     "output_dir",
     "output_files",
 ]
@@ -44,7 +45,8 @@ def _umask() -> int:
     return mask
 
 
-def _why(exc: OSError) -> str:
+def os_error_reason(exc: OSError) -> str:
+    """The reason the system refused a read or write, in words (disk full, file too large, its own message)."""
     if exc.errno in (errno.ENOSPC, errno.EDQUOT):
         return "no space left on the device"
     if exc.errno == errno.EFBIG:
@@ -76,7 +78,7 @@ def _probe_writable(folder: Path, shown: str, what: str) -> None:
     try:
         Path(tempfile.mkdtemp(prefix=".prismstereo-probe-", dir=folder)).rmdir()
     except OSError as exc:
-        raise OutputError(f"expected {what}, got {shown!r} ({_why(exc)})") from None
+        raise OutputError(f"expected {what}, got {shown!r} ({os_error_reason(exc)})") from None
 
 
 def resolve_output_file(path: str | os.PathLike[str]) -> Path:
@@ -98,7 +100,7 @@ def resolve_output_file(path: str | os.PathLike[str]) -> Path:
     except NotADirectoryError:
         raise OutputError(f"expected an output file path, got {shown!r} (a parent of it is a file)") from None
     except OSError as exc:
-        raise OutputError(f"expected an output file path, got {shown!r} ({_why(exc)})") from None
+        raise OutputError(f"expected an output file path, got {shown!r} ({os_error_reason(exc)})") from None
     if st is not None and not stat.S_ISREG(st.st_mode):
         raise OutputError(f"expected a new or regular output file, got {shown!r} ({_kind(st.st_mode)}; "
                           "refusing to replace it)")
@@ -141,7 +143,7 @@ def _make_parents(folder: Path, shown: str) -> None:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(f"expected a writable output folder for {shown!r}, got {str(folder)!r} "
-                          f"({_why(exc)})") from None
+                          f"({os_error_reason(exc)})") from None
 
 
 @contextlib.contextmanager
@@ -160,7 +162,7 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     try:
         fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=target.suffix, dir=parent)
     except OSError as exc:
-        raise OutputError(f"expected a writable output folder for {shown!r} ({_why(exc)})") from None
+        raise OutputError(f"expected a writable output folder for {shown!r} ({os_error_reason(exc)})") from None
     os.close(fd)
     tmp = Path(tmp_name)
     try:
@@ -171,7 +173,7 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         except OSError as exc:
             if isinstance(exc, OutputError):
                 raise
-            raise OutputError(f"could not write {shown!r}: {_why(exc)}") from None
+            raise OutputError(f"could not write {shown!r}: {os_error_reason(exc)}") from None
         _replace_file(tmp, target, shown)
     except BaseException:
         with contextlib.suppress(OSError):
@@ -185,7 +187,7 @@ def _replace_file(src: Path, dest: Path, shown: str) -> None:
     try:
         os.replace(src, dest)
     except OSError as exc:
-        raise OutputError(f"could not write {shown!r}: {_why(exc)}") from None
+        raise OutputError(f"could not write {shown!r}: {os_error_reason(exc)}") from None
 
 
 def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
@@ -215,7 +217,8 @@ def output_files(paths: Sequence[str | os.PathLike[str]]) -> Iterator[list[Path]
             try:
                 fd, name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=target.suffix, dir=parent)
             except OSError as exc:
-                raise OutputError(f"expected a writable output folder for {str(shown)!r} ({_why(exc)})") from None
+                raise OutputError(f"expected a writable output folder for {str(shown)!r} "
+                                  f"({os_error_reason(exc)})") from None
             os.close(fd)
             tmps.append(Path(name))
             os.chmod(name, 0o666 & ~_umask())
@@ -224,7 +227,7 @@ def output_files(paths: Sequence[str | os.PathLike[str]]) -> Iterator[list[Path]
         except OSError as exc:
             if isinstance(exc, OutputError):
                 raise
-            raise OutputError(f"could not write {', '.join(map(str, paths))}: {_why(exc)}") from None
+            raise OutputError(f"could not write {', '.join(map(str, paths))}: {os_error_reason(exc)}") from None
         for target in targets:
             resolve_output_file(target)
         for shown, tmp, target in zip(paths, tmps, targets, strict=True):
@@ -253,7 +256,7 @@ def output_dir(path: str | os.PathLike[str]) -> Iterator[Path]:
     try:
         staging = Path(tempfile.mkdtemp(prefix=f".{target.name or 'out'}.staging-", dir=home))
     except OSError as exc:
-        raise OutputError(f"expected a writable output folder, got {shown!r} ({_why(exc)})") from None
+        raise OutputError(f"expected a writable output folder, got {shown!r} ({os_error_reason(exc)})") from None
     try:
         os.chmod(staging, 0o777 & ~_umask())  # mkdtemp makes it owner-only; it may become the output folder
         try:
@@ -263,13 +266,13 @@ def output_dir(path: str | os.PathLike[str]) -> Iterator[Path]:
         except OSError as exc:
             where = exc.filename if isinstance(exc.filename, str) else shown
             where = where.replace(str(staging), str(target))
-            raise OutputError(f"could not write {where!r}: {_why(exc)}") from None
+            raise OutputError(f"could not write {where!r}: {os_error_reason(exc)}") from None
         if not exists and not target.exists():
             _make_parents(target.parent, shown)
             try:
                 os.rename(staging, target)
             except OSError as exc:
-                raise OutputError(f"could not create {shown!r}: {_why(exc)}") from None
+                raise OutputError(f"could not create {shown!r}: {os_error_reason(exc)}") from None
             return
         items = [item for item in sorted(staging.rglob("*")) if item.is_file()]
         moves = [(item, target / item.relative_to(staging)) for item in items]

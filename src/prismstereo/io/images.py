@@ -12,6 +12,7 @@ import numpy as np
 
 from prismstereo.errors import ImageError
 from prismstereo.io.atomic import atomic_path
+from prismstereo.io.memory import check_fits_in_memory
 
 __all__ = ["image_size", "read_image", "write_image"]
 
@@ -137,7 +138,6 @@ def read_image(path: str | os.PathLike[str], *, gray: bool = False,
         If the file does not exist, is empty, truncated, damaged, of the wrong size, too large for the
         memory, or cannot be decoded.
     """
-    from prismstereo.io.memory import check_fits_in_memory
 
     p = Path(path)
     raw = _read_bytes(p)

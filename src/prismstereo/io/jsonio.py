@@ -6,6 +6,7 @@ import dataclasses
 import json
 import math
 import os
+import platform
 from pathlib import Path
 from typing import Any
 
@@ -36,3 +37,14 @@ def to_jsonable(obj: Any) -> Any:
 def write_json(path: str | os.PathLike[str], obj: Any) -> None:
     """Write ``obj`` as indented JSON, atomically."""
     atomic_write_text(path, json.dumps(to_jsonable(obj), indent=2) + "\n")
+
+
+def library_versions() -> dict[str, str]:
+    """Versions of Python and of the numerical libraries a run used (recorded in every ``run.json``)."""
+    # numba and scipy are slow to import and only needed here when writing a run record: imported lazily
+    import cv2
+    import numba
+    import scipy
+
+    return {"python": platform.python_version(), "numpy": np.__version__, "scipy": scipy.__version__,
+            "opencv": cv2.__version__, "numba": numba.__version__}

@@ -20,7 +20,7 @@ import numpy as np
 from prismstereo.errors import ConfigError
 
 __all__ = ["PRESETS", "MatchResult", "Matcher", "available_matchers", "get_matcher", "register_matcher",
-           "resolve_preset"]
+           "resolve_preset", "resolved_params"]
 
 
 @dataclass(frozen=True)
@@ -180,3 +180,38 @@ def resolve_preset(preset: str | None, method: str | None, *, default: str = "bp
     if method is not None:
         raise ConfigError(f"expected --preset or --method, got both (--preset {key} means --method {PRESETS[key]})")
     return PRESETS[key], key
+
+
+def resolved_params(name: str, **params: Any) -> dict[str, Any]:
+    """Every tuning parameter of matcher ``name`` with ``params`` applied: the given values and the defaults.
+
+    This is what a run records (``run.json``), so that it can be replayed after a default changes:
+    ``get_matcher(name, **resolved_params(name, **params))`` builds the same matcher. Lists (a parameter
+    read back from JSON) become tuples where the default is a tuple. A parameter whose default is None (a
+    matcher that builds its own default object) stays None.
+
+    Raises
+    ------
+    ConfigError
+        As :func:`get_matcher`.
+    """
+    key = str(name).lower()
+    get_matcher(key, **params)  # checks the name, the parameter names and their types
+    factory = _REGISTRY[key]
+    if dataclasses.is_dataclass(factory):
+        defaults: dict[str, Any] = {}
+        for f in dataclasses.fields(factory):
+            if not f.init:
+                continue
+            if f.default is not dataclasses.MISSING:
+                defaults[f.name] = f.default
+            elif f.default_factory is not dataclasses.MISSING:
+                defaults[f.name] = f.default_factory()
+    else:
+        defaults = {p.name: p.default for p in inspect.signature(factory).parameters.values()
+                    if p.default is not inspect.Parameter.empty}
+    out = {**defaults, **params}
+    for k, v in out.items():
+        if isinstance(defaults.get(k), tuple) and isinstance(v, list):
+            out[k] = tuple(v)
+    return out

@@ -33,24 +33,25 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
-from prismstereo.config import Rig
+from prismstereo.cameras import calibrate_rig
+from prismstereo.config import DEFAULT_DEPTH_RANGE_MM, Rig
 from prismstereo.errors import ConfigError, ImageError
+from prismstereo.optics import trace_pixels
+from prismstereo.progress import progress_bar
+from prismstereo.rectify.regions import view_regions
 
 log = logging.getLogger(__name__)
 
-__all__ = ["AllViewsDepth", "SweepParams", "all_views_command", "depth_accuracy", "depth_all_views",
-           "write_all_views_outputs"]
+__all__ = ["AllViewsDepth", "SweepParams", "depth_all_views"]
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
@@ -117,6 +118,8 @@ class AllViewsDepth:
     depths : (K,) float64
         The depth hypotheses, mm.
     timings : dict[str, float]
+    region : (H, W) bool or None
+        The reference face's region (the pixels that could get a depth).
     """
 
     reference: int
@@ -131,6 +134,7 @@ class AllViewsDepth:
     pixels: npt.NDArray[np.int64]
     depths: F64
     timings: dict[str, float] = field(default_factory=dict)
+    region: npt.NDArray[np.bool_] | None = None
 
 
 def _gray_grad(img: F32) -> tuple[F32, F32, F32]:
@@ -185,7 +189,7 @@ def _multi_ray_point(origins: F64, dirs: F64, use: npt.NDArray[np.bool_]) -> F64
 
 
 def depth_all_views(rig: Rig, capture: Any, *, method: str = "sweep",
-                    depth_range: tuple[float, float] = (800.0, 5000.0), reference: int | None = None,
+                    depth_range: tuple[float, float] = DEFAULT_DEPTH_RANGE_MM, reference: int | None = None,
                     views: Sequence[int] | None = None, params: SweepParams | None = None,
                     calibration: str = "fit") -> AllViewsDepth:
     """Depth of the reference view from every other view of a prism capture (thesis §7.1 and §7.2).
@@ -216,10 +220,6 @@ def depth_all_views(rig: Rig, capture: Any, *, method: str = "sweep",
     ------
     ConfigError, ImageError
     """
-    from prismstereo.cameras import calibrate_rig
-    from prismstereo.optics import trace_pixels
-    from prismstereo.rectify.regions import view_regions
-
     if method != "sweep":
         raise ConfigError(f"expected method 'sweep' for all-view depth, got {method!r}")
     p = params or SweepParams()
@@ -291,8 +291,6 @@ def depth_all_views(rig: Rig, capture: Any, *, method: str = "sweep",
         cnt = _box(seen.astype(np.float32), p.radius)
         out = np.where(cnt > 1e-3, agg / np.maximum(cnt, np.float32(1e-3)), np.float32(np.nan))
         return out.astype(np.float32), seen, uv
-
-    from prismstereo.progress import progress_bar
 
     # loop over depth hypotheses (planes), not pixels; a bar on a terminal only
     for k in progress_bar(range(nk), desc="depth --views all: plane sweep", unit="plane", leave=False):
@@ -400,111 +398,4 @@ def depth_all_views(rig: Rig, capture: Any, *, method: str = "sweep",
                          inverse_depth_index=full(np.where(valid, kf, np.nan).astype(np.float32),
                                                   np.float32(np.nan)),
                          valid=valid_full, counts=full(cnt, np.uint8(0)), points=pts, colors=colors, pixels=pix,
-                         depths=depths, timings=tm)
-
-
-def depth_accuracy(result: AllViewsDepth, depth_gt: npt.NDArray[np.floating], *,
-                   faces: npt.NDArray[np.integer] | None = None, tolerance: float = 0.01) -> dict[str, float]:
-    """Coverage and error of an all-view depth map against the simulator's ground truth.
-
-    Parameters
-    ----------
-    result : AllViewsDepth
-    depth_gt : (H, W) float, Z mm per real pixel (inf / NaN = none)
-    faces : (H, W) int, optional
-        The simulator's face map; when given, the evaluated pixels are the reference face's pixels with
-        ground truth (otherwise: every pixel with ground truth and an estimate's region).
-    tolerance : float
-        Relative error counted as correct.
-
-    Returns
-    -------
-    dict
-        ``coverage`` (% of evaluated pixels with a valid estimate), ``good`` (% of evaluated pixels
-        within ``tolerance``), ``mean_rel_err`` and ``median_rel_err`` (%, over the valid estimates),
-        ``n_eval``, ``n_valid``.
-    """
-    gt = np.asarray(depth_gt, dtype=np.float64)
-    ev = np.isfinite(gt)
-    if faces is not None:
-        ev &= np.asarray(faces) == result.reference
-    d = result.depth.astype(np.float64)
-    ok = ev & np.isfinite(d)
-    rel = np.abs(d[ok] - gt[ok]) / gt[ok]
-    n = max(int(ev.sum()), 1)
-    return {"coverage": 100.0 * ok.sum() / n, "good": 100.0 * float((rel <= tolerance).sum()) / n,
-            "mean_rel_err": 100.0 * float(rel.mean()) if rel.size else float("nan"),
-            "median_rel_err": 100.0 * float(np.median(rel)) if rel.size else float("nan"),
-            "n_eval": float(n), "n_valid": float(ok.sum())}
-
-
-def write_all_views_outputs(result: AllViewsDepth, out_dir: str | os.PathLike[str], *,
-                            extra: dict[str, Any] | None = None) -> dict[str, Path]:
-    """Write an all-view result all-or-nothing: ``depth.pfm`` (Z mm per REAL capture pixel, inf = none),
-    ``depth.png`` (colourised), ``views.png`` (number of views that triangulated each pixel, colourised),
-    both with a labelled colour bar, ``points.ply`` (mm, world frame, reference colours) and ``run.json``
-    (faces, hypotheses, counts, timings, ``extra``).
-
-    Returns
-    -------
-    dict name -> final path.
-    """
-    from prismstereo.io import output_dir, write_image, write_json, write_pfm, write_ply
-    from prismstereo.viz.colorize import colorize_depth, colorize_disparity
-
-    names = ("depth.pfm", "depth.png", "views.png", "points.ply", "run.json")
-    d = result.depth
-    with output_dir(out_dir) as stage:
-        write_pfm(stage / "depth.pfm", np.where(np.isfinite(d), d, np.float32(np.inf)).astype(np.float32))
-        write_image(stage / "depth.png", colorize_depth(d, colorbar="depth Z (mm)"))
-        nv = len(result.views) + 1
-        write_image(stage / "views.png", colorize_disparity(
-            np.where(result.counts > 0, result.counts.astype(np.float32), np.float32(np.nan)), vmin=0.0,
-            vmax=float(nv), colorbar="views per pixel"))
-        write_ply(stage / "points.ply", result.points, result.colors)
-        counts = np.bincount(result.counts.ravel(), minlength=len(result.views) + 2)
-        write_json(stage / "run.json", {
-            "mode": "all views (plane sweep along exact reference rays, multi-ray exact triangulation)",
-            "reference_face": result.reference, "views": list(result.views),
-            "depth_hypotheses": {"n": int(result.depths.size), "min_mm": float(result.depths.min()),
-                                 "max_mm": float(result.depths.max())},
-            "points": int(result.points.shape[0]),
-            "pixels_by_view_count": {str(k): int(v) for k, v in enumerate(counts) if k > 0},
-            "timings": result.timings, **(extra or {})})
-    return {n: Path(out_dir) / n for n in names}
-
-
-def all_views_command(rig_path: str | os.PathLike[str], image_path: str | os.PathLike[str],
-                      out_dir: str | os.PathLike[str], *, depth_range: tuple[float, float] = (800.0, 5000.0),
-                      calibration: str = "fit", gt: str | os.PathLike[str] | None = None,
-                      reference: int | None = None) -> str:
-    """``prismstereo depth RIG IMAGE -o DIR --views all`` for a rig with N ≥ 3 faces; returns the lines to print.
-
-    Reads the rig and the capture, runs :func:`depth_all_views`, writes
-    :func:`write_all_views_outputs`, and with ``gt`` (simulate's ``depth_gt.pfm``) adds
-    :func:`depth_accuracy` to the summary and to ``run.json``.
-    """
-    from prismstereo.config import load_rig
-    from prismstereo.evaluation.depth_metrics import read_depth_gt
-    from prismstereo.io import read_image
-
-    rig = load_rig(rig_path)
-    image = read_image(image_path, expected_size=(rig.camera.width, rig.camera.height),
-                       what="capture (the rig's camera size)")
-    depth_gt = None
-    if gt is not None:
-        depth_gt = read_depth_gt(gt, rig)
-    res = depth_all_views(rig, image, depth_range=depth_range, reference=reference, calibration=calibration)
-    extra: dict[str, Any] = {"inputs": {"rig": str(rig_path), "image": str(image_path), "gt": None if gt is None
-                                        else str(gt)}, "depth_range_mm": list(depth_range)}
-    lines = [f"depth (all views): reference face {res.reference}, views {list(res.views)}, "
-             f"{res.depths.size} depth hypotheses in [{depth_range[0]:g}, {depth_range[1]:g}] mm, "
-             f"{res.points.shape[0]} points, {sum(res.timings.values()):.1f} s"]
-    if depth_gt is not None:
-        acc = depth_accuracy(res, depth_gt)
-        extra["accuracy"] = acc
-        lines.append(f"accuracy vs ground truth: coverage {acc['coverage']:.1f} %, within 1 % {acc['good']:.1f} %, "
-                     f"mean |ΔZ|/Z {acc['mean_rel_err']:.2f} %, median {acc['median_rel_err']:.3f} %")
-    outs = write_all_views_outputs(res, out_dir, extra=extra)
-    lines.append(f"wrote {', '.join(p.name for p in outs.values())} to {out_dir}")
-    return "\n".join(lines)
+                         depths=depths, timings=tm, region=regions[ref].mask.copy())

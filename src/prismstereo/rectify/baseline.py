@@ -31,11 +31,12 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from prismstereo.cameras import PinholeCamera
+from prismstereo.cameras import PinholeCamera, calibrate_rig, fit_camera
 from prismstereo.config import Rig
 from prismstereo.errors import GeometryError
 from prismstereo.optics import project_exact, trace_pixels
 from prismstereo.rectify.regions import ViewRegion, split_capture, view_regions
+from prismstereo.simulate import checkerboard_poses, render_capture
 
 log = logging.getLogger(__name__)
 
@@ -88,7 +89,6 @@ def detect_corners(
     distance_range: tuple[float, float] = (600.0, 1500.0),
 ) -> Detections:
     """Checkerboard corners of ``n_poses`` boards in each face's sub-image (step 1 of the module docstring)."""
-    from prismstereo.simulate import checkerboard_poses, render_capture
 
     t0 = time.perf_counter()
     regions = view_regions(rig) if regions is None else regions
@@ -274,7 +274,6 @@ def _stats(e: np.ndarray) -> dict[str, float]:
 
 def _models(rig: Rig, det: Detections, faces: list[int], *, fit_depth_range: tuple[float, float] | None = None
             ) -> tuple[dict[str, dict[int, PinholeCamera]], dict[str, object]]:
-    from prismstereo.cameras import calibrate_rig, fit_camera
 
     models: dict[str, dict[int, PinholeCamera]] = {
         "geometric (thesis construction)": {v.face: v.camera for v in calibrate_rig(rig, method="thesis")},

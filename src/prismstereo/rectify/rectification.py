@@ -497,33 +497,81 @@ def rectify_pair(
                          reference_depth_mm=float(reference_depth_mm), view_left=left, view_right=right, rig=rig)
 
 
-def disparity_range(pair: RectifiedPair, depth_min_mm: float, depth_max_mm: float, *, step: int = 8
-                    ) -> tuple[int, int]:
+def common_view(pair: RectifiedPair, depth_min_mm: float, depth_max_mm: float, *, n_depths: int = 12
+                ) -> tuple[np.ndarray, tuple[int, int]]:
+    """Where the two rectified views of a pair overlap for world depths in a range, and its disparities.
+
+    The ray of every valid rectified-left pixel is followed to ``n_depths`` world depths between the
+    bounds (geometric steps); a sample counts where its point projects into the valid region of the
+    rectified right image (thesis Eq. 7.22: d = f λ / Z along the rectified axis).
+
+    Returns
+    -------
+    mask : (h, w) bool
+        Left pixels that see a point of the right view at some depth in the range.
+    (min_disp, max_disp) : ints
+        Floor / ceil of the disparities of those samples (``min_disp >= 0``): the search range clipped to
+        the common view.
+
+    Raises
+    ------
+    GeometryError
+        If no sample is seen by both views: the views do not overlap at these depths.
+    """
+    vl, vr = (np.asarray(m, dtype=bool) for m in pair.valid_masks())
+    ys, xs = np.nonzero(vl)
+    mask = np.zeros(vl.shape, dtype=bool)
+    if ys.size == 0:
+        raise GeometryError("expected a rectified left view with valid pixels, got none")
+    px = np.stack([xs, ys], axis=1).astype(np.float64)
+    K = np.asarray(pair.K, dtype=np.float64)
+    R = np.asarray(pair.R_left, dtype=np.float64)
+    C = np.asarray(pair.C_left, dtype=np.float64)
+    rays = np.concatenate([px, np.ones((px.shape[0], 1))], axis=1) @ np.linalg.inv(K).T @ R  # world dirs
+    seen = np.zeros(ys.size, dtype=bool)
+    lo, hi = np.inf, -np.inf
+    for z in np.geomspace(depth_min_mm, depth_max_mm, n_depths):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = (z - C[2]) / rays[:, 2]
+        X = C + np.where(s > 0, s, np.nan)[:, None] * rays
+        xr = np.asarray(pair.project(X, "right"), dtype=np.float64)
+        ok = np.all(np.isfinite(xr), axis=1)
+        ci = np.rint(np.where(ok, xr[:, 0], -1)).astype(np.int64)
+        ri = np.rint(np.where(ok, xr[:, 1], -1)).astype(np.int64)
+        ok &= (ci >= 0) & (ci < vr.shape[1]) & (ri >= 0) & (ri < vr.shape[0])
+        ok[ok] &= vr[ri[ok], ci[ok]]
+        if ok.any():
+            d = px[ok, 0] - xr[ok, 0]
+            lo, hi = min(lo, float(d.min())), max(hi, float(d.max()))
+        seen |= ok
+    if not seen.any():
+        raise GeometryError(f"expected faces {pair.left_face} and {pair.right_face} to see a common part of the "
+                            f"scene at {depth_min_mm:g}–{depth_max_mm:g} mm, got views that do not overlap "
+                            "(choose other --views or --depth-range)")
+    mask[ys[seen], xs[seen]] = True
+    return mask, (max(0, int(np.floor(lo))), int(np.ceil(hi)))
+
+
+def disparity_range(pair: RectifiedPair, depth_min_mm: float, depth_max_mm: float) -> tuple[int, int]:
     """Disparity search range (px) for scene depths (world Z, mm) in [depth_min_mm, depth_max_mm].
 
-    Over the left view's valid rectified pixels, d = f B / Z_rect where Z_rect is the depth, along the
-    rectified optical axis, of the point of the pixel's ray at world depth Z (thesis Eq. 7.22).
+    The disparities of :func:`common_view`: those of the left pixels whose point, somewhere in the depth
+    range, is seen by the right view (thesis Eq. 7.22).
 
     Returns
     -------
     (min_disp, max_disp) : ints, floor and ceil of the range, min_disp ≥ 0.
+
+    Raises
+    ------
+    ConfigError
+        If the range is not ``0 < min < max``.
+    GeometryError
+        If the views do not overlap at these depths.
     """
     if not 0 < depth_min_mm < depth_max_mm:
         raise ConfigError(f"expected 0 < depth_min < depth_max (mm), got {depth_min_mm}, {depth_max_mm}")
-    ys, xs = np.nonzero(pair.valid_left[::step, ::step])
-    if ys.size == 0:
-        raise GeometryError("expected a rectified left view with valid pixels, got none")
-    dirs = _rect_pixels_to_dirs(np.stack([xs * step, ys * step], axis=1).astype(np.float64), pair.K)
-    d_world = dirs @ pair.R
-    fb = pair.focal_px * pair.baseline_mm
-    out = []
-    for z in (depth_max_mm, depth_min_mm):
-        s = (z - pair.C_left[2]) / d_world[:, 2]
-        z_rect = s * dirs[:, 2]
-        out.append(fb / z_rect[z_rect > 0])
-    lo = max(0, int(np.floor(np.min(out[0]))))
-    hi = int(np.ceil(np.max(out[1])))
-    return lo, hi
+    return common_view(pair, depth_min_mm, depth_max_mm)[1]
 
 
 # --------------------------------------------------------------------------- N views

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from prismstereo.config import CameraSpec, Rig, thesis_biprism
+from prismstereo.config import THESIS_CAMERA, CameraSpec, Rig, thesis_biprism
 from prismstereo.errors import ConfigError
 from prismstereo.simulate.scene import (
     Box,
@@ -88,7 +88,10 @@ def robot_scene(*, width: int = 1024, supersample: int = 2) -> tuple[Rig, Scene]
     base = thesis_biprism()
     if width % 4 or width < 16:
         raise ConfigError(f"width: expected a width that is a multiple of 4 and >= 16, got {width}")
-    cam = CameraSpec(width=width, height=width * 3 // 4, focal_length=25.0, pixel_size=0.00465 * 1024 / width)
+    thesis = THESIS_CAMERA
+    assert thesis.pixel_size is not None
+    cam = CameraSpec(width=width, height=width * 3 // 4, focal_length=thesis.focal_length,
+                     pixel_size=thesis.pixel_size * thesis.width / width)
     rig = Rig(camera=cam, prism=base.prism, name=f"biprism-robot-{width}")
     scene = Scene(objects=robot_objects(), background=(0.1, 0.1, 0.1), shading=0.3, seed=0,
                   supersample=supersample, name="biprism_robot")

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from prismstereo.cameras.pinhole import project_points
 from prismstereo.config import Rig
 from prismstereo.errors import ConfigError, GeometryError
 from prismstereo.optics import project_exact
@@ -248,7 +249,6 @@ def camera_board_poses(
     distortion is strongest); each pose is whole inside the image (distorting projection, 4 px border).
     Same parameters as :func:`checkerboard_poses`.
     """
-    from prismstereo.cameras.pinhole import project_points
 
     if n_poses < 1:
         raise ConfigError(f"n_poses: expected a positive integer, got {n_poses!r}")

@@ -16,6 +16,7 @@ import numpy as np
 
 from prismstereo.apps.reproduce import TableResult
 from prismstereo.evaluation.middlebury import evaluate_disparity, load_scene
+from prismstereo.matching import match
 
 __all__ = ["THESIS_TABLE_5_1", "reproduce"]
 
@@ -43,7 +44,6 @@ _ROWS: tuple[tuple[str, str, dict[str, Any], str], ...] = (
 
 def reproduce(*, data_dir: Path | None, quick: bool = False) -> TableResult:
     """Re-measure Table 5.1 (``quick``: Tsukuba only)."""
-    from prismstereo.matching import match
 
     scenes = ("tsukuba",) if quick else _ORDER
     loaded = {s: load_scene(s, data_dir) for s in scenes}

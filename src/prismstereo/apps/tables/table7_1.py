@@ -32,6 +32,10 @@ from typing import Any
 import numpy as np
 
 from prismstereo.apps.reproduce import TableResult
+from prismstereo.evaluation.middlebury import _resolve, evaluate_disparity, load_scene
+from prismstereo.io import read_image
+from prismstereo.matching.api import match
+from prismstereo.multiview.api import match_multiview
 
 log = logging.getLogger(__name__)
 
@@ -49,7 +53,6 @@ def cones_views() -> dict[str, float]:
 
 
 def _bad(disp: np.ndarray, scene: Any) -> dict[str, float]:
-    from prismstereo.evaluation.middlebury import evaluate_disparity
 
     b = evaluate_disparity(disp, scene, thresholds=(1.0,))["bad"]["1.0"]
     return {m: round(float(v), 3) for m, v in b.items()}
@@ -68,10 +71,6 @@ def _run(name: str, fn: Any, repeat: int = 1) -> tuple[np.ndarray, float]:
 
 def _scene_rows(scene_name: str, views: dict[str, float], ref_name: str, *, data_dir: Path | None,
                 local: bool, subsets: list[list[str]], timing_repeat: int = 1) -> list[dict[str, Any]]:
-    from prismstereo.evaluation.middlebury import _resolve, load_scene
-    from prismstereo.io import read_image
-    from prismstereo.matching.api import match
-    from prismstereo.multiview.api import match_multiview
 
     scene = load_scene(scene_name, data_dir)
     folder = _resolve(data_dir) / scene_name / "views"

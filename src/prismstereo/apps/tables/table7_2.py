@@ -31,7 +31,13 @@ from typing import Any
 
 import numpy as np
 
+from prismstereo.apps.demo import robot_scene, scaled_rig
 from prismstereo.apps.reproduce import TableResult
+from prismstereo.config import thesis_biprism
+from prismstereo.depth import DepthConfig, run_depth, triangulate_matches
+from prismstereo.evaluation.depth_metrics import ground_truth_for_run
+from prismstereo.optics import project_exact
+from prismstereo.simulate import render_capture
 
 log = logging.getLogger(__name__)
 
@@ -90,12 +96,6 @@ def _overall(depth: np.ndarray, valid: np.ndarray, gt_depth: np.ndarray, robot: 
 
 def measure(*, scale: int = 1, method: str = "bpasw") -> dict[str, Any]:
     """Render the robot, run the pipeline twice (fit and thesis rectification) and measure every column."""
-    from prismstereo.apps.demo import robot_scene, scaled_rig
-    from prismstereo.config import thesis_biprism
-    from prismstereo.depth import DepthConfig, run_depth, triangulate_matches
-    from prismstereo.evaluation.depth_metrics import ground_truth_for_run
-    from prismstereo.optics import project_exact
-    from prismstereo.simulate import render_capture
 
     rig = thesis_biprism() if scale == 1 else scaled_rig(thesis_biprism(), scale)
     scene = robot_scene()
@@ -103,18 +103,19 @@ def measure(*, scale: int = 1, method: str = "bpasw") -> dict[str, Any]:
     cap = render_capture(rig, scene)
     seconds = {"render": time.perf_counter() - t0}
     runs = {}
+    gts = {}
     for calib in ("fit", "thesis"):
         t = time.perf_counter()
         res = run_depth(rig, cap.image, config=DepthConfig(method=method, calibration=calib,
                                                            triangulation="exact"), progress=False)
-        res.ground_truth = ground_truth_for_run(res, scene=scene)
+        gts[calib] = ground_truth_for_run(res, scene=scene)
         runs[calib] = res
         seconds[f"pipeline ({calib})"] = time.perf_counter() - t
 
     def column(res: Any, tri: str) -> tuple[np.ndarray, np.ndarray]:
         ys, xs = np.nonzero(res.valid)
         d = res.disparity[ys, xs].astype(np.float64)
-        out = triangulate_matches(res, tri, ys, xs, d)
+        out = triangulate_matches(res.rig, res.pair, ys, xs, d, method=tri, views=res.views)
         depth = np.full(res.valid.shape, np.nan)
         depth[ys[out.valid], xs[out.valid]] = out.points[out.valid, 2]
         return depth, np.isfinite(depth)
@@ -141,8 +142,7 @@ def measure(*, scale: int = 1, method: str = "bpasw") -> dict[str, Any]:
         samples.append(row)
     overall = {}
     for col in COLUMNS:
-        res = pair_of[col]
-        gt_depth = res.ground_truth.depth
+        gt_depth = gts["thesis" if col.startswith("thesis") else "fit"].depth
         robot = np.isfinite(gt_depth) & (gt_depth < 1800.0)
         overall[col] = _overall(maps[col][0], maps[col][1], gt_depth, robot)
     seconds["total"] = time.perf_counter() - t0
