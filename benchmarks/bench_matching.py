@@ -86,9 +86,9 @@ def cold_commands(data: str | None, methods: list[str], scene: str = "teddy") ->
     import tempfile
     from pathlib import Path
 
-    from prismstereo.evaluation.middlebury import _resolve
+    from prismstereo.evaluation.middlebury import resolve_data_dir
 
-    folder = _resolve(data) / scene
+    folder = resolve_data_dir(data) / scene
     sc = load_scene(scene, data)
     exe = Path(sys.executable).with_name("prismstereo")
     print(f"whole `prismstereo match` runs on {scene} ({sc.left.shape[1]}x{sc.left.shape[0]}, "

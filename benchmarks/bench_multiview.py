@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def _middlebury(scenes: list[str], repeat: int = 1) -> dict[str, Any]:
     from prismstereo.apps.tables.table7_1 import TSUKUBA_VIEWS, cones_views
-    from prismstereo.evaluation.middlebury import _resolve, evaluate_disparity, load_scene
+    from prismstereo.evaluation.middlebury import evaluate_disparity, load_scene, resolve_data_dir
     from prismstereo.io import read_image
     from prismstereo.matching.api import match
     from prismstereo.multiview.api import match_multiview
@@ -37,7 +37,7 @@ def _middlebury(scenes: list[str], repeat: int = 1) -> dict[str, Any]:
     for name in scenes:
         sc = load_scene(name)
         views, ref_name = (TSUKUBA_VIEWS, "col3") if name == "tsukuba" else (cones_views(), "im2")
-        folder = _resolve(None) / name / "views"
+        folder = resolve_data_dir(None) / name / "views"
         ref = read_image(folder / f"{ref_name}.png")
         imgs = {k: read_image(folder / f"{k}.png") for k in views}
         unit = next(k for k, r in views.items() if r == 1.0)

@@ -167,3 +167,34 @@ def test_all_views_of_a_triprism(tmp_path, capsys):
     assert code == 0, err
     assert "all views" in text
     assert {"depth.pfm", "points.ply", "run.json"} <= {p.name for p in out.iterdir()}
+
+
+def test_depth_replays_a_run_from_its_run_json(capture_folder, tmp_path, capsys):
+    """``depth --config run.json`` reruns the recorded rig, capture and resolved configuration: same outputs."""
+    first, again = tmp_path / "first", tmp_path / "again"
+    code, _, err = _run(["depth", str(capture_folder / "rig.toml"), str(capture_folder / "capture.png"),
+                         "-o", str(first), "--method", "sad", "-p", "radius=4", "--roi", "60,60,90,90",
+                         "--depth-range", "1200,2200", "--triangulation", "midpoint"], capsys)
+    assert code == 0, err
+    run = json.loads((first / "run.json").read_text())
+    # the resolved configuration: the parameter given and every default of the matcher and the steps
+    assert run["config"]["matcher_params"]["radius"] == 4 and "tolerance" in run["config"]["matcher_params"]
+    assert run["config"]["min_confidence"] == 0.8 and run["config"]["views"] == [1, 0]
+    code, _, err = _run(["depth", "--config", str(first / "run.json"), "-o", str(again)], capsys)
+    assert code == 0, err
+    rerun = json.loads((again / "run.json").read_text())
+    assert rerun["config"] == run["config"] and rerun["counts"] == run["counts"]
+    for name in ("disparity.pfm", "depth.pfm", "points.ply"):
+        assert (again / name).read_bytes() == (first / name).read_bytes(), name
+    # an option given on the command line overrides the replayed one
+    code, _, err = _run(["depth", "--config", str(first / "run.json"), "-o", str(tmp_path / "q"),
+                         "--triangulation", "q"], capsys)
+    assert code == 0, err
+    assert json.loads((tmp_path / "q" / "run.json").read_text())["config"]["triangulation"] == "q"
+
+
+def test_depth_config_that_is_not_a_run_json(tmp_path, capsys):
+    bad = tmp_path / "bad.json"
+    bad.write_text("{\"config\": {\"no_such_key\": 1}}")
+    code, _, err = _run(["depth", "--config", str(bad), "-o", str(tmp_path / "out")], capsys)
+    assert code == 2 and "no_such_key" in err

@@ -38,5 +38,5 @@ def plane_run(_plane_evaluated):
 
 @pytest.fixture(scope="session")
 def plane_gt(_plane_evaluated):
-    """The ground truth of :func:`plane_run` on its grid (:class:`~prismstereo.evaluation.depth_metrics.DepthGroundTruth`)."""
+    """The ground truth of :func:`plane_run` on its grid (a ``DepthGroundTruth``)."""
     return _plane_evaluated[1]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from prismstereo.matching.coop import _box3
+from prismstereo.matching.coop import box_filter_volume
 from prismstereo.matching.coopcost import raw_cost, sheared_costs
 from prismstereo.matching.cooperative import build_segment_graph, total_energy
 from prismstereo.matching.planes import build_segment_index
@@ -27,7 +27,7 @@ def _steep_floor(slope: float = 1.0, seed: int = 5) -> tuple[np.ndarray, np.ndar
 def test_slope_zero_is_the_boxed_raw_cost() -> None:
     left, right, _ = _steep_floor()
     vol = sheared_costs(left, right, max_disp=30, slopes=(0.0,), radius=1)
-    ref = _box3(raw_cost(left, right, max_disp=30), 1)
+    ref = box_filter_volume(raw_cost(left, right, max_disp=30), 1)
     assert vol.shape == (1, *ref.shape)
     np.testing.assert_allclose(vol[0], ref, atol=1e-6)
 

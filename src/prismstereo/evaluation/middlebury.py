@@ -98,7 +98,14 @@ def default_data_dir() -> Path | None:
     return None
 
 
-def _resolve(data_dir: str | os.PathLike[str] | None) -> Path:
+def resolve_data_dir(data_dir: str | os.PathLike[str] | None) -> Path:
+    """The Middlebury folder to read: ``data_dir``, else :func:`default_data_dir`.
+
+    Raises
+    ------
+    ConfigError
+        No folder given and none found, or ``data_dir`` is not a folder.
+    """
     if data_dir is None:
         found = default_data_dir()
         if found is None:
@@ -122,7 +129,7 @@ def _layout(folder: Path) -> str | None:
 def list_scenes(data_dir: str | os.PathLike[str] | None = None) -> tuple[str, ...]:
     """Names of the scene folders (either layout) in ``data_dir``, sorted; the folder's own name when it
     is itself a scene."""
-    root = _resolve(data_dir)
+    root = resolve_data_dir(data_dir)
     if _layout(root) is not None:
         return (root.name,)
     return tuple(sorted(p.name for p in root.iterdir() if p.is_dir() and _layout(p) is not None))
@@ -236,7 +243,7 @@ def load_scene_folder(folder: str | os.PathLike[str]) -> MiddleburyScene:
 
 def load_scene(name: str, data_dir: str | os.PathLike[str] | None = None) -> MiddleburyScene:
     """Load the scene folder ``name`` of ``data_dir`` (default :func:`default_data_dir`), either layout."""
-    root = _resolve(data_dir)
+    root = resolve_data_dir(data_dir)
     if _layout(root) is not None and root.name.lower() == name.lower():
         return load_scene_folder(root)
     folder = root / name
@@ -312,7 +319,7 @@ def evaluate_method(method: str, *, data_dir: str | os.PathLike[str] | None = No
     """
 
     get_matcher(method, **params)  # validates name and parameters first
-    root = _resolve(data_dir)
+    root = resolve_data_dir(data_dir)
     found = list_scenes(root)
     if scenes is None:
         scenes = found

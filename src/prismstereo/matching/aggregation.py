@@ -111,7 +111,7 @@ def _sim(d2: float, kernel: int, s0: float, s_min: float, log_norm: float) -> fl
 
 
 @njit(cache=True, inline="always")
-def _pair_weight(lab: np.ndarray, y: int, x: int, qy: int, qx: int, kernel: int, s0: float, s_min: float,
+def pair_weight(lab: np.ndarray, y: int, x: int, qy: int, qx: int, kernel: int, s0: float, s_min: float,
                  log_norm: float) -> float:  # pragma: no cover - numba
     """Colour similarity (:func:`_sim`) of Lab pixels ``(y, x)`` and ``(qy, qx)``."""
     a = lab[y, x, 0] - lab[qy, qx, 0]
@@ -142,7 +142,7 @@ def _bpasw_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, dys: n
                     qx = xr + dxs[k]
                     if qx < 0 or qx >= w:
                         continue
-                    wr[k, w - 1 - xr] = _pair_weight(lab_r, y, xr, qy, qx, kernel, s0, s_min, log_norm) * prox[k]
+                    wr[k, w - 1 - xr] = pair_weight(lab_r, y, xr, qy, qx, kernel, s0, s_min, log_norm) * prox[k]
         num = np.empty(nd, dtype=np.float32)
         den = np.empty(nd, dtype=np.float32)
         for x in range(w):
@@ -156,7 +156,7 @@ def _bpasw_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, dys: n
                 qx = x + dxs[k]
                 if qy < 0 or qy >= h or qx < 0 or qx >= w:
                     continue
-                wl = np.float32(_pair_weight(lab_l, y, x, qy, qx, kernel, s0, s_min, log_norm) * prox[k])
+                wl = np.float32(pair_weight(lab_l, y, x, qy, qx, kernel, s0, s_min, log_norm) * prox[k])
                 if wl == 0.0:
                     continue
                 if use_prior:

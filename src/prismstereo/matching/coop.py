@@ -166,7 +166,21 @@ def initial_disparity(cost_left: F32, cost_right: F32, *, min_disp: int = 0,
     return (sub + min_disp).astype(np.float32), reliable
 
 
-def _box3(vol: F32, r: int, *, vertical: bool = True) -> F32:
+def box_filter_volume(vol: F32, r: int, *, vertical: bool = True) -> F32:
+    """Box-sum each disparity slice of an (H, W, D) cost volume over a (2r+1)² window (or 1 × (2r+1)).
+
+    Parameters
+    ----------
+    vol : (H, W, D) float32
+    r : int
+        Window radius; 0 returns ``vol`` itself.
+    vertical : bool, keyword-only
+        False: a horizontal (2r+1)-pixel window only.
+
+    Returns
+    -------
+    (H, W, D) float32, the mean over the window (OpenCV ``boxFilter``, reflected borders).
+    """
     if r <= 0:
         return vol
     k = 2 * r + 1
@@ -730,7 +744,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         assert bvol is not None
         if data_cost is not None or raw is None:
             raw = raw_cost(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=data_cost or cp)
-        dcost = _box3(raw, data_radius)
+        dcost = box_filter_volume(raw, data_radius)
         dcost += (bvol - bvol.min(axis=2, keepdims=True)) * np.float32(data_scale)
     elif data_term == "bpasw":
         assert bvol is not None
@@ -743,7 +757,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     else:
         if data_cost is not None or raw is None:
             raw = raw_cost(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=data_cost or cp)
-        dcost = _box3(raw, data_radius)
+        dcost = box_filter_volume(raw, data_radius)
     del raw
     slopes = tuple(float(b) for b in data_slopes) if data_slopes and data_term == "raw" else None
 
@@ -798,7 +812,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
             selpix = (sw_ids[:, 0] >= 0)[labels]
             if slopes is None:
                 raw2 = raw_cost(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=data_cost or cp)
-                hb = _box3(raw2, sweep_hbox, vertical=False)
+                hb = box_filter_volume(raw2, sweep_hbox, vertical=False)
                 del raw2
                 dcost[selpix] = hb[selpix]
             else:

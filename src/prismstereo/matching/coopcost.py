@@ -54,7 +54,7 @@ class CostParams:
     eps: float = 1e-4
 
 
-def _census(gray: F32, ry: int, rx: int) -> npt.NDArray[np.uint64]:
+def census_bits(gray: F32, ry: int, rx: int) -> npt.NDArray[np.uint64]:
     """Census transform over a ``(2 ry + 1) x (2 rx + 1)`` window (bit set where the neighbour is darker)."""
     return _census_sheared(gray, ry, rx, 0.0)
 
@@ -192,8 +192,8 @@ def raw_cost(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, m
     """
     p = params or CostParams()
     lf, rf, gray_l, gray_r, gxl, gxr = _cost_inputs(left, right)
-    cl = _census(gray_l, p.census_ry, p.census_rx)
-    cr = _census(gray_r, p.census_ry, p.census_rx)
+    cl = census_bits(gray_l, p.census_ry, p.census_rx)
+    cr = census_bits(gray_r, p.census_ry, p.census_rx)
     nd = max_disp - min_disp + 1
     return _raw_cost(lf, rf, gxl, gxr, cl, cr, int(min_disp), nd, p.tau_color, p.tau_grad, p.lambda_ad,
                      p.lambda_census)
@@ -235,7 +235,7 @@ def aggregated_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generi
 def _census_sheared(gray: F32, ry: int, rx: int, slope: float) -> npt.NDArray[np.uint64]:
     """Census of ``gray`` over a window whose row ``dy`` is shifted by ``-round(slope * dy)`` columns.
 
-    The bit order is that of :func:`_census`, so a left census and a sheared right census compare the pixels
+    The bit order is that of :func:`census_bits`, so a left census and a sheared right census compare the pixels
     that a surface ``d = a x + b y + c`` with ``b = slope`` maps onto each other.
     """
     h, w = gray.shape
@@ -304,7 +304,7 @@ def sheared_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic],
     """
     p = params or CostParams()
     lf, rf, gray_l, gray_r, gxl, gxr = _cost_inputs(left, right)
-    cl = _census(gray_l, p.census_ry, p.census_rx)
+    cl = census_bits(gray_l, p.census_ry, p.census_rx)
     nd = max_disp - min_disp + 1
     h, w = gray_l.shape
     out = np.empty((len(slopes), h, w, nd), np.float32)

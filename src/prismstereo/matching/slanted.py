@@ -46,13 +46,13 @@ def _census_pair(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8],
     if weight <= 0:
         z = np.zeros((1, 1), np.uint64)
         return z, z
-    from prismstereo.matching.coopcost import _census
+    from prismstereo.matching.coopcost import census_bits
 
     def grey(im: npt.NDArray[np.uint8]) -> F32:
         f = np.asarray(im, np.float32)
         return np.ascontiguousarray(f.mean(axis=2) if f.ndim == 3 else f, dtype=np.float32)
 
-    return _census(grey(left), 3, 4), _census(grey(right), 3, 4)
+    return census_bits(grey(left), 3, 4), census_bits(grey(right), 3, 4)
 
 
 @njit(cache=True, fastmath=True, inline="always")

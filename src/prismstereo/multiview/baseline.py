@@ -29,7 +29,7 @@ import numpy as np
 import numpy.typing as npt
 
 from prismstereo.errors import ConfigError, ImageError, MatchingError
-from prismstereo.matching.coop import _box3
+from prismstereo.matching.coop import box_filter_volume
 
 log = logging.getLogger(__name__)
 
@@ -212,8 +212,8 @@ def _boxed(pix: F32, keep_raw: bool, data_radius: int, row_box: bool,
     """The pixel-wise cost boxed for the data term (``raw``) and, with ``row_radius``, along the row only."""
     if not keep_raw:
         return None, None
-    raw = _box3(pix, data_radius, vertical=not row_box)
-    return raw, (None if row_radius is None else _box3(pix, row_radius, vertical=False))
+    raw = box_filter_volume(pix, data_radius, vertical=not row_box)
+    return raw, (None if row_radius is None else box_filter_volume(pix, row_radius, vertical=False))
 
 
 def _pair_volumes(left: np.ndarray, right: np.ndarray, max_s: int, cost: CostName, cost_params: dict[str, Any],

@@ -31,7 +31,7 @@ import numpy.typing as npt
 from numba import njit, prange
 
 from prismstereo.errors import MatchingError
-from prismstereo.matching.aggregation import _pair_weight, to_lab, weber_fechner_weight, window_offsets
+from prismstereo.matching.aggregation import pair_weight, to_lab, weber_fechner_weight, window_offsets
 from prismstereo.multiview.baseline import PairCost, pair_cost
 
 __all__ = ["bpasw_pair_costs"]
@@ -61,7 +61,7 @@ def _half_weights(lab: F32, dys: I64, dxs: I64, half: I64, prox: npt.NDArray[np.
                 qx = x + dxs[k]
                 if qx < 0 or qx >= w:
                     continue
-                out[y, j, x] = np.float32(_pair_weight(lab, y, x, qy, qx, kernel, s0, s_min, log_norm) * prox[k])
+                out[y, j, x] = np.float32(pair_weight(lab, y, x, qy, qx, kernel, s0, s_min, log_norm) * prox[k])
     return out
 
 

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from prismstereo.apps.reproduce import TableResult
-from prismstereo.evaluation.middlebury import _resolve, evaluate_disparity, load_scene
+from prismstereo.evaluation.middlebury import evaluate_disparity, load_scene, resolve_data_dir
 from prismstereo.io import read_image
 from prismstereo.matching.api import match
 from prismstereo.multiview.api import match_multiview
@@ -73,7 +73,7 @@ def _scene_rows(scene_name: str, views: dict[str, float], ref_name: str, *, data
                 local: bool, subsets: list[list[str]], timing_repeat: int = 1) -> list[dict[str, Any]]:
 
     scene = load_scene(scene_name, data_dir)
-    folder = _resolve(data_dir) / scene_name / "views"
+    folder = resolve_data_dir(data_dir) / scene_name / "views"
     ref = read_image(folder / f"{ref_name}.png")
     imgs = {k: read_image(folder / f"{k}.png") for k in views}
     unit = next(k for k, r in views.items() if r == 1.0)

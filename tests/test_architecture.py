@@ -1,0 +1,167 @@
+"""The package's layers: every import, and the depth command's data path, go downward.
+
+The layer order is written here, lowest first. A package may import from its own layer (its own modules,
+or a package listed beside it) and from the layers below, never from a layer above; a new package must be
+placed in :data:`LAYERS` before it can be imported. Imports are read with ``ast`` from the source, at module
+level AND inside functions (a function-level import that dodges a cycle is still an upward import).
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+PACKAGE = SRC / "prismstereo"
+
+#: lowest first; "" is the top-level package itself (prismstereo/__init__.py, its version)
+LAYERS: tuple[frozenset[str], ...] = (
+    frozenset({"", "errors", "progress"}),
+    frozenset({"io"}),  # files, atomic writes, JSON
+    frozenset({"config"}),  # the rig (TOML) and the thesis's rigs
+    frozenset({"optics"}),  # refraction through the prism, exact projection
+    frozenset({"cameras"}),  # pinhole and virtual cameras of the faces
+    frozenset({"simulate"}),  # renders captures through optics and cameras
+    frozenset({"rectify"}),  # rectification (its conventional baseline renders checkerboards)
+    frozenset({"viz"}),  # colourised maps, reports, epipolar figures of rectified pairs
+    frozenset({"matching"}),  # two-view matchers on rectified images
+    frozenset({"multiview"}),  # collinear multi-baseline matching, the all-view plane sweep
+    frozenset({"depth"}),  # the depth pipeline: cameras -> rectify -> match -> triangulate
+    frozenset({"calibration"}),  # camera and prism calibration from boards
+    frozenset({"evaluation"}),  # metrics against ground truth (Middlebury, simulated depth)
+    frozenset({"batch"}),  # depth of many frames on Dask
+    frozenset({"apps", "cli", "__main__"}),  # the commands, demo, warm-up and thesis tables
+)
+RANK = {name: i for i, layer in enumerate(LAYERS) for name in layer}
+
+
+def _package_of(module: str) -> str:
+    """``prismstereo.depth.pipeline`` -> ``depth``; ``prismstereo`` -> ``""``."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else ""
+
+
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(SRC).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def _imports(path: Path) -> Iterator[tuple[int, str]]:
+    """(line, imported prismstereo module) of every import in a file, at any depth."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    here = _module_name(path)
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.split(".")[0] == "prismstereo":
+                    yield node.lineno, alias.name
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:  # relative: resolve against this module's package
+                base = here.split(".")
+                if path.name != "__init__.py":
+                    base = base[:-1]
+                base = base[: len(base) - node.level + 1]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            if target.split(".")[0] != "prismstereo":
+                continue
+            if target == "prismstereo":  # "from prismstereo import x": x may be a subpackage
+                for alias in node.names:
+                    sub = f"prismstereo.{alias.name}"
+                    yield node.lineno, sub if alias.name in RANK else target
+            else:
+                yield node.lineno, target
+
+
+def _sources() -> list[Path]:
+    return sorted(PACKAGE.rglob("*.py"))
+
+
+def test_every_package_has_a_layer() -> None:
+    packages = {_package_of(_module_name(p)) for p in _sources()}
+    unplaced = sorted(packages - set(RANK))
+    assert not unplaced, f"place these packages in LAYERS of tests/test_architecture.py: {unplaced}"
+
+
+def test_imports_go_downward() -> None:
+    upward = []
+    for path in _sources():
+        src_pkg = _package_of(_module_name(path))
+        for line, target in _imports(path):
+            dst_pkg = _package_of(target)
+            if src_pkg in RANK and dst_pkg in RANK and RANK[dst_pkg] > RANK[src_pkg]:
+                upward.append(f"{path.relative_to(SRC)}:{line}: {src_pkg or 'prismstereo'} -> {target}")
+    assert not upward, "imports from a lower layer to a higher one:\n" + "\n".join(upward)
+
+
+def test_the_checker_sees_function_level_imports(tmp_path: Path) -> None:
+    """The reader catches an upward import hidden in a function (the test itself can fail)."""
+    fake = SRC / "prismstereo" / "optics" / "_fake.py"
+    body = "def f():\n    from prismstereo.depth.pipeline import run_depth\n    return run_depth\n"
+    tree_imports = list(_imports_from_text(fake, body))
+    assert tree_imports == [(2, "prismstereo.depth.pipeline")]
+    assert RANK[_package_of(tree_imports[0][1])] > RANK["optics"]
+
+
+def _imports_from_text(path: Path, text: str) -> Iterator[tuple[int, str]]:
+    tree = ast.parse(text)
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and not node.level and (node.module or "").startswith("prismstereo"):
+            yield node.lineno, node.module or ""
+
+
+def test_importing_the_pipeline_loads_nothing_above_it() -> None:
+    """``import prismstereo.depth.pipeline`` loads only its own layer and the layers below."""
+    code = ("import sys, prismstereo.depth.pipeline\n"
+            "print('\\n'.join(m for m in sys.modules if m == 'prismstereo' or m.startswith('prismstereo.')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         env={"PYTHONPATH": str(SRC), "PATH": "/usr/bin:/bin"}).stdout.split()
+    above = sorted(m for m in out if RANK.get(_package_of(m), 0) > RANK["depth"])
+    assert not above, f"the depth pipeline pulls in higher layers: {above}"
+
+
+@pytest.mark.slow
+def test_depth_command_data_path_goes_downward(capture_folder: Path, tmp_path: Path) -> None:
+    """Every call made while ``prismstereo depth`` runs goes to the caller's layer or below (no climbs back up)."""
+    from prismstereo.cli import main
+
+    climbs: set[str] = set()
+    packages_seen: set[str] = set()
+
+    def pkg(frame: object) -> str | None:
+        name = getattr(frame, "f_globals", {}).get("__name__", "")
+        return _package_of(name) if name == "prismstereo" or name.startswith("prismstereo.") else None
+
+    def profile(frame: object, event: str, arg: object) -> None:
+        if event != "call":
+            return
+        callee = pkg(frame)
+        caller_frame = getattr(frame, "f_back", None)
+        caller = pkg(caller_frame) if caller_frame is not None else None
+        if callee is None or caller is None:
+            return
+        packages_seen.add(callee)
+        if RANK[callee] > RANK[caller]:
+            code = getattr(frame, "f_code", None)
+            climbs.add(f"{caller} -> {callee}.{getattr(code, 'co_name', '?')}")
+
+    argv = ["depth", str(capture_folder / "rig.toml"), str(capture_folder / "capture.png"), "-o",
+            str(tmp_path / "out"), "--method", "sad", "--roi", "60,60,80,80", "--depth-range", "1200,2200",
+            "--gt", str(capture_folder / "depth_gt.pfm"), "-q"]
+    sys.setprofile(profile)
+    try:
+        code = main(argv)
+    finally:
+        sys.setprofile(None)
+    assert code == 0
+    assert {"apps", "depth", "rectify", "matching", "cameras", "optics", "evaluation"} <= packages_seen
+    assert not climbs, f"calls from a lower layer back up to a higher one: {sorted(climbs)}"
