@@ -104,12 +104,15 @@ def measure(*, scale: int = 1, method: str = "bpasw") -> dict[str, Any]:
     seconds = {"render": time.perf_counter() - t0}
     runs = {}
     gts = {}
+    pairs = {}
     for calib in ("fit", "thesis"):
         t = time.perf_counter()
         res = run_depth(rig, cap.image, config=DepthConfig(method=method, calibration=calib,
                                                            triangulation="exact"), progress=False)
+        assert res.pair is not None  # a pair run
         gts[calib] = ground_truth_for_run(res, scene=scene)
         runs[calib] = res
+        pairs[calib] = res.pair
         seconds[f"pipeline ({calib})"] = time.perf_counter() - t
 
     def column(res: Any, tri: str) -> tuple[np.ndarray, np.ndarray]:
@@ -127,16 +130,15 @@ def measure(*, scale: int = 1, method: str = "bpasw") -> dict[str, Any]:
         "thesis construction (Q)": column(runs["thesis"], "q"),
         "thesis rectification + exact": column(runs["thesis"], "exact"),
     }
-    pair_of = {c: runs["thesis" if c.startswith("thesis") else "fit"] for c in COLUMNS}
+    pair_of = {c: pairs["thesis" if c.startswith("thesis") else "fit"] for c in COLUMNS}
     samples = []
     for name, X in _front_points(scene):
-        left_face = runs["fit"].pair.left_face
+        left_face = pairs["fit"].left_face
         real, ok = project_exact(X[None], rig, left_face)
         row: dict[str, Any] = {"point": name, "actual_mm": float(X[2]),
                                "pixel": [round(float(real[0, 0]), 1), round(float(real[0, 1]), 1)]}
         for col in COLUMNS:
-            res = pair_of[col]
-            rect = res.pair.real_to_rectified(real, "left")[0]
+            rect = pair_of[col].real_to_rectified(real, "left")[0]
             z = _depth_at(maps[col][0], rect) if ok[0] else float("nan")
             row[col] = {"depth_mm": z, "error_pct": 100 * abs(z - X[2]) / X[2]}
         samples.append(row)
@@ -148,7 +150,7 @@ def measure(*, scale: int = 1, method: str = "bpasw") -> dict[str, Any]:
     seconds["total"] = time.perf_counter() - t0
     return {"rig": rig.to_dict(), "scale": scale, "method": method, "samples": samples, "overall": overall,
             "thesis": {"rows": THESIS_ROWS, "mean_abs_error_pct": THESIS_MEAN}, "seconds": seconds,
-            "baseline_mm": {k: float(v.pair.baseline_mm) for k, v in runs.items()},
+            "baseline_mm": {k: float(v.baseline_mm) for k, v in pairs.items()},
             "disparity_range": {k: list(v.disparity_range) for k, v in runs.items()}}
 
 
