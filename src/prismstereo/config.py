@@ -1,6 +1,6 @@
 """Rig configuration: frozen dataclasses for the camera and the prism, loaded from TOML and validated.
 
-The TOML layout is fixed by DESIGN.md §4. Validation happens here, before any image is read, and every
+The TOML layout is documented in docs/rig.md. Validation happens here, before any image is read, and every
 problem is reported as a :class:`~prismstereo.errors.ConfigError` that says what was expected.
 """
 
@@ -66,7 +66,7 @@ def _check_keys(section: str, table: Mapping[str, Any], required: set[str], opti
 
 @dataclass(frozen=True)
 class CameraSpec:
-    """The real camera: a pinhole with optional OpenCV lens distortion (DESIGN.md §4).
+    """The real camera: a pinhole with optional OpenCV lens distortion (docs/rig.md).
 
     Attributes
     ----------
@@ -169,7 +169,7 @@ class CameraSpec:
 
 @dataclass(frozen=True)
 class PrismSpec:
-    """An N-face pyramid prism with its apex toward the camera (DESIGN.md §4).
+    """An N-face pyramid prism with its apex toward the camera (docs/rig.md).
 
     Attributes
     ----------
@@ -195,7 +195,7 @@ class PrismSpec:
 
     Notes
     -----
-    Pose (DESIGN.md §4): a point p of the nominal prism maps to the camera frame as
+    Pose (docs/rig.md): a point p of the nominal prism maps to the camera frame as
     ``Ry(ty)·Rx(tx)·Rz(rotation)·(p − A0) + A0 + (dx, dy, 0)``, A0 = (0, 0, apex_distance). The rotation is
     carried by the face directions; tilt and decenter by :meth:`pose`.
     """
@@ -249,7 +249,7 @@ class PrismSpec:
 
     def pose(self) -> tuple[np.ndarray, np.ndarray]:
         """(M, A): the prism's tilt Ry(ty)·Rx(tx) (3, 3) and its apex (3,) in the camera frame, so that a point
-        q of the centred prism (with its rotation) is at ``M (q − A0) + A`` (DESIGN.md §4)."""
+        q of the centred prism (with its rotation) is at ``M (q − A0) + A`` (docs/rig.md)."""
         tx, ty = (math.radians(v) for v in self.tilt)
         cx, sx, cy, sy = math.cos(tx), math.sin(tx), math.cos(ty), math.sin(ty)
         rx = np.array([[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]])
@@ -272,7 +272,7 @@ class PrismSpec:
         return self.face_height / self.tan_alpha
 
     def face_directions(self) -> np.ndarray:
-        """N×3 unit vectors u_k = (cos θ_k, sin θ_k, 0), θ_k = rotation + 360°·k/N (DESIGN.md §4)."""
+        """N×3 unit vectors u_k = (cos θ_k, sin θ_k, 0), θ_k = rotation + 360°·k/N (docs/rig.md)."""
         theta = np.radians(self.rotation + 360.0 * np.arange(self.faces) / self.faces)
         return np.stack([np.cos(theta), np.sin(theta), np.zeros_like(theta)], axis=1)
 
@@ -351,7 +351,7 @@ _PRISM_OPTIONAL = {"height", "rotation", "tilt", "decenter"}
 
 
 def rig_from_dict(data: Mapping[str, Any], *, name: str = "rig", extra_sections: set[str] | None = None) -> Rig:
-    """Build and validate a :class:`Rig` from the parsed TOML mapping of DESIGN.md §4.
+    """Build and validate a :class:`Rig` from the parsed TOML mapping of docs/rig.md.
 
     ``extra_sections`` names top-level tables that may appear beside [camera] and [prism] (a scene file
     carries its own), which are then ignored here.
@@ -405,7 +405,7 @@ def read_toml(path: str | os.PathLike[str]) -> dict[str, Any]:
 
 
 def load_rig(path: str | os.PathLike[str], *, extra_sections: set[str] | None = None) -> Rig:
-    """Load and validate a rig TOML file (DESIGN.md §4)."""
+    """Load and validate a rig TOML file (docs/rig.md)."""
     return rig_from_dict(read_toml(path), name=Path(path).stem, extra_sections=extra_sections)
 
 

@@ -39,7 +39,7 @@ def _rot(tx: float, ty: float, rz: float) -> np.ndarray:
 
 @pytest.mark.parametrize("base", [thesis_biprism(), thesis_triprism(), pyramid_rig(4)])
 def test_posed_trace_obeys_snell_at_the_posed_surfaces(base):
-    # Independent of the tracer's frame change: build the posed faces from DESIGN.md §4 directly.
+    # Independent of the tracer's frame change: build the posed faces from docs/rig.md directly.
     rig = posed(base, rotation=2.0, tilt=(1.5, -1.0), decenter=(1.2, -0.7), dist=(0, 0, 0, 0, 0))
     p = rig.prism
     rng = np.random.default_rng(3)

@@ -399,7 +399,7 @@ def _add_batch(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("batch", help="depth of many frames (images, folders, globs, videos) on Dask",
                        epilog=BATCH_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("rig", help="rig TOML (DESIGN.md §4)")
+    p.add_argument("rig", help="rig TOML (docs/rig.md)")
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="image files, folders, globs or video files")
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--method", default="bpasw", help="matcher name (any registered: bpasw, sad, sgbm, coop, ...)")

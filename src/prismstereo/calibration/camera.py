@@ -148,7 +148,7 @@ def calibrate_camera(
 
 
 def camera_toml(camera: CameraSpec) -> dict[str, object]:
-    """The ``[camera]`` table of a calibrated camera, ready for tomli_w (DESIGN.md §4)."""
+    """The ``[camera]`` table of a calibrated camera, ready for tomli_w (docs/rig.md)."""
     cam: dict[str, object] = {"width": camera.width, "height": camera.height}
     if camera.focal_length is not None and camera.pixel_size is not None and camera.fx is None:
         cam |= {"focal_length": camera.focal_length, "pixel_size": camera.pixel_size}

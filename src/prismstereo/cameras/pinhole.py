@@ -1,4 +1,4 @@
-"""Pinhole camera with OpenCV's 5-term distortion: x_cam = R (X − C), pixel ~ K x_cam (DESIGN.md §3)."""
+"""Pinhole camera with OpenCV's 5-term distortion: x_cam = R (X − C), pixel ~ K x_cam (docs/conventions.md)."""
 
 from __future__ import annotations
 

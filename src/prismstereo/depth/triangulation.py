@@ -140,7 +140,7 @@ def triangulate_dlt(
     Parameters
     ----------
     P_a, P_b : (3, 4) array
-        Projection matrices ``K [R | −R C]`` (DESIGN.md §3).
+        Projection matrices ``K [R | −R C]`` (docs/conventions.md).
     pixels_a, pixels_b : (*S, 2) array
         Matching pixels (u, v) in each view.
 

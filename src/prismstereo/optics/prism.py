@@ -1,4 +1,4 @@
-"""Tracing camera rays through an N-face pyramid prism (DESIGN.md §4).
+"""Tracing camera rays through an N-face pyramid prism (docs/rig.md).
 
 Geometry, in the world (= real camera) frame: the apex is at (0, 0, apex_distance) and points at the
 camera. Face k has outward horizontal direction u_k; the front surface is
@@ -67,7 +67,7 @@ def rays_from_pixels(pixels: np.ndarray, K: np.ndarray, dist: np.ndarray | tuple
     pixels : (..., 2) array of (u, v), pixel centres at integers.
     K : (3, 3) intrinsic matrix.
     dist : (k1, k2, p1, p2, k3), optional
-        OpenCV distortion; the ray goes through the undistorted normalised point (DESIGN.md §4).
+        OpenCV distortion; the ray goes through the undistorted normalised point (docs/rig.md).
 
     Returns
     -------

@@ -413,7 +413,7 @@ class RectifiedPair:
                 "P": self.P_left if left else self.P_right}
 
     def to_json(self) -> dict[str, Any]:
-        """The content of rectification.json (DESIGN.md §6)."""
+        """The content of rectification.json (docs/formats.md)."""
         return {
             "method": self.method, "remap": self.remap, "reference_depth_mm": self.reference_depth_mm,
             "size": list(self.size), "left_face": self.left_face, "right_face": self.right_face,

@@ -1,4 +1,4 @@
-"""Scene files: a rig (DESIGN.md §4 [camera] and [prism]) plus ``[render]`` and ``[[objects]]`` tables.
+"""Scene files: a rig (docs/rig.md [camera] and [prism]) plus ``[render]`` and ``[[objects]]`` tables.
 
 Example::
 

@@ -30,7 +30,7 @@ def render_point_cloud(
     Parameters
     ----------
     points : (N, 3) array
-        World points, mm (+X right, +Y down, +Z forward, DESIGN.md §3).
+        World points, mm (+X right, +Y down, +Z forward, docs/conventions.md).
     colors : (N, 3) uint8 array
         RGB per point.
     size : (width, height)
