@@ -1,4 +1,4 @@
-"""The ``calibrate-camera`` and ``calibrate-prism`` subcommands (issue 15): thin wrappers over
+"""The ``calibrate-camera`` and ``calibrate-prism`` subcommands: thin wrappers over
 :mod:`prismstereo.calibration`, registered by :mod:`prismstereo.cli`."""
 
 from __future__ import annotations

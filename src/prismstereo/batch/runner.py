@@ -224,7 +224,7 @@ def local_cluster(workers: int | None = None, *, threads_per_worker: int = 1, pr
     -----
     Dask starts worker processes with ``MALLOC_TRIM_THRESHOLD_=65536``, which turns off glibc's adaptive
     mmap threshold: every large temporary array of the pipeline is then mapped and page-faulted afresh,
-    about 40 % more CPU per frame (docs/EXPERIMENTS.md, issue 18). These workers keep glibc's default.
+    about 40 % more CPU per frame (docs/EXPERIMENTS.md). These workers keep glibc's default.
     """
     import dask
     from distributed import LocalCluster

@@ -1,4 +1,4 @@
-"""Calibration of real rigs: the camera's intrinsics and distortion, and the prism's pose (issue 15)."""
+"""Calibration of real rigs: the camera's intrinsics and distortion, and the prism's pose."""
 
 from __future__ import annotations
 

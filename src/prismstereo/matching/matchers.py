@@ -151,8 +151,8 @@ class BPASWMatcher(LocalMatcher):
 
     See :func:`prismstereo.matching.aggregation.aggregate_bpasw` for the weights and the reading of the
     Weber–Fechner law. ``continuity=True`` runs a second pass with the continuity law (Eqs. 5.9, 5.12)
-    using the first pass's winners as the neighbours' disparities (off by default: on Middlebury it
-    raised the error, 3.19 -> 3.71 % nonocc average, measured without the final median at S0 = 50).
+    using the first pass's winners as the neighbours' disparities (off by default: it raised the Middlebury
+    error; docs/EXPERIMENTS.md).
 
     Defaults (measured on the four Middlebury v2 scenes, bad > 1 px after cross-check and filling):
     a 33×33 window sampled every 2 px, S_AD with ω = 0.5 and truncations 20 / 8 grey levels, plus

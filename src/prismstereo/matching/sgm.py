@@ -180,7 +180,7 @@ class SGMMatcher:
         ``disparity_raw`` keeps the sub-pixel values, and ``depth`` refines to sub-pixel on its own.
 
     One parameter set for every scene; the defaults were chosen on the four Middlebury v2 scenes and
-    checked on the validation scenes (docs/EXPERIMENTS.md, issue 19).
+    checked on the validation scenes (docs/EXPERIMENTS.md).
     """
 
     cost: Literal["census", "bpasw"] = "census"

@@ -14,7 +14,7 @@ in the right image at the subpixel match ``q'``. The window is sampled every ``d
 
 :func:`segment_plane_costs` gives the mean cost of candidate planes over each segment (``coop``'s sweep
 candidates). The per-pixel and per-segment plane refinements built on it were measured worse than ``coop``
-without them and were removed (issue 14; docs/EXPERIMENTS.md).
+without them and were removed (docs/EXPERIMENTS.md).
 """
 
 from __future__ import annotations

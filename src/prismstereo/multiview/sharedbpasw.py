@@ -15,9 +15,8 @@ feeds (on Tsukuba about 0.37 s of the 0.85 s of one pair for each image's weight
 The arithmetic per entry is that of :func:`prismstereo.matching.aggregation.aggregate_bpasw` in the same order,
 so the volumes equal those of :func:`~prismstereo.multiview.baseline.pair_cost` (``cost="bpasw"``) up to
 the last bit of some entries (the compiler vectorises the tail of the disparity loop differently for some
-range lengths: 1 ulp, tested); on Tsukuba's four pairs they are equal bit for bit. Measured on Tsukuba's
-four views, same process, min of 4 (2 shared cores): 3.6-3.8 s pair by pair, 2.08 s with the reference's
-weights shared, 1.64 s with the half tables as well.
+range lengths: 1 ulp, tested); on Tsukuba's four pairs they are equal bit for bit. Sharing the reference's
+weights and the half tables roughly halves the time of the pair-by-pair costs (docs/EXPERIMENTS.md).
 """
 
 from __future__ import annotations
