@@ -27,6 +27,7 @@ from prismstereo.evaluation.depth_metrics import evaluate_depth, format_accuracy
 from prismstereo.io import write_image, write_pfm
 from prismstereo.progress import progress_bar
 from prismstereo.simulate import Box, NoiseTexture, Plane, Rectangle, Scene, Sphere, render_capture
+from prismstereo.simulate import robot_scene as builtin_robot
 
 log = logging.getLogger(__name__)
 
@@ -145,7 +146,6 @@ def run_demo(out_dir: str | os.PathLike[str] = "demo_out", *, config: DepthConfi
 
     t0 = time.perf_counter()
     if rig is None and scene is None:
-        from prismstereo.simulate import robot_scene as builtin_robot
 
         rig, scene = builtin_robot(width=512)  # = examples/biprism_demo.toml
     rig = rig if rig is not None else demo_rig()

@@ -18,8 +18,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+import prismstereo
+from prismstereo.apps.demo import demo_rig, plane_scene, scaled_rig
+from prismstereo.depth import DepthConfig, run_depth
 from prismstereo.errors import ConfigError
 from prismstereo.matching import PRESETS, available_matchers, match
+from prismstereo.multiview.api import match_multiview
+from prismstereo.simulate import render_capture
 
 log = logging.getLogger(__name__)
 
@@ -49,8 +54,6 @@ def numba_cache_location() -> str:
     cache_dir = getattr(config, "CACHE_DIR", "")  # set from $NUMBA_CACHE_DIR when numba loads
     if cache_dir:
         return str(cache_dir)
-    import prismstereo
-
     return f"__pycache__ folders under {prismstereo.__path__[0]} (a per-user folder where read-only)"
 
 
@@ -102,9 +105,6 @@ def warmup(methods: Sequence[str] | None = None, *, parts: Sequence[str] = PARTS
         seconds[f"match {name}"] = time.perf_counter() - t
         log.info("warmed %s in %.1f s", name, seconds[f"match {name}"])
     if "depth" in parts:
-        from prismstereo.apps.demo import demo_rig, plane_scene, scaled_rig
-        from prismstereo.depth import DepthConfig, run_depth
-        from prismstereo.simulate import render_capture
 
         t = time.perf_counter()
         rig = scaled_rig(demo_rig(), 4)
@@ -112,7 +112,6 @@ def warmup(methods: Sequence[str] | None = None, *, parts: Sequence[str] = PARTS
         run_depth(rig, cap.image, config=DepthConfig(method=PRESETS["fast"]), progress=False)
         seconds["depth"] = time.perf_counter() - t
     if "multiview" in parts:
-        from prismstereo.multiview.api import match_multiview
 
         t = time.perf_counter()
         far = _pair(shift=8)[1]

@@ -8,6 +8,8 @@ from typing import Any
 
 from prismstereo.errors import ConfigError
 from prismstereo.matching.registry import MatchResult
+from prismstereo.multiview.globalmv import GlobalMultiViewParams, match_multiview_global
+from prismstereo.multiview.local import LocalMultiViewParams, match_multibaseline
 
 log = logging.getLogger(__name__)
 
@@ -44,7 +46,6 @@ def match_multiview(reference: Any, views: Sequence[Any], *, ratios: Sequence[fl
     """
     key = str(method).lower()
     if key == "local":
-        from prismstereo.multiview.local import LocalMultiViewParams, match_multibaseline
 
         try:
             lp = LocalMultiViewParams(**params)
@@ -52,7 +53,6 @@ def match_multiview(reference: Any, views: Sequence[Any], *, ratios: Sequence[fl
             raise ConfigError(f"expected parameters of LocalMultiViewParams, got {sorted(params)}: {exc}") from None
         return match_multibaseline(reference, views, ratios=ratios, max_disp=max_disp, params=lp)
     if key == "global":
-        from prismstereo.multiview.globalmv import GlobalMultiViewParams, match_multiview_global
 
         try:
             gp = GlobalMultiViewParams(**params)

@@ -29,7 +29,11 @@ import numpy as np
 import numpy.typing as npt
 
 from prismstereo.errors import ConfigError, ImageError, MatchingError
-from prismstereo.matching.coop import box_filter_volume
+from prismstereo.matching import costs
+from prismstereo.matching.coop import box_filter_volume, initial_disparity
+from prismstereo.matching.coopcost import CostParams, aggregated_costs, guided_filter_volume, raw_cost
+from prismstereo.matching.matchers import BPASWMatcher
+from prismstereo.matching.selection import cross_check, right_disparity, subpixel_refine, winner_take_all
 
 log = logging.getLogger(__name__)
 
@@ -226,8 +230,6 @@ def _pair_volumes(left: np.ndarray, right: np.ndarray, max_s: int, cost: CostNam
     With ``step > 1`` (guided cost only) slice ``k`` holds the pair disparity ``step · k``.
     """
     if cost == "guided":
-        from prismstereo.matching.coop import initial_disparity
-        from prismstereo.matching.coopcost import CostParams, aggregated_costs, guided_filter_volume, raw_cost
 
         cp = CostParams(**cost_params)
         pix = raw_cost(left, right, max_disp=max_s, min_disp=0, params=cp)
@@ -250,14 +252,6 @@ def _pair_volumes(left: np.ndarray, right: np.ndarray, max_s: int, cost: CostNam
         disp, ok = _strided_check(agg_l, agg_r, step)
         return agg_l, disp, ok, _boxed(sel, keep_raw, data_radius, row_box, row_radius)
     if cost == "bpasw":
-        from prismstereo.matching import costs
-        from prismstereo.matching.matchers import BPASWMatcher
-        from prismstereo.matching.selection import (
-            cross_check,
-            right_disparity,
-            subpixel_refine,
-            winner_take_all,
-        )
 
         m = BPASWMatcher(**cost_params)
         vol = m.cost_volume(left, right, max_disp=max_s, min_disp=0)

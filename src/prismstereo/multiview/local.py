@@ -17,7 +17,9 @@ from typing import Any
 import numpy as np
 
 from prismstereo.matching.registry import MatchResult
+from prismstereo.matching.selection import fill_holes, subpixel_refine, weighted_median_filter, winner_take_all
 from prismstereo.multiview.baseline import CostName, check_views, fuse_costs, pair_cost, resolve_occlusion
+from prismstereo.multiview.sharedbpasw import bpasw_pair_costs
 
 log = logging.getLogger(__name__)
 
@@ -93,19 +95,12 @@ def match_multibaseline(reference: Any, views: Sequence[Any], *, ratios: Sequenc
     ------
     ImageError, ConfigError, MatchingError
     """
-    from prismstereo.matching.selection import (
-        fill_holes,
-        subpixel_refine,
-        weighted_median_filter,
-        winner_take_all,
-    )
 
     p = params or LocalMultiViewParams()
     ref, vs, rs, md = check_views(reference, views, ratios, max_disp=max_disp)
     timings: dict[str, float] = {}
     t = time.perf_counter()
     if p.cost == "bpasw":  # the reference's support weights computed once for all views (same volumes)
-        from prismstereo.multiview.sharedbpasw import bpasw_pair_costs
 
         pcs = bpasw_pair_costs(ref, vs, rs, max_disp=md, cost_params=p.cost_params)
     else:

@@ -31,6 +31,8 @@ from numba import njit, prange
 
 from prismstereo.errors import MatchingError
 from prismstereo.matching.aggregation import pair_weight, to_lab, weber_fechner_weight, window_offsets
+from prismstereo.matching.matchers import BPASWMatcher
+from prismstereo.matching.selection import cross_check, right_disparity, subpixel_refine, winner_take_all
 from prismstereo.multiview.baseline import PairCost, pair_cost
 
 __all__ = ["bpasw_pair_costs"]
@@ -155,8 +157,6 @@ def bpasw_pair_costs(reference: np.ndarray, views: Sequence[np.ndarray], ratios:
     -------
     list of PairCost, one per view (``raw`` None)
     """
-    from prismstereo.matching.matchers import BPASWMatcher
-    from prismstereo.matching.selection import cross_check, right_disparity, subpixel_refine, winner_take_all
 
     params = dict(cost_params or {})
     m = BPASWMatcher(**params)

@@ -11,6 +11,7 @@ from typing import Any
 from prismstereo.apps.reproduce import TableResult
 from prismstereo.apps.tables.table6_1 import run_coop_stages
 from prismstereo.evaluation.middlebury import MASKS, default_data_dir, evaluate_disparity, load_scene
+from prismstereo.matching import match
 
 log = logging.getLogger(__name__)
 
@@ -20,10 +21,6 @@ THESIS = {"tsukuba": (0.89, 1.21, 5.84), "venus": (0.21, 0.57, 1.72), "teddy": (
 
 
 def _sgbm(data_dir: Path | None, scenes: tuple[str, ...]) -> dict[str, Any] | None:
-    try:
-        from prismstereo.matching import match
-    except ImportError:  # pragma: no cover - matching core absent
-        return None
     root = data_dir if data_dir is not None else default_data_dir()
     out: dict[str, Any] = {}
     for name in scenes:
