@@ -22,17 +22,16 @@ import numpy as np
 from prismstereo.apps.demo import demo_scene, plane_scene, robot_scene, scaled_rig
 from prismstereo.config import Rig, pyramid_rig, thesis_biprism, thesis_triprism
 from prismstereo.depth import DepthConfig, run_depth, triangulate_matches
-from prismstereo.evaluation.depth_metrics import DepthGroundTruth, depth_accuracy, evaluate_depth
+from prismstereo.evaluation.depth_metrics import DepthGroundTruth, depth_accuracy, evaluate_depth, ground_truth_for_run
 from prismstereo.simulate import render_capture
 
 
-def _acc_of(res: Any, method: str) -> dict[str, Any]:
+def _acc_of(res: Any, method: str, gt: DepthGroundTruth) -> dict[str, Any]:
     ys, xs = np.nonzero(res.valid)
     d = res.disparity[ys, xs].astype(np.float64)
-    tri = triangulate_matches(res, method, ys, xs, d)
+    tri = triangulate_matches(res.rig, res.pair, ys, xs, d, method=method, views=res.views)
     depth = np.full(res.valid.shape, np.nan)
     depth[ys[tri.valid], xs[tri.valid]] = tri.points[tri.valid, 2]
-    gt: DepthGroundTruth = res.ground_truth
     return depth_accuracy(depth, np.isfinite(depth), gt)
 
 
@@ -75,9 +74,10 @@ def main() -> None:
         t = time.perf_counter()
         res = run_depth(rig, cap.image, config=DepthConfig(method=args.method), progress=False)
         secs = time.perf_counter() - t
-        evaluate_depth(res, scene=scene)
+        gt = ground_truth_for_run(res, scene=scene)
+        exact = evaluate_depth(res, gt=gt)
         for tri in ("exact", "q", "midpoint", "dlt"):
-            print(_row(name, rig_name, tri, res.accuracy if tri == "exact" else _acc_of(res, tri), secs), flush=True)
+            print(_row(name, rig_name, tri, exact if tri == "exact" else _acc_of(res, tri, gt), secs), flush=True)
         if not args.no_thesis and rig_name == "bi-prism":
             t = time.perf_counter()
             th = run_depth(rig, cap.image, config=DepthConfig(method=args.method, calibration="thesis",

@@ -128,27 +128,11 @@ def stereo(scenes: list[Scene], methods: list[str], repeat: int, slow: set[str])
 
 
 def depth_fps(presets: list[str], frames: int) -> None:
-    from prismstereo.depth import pipeline as pl
-
-    # CPU seconds per stage (all threads): on idle cores a serial stage takes about its CPU time and a
-    # parallel one less, so 1 / (CPU s of the per-frame stages) estimates frames/s when the cores are shared
+    # CPU seconds per step (all threads, DepthResult.cpu_timings): on idle cores a serial step takes about its
+    # CPU time and a parallel one less, so 1 / (CPU s of the per-frame steps) estimates frames/s when the
+    # cores are shared
     cpu: dict[str, float] = {}
-    originals = dict(pl.STAGES)
-
-    def timed(name: str, fn):  # type: ignore[no-untyped-def]
-        def run(st):  # type: ignore[no-untyped-def]
-            c = time.process_time()
-            fn(st)
-            cpu[name] = cpu.get(name, 0.0) + time.process_time() - c
-        return run
-
-    for name, fn in originals.items():
-        pl.STAGES[name] = timed(name, fn)
-    try:
-        _depth_rows(presets, frames, cpu)
-    finally:
-        pl.STAGES.clear()
-        pl.STAGES.update(originals)
+    _depth_rows(presets, frames, cpu)
 
 
 def _depth_rows(presets: list[str], frames: int, cpu: dict[str, float]) -> None:
@@ -176,6 +160,8 @@ def _depth_rows(presets: list[str], frames: int, cpu: dict[str, float]) -> None:
         for _ in range(frames):
             res = run_depth(rig, cap.image, config=cfg, progress=False)
             per_frame.append(sum(v for k, v in res.timings.items() if k not in _SETUP_STAGES))
+            for k, v in res.cpu_timings.items():
+                cpu[k] = cpu.get(k, 0.0) + v
         whole = (time.perf_counter() - t) / frames
         rest = float(np.mean(per_frame))
         rest_cpu = sum(v for k, v in cpu.items() if k not in _SETUP_STAGES) / frames

@@ -339,6 +339,8 @@ class DepthResult:
         Pixels left after each filtering step (cross-checked matches, refined and confident, despeckled).
     timings, match_timings : dict
         Seconds per step, and the matcher's own seconds per stage.
+    cpu_timings : dict
+        CPU seconds (all threads of the process) per step of this run.
     warnings : tuple of str
         One-line warnings: the result may be unreliable (also logged and written to run.json).
     sweep : dict
@@ -372,6 +374,7 @@ class DepthResult:
     stage_counts: dict[str, int] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
     match_timings: dict[str, float] = field(default_factory=dict)
+    cpu_timings: dict[str, float] = field(default_factory=dict)
     warnings: tuple[str, ...] = ()
     sweep: dict[str, Any] = field(default_factory=dict)
     accuracy: dict[str, Any] | None = None
@@ -423,6 +426,7 @@ class DepthResult:
             "warnings": list(self.warnings),
             "baseline_mm": float(self.pair.baseline_mm) if self.pair is not None else None,
             "timings_s": {k: round(v, 4) for k, v in self.timings.items()},
+            "cpu_s": {k: round(v, 4) for k, v in self.cpu_timings.items()},
             "matcher_timings_s": {k: round(v, 4) for k, v in self.match_timings.items()},
             "counts": self.counts(),
             "accuracy": self.accuracy,
@@ -727,6 +731,7 @@ class _Clock:
 
     def __init__(self, steps: Sequence[str], progress: bool | None) -> None:
         self.timings: dict[str, float] = {}
+        self.cpu: dict[str, float] = {}
         self._bar = progress_bar(total=len(steps), desc="depth", unit="step", leave=False) \
             if progress is not False else None
 
@@ -734,9 +739,10 @@ class _Clock:
     def step(self, name: str) -> Iterator[None]:
         if self._bar is not None:
             self._bar.set_description(f"depth: {name}")
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         yield
         self.timings[name] = time.perf_counter() - t
+        self.cpu[name] = time.process_time() - c
         log.info("step %s: %.2f s", name, self.timings[name])
         if self._bar is not None:
             self._bar.update(1)
@@ -757,7 +763,7 @@ def _finish(result: DepthResult, clock: _Clock, t0: float) -> DepthResult:
     timings = {**result.timings, **clock.timings, "total": time.perf_counter() - t0}
     for line in warnings:
         log.warning("%s", line)
-    return dataclasses.replace(result, warnings=warnings, timings=timings)
+    return dataclasses.replace(result, warnings=warnings, timings=timings, cpu_timings=dict(clock.cpu))
 
 
 def _run_frame(setup: DepthSetup, image: np.ndarray, left: np.ndarray, right: np.ndarray, clock: _Clock,
