@@ -31,6 +31,7 @@ from prismstereo.errors import ConfigError, ImageError
 from prismstereo.evaluation.metrics import bad_pixel_rate, mean_abs_error
 from prismstereo.io import check_output_dir, output_dir, read_image, read_pfm, write_image, write_json, write_pfm
 from prismstereo.matching import get_matcher, match
+from prismstereo.matching.registry import resolved_params
 from prismstereo.progress import progress_bar
 from prismstereo.viz.colorize import colorize_disparity
 
@@ -315,7 +316,8 @@ def evaluate_method(method: str, *, data_dir: str | os.PathLike[str] | None = No
     Returns
     -------
     dict
-        ``{"method", "params", "scenes": {name: {bad, mae, seconds, ...}}, "average": {...}}``.
+        ``{"method", "params", "scenes": {name: {bad, mae, seconds, ...}}, "average": {...}}``; ``params``
+        holds every parameter of the matcher, the defaults included.
     """
 
     get_matcher(method, **params)  # validates name and parameters first
@@ -357,7 +359,8 @@ def evaluate_method(method: str, *, data_dir: str | os.PathLike[str] | None = No
     avg["bad2.0_nonocc"] = float(np.mean([per[s]["bad"]["2.0"]["nonocc"] for s in per]))
     avg["mae_nonocc"] = float(np.mean([per[s]["mae"]["nonocc"] for s in per]))
     avg["seconds"] = float(np.mean([per[s]["seconds"] for s in per]))
-    results = {"method": method, "params": params, "protocol": "Middlebury v2, bad if |d-gt|>t over "
+    # every tuning parameter with its default, so that the numbers can be reproduced after a default changes
+    results = {"method": method, "params": resolved_params(method, **params), "protocol": "Middlebury v2, bad if |d-gt|>t over "
                "the mask, NaN estimates bad", "data": str(root), "scenes": per, "average": avg}
     if out is not None:  # all scenes' files appear together, or none (a broken scene, Ctrl-C)
         with output_dir(out) as stage:
