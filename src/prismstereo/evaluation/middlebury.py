@@ -360,8 +360,9 @@ def evaluate_method(method: str, *, data_dir: str | os.PathLike[str] | None = No
     avg["mae_nonocc"] = float(np.mean([per[s]["mae"]["nonocc"] for s in per]))
     avg["seconds"] = float(np.mean([per[s]["seconds"] for s in per]))
     # every tuning parameter with its default, so that the numbers can be reproduced after a default changes
-    results = {"method": method, "params": resolved_params(method, **params), "protocol": "Middlebury v2, bad if |d-gt|>t over "
-               "the mask, NaN estimates bad", "data": str(root), "scenes": per, "average": avg}
+    results = {"method": method, "params": resolved_params(method, **params),
+               "protocol": "Middlebury v2, bad if |d-gt|>t over the mask, NaN estimates bad", "data": str(root),
+               "scenes": per, "average": avg}
     if out is not None:  # all scenes' files appear together, or none (a broken scene, Ctrl-C)
         with output_dir(out) as stage:
             for name, (disp, max_disp) in maps.items():
