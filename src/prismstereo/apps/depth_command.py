@@ -4,8 +4,9 @@ Input checks happen before any heavy work, in this order: the rig file, the outp
 creatable and writable), the image file (exists, non-empty, decodable), the image size against the rig,
 the options; the geometry (views that do not overlap) is checked by rectification before matching.
 
-``--config run.json`` replays a run: the rig, the capture, the ground truth and the fully resolved
-configuration recorded in a ``run.json`` are used unless the command line names them again.
+``--config run.json`` replays a run: the rig (as recorded in the run.json), the capture, the ground truth
+and the fully resolved configuration recorded in a ``run.json`` are used unless the command line names them
+again.
 """
 
 from __future__ import annotations
@@ -77,11 +78,12 @@ def depth_command(rig_path: str | None, image_path: str | None, out_dir: str, *,
         record = read_run_config(config_path)
         base = DepthConfig.from_dict(record["config"])
         inputs = record.get("inputs") or {}
-        rig_path = rig_path if rig_path is not None else inputs.get("rig")
         image_path = image_path if image_path is not None else inputs.get("image")
         gt = gt if gt is not None else inputs.get("gt")
-        if rig_path is None and isinstance(record.get("rig"), Mapping):
-            rig = rig_from_dict(record["rig"], name=str(record["rig"].get("name", "rig")))
+        if rig_path is None:
+            rig_path = inputs.get("rig")
+            if isinstance(record.get("rig"), Mapping):  # the rig as it was run, even if its file changed since
+                rig = rig_from_dict(record["rig"], name=Path(rig_path).stem if rig_path else "rig")
         if preset is None and method is None:
             preset = record.get("preset")
     if rig is None:
