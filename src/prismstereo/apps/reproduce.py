@@ -69,5 +69,6 @@ def reproduce_table(name: str, out_dir: str | os.PathLike[str], *, data_dir: Pat
         bar.update(1)
     with output_dir(out) as stage:  # the .md and the .json appear together
         atomic_write_text(stage / f"{key}.md", result.markdown)
-        write_json(stage / f"{key}.json", {"table": key, **result.data})
+        write_json(stage / f"{key}.json", {"table": key, "settings": {"quick": quick, "data": data_dir},
+                                           **result.data})
     return result
