@@ -125,3 +125,26 @@ def test_refinement_recovers_a_subpixel_shift():
     inner = d[10:50, 40:360]
     assert abs(float(np.median(inner)) - true_d) < 0.03  # bilinear sampling leaves ~0.02 px of bias
     assert np.nanmedian(conf[10:50, 40:360]) > 0.95
+
+
+def test_the_steps_compose_to_run_depth(plane_capture, plane_run):
+    """The pipeline is its ordered steps: calling them by hand gives run_depth's result; the result is frozen."""
+    import dataclasses
+
+    from prismstereo.depth import pipeline as pl
+
+    rig, _, cap = plane_capture
+    img, cfg = pl.validate_inputs(rig, cap.image, DepthConfig())
+    views = pl.virtual_cameras(rig, cfg)
+    pair = pl.rectify_geometry(rig, views, cfg)
+    left, right = pl.rectify_capture(pair, img)
+    region = pl.search_region(rig, pair, cfg, left, right)
+    matched = pl.match_pair(left, right, pair, region, cfg)
+    disp, _ = pl.refine_matches(left, right, pair, matched.disparity, cfg)
+    disp = pl.remove_speckles(disp, region, cfg)
+    pts = pl.triangulate_disparity(rig, pair, views, disp, cfg)
+    np.testing.assert_array_equal(pts.depth, plane_run.depth)
+    np.testing.assert_array_equal(disp, plane_run.disparity)
+    assert region.disparity_range == plane_run.disparity_range and cfg == plane_run.config
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        plane_run.depth = pts.depth  # type: ignore[misc]
