@@ -131,6 +131,11 @@ class DepthConfig:
     speckle_fraction : float or None
         Remove connected patches of disparity (neighbours within 1 px) smaller than this fraction of the
         matched region (at least 20 px): isolated wrong matches (OpenCV ``filterSpeckles``). None keeps them.
+    refine_iterations, refine_max_shift, refine_min_texture : int, float, float
+        The refinement's Gauss–Newton iterations, largest move from the matcher's value (px) and least
+        window texture (:func:`~prismstereo.depth.refine.refine_disparity`).
+    sweep : SweepParams
+        The plane sweep of ``views="all"`` (:class:`~prismstereo.multiview.prism.SweepParams`).
     """
 
     method: str = "bpasw"
@@ -146,6 +151,10 @@ class DepthConfig:
     refine_radius: int = 3
     min_confidence: float | None = 0.8
     speckle_fraction: float | None = 0.001
+    refine_iterations: int = 6
+    refine_max_shift: float = 1.0
+    refine_min_texture: float = 1.0
+    sweep: SweepParams = field(default_factory=SweepParams)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON types (tuples as lists); :meth:`from_dict` reads it back."""
@@ -177,6 +186,11 @@ class DepthConfig:
                 d[key] = tuple(v)
         if "matcher_params" in d:
             d["matcher_params"] = dict(d["matcher_params"] or {})
+        if isinstance(d.get("sweep"), Mapping):
+            try:
+                d["sweep"] = SweepParams(**d["sweep"])
+            except TypeError as exc:
+                raise ConfigError(f"sweep: expected plane-sweep parameters, got {d['sweep']} ({exc})") from None
         return cls(**d)
 
 
@@ -647,8 +661,9 @@ def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, dis
     if not config.refine:
         return disparity, None
     vl, vr = pair.valid_masks()
-    disp, conf = refine_disparity(left, right, disparity, radius=config.refine_radius, valid_left=vl,
-                                  valid_right=vr)
+    disp, conf = refine_disparity(left, right, disparity, radius=config.refine_radius,
+                                  iterations=config.refine_iterations, max_shift=config.refine_max_shift,
+                                  min_texture=config.refine_min_texture, valid_left=vl, valid_right=vr)
     if config.min_confidence is not None:
         with np.errstate(invalid="ignore"):
             disp = np.where(conf >= config.min_confidence, disp, np.float32(np.nan))
@@ -710,8 +725,8 @@ def sweep_all_views(rig: Rig, image: np.ndarray, config: DepthConfig, found: Sea
                     ) -> tuple[DepthResult, dict[str, float]]:
     """Plane sweep over every face and multi-ray triangulation (:func:`~prismstereo.multiview.prism.
     depth_all_views`), as a :class:`DepthResult` on the capture's grid; also the sweep's timings."""
-    params = SweepParams()
-    res = depth_all_views(rig, image, depth_range=found.depth_mm, calibration=config.calibration, params=params)
+    res = depth_all_views(rig, image, depth_range=found.depth_mm, calibration=config.calibration,
+                          params=config.sweep)
     h, w = res.depth.shape
     points = np.full((h, w, 3), np.nan)
     points[res.pixels[:, 1], res.pixels[:, 0]] = res.points
