@@ -7,9 +7,6 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from prismstereo.batch.runner import run_batch
-from prismstereo.config import load_rig
-from prismstereo.depth.pipeline import DepthConfig
 from prismstereo.errors import ConfigError
 
 __all__ = ["BATCH_EPILOG", "batch_command"]
@@ -30,6 +27,10 @@ def batch_command(rig_path: str, inputs: Sequence[str], out_dir: str, *, method:
                   scheduler: str | None = None, workers: int | None = None, threads_per_worker: int = 1,
                   processes: bool = True, retries: int = 2, numba_threads: int | None = None) -> int:
     """Run ``prismstereo batch``: print the summary, return the exit code (0, or 3 when frames failed)."""
+    # imported when the command runs: ``prismstereo --help`` starts without Dask and the numerical packages
+    from prismstereo.batch.runner import run_batch
+    from prismstereo.config import load_rig
+    from prismstereo.depth.pipeline import DepthConfig
 
     rig = load_rig(rig_path)
     if views == "all":

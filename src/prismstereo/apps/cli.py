@@ -1,8 +1,10 @@
 """Thin command line over the library (docs/cli.md). No algorithm code lives here.
 
 Each subcommand has an ``_add_<name>`` function that declares its arguments and a ``_cmd_<name>``
-function that calls the library. Errors the user can fix (``PrismStereoError``) become one line on
-stderr and exit code 2; anything else is exit code 1.
+function that calls the library. The handlers import what they run when they run: the numerical packages
+(numba, scipy, OpenCV, Dask) take a second to import, seconds on a loaded machine, and ``prismstereo --help``
+or a mistyped option should not wait for them. Every import here is downward (apps is the top layer).
+Errors the user can fix (``PrismStereoError``) become one line on stderr and exit code 2; anything else is exit code 1.
 """
 
 from __future__ import annotations
@@ -14,26 +16,7 @@ import sys
 from collections.abc import Callable, Sequence
 
 from prismstereo import __version__
-from prismstereo.apps.batch_command import BATCH_EPILOG, batch_command
-from prismstereo.apps.cli_calibration import add_calibrate_camera, add_calibrate_prism
-from prismstereo.apps.depth_command import demo_command, depth_command
-from prismstereo.apps.multiview_command import multiview_command
-from prismstereo.apps.rectify_folder import rectify_to_folder
-from prismstereo.apps.reproduce import reproduce_table
-from prismstereo.apps.simulate_folder import simulate_to_folder
-from prismstereo.apps.warmup import warmup
-from prismstereo.cameras import calibrate_rig, cameras_table, write_cameras_json
-from prismstereo.config import load_rig
 from prismstereo.errors import ConfigError, PrismStereoError
-from prismstereo.evaluation.middlebury import evaluate_method, format_results_table
-from prismstereo.io import check_output_file, output_files, read_image, write_image, write_pfm
-from prismstereo.io.atomic import os_error_reason
-from prismstereo.io.images import image_size
-from prismstereo.io.memory import check_fits_in_memory
-from prismstereo.matching import get_matcher, match
-from prismstereo.matching.diagnostics import limit_warnings
-from prismstereo.matching.registry import resolve_preset
-from prismstereo.viz.colorize import colorize_disparity
 
 log = logging.getLogger("prismstereo")
 
@@ -69,6 +52,7 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
+    from prismstereo.apps.simulate_folder import simulate_to_folder
 
     result = simulate_to_folder(args.scene, args.output, supersample=args.supersample)
     if result.capture.coverage < 0.01:
@@ -89,6 +73,9 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from prismstereo.cameras import calibrate_rig, cameras_table, write_cameras_json
+    from prismstereo.config import load_rig
+    from prismstereo.io import check_output_file
 
     rig = load_rig(args.rig)
     check_output_file(args.output)
@@ -120,6 +107,7 @@ def _add_reproduce(sub: argparse._SubParsersAction) -> None:
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from prismstereo.apps.reproduce import reproduce_table
 
     result = reproduce_table(args.table, args.output, data_dir=Path(args.data) if args.data else None,
                              quick=args.quick)
@@ -161,6 +149,12 @@ def _cmd_match(args: argparse.Namespace) -> int:
 
     import numpy as np
 
+    from prismstereo.io import check_output_file, output_files, read_image, write_image, write_pfm
+    from prismstereo.io.images import image_size
+    from prismstereo.io.memory import check_fits_in_memory
+    from prismstereo.matching import get_matcher, match
+    from prismstereo.matching.diagnostics import limit_warnings
+    from prismstereo.viz.colorize import colorize_disparity
 
     params = _parse_params(args.param)
     get_matcher(args.method, **params)  # method and parameters checked before reading images
@@ -210,6 +204,8 @@ def _add_evaluate(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from prismstereo.evaluation.middlebury import evaluate_method, format_results_table
+    from prismstereo.matching import get_matcher
 
     params = _parse_params(args.param)
     get_matcher(args.method, **params)
@@ -239,6 +235,7 @@ def _add_rectify(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_rectify(args: argparse.Namespace) -> int:
+    from prismstereo.apps.rectify_folder import rectify_to_folder
 
     res = rectify_to_folder(args.rig, args.image, args.output, views=_parse_views(args.views), method=args.method,
                             remap=args.remap)
@@ -292,6 +289,9 @@ def _add_depth(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_depth(args: argparse.Namespace) -> int:
+    from prismstereo.apps.depth_command import depth_command
+    from prismstereo.matching.registry import resolve_preset
+
     views = _parse_views(args.views)
     depth_range = None if args.depth_range is None else _parse_pair(args.depth_range, "--depth-range")
     method, preset = (args.method, None) if args.preset is None and args.config is not None \
@@ -312,6 +312,7 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
+    from prismstereo.apps.depth_command import demo_command
 
     print(demo_command(args.output, method=args.method))
     return 0
@@ -334,6 +335,7 @@ def _add_multiview(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_multiview(args: argparse.Namespace) -> int:
+    from prismstereo.apps.multiview_command import multiview_command
 
     print(multiview_command(args.reference, args.view, args.output, max_disp=args.max_disp, method=args.method))
     return 0
@@ -375,6 +377,7 @@ def _add_common(p: argparse.ArgumentParser) -> None:
                        help="no progress bars (they show only on a terminal anyway)")
 
 # --------------------------------------------------------------------------- real rigs
+from prismstereo.apps.cli_calibration import add_calibrate_camera, add_calibrate_prism  # noqa: E402
 
 _ADDERS += [add_calibrate_camera, add_calibrate_prism]
 
@@ -386,6 +389,7 @@ def _add_warmup(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_warmup(args: argparse.Namespace) -> int:
+    from prismstereo.apps.warmup import warmup
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
     print(warmup(methods).summary())
@@ -396,6 +400,7 @@ _ADDERS.append(_add_warmup)
 
 # --------------------------------------------------------------------------- batch
 def _add_batch(sub: argparse._SubParsersAction) -> None:
+    from prismstereo.apps.batch_command import BATCH_EPILOG
 
     p = sub.add_parser("batch", help="depth of many frames (images, folders, globs, videos) on Dask",
                        epilog=BATCH_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -428,6 +433,7 @@ def _add_batch(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_batch(args: argparse.Namespace) -> int:
+    from prismstereo.apps.batch_command import batch_command
 
     depth_range = None if args.depth_range is None else _parse_pair(args.depth_range, "--depth-range")
     return batch_command(args.rig, args.inputs, args.output, method=args.method, params=_parse_params(args.param),
@@ -490,6 +496,7 @@ def _setup_logging(command: str, verbose: int) -> None:
 
 
 def _os_error_line(exc: OSError) -> str:
+    from prismstereo.io.atomic import os_error_reason
 
     where = exc.filename if exc.filename is not None else ""
     return f"{os_error_reason(exc)}: {where}" if where else os_error_reason(exc)

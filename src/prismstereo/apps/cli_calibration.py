@@ -1,5 +1,6 @@
 """The ``calibrate-camera`` and ``calibrate-prism`` subcommands: thin wrappers over
-:mod:`prismstereo.calibration`, registered by :mod:`prismstereo.cli`."""
+:mod:`prismstereo.calibration`, registered by :mod:`prismstereo.cli`. The handlers import the calibration
+when they run, so that the command line starts without the numerical packages."""
 
 from __future__ import annotations
 
@@ -8,16 +9,11 @@ from pathlib import Path
 
 import tomli_w
 
-from prismstereo.calibration import calibrate_camera, calibrate_prism, camera_toml, parse_board, parse_free
-from prismstereo.calibration.report import residual_figure
-from prismstereo.config import load_rig
 from prismstereo.errors import ImageError
-from prismstereo.io import read_image
-from prismstereo.io.atomic import atomic_write_bytes, atomic_write_text
-from prismstereo.io.jsonio import write_json
 
 
 def _read_images(paths: list[str]) -> list:
+    from prismstereo.io import read_image
 
     if not paths:
         raise ImageError("expected at least one image, got none")
@@ -36,6 +32,8 @@ def add_calibrate_camera(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_calibrate_camera(args: argparse.Namespace) -> int:
+    from prismstereo.calibration import calibrate_camera, camera_toml, parse_board
+    from prismstereo.io.atomic import atomic_write_text
 
     board = parse_board(args.board, args.square)
     images = _read_images(args.images)
@@ -62,6 +60,11 @@ def add_calibrate_prism(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_calibrate_prism(args: argparse.Namespace) -> int:
+    from prismstereo.calibration import calibrate_prism, parse_board, parse_free
+    from prismstereo.calibration.report import residual_figure
+    from prismstereo.config import load_rig
+    from prismstereo.io.atomic import atomic_write_bytes
+    from prismstereo.io.jsonio import write_json
 
     rig = load_rig(args.rig)
     board = parse_board(args.board, args.square)
