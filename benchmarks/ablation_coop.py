@@ -24,7 +24,7 @@ import numpy as np
 
 from prismstereo.evaluation.middlebury import evaluate_disparity, list_scenes, load_scene
 from prismstereo.matching.coop import coop_match
-from prismstereo.matching.planes import PlaneParams
+from prismstereo.matching.segments.planes import PlaneParams
 
 ROOT = Path(__file__).resolve().parents[1]
 #: each step of ``coop`` after the initial map, and the keyword arguments that switch it off

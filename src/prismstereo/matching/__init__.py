@@ -1,8 +1,8 @@
 """Stereo matching: costs, aggregation (box, BPASW), selection, and a registry of methods.
 
 Only light names are imported here; the numba kernels load with their modules
-(:mod:`~prismstereo.matching.costs`, :mod:`~prismstereo.matching.aggregation`,
-:mod:`~prismstereo.matching.selection`).
+(:mod:`~prismstereo.matching.local.costs`, :mod:`~prismstereo.matching.local.aggregation`,
+:mod:`~prismstereo.matching.local.selection`).
 """
 
 from __future__ import annotations

@@ -29,7 +29,7 @@ import numpy as np
 import numpy.typing as npt
 
 from prismstereo.errors import ConfigError, ImageError, MatchingError
-from prismstereo.matching.coop import _box3
+from prismstereo.matching.coop.pipeline import _box3
 
 log = logging.getLogger(__name__)
 
@@ -226,8 +226,8 @@ def _pair_volumes(left: np.ndarray, right: np.ndarray, max_s: int, cost: CostNam
     With ``step > 1`` (guided cost only) slice ``k`` holds the pair disparity ``step · k``.
     """
     if cost == "guided":
-        from prismstereo.matching.coop import initial_disparity
-        from prismstereo.matching.coopcost import CostParams, aggregated_costs, guided_filter_volume, raw_cost
+        from prismstereo.matching.coop.coopcost import CostParams, aggregated_costs, guided_filter_volume, raw_cost
+        from prismstereo.matching.coop.pipeline import initial_disparity
 
         cp = CostParams(**cost_params)
         pix = raw_cost(left, right, max_disp=max_s, min_disp=0, params=cp)
@@ -250,9 +250,9 @@ def _pair_volumes(left: np.ndarray, right: np.ndarray, max_s: int, cost: CostNam
         disp, ok = _strided_check(agg_l, agg_r, step)
         return agg_l, disp, ok, _boxed(sel, keep_raw, data_radius, row_box, row_radius)
     if cost == "bpasw":
-        from prismstereo.matching import costs
-        from prismstereo.matching.matchers import BPASWMatcher
-        from prismstereo.matching.selection import (
+        from prismstereo.matching.local import costs
+        from prismstereo.matching.local.matchers import BPASWMatcher
+        from prismstereo.matching.local.selection import (
             cross_check,
             right_disparity,
             subpixel_refine,
@@ -288,9 +288,9 @@ def pair_cost(reference: np.ndarray, view: np.ndarray, ratio: float, *, max_disp
         (clipped to ``W - 1``).
     cost : {"guided", "bpasw"}
         ``"bpasw"``: S_AD aggregated with symmetric Weber–Fechner weights (thesis Eqs. 5.6–5.14,
-        :class:`~prismstereo.matching.matchers.BPASWMatcher`); ``"guided"``: the ``coop`` matcher's cost
+        :class:`~prismstereo.matching.local.matchers.BPASWMatcher`); ``"guided"``: the ``coop`` matcher's cost
         (truncated AD + gradient + census aggregated with a colour guided filter,
-        :func:`~prismstereo.matching.coopcost.aggregated_costs`), the same adaptive-support idea at O(1)
+        :func:`~prismstereo.matching.coop.coopcost.aggregated_costs`), the same adaptive-support idea at O(1)
         per pixel and disparity.
     cost_params : dict, optional
         Keyword parameters of that cost (``BPASWMatcher`` fields or ``CostParams`` fields).

@@ -6,22 +6,22 @@ to all views, and they reuse the ``coop`` building blocks of :mod:`prismstereo.m
 1. **Initial maps** (Eq. 7.9): the reference against each view ``i`` (pair cost of
    :func:`~prismstereo.multiview.baseline.pair_cost`), WTA + left–right check + subpixel, converted to the
    unit baseline (``d = s / |δᵢ|``) — the disparity sets ``d^(1) … d^(n)``.
-2. **Segmentation** of the reference (:func:`~prismstereo.matching.segmentation.mean_shift_segment`), kept
+2. **Segmentation** of the reference (:func:`~prismstereo.matching.segments.segmentation.mean_shift_segment`), kept
    from crossing the depth edges of the views' fused initial map (``segmentation.depth_tau``).
 3. **One plane per segment fitted jointly to all views** (Eqs. 7.10–7.14): the reliable pixels of every
    disparity set are stacked into one least-squares system ``A [a b c]ᵀ = B`` (Eq. 7.11) solved with the
    pseudo-inverse (Eqs. 7.12–7.13), with the outlier rules of §6.1.2 (cross-check, the reliable-region
    rule Eq. 6.8 over all views' pixels, the distance rule Eq. 6.9 with the Eq. 6.10 iteration) — the
-   robust solver :func:`prismstereo.matching.planes._fit_one` run on the stacked observations. By default
+   robust solver :func:`prismstereo.matching.segments.planes._fit_one` run on the stacked observations. By default
    (``fit_source="both"``) one more disparity set joins the stack: the winner of the views' aggregated
    costs fused on the unit grid (the local method's map), reliable where a pair agrees with it — a
    deviation that measured better on both Tsukuba (five views) and Cones (nine views) than the pairs' maps
    alone (``fit_source="pairs"``, the literal Eq. 7.11).
-4. **Merging** of similar neighbouring planes (§6.1.3, :func:`~prismstereo.matching.planes.merge_planes`)
+4. **Merging** of similar neighbouring planes (§6.1.3, :func:`~prismstereo.matching.segments.planes.merge_planes`)
    on the per-pixel mean of the views' reliable disparities (the normal equations of Eq. 7.14 only see
    that mean, weighted by the number of views).
 5. **Cooperative optimisation** (Eqs. 7.15–7.18 with 6.18–6.25,
-   :func:`~prismstereo.matching.cooperative.cooperative_optimize`) of ``E = Σᵢ E_data^(i) + E_occ + E_smooth``:
+   :func:`~prismstereo.matching.coop.cooperative.cooperative_optimize`) of ``E = Σᵢ E_data^(i) + E_occ + E_smooth``:
    the data term is the views' costs summed on the unit-baseline grid
    (:func:`~prismstereo.multiview.baseline.fuse_costs`, each view's cost at ``δᵢ d``), truncated per view
    and weighted per view by that view's reliability before summing, so ``Σᵢ c_data(x, y, d^(i, j))`` of
@@ -72,14 +72,15 @@ from numba import njit
 
 from prismstereo.errors import ConfigError
 from prismstereo.matching.coop import refine_fine_segments
-from prismstereo.matching.cooperative import (
+from prismstereo.matching.coop.cooperative import (
     CoopParams,
     build_segment_graph,
     cooperative_optimize,
     expand_planes,
     neighbour_plane_candidates,
 )
-from prismstereo.matching.planes import (
+from prismstereo.matching.registry import MatchResult
+from prismstereo.matching.segments.planes import (
     PlaneParams,
     SegmentIndex,
     _fit_one,
@@ -89,8 +90,7 @@ from prismstereo.matching.planes import (
     merge_planes,
     render_planes,
 )
-from prismstereo.matching.registry import MatchResult
-from prismstereo.matching.segmentation import SegmentationParams, mean_shift_segment, segment_adjacency
+from prismstereo.matching.segments.segmentation import SegmentationParams, mean_shift_segment, segment_adjacency
 from prismstereo.multiview.baseline import (
     CostName,
     PairCost,
@@ -130,7 +130,7 @@ class GlobalMultiViewParams:
         Keyword parameters of that cost.
     segmentation, planes, coop : the ``coop`` building blocks' parameter sets. Two defaults differ from
         ``coop``'s: the segmentation keeps neighbours apart whose fused initial disparities differ by
-        ``depth_tau`` = 2.5 px (:func:`~prismstereo.matching.segmentation.mean_shift_segment` with the map of
+        ``depth_tau`` = 2.5 px (:func:`~prismstereo.matching.segments.segmentation.mean_shift_segment` with the map of
         the views' fused aggregated costs, which is far more reliable than one pair's: on Tsukuba it lowers
         the segmentation's own floor, the error of the best constant per segment, from 1.03 % to 0.81 %;
         measured without it, the other defaults unchanged: Tsukuba five views 1.02 nonocc instead of 0.98,

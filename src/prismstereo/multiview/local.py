@@ -93,7 +93,7 @@ def match_multibaseline(reference: Any, views: Sequence[Any], *, ratios: Sequenc
     ------
     ImageError, ConfigError, MatchingError
     """
-    from prismstereo.matching.selection import (
+    from prismstereo.matching.local.selection import (
         fill_holes,
         subpixel_refine,
         weighted_median_filter,

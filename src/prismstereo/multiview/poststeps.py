@@ -36,15 +36,15 @@ from prismstereo.matching.coop import (
     occlusion_background_fill,
     segment_sweep_candidates,
 )
-from prismstereo.matching.planes import (
-    SegmentIndex,
-    render_planes,
-)
-from prismstereo.matching.selection import (
+from prismstereo.matching.local.selection import (
     right_cost_volume,
     subpixel_refine,
     weighted_median_filter,
     winner_take_all,
+)
+from prismstereo.matching.segments.planes import (
+    SegmentIndex,
+    render_planes,
 )
 from prismstereo.multiview.baseline import PairCost, fuse_costs
 from prismstereo.multiview.sharedbpasw import bpasw_pair_costs
@@ -98,7 +98,7 @@ class PostParams:
         ``sweep_ratio`` 2 (Tsukuba's +2 view) measured worse: 3.06/3.41/6.61 at 50 %.
     group_moves : bool
         After the sweep, sweep candidates and the planes across segment boundaries may move whole regions at
-        once (:func:`~prismstereo.matching.cooperative.expand_planes`, as ``coop``); Tsukuba five views
+        once (:func:`~prismstereo.matching.coop.cooperative.expand_planes`, as ``coop``); Tsukuba five views
         unchanged (1.24/1.60/5.87), Cones nine views 1.72/3.34/5.05 -> 1.70/3.30/4.97.
     fine_hr, fine_min, fine_check : finer segments, as ``coop``
         (:func:`~prismstereo.matching.coop.refine_fine_segments`, after the sweep step): the reference is

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from prismstereo.matching.coopcost import raw_cost
-from prismstereo.matching.planes import (
+from prismstereo.matching.coop.coopcost import raw_cost
+from prismstereo.matching.segments.planes import (
     PlaneParams,
     build_segment_index,
     fit_planes,

@@ -47,15 +47,18 @@ import numpy.typing as npt
 from numba import njit
 
 from prismstereo.errors import ImageError
-from prismstereo.matching.coopcost import CostParams, aggregated_costs, raw_cost, sheared_costs
-from prismstereo.matching.cooperative import (
+from prismstereo.matching.coop.coopcost import CostParams, aggregated_costs, raw_cost, sheared_costs
+from prismstereo.matching.coop.cooperative import (
     CoopParams,
     build_segment_graph,
     cooperative_optimize,
     expand_planes,
     neighbour_plane_candidates,
 )
-from prismstereo.matching.planes import (
+from prismstereo.matching.coop.slanted import add_unique
+from prismstereo.matching.local.selection import right_cost_volume, weighted_median_filter
+from prismstereo.matching.registry import MatchResult, register_matcher
+from prismstereo.matching.segments.planes import (
     PlaneParams,
     SegmentIndex,
     build_segment_index,
@@ -66,10 +69,7 @@ from prismstereo.matching.planes import (
     merge_planes,
     render_planes,
 )
-from prismstereo.matching.registry import MatchResult, register_matcher
-from prismstereo.matching.segmentation import SegmentationParams, mean_shift_segment, segment_adjacency
-from prismstereo.matching.selection import right_cost_volume, weighted_median_filter
-from prismstereo.matching.slanted import add_unique
+from prismstereo.matching.segments.segmentation import SegmentationParams, mean_shift_segment, segment_adjacency
 
 log = logging.getLogger(__name__)
 
@@ -183,9 +183,9 @@ def bpasw_volume(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, m
 
     S_AD plus half the census distance, aggregated with symmetric Weber-Fechner adaptive support weights
     (the ``bpasw`` matcher's defaults). Symmetric weights make the right view's volume the diagonal read of
-    this one (:func:`prismstereo.matching.selection.right_cost_volume`).
+    this one (:func:`prismstereo.matching.local.selection.right_cost_volume`).
     """
-    from prismstereo.matching.matchers import BPASWMatcher
+    from prismstereo.matching.local.matchers import BPASWMatcher
 
     return np.asarray(BPASWMatcher().cost_volume(left, right, max_disp=max_disp, min_disp=min_disp),
                       dtype=np.float32)
@@ -251,9 +251,9 @@ def boundary_pixel_planes(seg: npt.NDArray[np.int32], assign: npt.NDArray[np.int
 
 def bpasw_dense_map(vol: F32, image: npt.NDArray[np.uint8], *, min_disp: int = 0) -> F32:
     """Issue 3's ``bpasw`` matcher output from its cost volume: WTA, cross-check (1 px), background fill and
-    colour-weighted median (radius 9), as :class:`prismstereo.matching.matchers.BPASWMatcher` with defaults.
+    colour-weighted median (radius 9), as :class:`prismstereo.matching.local.matchers.BPASWMatcher` with defaults.
     Returns (H, W) float32, dense."""
-    from prismstereo.matching import selection
+    from prismstereo.matching.local import selection
 
     disp = selection.winner_take_all(vol, min_disp=min_disp)
     valid = selection.cross_check(disp, selection.right_disparity(vol, min_disp=min_disp), tolerance=1.0)
@@ -378,7 +378,7 @@ def segment_sweep_candidates(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uin
     the slopes ``b`` in ``slopes`` (``a`` = 0 and the current ``a``); the ``keep`` cheapest (at least 2 px
     apart in centre disparity or differing in slope) are returned as new planes and a (K, keep) index array
     into the extended plane set (-1 = none)."""
-    from prismstereo.matching.slanted import segment_plane_costs
+    from prismstereo.matching.coop.slanted import segment_plane_costs
 
     k = assign.shape[0]
     h, w = labels.shape
@@ -630,7 +630,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         40 -> 20 (the default) 4.17 -> 4.14; ``sweep_frac`` 0.35 / 0.65 4.20 / 4.51 (at 40 px and agree 2).
     data_slopes : tuple of float, keyword-only
         Vertical disparity slopes ``b`` (px per row) of the data term's pixel-cost volumes
-        (:func:`prismstereo.matching.coopcost.sheared_costs`, an addition to Eq. 6.21): each plane's pixels read
+        (:func:`prismstereo.matching.coop.coopcost.sheared_costs`, an addition to Eq. 6.21): each plane's pixels read
         the volume of the slope nearest its ``b``, whose census window and smoothing box follow the slant (row
         ``dy`` compared ``b dy`` px away). Square windows charge a steep floor more at its true plane than at an
         aliased fronto-parallel one. Empty = one unsheared volume. Average 4.44 -> 4.21 (Teddy 4.80/8.49/13.37
@@ -641,7 +641,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         matcher's map (:func:`bpasw_dense_map`) at the end; the other segments passed the test and keep their
         planes.
     group_moves : bool, keyword-only
-        Group moves after the sweep (:func:`prismstereo.matching.cooperative.expand_planes`, an addition to
+        Group moves after the sweep (:func:`prismstereo.matching.coop.cooperative.expand_planes`, an addition to
         §6.2): each sweep candidate and each plane held across a segment boundary may move a connected region
         of segments at once (grown through segments whose data term it does not raise) when that lowers E;
         then the optimisation resumes. One segment at a time cannot leave a wrong plane shared by its
