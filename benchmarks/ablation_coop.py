@@ -23,7 +23,8 @@ from typing import Any
 import numpy as np
 
 from prismstereo.evaluation.middlebury import evaluate_disparity, list_scenes, load_scene
-from prismstereo.matching.coop import coop_match
+from prismstereo.matching.coop.pipeline import coop_match
+from prismstereo.matching.coop.steps import STEP_NAMES, StepParams
 from prismstereo.matching.segments.planes import PlaneParams
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -31,15 +32,7 @@ ROOT = Path(__file__).resolve().parents[1]
 STEPS: dict[str, dict[str, Any]] = {
     "full": {},
     "split": {"planes": PlaneParams(split_rounds=0)},
-    "split_evidence": {"split_evidence": 0},
-    "refit": {"refit_rounds": 0},
-    "bpasw_planes": {"bpasw_planes": 0},
-    "sweep": {"sweep_frac": 0.0},
-    "group_moves": {"group_moves": False},
-    "fine": {"fine_hr": 0.0},
-    "boundary": {"pixel_radius": 0},
-    "occlusion": {"occlusion_fill": False},
-    "median": {"post_median": 0},
+    **{name: {"steps": StepParams().without(name)} for name in STEP_NAMES if name != "optimise"},
 }
 
 

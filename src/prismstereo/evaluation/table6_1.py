@@ -27,7 +27,7 @@ THESIS_PLANES = {"tsukuba": 5.48, "cones": 8.35, "teddy": 7.42, "venus": 2.37}
 
 def run_coop_stages(data_dir: Path | None, scenes: tuple[str, ...]) -> dict[str, Any]:
     """Run ``coop`` on the scenes; bad > 1 px (nonocc/all/disc) of the initial, plane and final maps."""
-    from prismstereo.matching.coop import coop_match
+    from prismstereo.matching.coop.pipeline import coop_match
 
     root = data_dir if data_dir is not None else default_data_dir()
     if root is None:

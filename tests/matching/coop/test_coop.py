@@ -7,13 +7,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from prismstereo.matching.coop import coop_match
 from prismstereo.matching.coop.cooperative import (
     CoopParams,
     build_segment_graph,
     cooperative_optimize,
     total_energy,
 )
+from prismstereo.matching.coop.pipeline import coop_match
 from prismstereo.matching.segments.planes import build_segment_index
 
 
@@ -57,8 +57,8 @@ def test_synthetic_piecewise_planar_pair_is_recovered() -> None:
 
 
 def test_energy_never_increases_across_iterations() -> None:
-    from prismstereo.matching.coop import initial_disparity
     from prismstereo.matching.coop.coopcost import aggregated_costs, raw_cost
+    from prismstereo.matching.coop.pipeline import initial_disparity
     from prismstereo.matching.segments.planes import fit_planes
     from prismstereo.matching.segments.segmentation import mean_shift_segment
 
@@ -84,8 +84,8 @@ def test_energy_never_increases_across_iterations() -> None:
 
 
 def test_powell_refinement_lowers_energy_and_keeps_it_monotone() -> None:
-    from prismstereo.matching.coop import initial_disparity
     from prismstereo.matching.coop.coopcost import aggregated_costs, raw_cost
+    from prismstereo.matching.coop.pipeline import initial_disparity
     from prismstereo.matching.segments.planes import fit_planes
     from prismstereo.matching.segments.segmentation import mean_shift_segment
 
@@ -135,7 +135,7 @@ def test_middlebury_bounds(middlebury_dir: Path, scene: str, bounds: tuple[float
 
 def test_sweep_candidates_reach_a_steep_slant() -> None:
     """The global sweep offers a plane near a steep y-slant that a fronto-parallel current plane cannot reach."""
-    from prismstereo.matching.coop import segment_sweep_candidates
+    from prismstereo.matching.coop.pipeline import segment_sweep_candidates
 
     rng = np.random.default_rng(3)
     h, w = 60, 80
@@ -179,7 +179,7 @@ def _straddling_scene() -> tuple[np.ndarray, ...]:
 
 
 def test_fine_segments_move_the_straddling_columns_to_their_plane() -> None:
-    from prismstereo.matching.coop import refine_fine_segments
+    from prismstereo.matching.coop.pipeline import refine_fine_segments
     from prismstereo.matching.segments.segmentation import SegmentationParams
 
     img, labels, planes, cost, truth = _straddling_scene()
@@ -193,7 +193,7 @@ def test_fine_segments_move_the_straddling_columns_to_their_plane() -> None:
 
 
 def test_fine_segments_keep_moves_only_with_evidence() -> None:
-    from prismstereo.matching.coop import refine_fine_segments
+    from prismstereo.matching.coop.pipeline import refine_fine_segments
     from prismstereo.matching.segments.segmentation import SegmentationParams
 
     img, labels, planes, cost, truth = _straddling_scene()

@@ -46,7 +46,7 @@ def test_large_repetitive_plane_keeps_its_plane_when_part_of_the_initial_map_tak
     lab, _, planes, ancestor = fit_planes_splitting(labels, left, initial, ok, params=prm)
     assert lab.max() == 1 and np.isnan(ancestor).all()
     np.testing.assert_allclose(planes[0], [0.0, 0.0, float(d_true)], atol=1e-6)
-    from prismstereo.matching.coop import coop_match
+    from prismstereo.matching.coop.pipeline import coop_match
 
     res = coop_match(left, right, max_disp=max_disp, planes=PlaneParams(split_min_pixels=1000))
     assert np.mean(np.abs(res.disparity[inner] - d_true) <= 1.0) > 0.9
@@ -93,7 +93,7 @@ def test_planar_segment_with_some_wrong_evidence_is_not_split() -> None:
 def test_bpasw_dense_map_is_the_bpasw_matcher_output() -> None:
     """The fallback map of non-planar segments is exactly issue 3's ``bpasw`` matcher (defaults)."""
     from prismstereo.matching import match
-    from prismstereo.matching.coop import bpasw_dense_map, bpasw_volume
+    from prismstereo.matching.coop.pipeline import bpasw_dense_map, bpasw_volume
 
     left, right = _repetitive_pair(6, 8, h=32, w=64)
     vol = bpasw_volume(left, right, max_disp=16)

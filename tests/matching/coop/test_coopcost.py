@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from prismstereo.matching.coop import _box3
 from prismstereo.matching.coop.coopcost import raw_cost, sheared_costs
 from prismstereo.matching.coop.cooperative import build_segment_graph, total_energy
+from prismstereo.matching.coop.pipeline import _box3
 from prismstereo.matching.segments.planes import build_segment_index
 
 
