@@ -100,3 +100,44 @@ def test_bpasw_dense_map_is_the_bpasw_matcher_output() -> None:
     ours = bpasw_dense_map(vol, left)
     ref = match(left, right, max_disp=16, method="bpasw").disparity
     np.testing.assert_array_equal(ours, ref)
+
+
+def test_large_segment_whose_plane_the_evidence_barely_covers_takes_the_local_map() -> None:
+    """The fallback step's coverage rule: a large segment whose final plane is wrong (3 px off) but which the
+    evidence covers on only 30 % of its pixels keeps nothing of that plane (the local map there); covered on
+    60 %, the plane stands (the other steps decided on evidence)."""
+    import dataclasses
+
+    from prismstereo.matching.coop.pipeline import _PairEvidence, bpasw_dense_map, bpasw_volume
+    from prismstereo.matching.coop.steps import FallbackParams, PlaneLabels
+    from prismstereo.matching.segments.planes import build_segment_index
+
+    d_true, max_disp = 6, 16
+    rng = np.random.default_rng(3)
+    h, w = 70, 100  # 7000 px: above the rule's 5000
+    tex = rng.integers(0, 255, size=(h, w + d_true, 3)).astype(np.uint8)
+    left, right = np.ascontiguousarray(tex[:, :w]), np.ascontiguousarray(tex[:, d_true:])  # x_r = x_l - d
+    vol = bpasw_volume(left, right, max_disp=max_disp)
+    local = bpasw_dense_map(vol, left)
+    labels = np.zeros((h, w), np.int32)
+    state = PlaneLabels(labels=labels, index=build_segment_index(labels), graph=None,  # type: ignore[arg-type]
+                        assign=np.zeros(1, np.int32), planes=np.array([[0.0, 0.0, d_true + 3.0]]),
+                        own=np.full((1, 2), -1, np.int64), parent=np.zeros(1, np.int64),
+                        pairs=np.zeros((0, 2), np.int32))
+    wrong = np.full((h, w), d_true + 3.0, np.float32)
+    for cover, taken in ((0.3, True), (0.6, False)):
+        evidence = np.zeros((h, w), bool)
+        evidence[: int(cover * h)] = True
+        ev = _PairEvidence(left, right, min_disp=0, max_disp=max_disp, data=np.zeros((1, 1, 1), np.float32),
+                           reliable=evidence, initial=local, bvol=vol, bdisp=local, brel=evidence,
+                           nonplanar=np.zeros((h, w), bool), evidence=evidence, coop=None,  # type: ignore[arg-type]
+                           segmentation=None, planes=None, cost=None, slopes=None)  # type: ignore[arg-type]
+        out = ev.fallback(state, wrong, FallbackParams())
+        if taken:
+            np.testing.assert_array_equal(out, local)
+            assert np.mean(np.abs(out[:, max_disp:] - d_true) <= 1.0) > 0.95
+        else:
+            np.testing.assert_array_equal(out, wrong)
+        # a smaller segment is left to the support test
+        small = ev.fallback(dataclasses.replace(state), wrong, FallbackParams(min_pixels=h * w + 1))
+        np.testing.assert_array_equal(small, wrong)

@@ -44,6 +44,7 @@ from prismstereo.matching.coop.cooperative import (
 )
 from prismstereo.matching.coop.slanted import add_unique
 from prismstereo.matching.coop.steps import (
+    FallbackParams,
     OcclusionParams,
     PlaneLabels,
     StepParams,
@@ -565,7 +566,8 @@ class _PairEvidence:
 
     def __init__(self, lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uint8], *, min_disp: int, max_disp: int,
                  data: F32, reliable: npt.NDArray[np.bool_], initial: F32, bvol: F32, bdisp: F32,
-                 brel: npt.NDArray[np.bool_], nonplanar: npt.NDArray[np.bool_], coop: CoopParams,
+                 brel: npt.NDArray[np.bool_], nonplanar: npt.NDArray[np.bool_],
+                 evidence: npt.NDArray[np.bool_], coop: CoopParams,
                  segmentation: SegmentationParams, planes: PlaneParams, cost: CostParams,
                  slopes: tuple[float, ...] | None):
         self.image, self.right = lft, rgt
@@ -574,6 +576,8 @@ class _PairEvidence:
         self.bvol, self.bdisp, self.brel, self.nonplanar = bvol, bdisp, brel, nonplanar
         self.coop, self.segmentation, self.plane_params, self.cost = coop, segmentation, planes, cost
         self.slopes = slopes
+        self.evidence = evidence
+        self.fallback_pixels = 0
 
     def optimise(self, s: PlaneLabels, assign: npt.NDArray[np.int32], planes: npt.NDArray[np.float64],
                  own: npt.NDArray[np.int64], *, neighbour_own_planes: bool = False
@@ -627,11 +631,18 @@ class _PairEvidence:
                                               self.brel, int(p.rematch_radius))
         return np.asarray(out, np.float32)
 
-    def fallback(self, s: PlaneLabels, final: F32) -> F32:
-        if not self.nonplanar.any():
+    def fallback(self, s: PlaneLabels, final: F32, p: FallbackParams) -> F32:
+        # the segments that failed the plane support test are not planar, and a large segment that the evidence
+        # covers only in part has its plane extrapolated over the rest: the local matcher's map there
+        lab = s.labels.ravel()
+        sizes = np.bincount(lab, minlength=s.assign.size)
+        covered = np.bincount(lab, weights=self.evidence.ravel(), minlength=s.assign.size)
+        sparse = ((sizes >= p.min_pixels) & (covered < p.min_coverage * sizes))[s.labels]
+        local = self.nonplanar | sparse
+        self.fallback_pixels = int(local.sum())
+        if not local.any():
             return final
-        # the segments that failed the plane support test are not planar: the local matcher's map there
-        return np.where(self.nonplanar, bpasw_dense_map(self.bvol, self.image, min_disp=self.min_disp), final)
+        return np.where(local, bpasw_dense_map(self.bvol, self.image, min_disp=self.min_disp), final)
 
 
 def _pair_agreement(reliable: npt.NDArray[np.bool_], initial: F32, brel: npt.NDArray[np.bool_], bdisp: F32,
@@ -737,7 +748,8 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         dcost = _box3(raw, dp.radius)
     del raw
     ev = _PairEvidence(lft, rgt, min_disp=min_disp, max_disp=max_disp, data=dcost, reliable=reliable,
-                       initial=initial, bvol=bvol, bdisp=bdisp0, brel=brel0, nonplanar=nonplanar, coop=op,
+                       initial=initial, bvol=bvol, bdisp=bdisp0, brel=brel0, nonplanar=nonplanar,
+                       evidence=evidence, coop=op,
                        segmentation=sp, planes=pp, cost=dp.cost or cp, slopes=dp.slopes or None)
     state = PlaneLabels(labels=labels, index=index, graph=graph, assign=assign0, planes=plane_set, own=own,
                         parent=np.arange(k, dtype=np.int64), pairs=pairs,
@@ -766,6 +778,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
             "planes": float(len(state.planes)), "reliable_fraction": float(reliable.mean())}
     if st.fallback.enabled:
         info["split_evidence_pixels"] = float(nonplanar.sum())
+        info["fallback_pixels"] = float(ev.fallback_pixels)
     log.info("coop: %d segments, %d planes, E %.0f -> %.0f", state.assign.shape[0], len(state.planes),
              info["energy_before"], info["energy_after"])
     return CoopResult(labels=state.labels, initial=initial, reliable=reliable, plane_map=plane_map,

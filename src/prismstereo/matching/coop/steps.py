@@ -181,9 +181,17 @@ class MedianParams:
 
 @dataclass(frozen=True, kw_only=True)
 class FallbackParams:
-    """``fallback``: the segments that failed the plane support test take the local matcher's map."""
+    """``fallback``: the segments that failed the plane support test take the local matcher's map, and so do
+    the segments of at least ``min_pixels`` whose evidence covers less than ``min_coverage`` of their pixels (their
+    plane is extrapolated over most of the segment: nothing supports it there)."""
 
     enabled: bool = True
+    min_coverage: float = 0.4
+    min_pixels: int = 5000
+
+    def __post_init__(self) -> None:
+        _need(0.0 <= self.min_coverage <= 1.0 and self.min_pixels >= 1,
+              "fallback.min_coverage in [0, 1] and min_pixels >= 1", (self.min_coverage, self.min_pixels))
 
 
 P = TypeVar("P")
@@ -322,7 +330,7 @@ class Evidence(Protocol):
 
     def occlusion(self, s: PlaneLabels, final: F32, p: OcclusionParams) -> F32: ...
 
-    def fallback(self, s: PlaneLabels, final: F32) -> F32: ...
+    def fallback(self, s: PlaneLabels, final: F32, p: FallbackParams) -> F32: ...
 
 
 def _merge(s: PlaneLabels, info: Mapping[str, float]) -> dict[str, float]:
@@ -464,7 +472,7 @@ def step_fallback(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
     if not p.fallback.enabled:
         return s
     assert s.disparity is not None
-    return dataclasses.replace(s, disparity=np.asarray(ev.fallback(s, s.disparity), np.float32))
+    return dataclasses.replace(s, disparity=np.asarray(ev.fallback(s, s.disparity, p.fallback), np.float32))
 
 
 STEPS: dict[str, Callable[[PlaneLabels, Evidence, StepParams], PlaneLabels]] = {
