@@ -2,14 +2,16 @@
 
 Usage::
 
-    NUMBA_CACHE_DIR=.numba_cache .venv/bin/python benchmarks/ablation_coop.py [--steps full,gate,...]
+    NUMBA_CACHE_DIR=.numba_cache .venv/bin/python benchmarks/ablation_coop.py [--steps full,split,sweep,...]
         [--v2 DIR] [--validation DIR] [--quick] [--json out.json]
 
 ``--v2`` defaults to ``../shared/data/middlebury`` (Tsukuba, Venus, Teddy, Cones: 12 numbers, bad > 1 px
 nonocc / all / disc) and ``--validation`` to ``../shared/data/middlebury-extra`` (every scene found there,
 nonocc / all); ``--quick`` runs Tsukuba and the first validation scene only (CI's time budget). Each row is one
-configuration: ``full`` (the defaults) or ``-<step>`` (that step off). A step earns its place when switching
-it off raises the validation average and does not lower the v2 average by more than 0.1.
+configuration: ``full`` (the defaults), ``split`` (the plane support test off) or a step of
+:data:`~prismstereo.matching.coop.steps.STEP_NAMES` (that step off, ``StepParams().without(step)``). A step earns
+its place when switching it off raises the validation average and does not lower the v2 average by more than
+0.1.
 """
 
 from __future__ import annotations
