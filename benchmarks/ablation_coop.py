@@ -2,14 +2,16 @@
 
 Usage::
 
-    NUMBA_CACHE_DIR=.numba_cache .venv/bin/python benchmarks/ablation_coop.py [--steps full,gate,...]
+    NUMBA_CACHE_DIR=.numba_cache .venv/bin/python benchmarks/ablation_coop.py [--steps full,split,sweep,...]
         [--v2 DIR] [--validation DIR] [--quick] [--json out.json]
 
 ``--v2`` defaults to ``../shared/data/middlebury`` (Tsukuba, Venus, Teddy, Cones: 12 numbers, bad > 1 px
 nonocc / all / disc) and ``--validation`` to ``../shared/data/middlebury-extra`` (every scene found there,
 nonocc / all); ``--quick`` runs Tsukuba and the first validation scene only (CI's time budget). Each row is one
-configuration: ``full`` (the defaults) or ``-<step>`` (that step off). A step earns its place when switching
-it off raises the validation average and does not lower the v2 average by more than 0.1.
+configuration: ``full`` (the defaults), ``split`` (the plane support test off) or a step of
+:data:`~prismstereo.matching.coop.steps.STEP_NAMES` (that step off, ``StepParams().without(step)``). A step earns
+its place when switching it off raises the validation average and does not lower the v2 average by more than
+0.1.
 """
 
 from __future__ import annotations
@@ -23,23 +25,16 @@ from typing import Any
 import numpy as np
 
 from prismstereo.evaluation.middlebury import evaluate_disparity, list_scenes, load_scene
-from prismstereo.matching.coop import coop_match
-from prismstereo.matching.planes import PlaneParams
+from prismstereo.matching.coop.pipeline import coop_match
+from prismstereo.matching.coop.steps import STEP_NAMES, StepParams
+from prismstereo.matching.segments.planes import PlaneParams
 
 ROOT = Path(__file__).resolve().parents[1]
 #: each step of ``coop`` after the initial map, and the keyword arguments that switch it off
 STEPS: dict[str, dict[str, Any]] = {
     "full": {},
     "split": {"planes": PlaneParams(split_rounds=0)},
-    "split_evidence": {"split_evidence": 0},
-    "refit": {"refit_rounds": 0},
-    "bpasw_planes": {"bpasw_planes": 0},
-    "sweep": {"sweep_frac": 0.0},
-    "group_moves": {"group_moves": False},
-    "fine": {"fine_hr": 0.0},
-    "boundary": {"pixel_radius": 0},
-    "occlusion": {"occlusion_fill": False},
-    "median": {"post_median": 0},
+    **{name: {"steps": StepParams().without(name)} for name in STEP_NAMES if name != "optimise"},
 }
 
 

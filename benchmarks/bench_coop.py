@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 from prismstereo.evaluation.middlebury import SCENES, evaluate_disparity, load_scene
-from prismstereo.matching.coop import coop_match
+from prismstereo.matching.coop.pipeline import coop_match
 
 THESIS = {"tsukuba": (0.89, 1.21, 5.84), "venus": (0.21, 0.57, 1.72), "teddy": (4.02, 6.51, 11.24),
           "cones": (2.73, 6.89, 7.04)}

@@ -37,7 +37,7 @@ def weight_purity(data: str | None, *, samples: int = 3000, radius: int = 16, di
     ``-ln(S)`` reading (negative and infinite weights; reported as the share of negative mass), the
     clipped Weber–Fechner weights used by BPASW (several S0), and Yoon–Kweon's exp weights.
     """
-    from prismstereo.matching.aggregation import to_lab, weber_fechner_weight, window_offsets
+    from prismstereo.matching.local.aggregation import to_lab, weber_fechner_weight, window_offsets
 
     dy, dx, dist = window_offsets(radius, dilation)
     rng = np.random.default_rng(0)

@@ -57,7 +57,8 @@ _REGISTRY: dict[str, Callable[..., Matcher]] = {}
 #: speed/accuracy presets of ``depth`` and ``batch``: preset name -> matcher name
 PRESETS: dict[str, str] = {"fast": "sgm", "balanced": "bpasw", "accurate": "coop"}
 #: modules that register built-in matchers when imported
-_BUILTIN_MODULES = ("prismstereo.matching.matchers", "prismstereo.matching.sgbm", "prismstereo.matching.sgm")
+_BUILTIN_MODULES = ("prismstereo.matching.local.matchers", "prismstereo.matching.local.sgbm",
+                    "prismstereo.matching.local.sgm")
 #: optional modules (other issues) that may not exist yet
 _OPTIONAL_MODULES = ("prismstereo.matching.coop",)
 _loaded = False

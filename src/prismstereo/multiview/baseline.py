@@ -29,11 +29,11 @@ import numpy as np
 import numpy.typing as npt
 
 from prismstereo.errors import ConfigError, ImageError, MatchingError
-from prismstereo.matching import costs
-from prismstereo.matching.coop import box_filter_volume, initial_disparity
-from prismstereo.matching.coopcost import CostParams, aggregated_costs, guided_filter_volume, raw_cost
-from prismstereo.matching.matchers import BPASWMatcher
-from prismstereo.matching.selection import cross_check, right_disparity, subpixel_refine, winner_take_all
+from prismstereo.matching.coop.coopcost import CostParams, aggregated_costs, guided_filter_volume, raw_cost
+from prismstereo.matching.coop.pipeline import box_filter_volume, initial_disparity
+from prismstereo.matching.local import costs
+from prismstereo.matching.local.matchers import BPASWMatcher
+from prismstereo.matching.local.selection import cross_check, right_disparity, subpixel_refine, winner_take_all
 
 log = logging.getLogger(__name__)
 
@@ -282,9 +282,9 @@ def pair_cost(reference: np.ndarray, view: np.ndarray, ratio: float, *, max_disp
         (clipped to ``W - 1``).
     cost : {"guided", "bpasw"}
         ``"bpasw"``: S_AD aggregated with symmetric Weber–Fechner weights (thesis Eqs. 5.6–5.14,
-        :class:`~prismstereo.matching.matchers.BPASWMatcher`); ``"guided"``: the ``coop`` matcher's cost
+        :class:`~prismstereo.matching.local.matchers.BPASWMatcher`); ``"guided"``: the ``coop`` matcher's cost
         (truncated AD + gradient + census aggregated with a colour guided filter,
-        :func:`~prismstereo.matching.coopcost.aggregated_costs`), the same adaptive-support idea at O(1)
+        :func:`~prismstereo.matching.coop.coopcost.aggregated_costs`), the same adaptive-support idea at O(1)
         per pixel and disparity.
     cost_params : dict, optional
         Keyword parameters of that cost (``BPASWMatcher`` fields or ``CostParams`` fields).

@@ -6,50 +6,38 @@ to all views, and they reuse the ``coop`` building blocks of :mod:`prismstereo.m
 1. **Initial maps** (Eq. 7.9): the reference against each view ``i`` (pair cost of
    :func:`~prismstereo.multiview.baseline.pair_cost`), WTA + left–right check + subpixel, converted to the
    unit baseline (``d = s / |δᵢ|``) — the disparity sets ``d^(1) … d^(n)``.
-2. **Segmentation** of the reference (:func:`~prismstereo.matching.segmentation.mean_shift_segment`), kept
+2. **Segmentation** of the reference (:func:`~prismstereo.matching.segments.segmentation.mean_shift_segment`), kept
    from crossing the depth edges of the views' fused initial map (``segmentation.depth_tau``).
 3. **One plane per segment fitted jointly to all views** (Eqs. 7.10–7.14): the reliable pixels of every
    disparity set are stacked into one least-squares system ``A [a b c]ᵀ = B`` (Eq. 7.11) solved with the
    pseudo-inverse (Eqs. 7.12–7.13), with the outlier rules of §6.1.2 (cross-check, the reliable-region
    rule Eq. 6.8 over all views' pixels, the distance rule Eq. 6.9 with the Eq. 6.10 iteration) — the
-   robust solver :func:`prismstereo.matching.planes._fit_one` run on the stacked observations. By default
+   robust solver :func:`prismstereo.matching.segments.planes._fit_one` run on the stacked observations. By default
    (``fit_source="both"``) one more disparity set joins the stack: the winner of the views' aggregated
    costs fused on the unit grid (the local method's map), reliable where a pair agrees with it — a
    deviation that measured better on both Tsukuba (five views) and Cones (nine views) than the pairs' maps
    alone (``fit_source="pairs"``, the literal Eq. 7.11).
-4. **Merging** of similar neighbouring planes (§6.1.3, :func:`~prismstereo.matching.planes.merge_planes`)
+4. **Merging** of similar neighbouring planes (§6.1.3, :func:`~prismstereo.matching.segments.planes.merge_planes`)
    on the per-pixel mean of the views' reliable disparities (the normal equations of Eq. 7.14 only see
    that mean, weighted by the number of views).
 5. **Cooperative optimisation** (Eqs. 7.15–7.18 with 6.18–6.25,
-   :func:`~prismstereo.matching.cooperative.cooperative_optimize`) of ``E = Σᵢ E_data^(i) + E_occ + E_smooth``:
+   :func:`~prismstereo.matching.coop.cooperative.cooperative_optimize`) of ``E = Σᵢ E_data^(i) + E_occ + E_smooth``:
    the data term is the views' costs summed on the unit-baseline grid
    (:func:`~prismstereo.multiview.baseline.fuse_costs`, each view's cost at ``δᵢ d``), truncated per view
    and weighted per view by that view's reliability before summing, so ``Σᵢ c_data(x, y, d^(i, j))`` of
    Eq. 7.16 is what the optimiser reads. Occlusion (Eq. 7.17) is charged by the optimiser where the plane
    leaves the search range; a view that cannot see a match (out of its image) does not vote.
 
-6. **Group refit** (as ``coop``): segments sharing a plane are refitted together over the disparity sets,
-   the refitted planes offered as candidates and the optimisation resumed (``refit_rounds``).
-
-7. **Post-steps** (as ``coop``, with multi-view evidence; :mod:`prismstereo.multiview.poststeps`): the BPASW
-   pair costs of the views with ``|δ|`` in ``[0.5, 1]`` (``[0.5, 2]`` when the sides are balanced) fused on
-   the unit grid (the local method's volume), its WTA map reliable where a view's cross-checked BPASW map
-   agrees within 1 px; planes fitted to that map and their merged clusters offered as candidates (the
-   optimisation resumes); ``coop``'s sweep candidates for the segments of highest slanted-window cost, with
-   a row-only boxed data term on their pixels (the optimisation resumes); ``coop``'s group moves of those
-   candidates and of the planes across segment boundaries (the optimisation resumes); ``coop``'s finer segments along
-   plane boundaries (:func:`~prismstereo.matching.coop.refine_fine_segments` on the multi-view data term, a
-   move kept where the trusted fused disparities side with it); the boundary step on the fused
-   cost; the occlusion step against each side's view (only pixels contradicted from both sides when the
-   sides are balanced); a subpixel-preserving median.
-   Measured (v2 masks, bad > 1 px, nonocc/all/disc): Tsukuba five views 2.53/2.94/9.32 -> 1.58/1.97/6.69
-   (two-view ``coop`` 1.91/2.42/8.10), Cones nine views 2.60/4.16/7.37 -> 1.75/3.40/5.11 (``coop``
-   2.30/6.86/6.71); with the sweep step Tsukuba 1.37/1.73/6.53 (``coop`` with its sweep 1.54/1.94/7.20),
-   Cones 1.74/3.39/5.08 (``coop`` 2.23/6.81/6.50); with the fine segments Tsukuba 1.24/1.60/5.87 (``coop`` with
-   its fine segments 1.39/1.79/6.42), Cones 1.72/3.34/5.05 (``coop`` 2.19 nonocc).
-   With the depth-aware segmentation, the aggregated-cost data term (``data_agg``), γ 0.6, two finer segment
-   levels (``PostParams.fine_extra``) and a median of radius 3: Tsukuba 0.98/1.34/4.90 (``coop``
-   1.35/1.79/6.21), Cones 1.80/3.34/5.27 (``coop`` 2.10/6.68/6.21).
+6. **The steps shared with ``coop``** (:mod:`prismstereo.matching.coop.steps`, the parameters
+   :data:`MULTIVIEW_STEPS`) on the multi-view evidence (:class:`_ViewsEvidence`): group refit (jointly over
+   the disparity sets), candidate planes fitted to the fused BPASW map (:mod:`prismstereo.multiview.poststeps`:
+   the BPASW pair costs of the views with ``|δ|`` in ``[0.5, 1]``, ``[0.5, 2]`` when the sides are balanced,
+   fused on the unit grid, reliable where a view's cross-checked BPASW map agrees within 1 px), sweep
+   candidates against the right view nearest the unit baseline with the views' row-boxed pixel costs on
+   their pixels, group moves, finer segments at three levels (a move kept where the trusted fused
+   disparities side with it), the boundary step on the fused BPASW cost, the occlusion step against each
+   side's view (only pixels contradicted from both sides when the sides are balanced), a subpixel-preserving
+   median. Measurements: docs/EXPERIMENTS.md.
 
 Deviation, stated: the per-view truncation and reliability weighting are applied to each view's volume
 before the sum (``cooperative_optimize`` takes one data volume); the optimiser then sees a volume that is
@@ -71,15 +59,26 @@ import numpy.typing as npt
 from numba import njit
 
 from prismstereo.errors import ConfigError
-from prismstereo.matching.coop import refine_fine_segments
-from prismstereo.matching.cooperative import (
+from prismstereo.matching.coop.cooperative import (
     CoopParams,
     build_segment_graph,
     cooperative_optimize,
-    expand_planes,
-    neighbour_plane_candidates,
 )
-from prismstereo.matching.planes import (
+from prismstereo.matching.coop.steps import (
+    BoundaryParams,
+    BpaswPlanesParams,
+    FallbackParams,
+    FineParams,
+    MedianParams,
+    OcclusionParams,
+    PlaneLabels,
+    StepParams,
+    SweepParams,
+    coerce_params,
+    run_steps,
+)
+from prismstereo.matching.registry import MatchResult
+from prismstereo.matching.segments.planes import (
     PlaneParams,
     SegmentIndex,
     _fit_one,
@@ -89,8 +88,7 @@ from prismstereo.matching.planes import (
     merge_planes,
     render_planes,
 )
-from prismstereo.matching.registry import MatchResult
-from prismstereo.matching.segmentation import SegmentationParams, mean_shift_segment, segment_adjacency
+from prismstereo.matching.segments.segmentation import SegmentationParams, mean_shift_segment, segment_adjacency
 from prismstereo.multiview.baseline import (
     CostName,
     PairCost,
@@ -100,21 +98,33 @@ from prismstereo.multiview.baseline import (
     resolve_occlusion,
 )
 from prismstereo.multiview.poststeps import (
+    FusedBPASW,
     PostParams,
-    boundary_and_occlusion,
-    bpasw_candidate_rounds,
     fused_bpasw,
+    occlusion_sides,
     sweep_candidates,
 )
 
 log = logging.getLogger(__name__)
 
 
-__all__ = ["GlobalMultiViewParams", "data_volume", "fit_planes_joint", "match_multiview_global"]
+__all__ = ["MULTIVIEW_STEPS", "GlobalMultiViewParams", "data_volume", "fit_planes_joint", "match_multiview_global"]
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
 I32 = npt.NDArray[np.int32]
+
+
+#: the global method's step parameters: where they differ from ``coop``'s, measured on Tsukuba (five views)
+#: and Cones (nine views) (docs/EXPERIMENTS.md)
+MULTIVIEW_STEPS = StepParams(
+    bpasw_planes=BpaswPlanesParams(rounds=2),
+    sweep=SweepParams(frac=0.35, min_px=40, step=2),
+    fine=FineParams(levels=((3.0, 10), (1.5, 3), (1.0, 1))),
+    boundary=BoundaryParams(agree=2),
+    median=MedianParams(radius=3),
+    fallback=FallbackParams(enabled=False),
+)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -130,7 +140,7 @@ class GlobalMultiViewParams:
         Keyword parameters of that cost.
     segmentation, planes, coop : the ``coop`` building blocks' parameter sets. Two defaults differ from
         ``coop``'s: the segmentation keeps neighbours apart whose fused initial disparities differ by
-        ``depth_tau`` = 2.5 px (:func:`~prismstereo.matching.segmentation.mean_shift_segment` with the map of
+        ``depth_tau`` = 2.5 px (:func:`~prismstereo.matching.segments.segmentation.mean_shift_segment` with the map of
         the views' fused aggregated costs, which is far more reliable than one pair's: on Tsukuba it lowers
         the segmentation's own floor, the error of the best constant per segment, from 1.03 % to 0.81 %;
         measured without it, the other defaults unchanged: Tsukuba five views 1.02 nonocc instead of 0.98,
@@ -156,18 +166,17 @@ class GlobalMultiViewParams:
     fit_source : {"pairs", "fused", "both"}
         Disparity sets of the joint plane fit: every pair's checked map (Eq. 7.11, the thesis), the map of
         the fused aggregated costs (the local method's winner, reliable where a pair agrees), or both.
-    refit_rounds : int
-        As ``coop``: after the optimisation, segments sharing a plane are refitted together (jointly over
-        the disparity sets), the refitted planes offered as candidates and the optimisation resumed.
+    steps : StepParams
+        The steps after the plane fit, shared with ``coop`` (:mod:`prismstereo.matching.coop.steps`), with
+        the multi-view defaults :data:`MULTIVIEW_STEPS`; the group refit fits jointly over the disparity sets.
     data_radius : int
         Box radius of the pixel cost summed in the data term (as ``coop``).
     unreliable_weight : float
         Weight of a view's data cost at pixels where that view's pair failed the left–right check
         (thesis: only reliable pixels ``N_r`` count; the ``coop`` default keeps a fraction).
     post : PostParams or None
-        ``coop``'s post-optimisation steps with multi-view evidence (:mod:`prismstereo.multiview.poststeps`:
-        candidate planes fitted to the fused BPASW map, boundary step on the fused BPASW cost, per-side
-        occlusion step, subpixel-preserving median); None = off (the method as before).
+        The multi-view evidence of the steps after ``refit`` (:mod:`prismstereo.multiview.poststeps`: the
+        fused BPASW cost and map, the per-side occlusion views); None = those steps off.
     fit_bpasw : bool
         Also stack the fused BPASW map (reliable where multi-view consistent) into the joint plane fit
         (off: Tsukuba five views 1.75 -> 2.13 nonocc).
@@ -198,11 +207,15 @@ class GlobalMultiViewParams:
     weight_by_baseline: bool = True
     fit_min_ratio: float = 0.5
     fit_source: str = "both"
-    refit_rounds: int = 1
+    steps: StepParams = field(default_factory=lambda: MULTIVIEW_STEPS)
     post: PostParams | None = field(default_factory=PostParams)
     fit_bpasw: bool = False
     data_bpasw: float = 0.0
     data_agg: float = 2.0
+
+    def __post_init__(self) -> None:
+        # a mapping (the CLI's -p JSON) changes the multi-view defaults' fields; validated here, before any image
+        object.__setattr__(self, "steps", coerce_params(StepParams, self.steps, "steps", MULTIVIEW_STEPS))
 
 
 @njit(cache=True)
@@ -410,8 +423,8 @@ def match_multiview_global(reference: Any, views: Sequence[Any], *, ratios: Sequ
     post = p.post
     # the sweep step's row-boxed data term boxes the same pixel costs along the row: keep that volume from
     # this one pass over each pair instead of a second pair pass (it was 20 % of the five-view time)
-    row_radius = (post.sweep_hbox if post is not None and post.sweep_frac > 0 and post.sweep_keep > 0
-                  and post.sweep_hbox >= 0 else None)
+    sw = p.steps.sweep
+    row_radius = sw.row_box if post is not None and sw.frac > 0 and sw.row_box >= 0 else None
     pcs = [pair_cost(ref, v, r, max_disp=md, cost=p.cost, cost_params=p.cost_params, keep_raw=True,
                      data_radius=p.data_radius, row_radius=row_radius)
            for v, r in zip(vs, rs, strict=True)]
@@ -499,94 +512,112 @@ def match_multiview_global(reference: Any, views: Sequence[Any], *, ratios: Sequ
         # the optimiser's right-view visibility test would charge occlusion the left views do not see
         cp = replace(cp, visibility=False)
     initial = render_planes(index, plane_set, assign)
-    ones = np.ones(labels.shape, bool)
+    steps = p.steps
+    if p.post is None or fb is None:
+        steps = steps.without("bpasw_planes", "sweep", "group_moves", "fine", "boundary", "occlusion", "median",
+                              "fallback")
+    ev = _ViewsEvidence(ref, vs, rs, pcs, data=data, coop=cp, segmentation=p.segmentation, planes=p.planes,
+                        max_disp=md, fb=fb, fused0=fused0, disps=disps, rels=rels, bpasw_term=bpasw_term,
+                        row_radius=row_radius, params=p, occlusion=occ)
+    state = PlaneLabels(labels=labels, index=index, graph=graph, assign=assign, planes=plane_set, own=own,
+                        parent=np.arange(k, dtype=np.int64), pairs=pairs)
 
-    def optimise(a0: I32, pset: F64, own_: npt.NDArray[np.int64]) -> tuple[I32, F64, dict[str, float]]:
-        out = cooperative_optimize(a0, pset, index, graph, data, ones, own=own_, min_disp=0, params=cp)
+    def snapshot(name: str, s: PlaneLabels) -> None:
+        nonlocal t
+        if name == "refit":
+            timings["optimisation"] = time.perf_counter() - t
+            t = time.perf_counter()
+
+    state = run_steps(state, ev, steps, snapshot=snapshot)
+    if p.post is not None and fb is not None:
+        timings["post"] = time.perf_counter() - t
+    assert state.disparity is not None
+    info = state.info
+    extras: dict[str, Any] = {"labels": state.labels, "planes": state.planes, "assign": state.assign,
+                              "pair_disparities": disps, **info}
+    log.debug("global multiview: %d views, %d segments, %d planes, E %.1f -> %.1f", len(vs), state.assign.size,
+              state.planes.shape[0], info["energy_before"], info["energy_after"])
+    return MatchResult(state.disparity, any_rel, initial, timings, extras)
+
+
+class _ViewsEvidence:
+    """The multi-view evidence of the steps (:class:`~prismstereo.matching.coop.steps.Evidence`): the views'
+    data term on the unit grid, the fused BPASW cost and map (:mod:`prismstereo.multiview.poststeps`), the
+    map of the views' fused aggregated costs and the pairs' checked maps."""
+
+    min_disp = 0
+    slopes: tuple[float, ...] | None = None
+
+    def __init__(self, ref: npt.NDArray[np.uint8], views: Sequence[Any], ratios: Sequence[float],
+                 pcs: list[PairCost], *, data: F32, coop: CoopParams, segmentation: SegmentationParams,
+                 planes: PlaneParams, max_disp: int, fb: FusedBPASW | None,
+                 fused0: tuple[F32, npt.NDArray[np.bool_]] | None, disps: npt.NDArray[np.floating],
+                 rels: npt.NDArray[np.bool_], bpasw_term: F32 | None, row_radius: int | None,
+                 params: GlobalMultiViewParams, occlusion: str):
+        self.image, self.views, self.ratios, self.pcs = ref, views, ratios, pcs
+        self.data, self.coop, self.segmentation, self.plane_params = data, coop, segmentation, planes
+        self.max_disp, self.fb, self.fused0, self.disps, self.rels = max_disp, fb, fused0, disps, rels
+        self.bpasw_term, self.row_radius, self.p, self.occ = bpasw_term, row_radius, params, occlusion
+        self.reliable = np.ones(ref.shape[:2], bool)
+
+    def optimise(self, s: PlaneLabels, assign: I32, planes: F64, own: npt.NDArray[np.int64], *,
+                 neighbour_own_planes: bool = False) -> tuple[I32, F64, dict[str, float]]:
+        prm = replace(self.coop, neighbour_own_planes=True) if neighbour_own_planes else self.coop
+        out = cooperative_optimize(assign, planes, s.index, s.graph, self.data, self.reliable, own=own,
+                                   min_disp=0, params=prm)
         # (assign, info), or (assign, extended planes, info) when the optimiser refines planes continuously
         if len(out) == 3:
             return out[0], out[1], out[2]
-        return out[0], pset, out[1]
+        return out[0], planes, out[1]  # type: ignore[unreachable]
 
-    assign2, plane_set, info = optimise(assign, plane_set, own)
-    e_first = info["energy_before"]
-    for _ in range(p.refit_rounds):
-        # as coop: refit one plane per group of segments sharing a label (jointly over the disparity sets),
-        # offer it as a candidate, and resume the optimisation
-        refit = group_refit_planes(assign2, plane_set, index,
-                                   fit=lambda g: fit_planes_joint(g, disps, rels, params=p.planes)[0])
-        if refit is None:
-            break
-        plane_set, group_ids = refit
-        own2 = own.copy()
-        own2[:, 1] = group_ids
-        assign2, plane_set, info2 = optimise(assign2, plane_set, own2)
-        info = {**info2, "energy_before": e_first}
-    timings["optimisation"] = time.perf_counter() - t
-    if p.post is not None and fb is not None:
-        t = time.perf_counter()
-        assign2, plane_set, info3, bfit_ids = bpasw_candidate_rounds(
-            assign2, plane_set, own, index, pairs, fb.disparity, fb.reliable, optimise, planes=p.planes,
-            rounds=p.post.bpasw_planes)
-        if info3 is not None:
-            info = {**info3, "energy_before": e_first}
-        # as coop: planes of a global sweep for the segments of highest slanted cost, with the views' pixel
-        # costs boxed along the row only on their pixels (the square box favours fronto-parallel planes)
-        plane_set, sw_ids = sweep_candidates(ref, vs, rs, labels, index, assign2, plane_set, max_disp=md,
-                                             params=p.post)
-        if (sw_ids >= 0).any():
-            if row_radius is not None:
-                # the same pair costs with the row-boxed pixel cost as their raw volume
-                hb = data_volume([replace(pc, raw=pc.raw_row) for pc in pcs], max_disp=md,
-                                 trunc=p.coop.data_trunc, wu=p.unreliable_weight, occlusion=occ,
-                                 weight_by_baseline=p.weight_by_baseline)
-                pcs = [replace(pc, raw_row=None) for pc in pcs]
-                if bpasw_term is not None:
-                    hb = hb + bpasw_term
-                selpix = (sw_ids[:, 0] >= 0)[labels]
-                data = data.copy()
-                data[selpix] = hb[selpix]
-                data = np.ascontiguousarray(data, np.float32)
-                del hb
-            for col in range(0, sw_ids.shape[1], 2):
-                own6 = np.full((k, 2), -1, np.int64)
-                own6[:, :min(2, sw_ids.shape[1] - col)] = sw_ids[:, col:col + 2]
-                if (own6 >= 0).any():
-                    assign2, plane_set, info4 = optimise(assign2, plane_set, own6)
-                    info = {**info4, "energy_before": e_first}
-        info = {**info, "sweep_segments": float((sw_ids[:, 0] >= 0).sum())}
-        if p.post.group_moves:
-            # as coop: sweep candidates and the planes across boundaries moved over whole regions
-            cands = np.concatenate([sw_ids, neighbour_plane_candidates(graph, assign2)], axis=1)
-            assign2, ginfo = expand_planes(assign2, plane_set, index, graph, data, ones, cands, min_disp=0,
-                                           params=cp)
-            assign2, plane_set, info5 = optimise(assign2, plane_set, own)
-            info = {**info5, **ginfo, "energy_before": e_first}
-        if p.post.fine_hr > 0:
-            # as coop: finer segments along plane boundaries resume the optimisation, a move kept only where
-            # the trusted multi-view disparities side with it; then finer still (fine_extra), each level
-            # starting from the boundaries the previous one moved
-            assert fused0 is not None
-            fd0, frel0 = fused0
-            ev = frel0 & fb.reliable & (np.abs(fb.disparity - fd0) <= p.post.pixel_tol)
-            for hr, min_region in ((p.post.fine_hr, p.post.fine_min), *p.post.fine_extra):
-                fs = refine_fine_segments(ref, labels, assign2, plane_set, data, ones, ev, fd0,
-                                          segmentation=replace(p.segmentation, hr=float(hr),
-                                                               min_region=int(min_region)),
-                                          coop=cp, min_disp=0, check=p.post.fine_check)
-                info = {**info, **fs.info, "energy_before": e_first}
-                labels, index, assign2, plane_set = fs.labels, fs.index, fs.assign, fs.planes
-                k = int(fs.parent.size)
-                own = own[fs.parent]
-                if bfit_ids is not None:
-                    bfit_ids = bfit_ids[fs.parent]
-        disp = boundary_and_occlusion(ref, labels, index, assign2, plane_set, own, bfit_ids, fb, pcs,
-                                      max_disp=md, params=p.post, sides_balanced=occ == "sides")
-        timings["post"] = time.perf_counter() - t
-    else:
-        disp = np.clip(render_planes(index, plane_set, assign2), 0, md).astype(np.float32)
-    extras: dict[str, Any] = {"labels": labels, "planes": plane_set, "assign": assign2,
-                              "pair_disparities": disps, **info}
-    log.debug("global multiview: %d views, %d segments, %d planes, E %.1f -> %.1f", len(vs), k,
-              plane_set.shape[0], info["energy_before"], info["energy_after"])
-    return MatchResult(disp.astype(np.float32), any_rel, initial, timings, extras)
+    def refit(self, s: PlaneLabels, assign: I32, planes: F64) -> tuple[F64, npt.NDArray[np.int64]] | None:
+        # as coop, jointly over the disparity sets
+        return group_refit_planes(assign, planes, s.index,
+                                  fit=lambda g: fit_planes_joint(g, self.disps, self.rels, params=self.plane_params)[0])
+
+    def bpasw_map(self) -> tuple[F32, npt.NDArray[np.bool_]] | None:
+        return None if self.fb is None else (self.fb.disparity, self.fb.reliable)
+
+    def sweep(self, s: PlaneLabels, p: SweepParams) -> tuple[F64, npt.NDArray[np.int64]]:
+        ratio = self.p.post.sweep_ratio if self.p.post is not None else 1.0
+        return sweep_candidates(self.image, self.views, self.ratios, s.labels, s.index, s.assign, s.planes,
+                                max_disp=self.max_disp, params=p, ratio=ratio)
+
+    def row_box(self, selected: npt.NDArray[np.bool_], p: SweepParams) -> None:
+        if self.row_radius is None:
+            return
+        # the same pair costs with the row-boxed pixel cost as their raw volume
+        hb = data_volume([replace(pc, raw=pc.raw_row) for pc in self.pcs], max_disp=self.max_disp,
+                         trunc=self.p.coop.data_trunc, wu=self.p.unreliable_weight, occlusion=self.occ,
+                         weight_by_baseline=self.p.weight_by_baseline)
+        self.pcs = [replace(pc, raw_row=None) for pc in self.pcs]
+        if self.bpasw_term is not None:
+            hb = hb + self.bpasw_term
+        data = self.data.copy()
+        data[selected] = hb[selected]
+        self.data = np.ascontiguousarray(data, np.float32)
+
+    def fine_evidence(self, tol: float) -> tuple[npt.NDArray[np.bool_], F32] | None:
+        if self.fused0 is None or self.fb is None:
+            return None
+        fd0, frel0 = self.fused0
+        return frel0 & self.fb.reliable & (np.abs(self.fb.disparity - fd0) <= tol), fd0
+
+    def boundary_evidence(self, tol: float) -> tuple[F32, F32, npt.NDArray[np.bool_], npt.NDArray[np.bool_]] | None:
+        if self.fb is None:
+            return None
+        gagree = np.zeros(self.image.shape[:2], bool)
+        for pc in self.pcs:
+            gagree |= pc.reliable & (np.abs(pc.disparity - self.fb.disparity) <= tol)
+        return self.fb.cost, self.fb.disparity, self.fb.reliable, self.fb.reliable & gagree
+
+    def occlusion(self, s: PlaneLabels, final: F32, p: OcclusionParams) -> F32:
+        if self.fb is None or self.p.post is None:
+            return final
+        return occlusion_sides(final, s.labels, s.assign, s.planes, self.fb, params=p, post=self.p.post,
+                               sides_balanced=self.occ == "sides")
+
+    def fallback(self, s: PlaneLabels, final: F32, p: FallbackParams) -> F32:
+        # the front end has no plane support test here (it measured worse on Tsukuba's five views): nothing to
+        # fall back from
+        return final

@@ -30,27 +30,20 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from prismstereo.matching.coop import (
-    boundary_pixel_planes,
-    bpasw_candidate_rounds,
-    occlusion_background_fill,
-    segment_sweep_candidates,
-)
-from prismstereo.matching.planes import (
-    SegmentIndex,
-    render_planes,
-)
-from prismstereo.matching.selection import (
+from prismstereo.matching.coop.pipeline import occlusion_background_fill, segment_sweep_candidates
+from prismstereo.matching.coop.steps import OcclusionParams, SweepParams
+from prismstereo.matching.local.selection import (
     right_cost_volume,
     subpixel_refine,
-    weighted_median_filter,
     winner_take_all,
+)
+from prismstereo.matching.segments.planes import (
+    SegmentIndex,
 )
 from prismstereo.multiview.baseline import PairCost, fuse_costs
 from prismstereo.multiview.sharedbpasw import bpasw_pair_costs
 
-__all__ = ["FusedBPASW", "PostParams", "fused_bpasw", "boundary_and_occlusion", "bpasw_candidate_rounds",
-           "sweep_candidates"]
+__all__ = ["FusedBPASW", "PostParams", "fused_bpasw", "occlusion_sides", "sweep_candidates"]
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
@@ -60,7 +53,8 @@ B = npt.NDArray[np.bool_]
 
 @dataclass(frozen=True, kw_only=True)
 class PostParams:
-    """Post-step parameters (``coop``'s defaults where the step is the same).
+    """The multi-view evidence of the steps after ``refit`` (the steps' own parameters are
+    :class:`~prismstereo.matching.coop.steps.StepParams`, shared with ``coop``).
 
     Attributes
     ----------
@@ -68,86 +62,26 @@ class PostParams:
         Views whose ``|δ|`` lies in this range give BPASW pair costs to the fused cost (all views when none).
     bpasw_max_ratio_sides : float
         The upper bound instead when the data term selects sides (views on both sides of comparable weight):
-        the side selection resolves the longer baselines' occlusions. Measured: Tsukuba five views
-        1.67 -> 1.58 nonocc with ±2 included; Cones (plain sum) 1.81 -> 2.03 with its +1.25, +1.5 included.
+        the side selection resolves the longer baselines' occlusions.
     consistency_tol : float
         A view's cross-checked BPASW disparity supports the fused winner within this (unit px).
-    bpasw_planes : int
-        Candidate-plane rounds on the fused BPASW map (1: per-segment fits, 2: + merged clusters,
-        3: + group refit), as ``coop``'s ``bpasw_planes``.
-    pixel_radius, pixel_margin, pixel_tol, pixel_agree, pixel_bplanes : boundary step, as ``coop``.
-    occlusion_fill, occ_tol, occ_rematch : occlusion step, as ``coop`` (per side).
     occ_both : bool
-        Each side's occlusion step uses that side's view of ``|δ|`` closest to ``occ_ratio`` (Tsukuba five
-        views: 1 -> 1.58 nonocc, 2 -> 1.59).
         With views on both sides of comparable weight (the data term's side selection, ``occlusion`` resolved
-        to ``"sides"``), only pixels contradicted from both sides are changed; otherwise each side's view
-        changes the pixels it contradicts, one side after the other.
-    post_median : int
-        Radius of the final subpixel-preserving weighted median (0 = off; 3 since the finer segment levels
-        follow edges closely: Tsukuba five views 1.01 -> 0.98 nonocc against 4, Cones nine views 1.81 -> 1.80).
-    sweep_frac, sweep_slopes, sweep_keep, sweep_min_px, sweep_step, sweep_dil, sweep_hbox : sweep step
-        As ``coop`` (:func:`prismstereo.matching.coop.segment_sweep_candidates`, after the BPASW rounds): the
-        ``sweep_frac`` of the segments with the highest slanted-window cost against the right view of ``|δ|``
-        closest to ``sweep_ratio`` get the ``sweep_keep`` cheapest planes of a global sweep (whole range x ``b`` in
-        ``sweep_slopes``) as candidates, and with ``sweep_hbox >= 0`` the data term on their pixels is the
-        views' pixel costs boxed along the row only (radius ``sweep_hbox``); ``sweep_frac`` 0 = off.
-        Measured (bad > 1 px, nonocc/all/disc): Tsukuba five views 1.58/1.97/6.69 -> 1.37/1.73/6.53
-        (``coop``'s 50 % and step 4: 1.57/1.92/6.55; 75 %: 3.13/3.44/7.10; 20 %: 1.52/1.88/6.64; the row box
-        changes nothing there), Cones nine views 1.75/3.41/5.11 -> 1.74/3.39/5.08 (step 4: 1.75/3.42/5.11).
-        ``sweep_ratio`` 2 (Tsukuba's +2 view) measured worse: 3.06/3.41/6.61 at 50 %.
-    group_moves : bool
-        After the sweep, sweep candidates and the planes across segment boundaries may move whole regions at
-        once (:func:`~prismstereo.matching.cooperative.expand_planes`, as ``coop``); Tsukuba five views
-        unchanged (1.24/1.60/5.87), Cones nine views 1.72/3.34/5.05 -> 1.70/3.30/4.97.
-    fine_hr, fine_min, fine_check : finer segments, as ``coop``
-        (:func:`~prismstereo.matching.coop.refine_fine_segments`, after the sweep step): the reference is
-        segmented again with range radius ``fine_hr`` and minimum size ``fine_min`` inside the segments; fine
-        segments touching another plane resume the cooperative optimisation on the multi-view data term, a
-        move kept only when at least ``fine_check`` more of the fine segment's evidence pixels lie within
-        1 px of the new plane than of the old; ``fine_hr`` 0 = off. Measured (bad > 1 px, nonocc/all/disc):
-        Tsukuba five views 1.37/1.73/6.53 -> 1.24/1.60/5.87, Cones nine views 1.74/3.39/5.08 -> 1.72/3.34/5.05.
-        The evidence is ``coop``'s rule on the unit grid: the map of the views' fused guided costs where a
-        pair's checked map agrees with it and the fused BPASW map is reliable and within ``pixel_tol`` of it
-        (the boundary step's evidence instead, the reliable fused BPASW map where a guided pair's checked map
-        agrees, measured 1.25/1.61/5.85 and 1.73/3.33/5.05: not kept).
-    fine_extra : tuple of (hr, min_region)
-        Further, finer levels of the same step, each run on the previous level's segments (which they
-        subdivide) with the same evidence check: the colour edge of a depth edge is often one or two pixels
-        from the first level's boundary, and a segment cut at ``hr`` 1.5 / 1 can follow it. Measured (nonocc,
-        the other defaults unchanged): Tsukuba five views 1.08 -> 0.98, Cones nine views 1.80 -> 1.80; added
-        alone to the previous defaults, Tsukuba 1.24 -> 1.16 and Cones unchanged (1.70); ``()`` = off.
+        to ``"sides"``), only pixels contradicted from both sides are changed by the occlusion step; otherwise
+        each side's view changes the pixels it contradicts, one side after the other.
+    occ_ratio : float
+        Each side's occlusion step uses that side's view of ``|δ|`` closest to this.
+    sweep_ratio : float
+        The sweep step's slanted-window costs are read against the right view of ``|δ|`` closest to this.
     """
 
     bpasw_min_ratio: float = 0.5
     bpasw_max_ratio: float = 1.0
     bpasw_max_ratio_sides: float = 2.0
     consistency_tol: float = 1.0
-    bpasw_planes: int = 2
-    pixel_radius: int = 5
-    pixel_margin: float = 5.0
-    pixel_tol: float = 1.0
-    pixel_agree: int = 2
-    group_moves: bool = True
-    pixel_bplanes: int = 2
-    occlusion_fill: bool = True
-    occ_tol: float = 1.0
-    occ_rematch: bool = True
     occ_both: bool = True
     occ_ratio: float = 1.0
-    post_median: int = 3
-    sweep_frac: float = 0.35
-    sweep_slopes: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0)
-    sweep_keep: int = 2
-    sweep_min_px: int = 40
-    sweep_step: int = 2
-    sweep_dil: int = 3
-    sweep_hbox: int = 1
     sweep_ratio: float = 1.0
-    fine_hr: float = 3.0
-    fine_min: int = 10
-    fine_check: int = 1
-    fine_extra: tuple[tuple[float, int], ...] = ((1.5, 3), (1.0, 1))
 
 
 @dataclass(frozen=True)
@@ -191,25 +125,26 @@ def fused_bpasw(ref: np.ndarray, views: Sequence[np.ndarray], ratios: Sequence[f
 
 
 def sweep_candidates(ref: np.ndarray, views: Sequence[np.ndarray], ratios: Sequence[float], labels: I32,
-                     index: SegmentIndex, assign: I32, plane_set: F64, *, max_disp: int,
-                     params: PostParams) -> tuple[F64, npt.NDArray[np.int64]]:
-    """``coop``'s sweep candidates (:func:`~prismstereo.matching.coop.segment_sweep_candidates`) on the reference and
-    its right view of ``|δ|`` closest to 1, converted to the unit baseline; returns the extended plane set and
-    the (K, keep) candidate ids (-1 none; all -1 when there is no right view or the step is off)."""
+                     index: SegmentIndex, assign: I32, plane_set: F64, *, max_disp: int, params: SweepParams,
+                     ratio: float = 1.0) -> tuple[F64, npt.NDArray[np.int64]]:
+    """``coop``'s sweep candidates (:func:`~prismstereo.matching.coop.pipeline.segment_sweep_candidates`) on the
+    reference and its right view of ``|δ|`` closest to ``ratio``, converted to the unit baseline; returns the
+    extended plane set and the (K, keep) candidate ids (-1 none; all -1 when there is no right view or the
+    step is off)."""
     k = index.n_segments
-    none = np.full((k, max(params.sweep_keep, 1)), -1, np.int64)
+    none = np.full((k, max(params.keep, 1)), -1, np.int64)
     right = [i for i, r in enumerate(ratios) if r > 0]
-    if params.sweep_frac <= 0 or params.sweep_keep <= 0 or not right:
+    if params.frac <= 0 or params.keep <= 0 or not right:
         return plane_set, none
-    i = min(right, key=lambda j: abs(math.log(ratios[j] / params.sweep_ratio)))
+    i = min(right, key=lambda j: abs(math.log(ratios[j] / ratio)))
     r = float(ratios[i])
     w = ref.shape[1]
     md = int(min(w - 1, math.ceil(r * max_disp)))
     out, ids = segment_sweep_candidates(np.ascontiguousarray(ref, np.uint8), np.ascontiguousarray(views[i], np.uint8),
                                  labels, index, assign, plane_set * r, min_disp=0, max_disp=md,
-                                 frac=params.sweep_frac, slopes=tuple(params.sweep_slopes),
-                                 keep=params.sweep_keep, min_px=params.sweep_min_px, step=params.sweep_step,
-                                 dilation=params.sweep_dil)
+                                 frac=params.frac, slopes=tuple(params.slopes),
+                                 keep=params.keep, min_px=params.min_px, step=params.step,
+                                 dilation=params.dilation)
     base = plane_set.shape[0]
     return np.concatenate([plane_set, out[base:] / r]), ids
 
@@ -244,49 +179,23 @@ def _side_occlusion(final: F32, labels: I32, assign: I32, plane_set: F64, pc: Pa
     return np.ascontiguousarray(out, dtype=np.float32), np.ascontiguousarray(occ)
 
 
-def boundary_and_occlusion(ref: np.ndarray, labels: I32, index: SegmentIndex, assign: I32, plane_set: F64,
-                           own: npt.NDArray[np.int64], bfit_ids: npt.NDArray[np.int64] | None, fb: FusedBPASW,
-                           guided: Sequence[PairCost], *, max_disp: int, params: PostParams,
-                           sides_balanced: bool = False) -> F32:
-    """Boundary step, per-side occlusion step and the subpixel-preserving median (see the module doc)."""
-    p = params
+def occlusion_sides(final: F32, labels: I32, assign: I32, plane_set: F64, fb: FusedBPASW, *,
+                    params: OcclusionParams, post: PostParams, sides_balanced: bool = False) -> F32:
+    """The occlusion step against each side's view (see the module doc); (H, W) float32."""
     lab32 = np.ascontiguousarray(labels, dtype=np.int32)
-    if p.pixel_radius > 0:
-        extra = []
-        if p.pixel_bplanes and bfit_ids is not None:
-            extra.append(bfit_ids)
-        if p.pixel_bplanes > 1:
-            extra.append(own[:, 0])
-        k = own.shape[0]
-        bown = np.ascontiguousarray(np.stack(extra, axis=1) if extra else np.full((k, 1), -1), dtype=np.int32)
-        gagree = np.zeros(labels.shape, bool)
-        for pc in guided:
-            gagree |= pc.reliable & (np.abs(pc.disparity - fb.disparity) <= p.pixel_tol)
-        bagree = fb.reliable & gagree
-        brel = bagree if p.pixel_agree == 1 else fb.reliable
-        final = boundary_pixel_planes(lab32, assign.astype(np.int32), plane_set, fb.cost, 0, int(p.pixel_radius),
-                              float(p.pixel_margin), np.ascontiguousarray(brel), fb.disparity,
-                              float(p.pixel_tol), np.ascontiguousarray(bagree if p.pixel_agree else brel),
-                              bown)
+    sides = []
+    for side in (1, -1):
+        cands = [pc for pc in fb.pairs if side * pc.ratio > 0]
+        if cands:
+            sides.append(min(cands, key=lambda c: abs(abs(c.ratio) - post.occ_ratio)))
+    rad = params.rematch_radius
+    if post.occ_both and sides_balanced and len(sides) == 2:
+        # views on both sides: a wrongly fattened pixel is contradicted from both sides, a pixel that is
+        # only half-occluded (or whose one-side view map is wrong) from one
+        o1, m1 = _side_occlusion(final, lab32, assign, plane_set, sides[0], fb, tol=params.tol, radius=rad)
+        o2, m2 = _side_occlusion(final, lab32, assign, plane_set, sides[1], fb, tol=params.tol, radius=rad)
+        final = np.where(m1 & m2, np.minimum(o1, o2), final).astype(np.float32)
     else:
-        final = render_planes(index, plane_set, assign).astype(np.float32)
-    if p.occlusion_fill:
-        sides = []
-        for side in (1, -1):
-            cands = [pc for pc in fb.pairs if side * pc.ratio > 0]
-            if cands:
-                sides.append(min(cands, key=lambda c: abs(abs(c.ratio) - p.occ_ratio)))
-        rad = p.pixel_radius if p.occ_rematch else 0
-        if p.occ_both and sides_balanced and len(sides) == 2:
-            # views on both sides: a wrongly fattened pixel is contradicted from both sides, a pixel that is
-            # only half-occluded (or whose one-side view map is wrong) from one
-            o1, m1 = _side_occlusion(final, lab32, assign, plane_set, sides[0], fb, tol=p.occ_tol, radius=rad)
-            o2, m2 = _side_occlusion(final, lab32, assign, plane_set, sides[1], fb, tol=p.occ_tol, radius=rad)
-            final = np.where(m1 & m2, np.minimum(o1, o2), final).astype(np.float32)
-        else:
-            for pc in sides:
-                final, _m = _side_occlusion(final, lab32, assign, plane_set, pc, fb, tol=p.occ_tol, radius=rad)
-    if p.post_median > 0:
-        wm = weighted_median_filter(final, ref, radius=p.post_median)
-        final = np.where(np.abs(wm - final) <= 1.0, final, wm)
-    return np.clip(final, 0, max_disp).astype(np.float32)
+        for pc in sides:
+            final, _m = _side_occlusion(final, lab32, assign, plane_set, pc, fb, tol=params.tol, radius=rad)
+    return final

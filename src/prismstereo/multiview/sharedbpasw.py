@@ -12,7 +12,7 @@ feeds (on Tsukuba about 0.37 s of the 0.85 s of one pair for each image's weight
   neighbour at offset ``(dy, dx)`` is the neighbour's weight at ``(-dy, -dx)`` (the colour difference only
   changes sign, the distance not at all), so the other half is read from the table at the neighbour.
 
-The arithmetic per entry is that of :func:`prismstereo.matching.aggregation.aggregate_bpasw` in the same order,
+The arithmetic per entry is that of :func:`prismstereo.matching.local.aggregation.aggregate_bpasw` in the same order,
 so the volumes equal those of :func:`~prismstereo.multiview.baseline.pair_cost` (``cost="bpasw"``) up to
 the last bit of some entries (the compiler vectorises the tail of the disparity loop differently for some
 range lengths: 1 ulp, tested); on Tsukuba's four pairs they are equal bit for bit. Sharing the reference's
@@ -30,9 +30,9 @@ import numpy.typing as npt
 from numba import njit, prange
 
 from prismstereo.errors import MatchingError
-from prismstereo.matching.aggregation import pair_weight, to_lab, weber_fechner_weight, window_offsets
-from prismstereo.matching.matchers import BPASWMatcher
-from prismstereo.matching.selection import cross_check, right_disparity, subpixel_refine, winner_take_all
+from prismstereo.matching.local.aggregation import pair_weight, to_lab, weber_fechner_weight, window_offsets
+from prismstereo.matching.local.matchers import BPASWMatcher
+from prismstereo.matching.local.selection import cross_check, right_disparity, subpixel_refine, winner_take_all
 from prismstereo.multiview.baseline import PairCost, pair_cost
 
 __all__ = ["bpasw_pair_costs"]
@@ -89,7 +89,7 @@ def _weight_row(tab: F32, y: int, k: int, dys: I64, dxs: I64, hidx: I64, kneg: I
 @njit(cache=True, parallel=True, fastmath=True)
 def _bpasw_pair_kernel(cost: F32, tab_ref: F32, tab_view: F32, mirrored: bool, dys: I64, dxs: I64, hidx: I64,
                        kneg: I64, kmir: I64) -> F32:  # pragma: no cover - numba
-    """Symmetric BPASW aggregation (as :func:`prismstereo.matching.aggregation._bpasw_kernel`) of one pair's
+    """Symmetric BPASW aggregation (as :func:`prismstereo.matching.local.aggregation._bpasw_kernel`) of one pair's
     volume ``cost`` (in the pair's frame, mirrored for a view on the left) from the half weight tables of the
     reference (unmirrored frame) and of the view (the pair's frame)."""
     h, w, nd = cost.shape
@@ -151,7 +151,7 @@ def bpasw_pair_costs(reference: np.ndarray, views: Sequence[np.ndarray], ratios:
     views : sequence of (H, W, 3) images
     ratios : sequence of float, the signed baseline ratio of each view
     max_disp : int, keyword-only, largest unit-baseline disparity
-    cost_params : dict, optional, :class:`~prismstereo.matching.matchers.BPASWMatcher` fields
+    cost_params : dict, optional, :class:`~prismstereo.matching.local.matchers.BPASWMatcher` fields
 
     Returns
     -------

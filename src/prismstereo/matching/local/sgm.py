@@ -15,7 +15,7 @@ are run as two raster scans (forward: left, up-left, up, up-right; backward: the
 thread, each keeping only the previous image row of its path costs; the two partial sums stay ``uint16``.
 
 Volumes are ``(H, W, D)`` with slice ``i`` = disparity ``min_disp + i`` and ``d = x_left - x_right``, as
-in :mod:`prismstereo.matching.costs`.
+in :mod:`prismstereo.matching.local.costs`.
 """
 
 from __future__ import annotations
@@ -29,8 +29,8 @@ import cv2
 import numpy as np
 
 from prismstereo.errors import ConfigError
-from prismstereo.matching import costs, selection
-from prismstereo.matching.matchers import BPASWMatcher
+from prismstereo.matching.local import costs, selection
+from prismstereo.matching.local.matchers import BPASWMatcher
 from prismstereo.matching.registry import MatchResult, register_matcher
 
 log = logging.getLogger(__name__)
@@ -60,7 +60,7 @@ def census_cost_volume(left: np.ndarray, right: np.ndarray, *, max_disp: int, mi
     ndarray, uint16, (H, W, max_disp - min_disp + 1)
         Out-of-range matches (``x - d < 0``) get the largest value the cost can take.
     """
-    from prismstereo.matching._sgm import census_codes, census_kernel
+    from prismstereo.matching.local._sgm import census_codes, census_kernel
 
     wh, ww = int(window[0]), int(window[1])
     if wh % 2 == 0 or ww % 2 == 0 or wh < 1 or ww < 1 or wh * ww - 1 > 64:
@@ -106,7 +106,7 @@ def sgm_aggregate(cost: np.ndarray, gray: np.ndarray, *, p1: int, p2: int,
         raise ConfigError(f"expected 4·(max cost + P2) <= 65535 for uint16 path sums, got {4 * top}")
     if not 0 <= p1 <= p2:
         raise ConfigError(f"expected 0 <= P1 <= P2, got P1={p1}, P2={p2}")
-    from prismstereo.matching._sgm import sgm_kernel
+    from prismstereo.matching.local._sgm import sgm_kernel
 
     return sgm_kernel(c, np.ascontiguousarray(gray, dtype=np.float32), int(p1), int(p2), float(p2_gamma))
 
@@ -131,7 +131,7 @@ def sgm_select(fwd: np.ndarray, bwd: np.ndarray, *, min_disp: int = 0, uniquenes
     reject : ndarray, uint8, (H, W)
         0 kept, 1 not unique, 2 failed the left–right check.
     """
-    from prismstereo.matching._sgm import select_kernel
+    from prismstereo.matching.local._sgm import select_kernel
 
     disp, _, code = select_kernel(np.ascontiguousarray(fwd), np.ascontiguousarray(bwd), int(min_disp),
                                    int(uniqueness), int(tolerance), bool(subpixel))

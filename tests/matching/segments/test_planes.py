@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from prismstereo.matching.planes import (
+from prismstereo.matching.segments.planes import (
     PlaneParams,
     build_segment_index,
     fit_planes,

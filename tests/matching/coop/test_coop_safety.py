@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from prismstereo.matching.coopcost import raw_cost
-from prismstereo.matching.planes import (
+from prismstereo.matching.coop.coopcost import raw_cost
+from prismstereo.matching.segments.planes import (
     PlaneParams,
     build_segment_index,
     fit_planes,
@@ -46,7 +46,7 @@ def test_large_repetitive_plane_keeps_its_plane_when_part_of_the_initial_map_tak
     lab, _, planes, ancestor = fit_planes_splitting(labels, left, initial, ok, params=prm)
     assert lab.max() == 1 and np.isnan(ancestor).all()
     np.testing.assert_allclose(planes[0], [0.0, 0.0, float(d_true)], atol=1e-6)
-    from prismstereo.matching.coop import coop_match
+    from prismstereo.matching.coop.pipeline import coop_match
 
     res = coop_match(left, right, max_disp=max_disp, planes=PlaneParams(split_min_pixels=1000))
     assert np.mean(np.abs(res.disparity[inner] - d_true) <= 1.0) > 0.9
@@ -93,10 +93,51 @@ def test_planar_segment_with_some_wrong_evidence_is_not_split() -> None:
 def test_bpasw_dense_map_is_the_bpasw_matcher_output() -> None:
     """The fallback map of non-planar segments is exactly issue 3's ``bpasw`` matcher (defaults)."""
     from prismstereo.matching import match
-    from prismstereo.matching.coop import bpasw_dense_map, bpasw_volume
+    from prismstereo.matching.coop.pipeline import bpasw_dense_map, bpasw_volume
 
     left, right = _repetitive_pair(6, 8, h=32, w=64)
     vol = bpasw_volume(left, right, max_disp=16)
     ours = bpasw_dense_map(vol, left)
     ref = match(left, right, max_disp=16, method="bpasw").disparity
     np.testing.assert_array_equal(ours, ref)
+
+
+def test_large_segment_whose_plane_the_evidence_barely_covers_takes_the_local_map() -> None:
+    """The fallback step's coverage rule: a large segment whose final plane is wrong (3 px off) but which the
+    evidence covers on only 30 % of its pixels keeps nothing of that plane (the local map there); covered on
+    60 %, the plane stands (the other steps decided on evidence)."""
+    import dataclasses
+
+    from prismstereo.matching.coop.pipeline import _PairEvidence, bpasw_dense_map, bpasw_volume
+    from prismstereo.matching.coop.steps import FallbackParams, PlaneLabels
+    from prismstereo.matching.segments.planes import build_segment_index
+
+    d_true, max_disp = 6, 16
+    rng = np.random.default_rng(3)
+    h, w = 70, 100  # 7000 px: above the rule's 5000
+    tex = rng.integers(0, 255, size=(h, w + d_true, 3)).astype(np.uint8)
+    left, right = np.ascontiguousarray(tex[:, :w]), np.ascontiguousarray(tex[:, d_true:])  # x_r = x_l - d
+    vol = bpasw_volume(left, right, max_disp=max_disp)
+    local = bpasw_dense_map(vol, left)
+    labels = np.zeros((h, w), np.int32)
+    state = PlaneLabels(labels=labels, index=build_segment_index(labels), graph=None,  # type: ignore[arg-type]
+                        assign=np.zeros(1, np.int32), planes=np.array([[0.0, 0.0, d_true + 3.0]]),
+                        own=np.full((1, 2), -1, np.int64), parent=np.zeros(1, np.int64),
+                        pairs=np.zeros((0, 2), np.int32))
+    wrong = np.full((h, w), d_true + 3.0, np.float32)
+    for cover, taken in ((0.3, True), (0.6, False)):
+        evidence = np.zeros((h, w), bool)
+        evidence[: int(cover * h)] = True
+        ev = _PairEvidence(left, right, min_disp=0, max_disp=max_disp, data=np.zeros((1, 1, 1), np.float32),
+                           reliable=evidence, initial=local, bvol=vol, bdisp=local, brel=evidence,
+                           nonplanar=np.zeros((h, w), bool), evidence=evidence, coop=None,  # type: ignore[arg-type]
+                           segmentation=None, planes=None, cost=None, slopes=None)  # type: ignore[arg-type]
+        out = ev.fallback(state, wrong, FallbackParams())
+        if taken:
+            np.testing.assert_array_equal(out, local)
+            assert np.mean(np.abs(out[:, max_disp:] - d_true) <= 1.0) > 0.95
+        else:
+            np.testing.assert_array_equal(out, wrong)
+        # a smaller segment is left to the support test
+        small = ev.fallback(dataclasses.replace(state), wrong, FallbackParams(min_pixels=h * w + 1))
+        np.testing.assert_array_equal(small, wrong)

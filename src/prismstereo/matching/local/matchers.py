@@ -15,7 +15,7 @@ from typing import Any, Literal
 import numpy as np
 
 from prismstereo.errors import ConfigError
-from prismstereo.matching import costs, selection
+from prismstereo.matching.local import costs, selection
 from prismstereo.matching.registry import MatchResult, register_matcher
 
 log = logging.getLogger(__name__)
@@ -149,7 +149,7 @@ class SHDMatcher(LocalMatcher):
 class BPASWMatcher(LocalMatcher):
     """BPASW: S_AD cost (thesis Eq. 5.6) aggregated with symmetric Weber–Fechner weights (Eqs. 5.7–5.14).
 
-    See :func:`prismstereo.matching.aggregation.aggregate_bpasw` for the weights and the reading of the
+    See :func:`prismstereo.matching.local.aggregation.aggregate_bpasw` for the weights and the reading of the
     Weber–Fechner law. ``continuity=True`` runs a second pass with the continuity law (Eqs. 5.9, 5.12)
     using the first pass's winners as the neighbours' disparities (off by default: it raised the Middlebury
     error; docs/EXPERIMENTS.md).
@@ -191,7 +191,7 @@ class BPASWMatcher(LocalMatcher):
 
     def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
                     min_disp: int) -> np.ndarray:
-        from prismstereo.matching import aggregation
+        from prismstereo.matching.local import aggregation
 
         vol = self.pixel_cost(left, right, max_disp=max_disp, min_disp=min_disp)
         kw: dict[str, Any] = dict(radius=self.radius, dilation=self.dilation, min_disp=min_disp, kernel=self.kernel,

@@ -8,8 +8,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from prismstereo.errors import ConfigError, ImageError, MatchingError
-from prismstereo.matching import available_matchers, costs, get_matcher, match, selection
-from prismstereo.matching.aggregation import aggregate_box, aggregate_bpasw, weber_fechner_weight
+from prismstereo.matching import available_matchers, get_matcher, match
+from prismstereo.matching.local import costs, selection
+from prismstereo.matching.local.aggregation import aggregate_box, aggregate_bpasw, weber_fechner_weight
 
 METHODS = ("sad", "ssd", "ncc", "shd", "bpasw", "sgbm")
 FAST = {"bpasw": {"radius": 6, "dilation": 2}}

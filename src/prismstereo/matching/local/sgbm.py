@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from prismstereo.matching import selection
+from prismstereo.matching.local import selection
 from prismstereo.matching.registry import MatchResult, register_matcher
 
 __all__ = ["SGBMMatcher"]

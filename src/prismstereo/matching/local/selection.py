@@ -172,8 +172,8 @@ def weighted_median_filter(disp: np.ndarray, image: np.ndarray, *, mask: np.ndar
 
     Returns float32 ``(H, W)``.
     """
-    from prismstereo.matching._wmf import wmf_kernel
-    from prismstereo.matching.aggregation import to_lab
+    from prismstereo.matching.local._wmf import wmf_kernel
+    from prismstereo.matching.local.aggregation import to_lab
 
     d = np.ascontiguousarray(disp, dtype=np.float32)
     m = np.ones(d.shape, dtype=bool) if mask is None else np.ascontiguousarray(mask, dtype=bool)

@@ -1,4 +1,4 @@
-"""Numba kernels of :mod:`prismstereo.matching.sgm` (imported lazily, so registering ``sgm`` loads no numba)."""
+"""Numba kernels of :mod:`prismstereo.matching.local.sgm` (imported lazily, so registering ``sgm`` loads no numba)."""
 
 from __future__ import annotations
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from prismstereo.matching.coop import box_filter_volume
-from prismstereo.matching.coopcost import raw_cost, sheared_costs
-from prismstereo.matching.cooperative import build_segment_graph, total_energy
-from prismstereo.matching.planes import build_segment_index
+from prismstereo.matching.coop.coopcost import raw_cost, sheared_costs
+from prismstereo.matching.coop.cooperative import build_segment_graph, total_energy
+from prismstereo.matching.coop.pipeline import box_filter_volume
+from prismstereo.matching.segments.planes import build_segment_index
 
 
 def _steep_floor(slope: float = 1.0, seed: int = 5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

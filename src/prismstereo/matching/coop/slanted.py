@@ -46,7 +46,7 @@ def _census_pair(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8],
     if weight <= 0:
         z = np.zeros((1, 1), np.uint64)
         return z, z
-    from prismstereo.matching.coopcost import census_bits
+    from prismstereo.matching.coop.coopcost import census_bits
 
     def grey(im: npt.NDArray[np.uint8]) -> F32:
         f = np.asarray(im, np.float32)

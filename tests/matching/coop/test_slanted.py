@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from prismstereo.matching.slanted import plane_cost
+from prismstereo.matching.coop.slanted import plane_cost
 
 A, B, C = 0.3, 0.15, 4.0  # d = A x + B y + C
 

@@ -7,14 +7,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from prismstereo.matching.coop import coop_match
-from prismstereo.matching.cooperative import (
+from prismstereo.matching.coop.cooperative import (
     CoopParams,
     build_segment_graph,
     cooperative_optimize,
     total_energy,
 )
-from prismstereo.matching.planes import build_segment_index
+from prismstereo.matching.coop.pipeline import coop_match
+from prismstereo.matching.segments.planes import build_segment_index
 
 
 def _synthetic_pair(seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -57,10 +57,10 @@ def test_synthetic_piecewise_planar_pair_is_recovered() -> None:
 
 
 def test_energy_never_increases_across_iterations() -> None:
-    from prismstereo.matching.coop import initial_disparity
-    from prismstereo.matching.coopcost import aggregated_costs, raw_cost
-    from prismstereo.matching.planes import fit_planes
-    from prismstereo.matching.segmentation import mean_shift_segment
+    from prismstereo.matching.coop.coopcost import aggregated_costs, raw_cost
+    from prismstereo.matching.coop.pipeline import initial_disparity
+    from prismstereo.matching.segments.planes import fit_planes
+    from prismstereo.matching.segments.segmentation import mean_shift_segment
 
     left, right, _ = _synthetic_pair(1)
     labels = mean_shift_segment(left)
@@ -84,10 +84,10 @@ def test_energy_never_increases_across_iterations() -> None:
 
 
 def test_powell_refinement_lowers_energy_and_keeps_it_monotone() -> None:
-    from prismstereo.matching.coop import initial_disparity
-    from prismstereo.matching.coopcost import aggregated_costs, raw_cost
-    from prismstereo.matching.planes import fit_planes
-    from prismstereo.matching.segmentation import mean_shift_segment
+    from prismstereo.matching.coop.coopcost import aggregated_costs, raw_cost
+    from prismstereo.matching.coop.pipeline import initial_disparity
+    from prismstereo.matching.segments.planes import fit_planes
+    from prismstereo.matching.segments.segmentation import mean_shift_segment
 
     left, right, _ = _synthetic_pair(3)
     labels = mean_shift_segment(left)
@@ -135,7 +135,7 @@ def test_middlebury_bounds(middlebury_dir: Path, scene: str, bounds: tuple[float
 
 def test_sweep_candidates_reach_a_steep_slant() -> None:
     """The global sweep offers a plane near a steep y-slant that a fronto-parallel current plane cannot reach."""
-    from prismstereo.matching.coop import segment_sweep_candidates
+    from prismstereo.matching.coop.pipeline import segment_sweep_candidates
 
     rng = np.random.default_rng(3)
     h, w = 60, 80
@@ -179,8 +179,8 @@ def _straddling_scene() -> tuple[np.ndarray, ...]:
 
 
 def test_fine_segments_move_the_straddling_columns_to_their_plane() -> None:
-    from prismstereo.matching.coop import refine_fine_segments
-    from prismstereo.matching.segmentation import SegmentationParams
+    from prismstereo.matching.coop.pipeline import refine_fine_segments
+    from prismstereo.matching.segments.segmentation import SegmentationParams
 
     img, labels, planes, cost, truth = _straddling_scene()
     ok = np.ones(labels.shape, bool)
@@ -193,8 +193,8 @@ def test_fine_segments_move_the_straddling_columns_to_their_plane() -> None:
 
 
 def test_fine_segments_keep_moves_only_with_evidence() -> None:
-    from prismstereo.matching.coop import refine_fine_segments
-    from prismstereo.matching.segmentation import SegmentationParams
+    from prismstereo.matching.coop.pipeline import refine_fine_segments
+    from prismstereo.matching.segments.segmentation import SegmentationParams
 
     img, labels, planes, cost, truth = _straddling_scene()
     ok = np.ones(labels.shape, bool)
@@ -235,7 +235,7 @@ def _striped_surface() -> tuple:
 
 
 def test_group_moves_take_a_region_that_single_moves_cannot() -> None:
-    from prismstereo.matching.cooperative import expand_planes
+    from prismstereo.matching.coop.cooperative import expand_planes
 
     labels, img, cost, planes = _striped_surface()
     idx = build_segment_index(labels)
@@ -261,7 +261,7 @@ def test_group_moves_take_a_region_that_single_moves_cannot() -> None:
 
 
 def test_neighbour_plane_candidates_lists_the_planes_across_boundaries() -> None:
-    from prismstereo.matching.cooperative import neighbour_plane_candidates
+    from prismstereo.matching.coop.cooperative import neighbour_plane_candidates
 
     labels, img, _, _ = _striped_surface()
     graph = build_segment_graph(labels, img)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from prismstereo.matching.segmentation import SegmentationParams, mean_shift_segment, segment_adjacency
+from prismstereo.matching.segments.segmentation import SegmentationParams, mean_shift_segment, segment_adjacency
 
 
 def _two_regions(seed: int = 0) -> np.ndarray:

@@ -30,7 +30,7 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit
 
-from prismstereo.matching.planes import SegmentIndex
+from prismstereo.matching.segments.planes import SegmentIndex
 
 log = logging.getLogger(__name__)
 
@@ -575,7 +575,7 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
     cost : (H, W, D) or (S, H, W, D) float32
         Pixel matching cost of the left view (slice k = disparity ``min_disp + k``); with ``slopes``, one
         volume per vertical disparity slope, and each plane's data term reads the volume of the slope nearest
-        its ``b`` (:func:`prismstereo.matching.coopcost.sheared_costs`).
+        its ``b`` (:func:`prismstereo.matching.coop.coopcost.sheared_costs`).
     reliable : (H, W) bool
         Cross-check mask (Eq. 6.7).
     own : (K, 2) int, optional

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from prismstereo.errors import ConfigError
-from prismstereo.matching import available_matchers, costs, get_matcher, match
-from prismstereo.matching.sgm import census_cost_volume, sgm_aggregate, sgm_select
+from prismstereo.matching import available_matchers, get_matcher, match
+from prismstereo.matching.local import costs
+from prismstereo.matching.local.sgm import census_cost_volume, sgm_aggregate, sgm_select
 
 
 def _texture(h: int, w: int, seed: int = 0) -> np.ndarray:

@@ -278,7 +278,7 @@ def fit_planes_splitting(labels: npt.NDArray[np.integer], image: npt.NDArray[np.
     *Bowling1*), and their robust fit then keeps the plane of a minority of the pixels. A segment of at least
     ``params.split_min_pixels`` pixels whose plane agrees (within ``t_outlier``) with fewer than
     ``params.min_support`` of its ``evidence`` pixels is split into quarters at its centroid
-    (:func:`~prismstereo.matching.segmentation.split_segments`) and the pieces refitted, up to
+    (:func:`~prismstereo.matching.segments.segmentation.split_segments`) and the pieces refitted, up to
     ``params.split_rounds`` times. The split is only a hypothesis (where the reliable pixels are wrong in one
     part of the segment, the pieces follow them): each piece keeps its unsplit segment's plane in
     ``ancestor`` so that the data term can choose between them.
@@ -298,7 +298,7 @@ def fit_planes_splitting(labels: npt.NDArray[np.integer], image: npt.NDArray[np.
     planes : (K', 3) float64 as :func:`fit_planes`;
     ancestor : (K', 3) float64 plane of the original segment a piece was split from (NaN rows: not split).
     """
-    from prismstereo.matching.segmentation import split_segments
+    from prismstereo.matching.segments.segmentation import split_segments
 
     p = params or PlaneParams()
     lab = np.asarray(labels).astype(np.int32)

@@ -1,35 +1,24 @@
 """``coop``: segment-based stereo with cooperative optimisation (thesis chapters 5-6), the flagship matcher.
 
-Stages (each callable on its own, and all kept in :class:`CoopResult`):
+Front end (kept in :class:`CoopResult`):
 
-1. mean-shift segmentation of the left image (§5.1)          -> ``labels``
-2. initial disparity map: adaptive-weight aggregated cost, WTA, parabola subpixel, left-right
-   cross-check (§5.2, Eq. 6.7)                                -> ``initial``, ``reliable``
+1. initial disparity map: adaptive-weight aggregated cost, WTA, parabola subpixel, left-right cross-check
+   (§5.2, Eq. 6.7)                                             -> ``initial``, ``reliable``
+2. mean-shift segmentation of the left image (§5.1)          -> ``labels``
 3. robust plane per segment (Eqs. 6.1-6.10) and merging of similar neighbours (Eqs. 6.14-6.17); segments
    without a plane take their most similar neighbour's; a large segment whose plane the evidence (both
-   cross-checked initial maps agree) does not support is split in quarters and refitted (issue 14: mean
-   shift's huge segments on curved or repetitive surfaces)  -> ``plane_map`` (thesis Table 6.1)
-4. cooperative optimisation of the plane labels (Eqs. 6.18-6.25), then one round in which segments that
-   share a plane are refitted together and the optimisation resumes, then one in which planes fitted to
-   issue 3's cross-checked BPASW map (and their merged clusters) are offered and it resumes again; then
-   the half of the segments with the highest slanted-window cost get planes from a global sweep (whole
-   disparity range x a few vertical slopes) as candidates, with a row-only boxed pixel cost on their pixels,
-   and those candidates and the planes across segment boundaries may move whole regions at once (group moves);
-   last, finer segments (a second mean shift with a smaller range radius, inside the segments) along plane
-   boundaries may take a neighbour's plane where the cross-checked initial maps support it
-5. boundary step (an addition to the thesis): pixels near segment boundaries may take a nearby segment's
-   plane (current, or fitted to either initial map) where issue 3's BPASW aggregated cost (symmetric
-   adaptive weights, §5.2) clearly prefers it and both cross-checked initial maps agree with it (fixes
-   fattened boundaries); pixels whose right-view match reliably sees a farther surface take the background
-   plane (occlusion); then a colour-weighted median that only overrides disparities it moves by more than
-   1 px; segments that failed the plane support test of stage 3 (not one plane) take the ``bpasw``
-   matcher's map                                              -> ``disparity`` (thesis Table 6.2)
+   cross-checked initial maps agree) does not support is split in quarters and refitted
+                                                              -> ``plane_map`` (thesis Table 6.1)
+
+then the steps of :mod:`prismstereo.matching.coop.steps`, shared with the global multi-view method
+(optimise, refit, bpasw_planes, sweep, group_moves, fine, boundary, occlusion, median, fallback), on the
+two-view evidence (:class:`_PairEvidence`: the pair's data term, issue 3's BPASW cost volume of the pair and
+its cross-checked map)                                        -> ``disparity`` (thesis Table 6.2)
 
 Default parameters (the same for every scene): hs = 5, hr = 4, M = 20; guided filter r = 9, ε = 1e-4;
 γ_segment = 0.9, t_outlier = 1, ε(6.10) = 0.99, δ = 0.8; κ = 0.5, μ = 1, ω_occ = 1, γ = 0.5;
-BPASW as issue 3's ``bpasw`` matcher; boundary step radius 5 px, margin 5 (BPASW cost units), tolerance
-1 px; weighted median radius 4; finer segments hr = 3, M = 10; data-term volumes for vertical slopes
-b = -1, -0.5, 0, 0.5, 1 (census window and 3x3 box sheared along the plane, each plane reading its nearest).
+data-term volumes for vertical slopes b = -1, -0.5, 0, 0.5, 1 (census window and 3x3 box sheared along the
+plane, each plane reading its nearest); the steps' defaults are :class:`~prismstereo.matching.coop.steps.StepParams`.
 """
 
 from __future__ import annotations
@@ -46,16 +35,26 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit
 
-from prismstereo.errors import ImageError
-from prismstereo.matching.coopcost import CostParams, aggregated_costs, raw_cost, sheared_costs
-from prismstereo.matching.cooperative import (
+from prismstereo.errors import ConfigError, ImageError
+from prismstereo.matching.coop.coopcost import CostParams, aggregated_costs, raw_cost, sheared_costs
+from prismstereo.matching.coop.cooperative import (
     CoopParams,
     build_segment_graph,
     cooperative_optimize,
-    expand_planes,
-    neighbour_plane_candidates,
 )
-from prismstereo.matching.planes import (
+from prismstereo.matching.coop.slanted import add_unique
+from prismstereo.matching.coop.steps import (
+    FallbackParams,
+    OcclusionParams,
+    PlaneLabels,
+    StepParams,
+    SweepParams,
+    coerce_params,
+    run_steps,
+)
+from prismstereo.matching.local.selection import right_cost_volume
+from prismstereo.matching.registry import MatchResult, register_matcher
+from prismstereo.matching.segments.planes import (
     PlaneParams,
     SegmentIndex,
     build_segment_index,
@@ -66,14 +65,11 @@ from prismstereo.matching.planes import (
     merge_planes,
     render_planes,
 )
-from prismstereo.matching.registry import MatchResult, register_matcher
-from prismstereo.matching.segmentation import SegmentationParams, mean_shift_segment, segment_adjacency
-from prismstereo.matching.selection import right_cost_volume, weighted_median_filter
-from prismstereo.matching.slanted import add_unique
+from prismstereo.matching.segments.segmentation import SegmentationParams, mean_shift_segment, segment_adjacency
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CoopMatcher", "CoopResult", "FineSegments", "boundary_pixel_planes",
+__all__ = ["CoopMatcher", "CoopResult", "DataTermParams", "FineSegments", "boundary_pixel_planes",
            "bpasw_candidate_rounds", "coop_match", "initial_disparity",
            "occlusion_background_fill", "refine_fine_segments",
            "segment_sweep_candidates"]
@@ -197,9 +193,9 @@ def bpasw_volume(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, m
 
     S_AD plus half the census distance, aggregated with symmetric Weber-Fechner adaptive support weights
     (the ``bpasw`` matcher's defaults). Symmetric weights make the right view's volume the diagonal read of
-    this one (:func:`prismstereo.matching.selection.right_cost_volume`).
+    this one (:func:`prismstereo.matching.local.selection.right_cost_volume`).
     """
-    from prismstereo.matching.matchers import BPASWMatcher
+    from prismstereo.matching.local.matchers import BPASWMatcher
 
     return np.asarray(BPASWMatcher().cost_volume(left, right, max_disp=max_disp, min_disp=min_disp),
                       dtype=np.float32)
@@ -265,9 +261,9 @@ def boundary_pixel_planes(seg: npt.NDArray[np.int32], assign: npt.NDArray[np.int
 
 def bpasw_dense_map(vol: F32, image: npt.NDArray[np.uint8], *, min_disp: int = 0) -> F32:
     """Issue 3's ``bpasw`` matcher output from its cost volume: WTA, cross-check (1 px), background fill and
-    colour-weighted median (radius 9), as :class:`prismstereo.matching.matchers.BPASWMatcher` with defaults.
+    colour-weighted median (radius 9), as :class:`prismstereo.matching.local.matchers.BPASWMatcher` with defaults.
     Returns (H, W) float32, dense."""
-    from prismstereo.matching import selection
+    from prismstereo.matching.local import selection
 
     disp = selection.winner_take_all(vol, min_disp=min_disp)
     valid = selection.cross_check(disp, selection.right_disparity(vol, min_disp=min_disp), tolerance=1.0)
@@ -392,7 +388,7 @@ def segment_sweep_candidates(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uin
     the slopes ``b`` in ``slopes`` (``a`` = 0 and the current ``a``); the ``keep`` cheapest (at least 2 px
     apart in centre disparity or differing in slope) are returned as new planes and a (K, keep) index array
     into the extended plane set (-1 = none)."""
-    from prismstereo.matching.slanted import segment_plane_costs
+    from prismstereo.matching.coop.slanted import segment_plane_costs
 
     k = assign.shape[0]
     h, w = labels.shape
@@ -544,25 +540,140 @@ def refine_fine_segments(image: npt.NDArray[np.uint8], labels: npt.NDArray[np.in
     return FineSegments(flab, parent, findex, new.astype(np.int32), planes_out, info)
 
 
+@dataclass(frozen=True, kw_only=True)
+class DataTermParams:
+    """The front end's data-term choices.
+
+    Attributes
+    ----------
+    check_tolerance : float
+        Tolerance of the left-right check of the integer WTA maps of the initial map (Eq. 6.7; 0 = they must
+        agree exactly).
+    radius : int
+        Box radius of the pixel cost summed in the segment data term (Eq. 6.21); the segment itself is the
+        aggregation window there, so only a light pre-smoothing is used (0 = raw pixel cost).
+    cost : CostParams or None
+        Pixel-cost parameters of the data term when they should differ from the initial map's.
+    slopes : tuple of float
+        Vertical disparity slopes ``b`` (px per row) of the data term's pixel-cost volumes
+        (:func:`prismstereo.matching.coop.coopcost.sheared_costs`, an addition to Eq. 6.21): each plane's pixels
+        read the volume of the slope nearest its ``b``, whose census window and smoothing box follow the slant.
+        Square windows charge a steep floor more at its true plane than at an aliased fronto-parallel one.
+        Empty = one unsheared volume.
+    """
+
+    check_tolerance: float = 0.0
+    radius: int = 1
+    cost: CostParams | None = None
+    slopes: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0)
+
+    def __post_init__(self) -> None:
+        if self.check_tolerance < 0 or self.radius < 0:
+            raise ConfigError(f"expected data.check_tolerance and data.radius >= 0, got "
+                              f"{self.check_tolerance!r}, {self.radius!r}")
+        object.__setattr__(self, "slopes", tuple(float(b) for b in self.slopes))
+
+
+class _PairEvidence:
+    """The two-view evidence of the steps (:class:`~prismstereo.matching.coop.steps.Evidence`): the pair's
+    data term, issue 3's BPASW volume of the pair and its cross-checked map, the initial map."""
+
+    def __init__(self, lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uint8], *, min_disp: int, max_disp: int,
+                 data: F32, reliable: npt.NDArray[np.bool_], initial: F32, bvol: F32, bdisp: F32,
+                 brel: npt.NDArray[np.bool_], nonplanar: npt.NDArray[np.bool_],
+                 evidence: npt.NDArray[np.bool_], coop: CoopParams,
+                 segmentation: SegmentationParams, planes: PlaneParams, cost: CostParams,
+                 slopes: tuple[float, ...] | None):
+        self.image, self.right = lft, rgt
+        self.min_disp, self.max_disp = int(min_disp), int(max_disp)
+        self.data, self.reliable, self.initial = data, reliable, initial
+        self.bvol, self.bdisp, self.brel, self.nonplanar = bvol, bdisp, brel, nonplanar
+        self.coop, self.segmentation, self.plane_params, self.cost = coop, segmentation, planes, cost
+        self.slopes = slopes
+        self.evidence = evidence
+        self.fallback_pixels = 0
+
+    def optimise(self, s: PlaneLabels, assign: npt.NDArray[np.int32], planes: npt.NDArray[np.float64],
+                 own: npt.NDArray[np.int64], *, neighbour_own_planes: bool = False
+                 ) -> tuple[npt.NDArray[np.int32], npt.NDArray[np.float64], dict[str, float]]:
+        # the cooperative optimisation (Eqs. 6.18-6.25) on the segments and the data term
+        prm = dataclasses.replace(self.coop, neighbour_own_planes=True) if neighbour_own_planes else self.coop
+        return cooperative_optimize(assign, planes, s.index, s.graph, self.data, self.reliable, own=own,
+                                    min_disp=self.min_disp, params=prm, slopes=self.slopes)
+
+    def refit(self, s: PlaneLabels, assign: npt.NDArray[np.int32], planes: npt.NDArray[np.float64]
+              ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]] | None:
+        return group_refit_planes(assign, planes, s.index, self.initial, self.reliable, params=self.plane_params)
+
+    def bpasw_map(self) -> tuple[F32, npt.NDArray[np.bool_]]:
+        return self.bdisp, self.brel
+
+    def sweep(self, s: PlaneLabels, p: SweepParams) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+        return segment_sweep_candidates(self.image, self.right, s.labels, s.index, s.assign, s.planes,
+                                        min_disp=self.min_disp, max_disp=self.max_disp, frac=p.frac,
+                                        slopes=p.slopes, keep=p.keep, min_px=p.min_px, step=p.step,
+                                        dilation=p.dilation)
+
+    def row_box(self, selected: npt.NDArray[np.bool_], p: SweepParams) -> None:
+        kw = {"max_disp": self.max_disp, "min_disp": self.min_disp, "params": self.cost}
+        if self.slopes is None:
+            hb = box_filter_volume(raw_cost(self.image, self.right, **kw), p.row_box, vertical=False)  # type: ignore[arg-type]
+            self.data[selected] = hb[selected]
+        else:
+            hb = sheared_costs(self.image, self.right, **kw, slopes=self.slopes,  # type: ignore[arg-type]
+                               radius=p.row_box, vertical=False)
+            self.data[:, selected] = hb[:, selected]
+
+    def fine_evidence(self, tol: float) -> tuple[npt.NDArray[np.bool_], F32]:
+        return _pair_agreement(self.reliable, self.initial, self.brel, self.bdisp, tol), self.initial
+
+    def boundary_evidence(self, tol: float) -> tuple[F32, F32, npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
+        return self.bvol, self.bdisp, self.brel, _pair_agreement(self.reliable, self.initial, self.brel,
+                                                                 self.bdisp, tol)
+
+    def occlusion(self, s: PlaneLabels, final: F32, p: OcclusionParams) -> F32:
+        md = self.min_disp
+        rvol = right_cost_volume(self.bvol, min_disp=md)
+        dr_int = rvol.argmin(axis=2)
+        dl_int = self.bvol.argmin(axis=2)
+        w = final.shape[1]
+        xs = np.arange(w)[None, :] + dr_int + md
+        rrel = (xs < w) & (np.take_along_axis(dl_int, np.clip(xs, 0, w - 1), axis=1) == dr_int)
+        out, _occ = occlusion_background_fill(final.astype(np.float32), s.labels.astype(np.int32),
+                                              s.assign.astype(np.int32), s.planes,
+                                              (dr_int + md).astype(np.float32), rrel, float(p.tol), self.bdisp,
+                                              self.brel, int(p.rematch_radius))
+        return np.asarray(out, np.float32)
+
+    def fallback(self, s: PlaneLabels, final: F32, p: FallbackParams) -> F32:
+        # the segments that failed the plane support test are not planar, and a large segment that the evidence
+        # covers only in part has its plane extrapolated over the rest: the local matcher's map there
+        lab = s.labels.ravel()
+        sizes = np.bincount(lab, minlength=s.assign.size)
+        covered = np.bincount(lab, weights=self.evidence.ravel(), minlength=s.assign.size)
+        sparse = ((sizes >= p.min_pixels) & (covered < p.min_coverage * sizes))[s.labels]
+        local = self.nonplanar | sparse
+        self.fallback_pixels = int(local.sum())
+        if not local.any():
+            return final
+        return np.where(local, bpasw_dense_map(self.bvol, self.image, min_disp=self.min_disp), final)
+
+
+def _pair_agreement(reliable: npt.NDArray[np.bool_], initial: F32, brel: npt.NDArray[np.bool_], bdisp: F32,
+                    tol: float) -> npt.NDArray[np.bool_]:
+    """Both cross-checked initial maps (differently aggregated) agree within ``tol``: the steps' evidence."""
+    return reliable & brel & (np.abs(bdisp - initial) <= tol)
+
+
 def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, max_disp: int,
                min_disp: int = 0, segmentation: SegmentationParams | None = None,
                cost: CostParams | None = None, planes: PlaneParams | None = None,
-               coop: CoopParams | None = None, data_radius: int = 1, refit_rounds: int = 1,
-               data_cost: CostParams | None = None, check_tolerance: float = 0.0,
-               beta_scale: float = 1.0, initial_cost: str = "guided", data_term: str = "raw",
-               data_scale: float = 0.1, pixel_radius: int = 5, pixel_margin: float = 5.0,
-               pixel_tol: float = 1.0, pixel_agree: int = 0, post_median: int = 4,
-               occlusion_fill: bool = True, occ_tol: float = 1.0,
-               bpasw_planes: int = 3, occ_rematch: bool = True,
-               pixel_bplanes: int = 2, sweep_frac: float = 0.5,
-               sweep_slopes: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0), sweep_keep: int = 2,
-               sweep_min_px: int = 20, sweep_step: int = 4, sweep_hbox: int = 1,
-               sweep_nbr: bool = False, sweep_dil: int = 3, fine_hr: float = 3.0,
-               fine_min: int = 10, fine_check: int = 1,
-               data_slopes: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0),
-               group_moves: bool = True, split_evidence: bool = True,
-               keep_stages: bool = False) -> CoopResult:
+               coop: CoopParams | None = None, data: DataTermParams | None = None,
+               steps: StepParams | None = None, keep_stages: bool = False) -> CoopResult:
     """Run the whole segment-based cooperative pipeline (thesis §5.1, §5.2, §6.1, §6.2).
+
+    The front end (initial maps, segmentation, planes with the support test) builds the plane labels; the
+    steps of :mod:`prismstereo.matching.coop.steps` (shared with the global multi-view method) run on them.
 
     Parameters
     ----------
@@ -570,105 +681,13 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
         Rectified pair; disparity ``d = x_left - x_right`` in ``[min_disp, max_disp]``.
     max_disp, min_disp : int, keyword-only
     segmentation, cost, planes, coop : parameter dataclasses, keyword-only
-        ``hs, hr, M``; cost/aggregation; ``γ_segment, t_outlier, ε, δ``; ``κ, μ, ω_occ, γ``.
-    data_radius : int, keyword-only
-        Box radius of the pixel cost summed in the segment data term (Eq. 6.21); the segment itself is the
-        aggregation window there, so only a light pre-smoothing is used (0 = raw pixel cost).
-    data_cost : CostParams, keyword-only
-        Pixel-cost parameters of the data term (Eq. 6.21) when they should differ from ``cost``.
-    check_tolerance : float, keyword-only
-        Tolerance of the left-right check of the integer WTA maps (Eq. 6.7; 0 = they must agree exactly).
-    beta_scale : float, keyword-only
-        Multiplier on β of Eq. 6.25 (1 = the thesis's choice).
-    initial_cost : {"guided", "bpasw"}, keyword-only
-        Aggregated cost of the initial map (§5.2): the guided-filter volume of :mod:`coopcost` (default) or
-        issue 3's BPASW volume (:func:`bpasw_volume`, cross-checked the same way). BPASW gave worse planes
-        here (Tsukuba plane map 5.69 vs 3.56 % nonocc; 12-number average 5.42 vs 5.37 before step 5).
-    data_term : {"raw", "bpasw", "both"}, keyword-only
-        Per-pixel cost of Eq. 6.21: the box-smoothed pixel cost (default), the BPASW aggregated cost as the
-        residual above the pixel's best disparity times ``data_scale``, or their sum. Measured worse:
-        average 6.39 / 6.19 (bpasw, scale 0.1 / 0.2), 5.51 / 5.68 (both, 0.05 / 0.1) against 5.37 —
-        interpolating the peaky aggregated cost between integer disparities penalises slanted planes.
-    data_scale : float, keyword-only
-        Scale of the BPASW residual in the data term (cost units of the pixel cost).
-    pixel_radius, pixel_margin, pixel_tol, pixel_agree : keyword-only
-        Boundary step (stage 5): each pixel may take the plane of a segment within ``pixel_radius`` px when
-        its BPASW aggregated cost (adaptive weights, symmetric) is lower than the own plane's by more than
-        ``pixel_margin`` and it lies within ``pixel_tol`` of the BPASW winner at a pixel where the BPASW
-        map passes the cross-check (and, with ``pixel_agree`` = 1, where the initial map agrees with it within
-        ``pixel_tol``; with 2, only a move to a LARGER disparity needs that agreement — undoing fattening
-        needs less evidence than creating it; 0, the default, no initial-map agreement: with the slope-sheared
-        data term, 0 measured 4.21 -> 4.17 against 2, and 1 4.24). A pixel whose own plane leaves the right
-        image keeps it. ``pixel_radius`` 0 = off.
-    occlusion_fill, occ_tol : keyword-only
-        Occlusion step (Eq. 6.22's occluded pixels, resolved after the fact): a pixel whose match in the
-        right view is a reliable BPASW right-view pixel (cross-checked) that sees a farther surface
-        (``d_R < d - occ_tol``) is taken as occluded and gets the background plane, the smaller of the planes
-        of the nearest consistent pixels to its left and right on the row, extrapolated to the pixel
-        (the foreground fattened into occluded background; average 5.03 -> 4.99). With ``occ_rematch``,
-        such a pixel whose own BPASW match passes the cross-check at a smaller disparity is instead given
-        the plane within ``pixel_radius`` closest to that disparity (visible after all; 4.86 -> 4.83).
-    bpasw_planes : int, keyword-only
-        Richer candidate planes (an addition to §6.1): after the optimisation and the refit round, each
-        segment is also offered the plane fitted (Eqs. 6.1-6.10) to issue 3's cross-checked BPASW map (1),
-        the merged-cluster planes of those fits (2), then planes refitted to the BPASW map over groups of
-        segments sharing a plane (3); the optimisation resumes after each (0 = off; average 4.98 -> 4.91 ->
-        4.90 -> 4.86).
-    pixel_bplanes : int, keyword-only
-        Planes the boundary step may pick besides the current planes of nearby segments: those segments'
-        planes fitted to the BPASW map (1) and to the initial map (2) (0 = current planes only; average
-        4.83 -> 4.78 -> 4.75).
-    fine_hr, fine_min, fine_check : keyword-only
-        Finer segments (an addition to §6.2): the segmentation is repeated with range radius ``fine_hr`` and
-        minimum size ``fine_min`` and intersected with the segments; the fine segments that touch a segment on
-        another plane start from their segment's plane and resume the cooperative optimisation, so that a
-        segment straddling a depth edge can split along a weaker colour edge. A fine segment's move is kept
-        only when at least ``fine_check`` more of its pixels where both cross-checked initial maps agree lie
-        within 1 px of the new plane than of the old (the data term of a 10-pixel segment is noisy).
-        The result's ``labels`` are then the fine segments (0 = off; average 4.49 -> 4.50 without the check,
-        4.44 with it: Tsukuba 1.54/1.94/7.20 -> 1.39/1.79/6.42, Cones 2.23 -> 2.19, Teddy 4.72 -> 4.80).
-    sweep_frac, sweep_slopes, sweep_keep, sweep_min_px, sweep_step, sweep_dil, sweep_hbox, sweep_nbr : keyword-only
-        Candidate planes from a global sweep (:func:`segment_sweep_candidates`, after the BPASW rounds): the
-        ``sweep_frac`` of the segments of at least ``sweep_min_px`` pixels whose current plane has the highest
-        mean slanted-window cost (:mod:`slanted`, sampled every ``sweep_step`` px, window every ``sweep_dil``
-        px) get, as candidates, the ``sweep_keep`` cheapest planes of a sweep of the centre disparity over the
-        whole range (integer steps) x ``b`` in ``sweep_slopes`` x ``a`` in {0, current a}; the optimisation
-        resumes with them (0 = off). Local plane searches cannot reach a steep floor from a fronto-parallel
-        plane (Teddy: b ~ 0.07 against 0.8-1.1). With ``sweep_hbox`` >= 0 the pixel cost of the data term on
-        those segments' pixels is boxed along the row only (radius ``sweep_hbox``): the default square box
-        averages neighbouring rows at one disparity and so favours fronto-parallel planes on surfaces slanted
-        in ``y`` (the correct sweep plane was dearer than the fronto-parallel one under it). ``sweep_nbr``
-        also lets segments take their neighbours' sweep candidates (measured worse: 4.86). Average 4.75 ->
-        4.745 (sweep, 10 %, square box), 4.70 (10 %, row box), 4.63 (20 %), 4.56 (35 %), 4.49 (50 %, the
-        default), 4.81 (all segments). With the slope-sheared data term and ``pixel_agree`` 0: ``sweep_min_px``
-        40 -> 20 (the default) 4.17 -> 4.14; ``sweep_frac`` 0.35 / 0.65 4.20 / 4.51 (at 40 px and agree 2).
-    data_slopes : tuple of float, keyword-only
-        Vertical disparity slopes ``b`` (px per row) of the data term's pixel-cost volumes
-        (:func:`prismstereo.matching.coopcost.sheared_costs`, an addition to Eq. 6.21): each plane's pixels read
-        the volume of the slope nearest its ``b``, whose census window and smoothing box follow the slant (row
-        ``dy`` compared ``b dy`` px away). Square windows charge a steep floor more at its true plane than at an
-        aliased fronto-parallel one. Empty = one unsheared volume. Average 4.44 -> 4.21 (Teddy 4.80/8.49/13.37
-        -> 4.19/7.74/11.83; 3 slopes 4.20, 7 slopes to ±1.5 4.21); Teddy peak RSS 1.07 -> 1.22 GB.
-    split_evidence : bool, keyword-only
-        The segments that failed the plane support test (split, see ``planes``) are not one plane (Bowling1's
-        ball): their pieces' planes approximate the surface but miss its rim. Their pixels take the ``bpasw``
-        matcher's map (:func:`bpasw_dense_map`) at the end; the other segments passed the test and keep their
-        planes.
-    group_moves : bool, keyword-only
-        Group moves after the sweep (:func:`prismstereo.matching.cooperative.expand_planes`, an addition to
-        §6.2): each sweep candidate and each plane held across a segment boundary may move a connected region
-        of segments at once (grown through segments whose data term it does not raise) when that lowers E;
-        then the optimisation resumes. One segment at a time cannot leave a wrong plane shared by its
-        neighbours (Teddy's floor: every segment alone would pay the smoothness term). Average 4.14 -> 3.93
-        (Teddy 4.11/7.73/11.54 -> 3.63/7.45/10.11, Cones 2.16/6.78/6.39 -> 2.10/6.68/6.21, Tsukuba and Venus
-        unchanged); sweep candidates only 3.96, boundary planes only 4.02, without resuming 4.01.
-    post_median : int, keyword-only
-        Radius of a colour-weighted median over the final map (issue 3's filter); it only replaces values
-        it moves by more than 1 px, so subpixel plane disparities are kept (0 = off).
-    refit_rounds : int, keyword-only
-        After the cooperative optimisation, segments sharing a plane are refitted together (Eqs. 6.2-6.10
-        on their union), the refitted planes offered as candidates, and the optimisation resumed; this many
-        times (0 = off).
+        ``hs, hr, M``; cost/aggregation; ``γ_segment, t_outlier, ε, δ`` and the support test; ``κ, μ, ω_occ, γ``.
+    data : DataTermParams, keyword-only
+        Cross-check tolerance of the initial map and the data term's pixel-cost volumes.
+    steps : StepParams, keyword-only
+        One parameter set per step after the plane fit.
+    keep_stages : bool, keyword-only
+        Keep the map after each step in ``CoopResult.stages``.
 
     Returns
     -------
@@ -684,26 +703,19 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     cp = cost or CostParams()
     pp = planes or PlaneParams()
     op = coop or CoopParams()
+    dp = data or DataTermParams()
+    st = steps or StepParams()
     tm: dict[str, float] = {}
+    tol = st.boundary.tol
 
     t = time.perf_counter()
-    bvol: F32 | None = None
-    if (initial_cost == "bpasw" or data_term in ("bpasw", "both") or bpasw_planes > 0 or pixel_radius > 0
-            or occlusion_fill):
-        bvol = bpasw_volume(lft, rgt, max_disp=max_disp, min_disp=min_disp)
+    bvol = bpasw_volume(lft, rgt, max_disp=max_disp, min_disp=min_disp)
     # cross-checked BPASW map (integer WTA must agree exactly), parabola subpixel
-    brel0, bdisp0 = (_bpasw_reliable(bvol, min_disp) if bvol is not None
-                     else (np.zeros(lft.shape[:2], bool), np.zeros(lft.shape[:2], np.float32)))
-    raw: F32 | None = None
-    if initial_cost == "bpasw":
-        assert bvol is not None
-        initial, reliable = initial_disparity(bvol, right_cost_volume(bvol, min_disp=min_disp),
-                                              min_disp=min_disp, tolerance=check_tolerance)
-    else:
-        raw = raw_cost(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=cp)
-        agg_l, agg_r = aggregated_costs(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=cp, raw=raw)
-        initial, reliable = initial_disparity(agg_l, agg_r, min_disp=min_disp, tolerance=check_tolerance)
-        del agg_r, agg_l
+    brel0, bdisp0 = _bpasw_reliable(bvol, min_disp)
+    raw: F32 | None = raw_cost(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=cp)
+    agg_l, agg_r = aggregated_costs(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=cp, raw=raw)
+    initial, reliable = initial_disparity(agg_l, agg_r, min_disp=min_disp, tolerance=dp.check_tolerance)
+    del agg_r, agg_l
     tm["initial"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -712,7 +724,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
 
     t = time.perf_counter()
     # the evidence of the safety tests: both cross-checked initial maps (differently aggregated) agree
-    evidence = reliable & brel0 & (np.abs(bdisp0 - initial) <= pixel_tol) if bvol is not None else reliable
+    evidence = _pair_agreement(reliable, initial, brel0, bdisp0, tol)
     labels, index, fitted, ancestor = fit_planes_splitting(labels, lft, initial, reliable, evidence, params=pp,
                                                            min_region=sp.min_region)
     pairs, _length, contrast = segment_adjacency(labels, lft)
@@ -739,168 +751,53 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     tm["planes"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    graph = build_segment_graph(labels, lft, beta_scale=beta_scale)
-    if data_term == "both":
-        assert bvol is not None
-        if data_cost is not None or raw is None:
-            raw = raw_cost(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=data_cost or cp)
-        dcost = box_filter_volume(raw, data_radius)
-        dcost += (bvol - bvol.min(axis=2, keepdims=True)) * np.float32(data_scale)
-    elif data_term == "bpasw":
-        assert bvol is not None
-        # residual above the pixel's best match: removes the texture-dependent offset of aggregated costs
-        dcost = ((bvol - bvol.min(axis=2, keepdims=True)) * np.float32(data_scale)).astype(np.float32)
-    elif data_slopes:
+    graph = build_segment_graph(labels, lft)
+    if dp.slopes:
         raw = None  # the sheared volumes compute their own pixel costs: free the initial map's first
-        dcost = sheared_costs(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=data_cost or cp,
-                              slopes=tuple(data_slopes), radius=data_radius)
+        dcost = sheared_costs(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=dp.cost or cp,
+                              slopes=dp.slopes, radius=dp.radius)
     else:
-        if data_cost is not None or raw is None:
-            raw = raw_cost(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=data_cost or cp)
-        dcost = box_filter_volume(raw, data_radius)
+        if dp.cost is not None or raw is None:
+            raw = raw_cost(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=dp.cost or cp)
+        dcost = box_filter_volume(raw, dp.radius)
     del raw
-    slopes = tuple(float(b) for b in data_slopes) if data_slopes and data_term == "raw" else None
-
-    def resume(a: npt.NDArray[np.int32], pset: npt.NDArray[np.float64], own_: npt.NDArray[np.int64],
-               prm: CoopParams = op) -> tuple[npt.NDArray[np.int32], npt.NDArray[np.float64], dict[str, float]]:
-        # the cooperative optimisation (Eqs. 6.18-6.25) on the coarse segments and the data term
-        return cooperative_optimize(a, pset, index, graph, dcost, reliable, own=own_, min_disp=min_disp,
-                                    params=prm, slopes=slopes)
-
+    ev = _PairEvidence(lft, rgt, min_disp=min_disp, max_disp=max_disp, data=dcost, reliable=reliable,
+                       initial=initial, bvol=bvol, bdisp=bdisp0, brel=brel0, nonplanar=nonplanar,
+                       evidence=evidence, coop=op,
+                       segmentation=sp, planes=pp, cost=dp.cost or cp, slopes=dp.slopes or None)
+    state = PlaneLabels(labels=labels, index=index, graph=graph, assign=assign0, planes=plane_set, own=own,
+                        parent=np.arange(k, dtype=np.int64), pairs=pairs,
+                        info={"split_pieces": float(split.size)})
     stages: dict[str, F32] = {}
-
-    def snap(name: str) -> None:
-        if keep_stages:
-            stages[name] = render_planes(index, plane_set, assign).astype(np.float32)
-
     if keep_stages:
         stages["initial"] = initial.copy()
         stages["bpasw"] = bdisp0.copy()
         stages["evidence"] = evidence.astype(np.float32)
         stages["plane_map"] = plane_map.copy()
-        stages["split"] = np.isfinite(ancestor[:, 0])[labels].astype(np.float32)
-    assign, plane_set, info = resume(assign0, plane_set, own)
-    info["split_pieces"] = float(split.size)
-    e_first = info["energy_before"]
-    snap("coop")
-    for _ in range(refit_rounds):
-        # refit one plane per group of segments sharing a label (wider support), offer it as a candidate
-        refit = group_refit_planes(assign, plane_set, index, initial, reliable, params=pp)
-        if refit is None:
-            break
-        plane_set, group_ids = refit
-        own2 = own.copy()
-        own2[:, 1] = group_ids
-        assign, plane_set, info2 = resume(assign, plane_set, own2)
-        info = {**info, **info2, "energy_before": e_first}
-    snap("refit")
-    # second plane hypotheses per segment from the cross-checked BPASW map, resuming the optimisation
-    assign, plane_set, info3, bfit_ids = bpasw_candidate_rounds(assign, plane_set, own, index, pairs, bdisp0, brel0,
-                                                                resume, planes=pp, rounds=bpasw_planes)
-    if info3 is not None:
-        info = {**info, **info3, "energy_before": e_first}
-    snap("bpasw_planes")
-    if sweep_frac > 0:
-        plane_set, sw_ids = segment_sweep_candidates(lft, rgt, labels, index, assign, plane_set, min_disp=min_disp,
-                                              max_disp=max_disp, frac=sweep_frac, slopes=tuple(sweep_slopes),
-                                              keep=sweep_keep, min_px=sweep_min_px, step=sweep_step,
-                                              dilation=sweep_dil)
-        sw_op = dataclasses.replace(op, neighbour_own_planes=True) if sweep_nbr else op
-        if sweep_hbox >= 0:
-            # the selected segments' pixels: pixel cost boxed along the row only (a square box favours
-            # fronto-parallel planes on surfaces slanted in y)
-            selpix = (sw_ids[:, 0] >= 0)[labels]
-            if slopes is None:
-                raw2 = raw_cost(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=data_cost or cp)
-                hb = box_filter_volume(raw2, sweep_hbox, vertical=False)
-                del raw2
-                dcost[selpix] = hb[selpix]
-            else:
-                hb = sheared_costs(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=data_cost or cp,
-                                   slopes=slopes, radius=sweep_hbox, vertical=False)
-                dcost[:, selpix] = hb[:, selpix]
-            del hb
-        for col in range(0, sw_ids.shape[1], 2):
-            own6 = np.full((k, 2), -1, np.int64)
-            own6[:, :min(2, sw_ids.shape[1] - col)] = sw_ids[:, col:col + 2]
-            if (own6 >= 0).any():
-                assign, plane_set, info2 = resume(assign, plane_set, own6, sw_op)
-                info = {**info, **info2, "energy_before": e_first}
-        info = {**info, "sweep_segments": float((sw_ids[:, 0] >= 0).sum())}
-        snap("sweep")
-        if group_moves:
-            # sweep candidates and the planes across each segment's boundary, moved over whole regions
-            cands = np.concatenate([sw_ids, neighbour_plane_candidates(graph, assign)], axis=1)
-            assign, ginfo = expand_planes(assign, plane_set, index, graph, dcost, reliable, cands,
-                                          min_disp=min_disp, params=op, slopes=slopes)
-            assign, plane_set, info2 = resume(assign, plane_set, own)
-            info = {**info, **info2, **ginfo, "energy_before": e_first}
-            snap("group_moves")
-    if fine_hr > 0:
-        fs = refine_fine_segments(lft, labels, assign, plane_set, dcost, reliable, evidence, initial,
-                                  segmentation=dataclasses.replace(sp, hr=fine_hr, min_region=fine_min),
-                                  coop=op, min_disp=min_disp, beta_scale=beta_scale, check=fine_check,
-                                  slopes=slopes)
-        info = {**info, **fs.info, "energy_before": e_first}
-        labels, index, assign, plane_set, k = fs.labels, fs.index, fs.assign, fs.planes, int(fs.parent.size)
-        assign0 = assign0[fs.parent]
-        own = own[fs.parent]
-        if bfit_ids is not None:
-            bfit_ids = bfit_ids[fs.parent]
-        snap("fine")
-    tm["cooperative"] = time.perf_counter() - t
-    t = time.perf_counter()
-    if pixel_radius > 0:
-        assert bvol is not None
-        brel, bdisp = brel0, bdisp0
-        extra = []
-        if pixel_bplanes and bfit_ids is not None:
-            extra.append(bfit_ids)
-        if pixel_bplanes > 1:
-            extra.append(own[:, 0])
-        bown = (np.stack(extra, axis=1) if extra else np.full((k, 1), -1)).astype(np.int32)
-        bagree = brel & reliable & (np.abs(bdisp - initial) <= pixel_tol)
-        if pixel_agree == 1:  # both initial maps must agree on the pixel
-            brel = bagree
-        final = boundary_pixel_planes(labels.astype(np.int32), assign.astype(np.int32), plane_set, bvol, int(min_disp),
-                              int(pixel_radius), float(pixel_margin), brel, bdisp,
-                              float(pixel_tol), bagree if pixel_agree else brel, bown)
-    else:
-        final = render_planes(index, plane_set, assign)
-    if keep_stages:
-        stages["boundary"] = final.copy()
-    if occlusion_fill:
-        assert bvol is not None
-        rvol = right_cost_volume(bvol, min_disp=min_disp)
-        dr_int = rvol.argmin(axis=2)
-        dl_int = bvol.argmin(axis=2)
-        xs = np.arange(final.shape[1])[None, :] + dr_int + min_disp
-        rrel = (xs < final.shape[1]) & (np.take_along_axis(dl_int, np.clip(xs, 0, final.shape[1] - 1), axis=1)
-                                         == dr_int)
-        final, _occ = occlusion_background_fill(final.astype(np.float32), labels.astype(np.int32),
-                                                assign.astype(np.int32), plane_set,
-                                                (dr_int + min_disp).astype(np.float32), rrel, float(occ_tol),
-                                                bdisp0, brel0, int(pixel_radius) if occ_rematch else 0)
+        stages["split"] = nonplanar.astype(np.float32)
+    marks = {"fine": "cooperative"}
+
+    def snapshot(name: str, s: PlaneLabels) -> None:
+        nonlocal t
         if keep_stages:
-            stages["occlusion"] = final.copy()
-    if post_median > 0:
-        wm = weighted_median_filter(final, lft, radius=post_median)
-        # the median works on integer bins: keep the subpixel plane disparity where it agrees within 1 px
-        final = np.where(np.abs(wm - final) <= 1.0, final, wm)
-    if split_evidence and nonplanar.any():
-        assert bvol is not None
-        # the segments that failed the plane support test are not planar: the local matcher's map there
-        final = np.where(nonplanar, bpasw_dense_map(bvol, lft, min_disp=min_disp), final)
-        info = {**info, "split_evidence_pixels": float(nonplanar.sum())}
-    final = np.clip(final, min_disp, max_disp).astype(np.float32)
+            stages[name] = (s.render() if s.disparity is None else s.disparity).copy()
+        if name in marks:
+            tm[marks[name]] = time.perf_counter() - t
+            t = time.perf_counter()
+
+    state = run_steps(state, ev, st, snapshot=snapshot)
     tm["boundary"] = time.perf_counter() - t
-    info = {**info, "segments": float(k), "planes_fitted": float(fin.size), "planes": float(len(plane_set)),
-            "reliable_fraction": float(reliable.mean())}
-    log.info("coop: %d segments, %d planes, E %.0f -> %.0f", k, len(plane_set), info["energy_before"],
-             info["energy_after"])
-    return CoopResult(labels=labels, initial=initial, reliable=reliable, plane_map=plane_map, disparity=final,
-                      planes=plane_set, assign_initial=assign0, assign=assign, info=info, timings=tm,
-                      stages=stages)
+    assert state.disparity is not None
+    info = {**state.info, "segments": float(state.assign.shape[0]), "planes_fitted": float(fin.size),
+            "planes": float(len(state.planes)), "reliable_fraction": float(reliable.mean())}
+    if st.fallback.enabled:
+        info["split_evidence_pixels"] = float(nonplanar.sum())
+        info["fallback_pixels"] = float(ev.fallback_pixels)
+    log.info("coop: %d segments, %d planes, E %.0f -> %.0f", state.assign.shape[0], len(state.planes),
+             info["energy_before"], info["energy_after"])
+    return CoopResult(labels=state.labels, initial=initial, reliable=reliable, plane_map=plane_map,
+                      disparity=state.disparity, planes=state.planes, assign_initial=assign0[state.parent],
+                      assign=state.assign, info=info, timings=tm, stages=stages)
 
 
 @register_matcher("coop")
@@ -909,35 +806,28 @@ class CoopMatcher:
 
     Parameters (keyword-only)
     -------------------------
-    segmentation, cost, planes, coop : parameter dataclasses (defaults: the values used for all scenes).
-    data_radius : int
-        Pre-smoothing radius of the pixel cost in the segment data term.
-    refit_rounds : int
-        Rounds of joint refitting of segments that share a plane after the cooperative optimisation.
-    pixel_radius, post_median : int
-        Boundary step radius and final weighted-median radius (0 = off each; see :func:`coop_match`).
+    segmentation, cost, planes, coop, data, steps : parameter dataclasses, or mappings of their fields (the
+        CLI's ``-p steps='{"sweep": {"frac": 0.3}}'``); validated here, before any image is read (defaults: the
+        values used for all scenes).
 
     ``compute`` returns a :class:`MatchResult` whose ``extras`` hold the stage maps: ``labels``,
     ``initial``, ``reliable``, ``plane_map``, ``planes``, ``assign`` and ``info``.
     """
 
-    def __init__(self, *, segmentation: SegmentationParams | None = None, cost: CostParams | None = None,
-                 planes: PlaneParams | None = None, coop: CoopParams | None = None, data_radius: int = 1,
-                 refit_rounds: int = 1, pixel_radius: int = 5, post_median: int = 4):
-        self.segmentation = segmentation
-        self.cost = cost
-        self.planes = planes
-        self.coop = coop
-        self.data_radius = int(data_radius)
-        self.refit_rounds = int(refit_rounds)
-        self.pixel_radius = int(pixel_radius)
-        self.post_median = int(post_median)
+    def __init__(self, *, segmentation: SegmentationParams | dict[str, Any] | None = None,
+                 cost: CostParams | dict[str, Any] | None = None, planes: PlaneParams | dict[str, Any] | None = None,
+                 coop: CoopParams | dict[str, Any] | None = None, data: DataTermParams | dict[str, Any] | None = None,
+                 steps: StepParams | dict[str, Any] | None = None):
+        self.segmentation = coerce_params(SegmentationParams, segmentation, "segmentation")
+        self.cost = coerce_params(CostParams, cost, "cost")
+        self.planes = coerce_params(PlaneParams, planes, "planes")
+        self.coop = coerce_params(CoopParams, coop, "coop")
+        self.data = coerce_params(DataTermParams, data, "data")
+        self.steps = coerce_params(StepParams, steps, "steps")
 
     def compute(self, left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int = 0) -> MatchResult:
         res = coop_match(left, right, max_disp=max_disp, min_disp=min_disp, segmentation=self.segmentation,
-                         cost=self.cost, planes=self.planes, coop=self.coop, data_radius=self.data_radius,
-                         refit_rounds=self.refit_rounds, pixel_radius=self.pixel_radius,
-                         post_median=self.post_median)
+                         cost=self.cost, planes=self.planes, coop=self.coop, data=self.data, steps=self.steps)
         raw = np.where(res.reliable, res.initial, np.nan).astype(np.float32)
         extras: dict[str, Any] = {"labels": res.labels, "initial": res.initial, "reliable": res.reliable,
                                   "plane_map": res.plane_map, "planes": res.planes, "assign": res.assign,

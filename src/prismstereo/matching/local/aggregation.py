@@ -203,7 +203,7 @@ def aggregate_bpasw(cost: np.ndarray, left: np.ndarray, right: np.ndarray | None
     Parameters
     ----------
     cost : ndarray, float32, (H, W, D)
-        Per-pixel cost, e.g. :func:`~prismstereo.matching.costs.cost_s_ad` (Eq. 5.6).
+        Per-pixel cost, e.g. :func:`~prismstereo.matching.local.costs.cost_s_ad` (Eq. 5.6).
     left, right : ndarray, (H, W, 3) RGB or (H, W) gray, 0..255
         The images the weights come from. ``right=None`` gives left-only (asymmetric) weights.
     radius : int

@@ -1,0 +1,494 @@
+"""The plane-label pipeline shared by the two-view ``coop`` and the global multi-view method.
+
+Both methods build the same state, segments with candidate disparity planes (:class:`PlaneLabels`), from their
+own front end (initial maps, segmentation, plane fits: thesis §5.1-§6.1 for two views, §7.1.2 for several),
+and then run one sequence of named steps (:data:`STEP_NAMES`) on it:
+
+``optimise``      cooperative optimisation of the plane labels (Eqs. 6.18-6.25 / 7.15-7.18)
+``refit``         segments sharing a plane refitted together, offered as candidates, the optimisation resumed
+``bpasw_planes``  planes fitted to the cross-checked BPASW map (and their merged clusters, group refits) offered
+``sweep``         planes of a global sweep offered to the segments of highest slanted-window cost
+``group_moves``   sweep candidates and planes across segment boundaries moved over whole regions at once
+``fine``          finer segments along plane boundaries may take a neighbour's plane where the evidence agrees
+``boundary``      pixels near boundaries take a nearby segment's plane where the BPASW cost clearly prefers it
+``occlusion``     pixels whose match reliably sees a farther surface take the background plane
+``median``        colour-weighted median that only overrides disparities it moves by more than 1 px
+``fallback``      segments that failed the plane support test take the local matcher's map
+
+Each step is configured by one small frozen dataclass (:class:`StepParams` holds one of each) whose
+constructor validates it, so a bad value fails before any image is read. What differs between the two
+methods (the evidence each step reads: one pair, or all views fused on the unit grid) is behind
+:class:`Evidence`, which each method implements once.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any, Protocol, TypeVar
+
+import numpy as np
+import numpy.typing as npt
+
+from prismstereo.errors import ConfigError
+from prismstereo.matching.coop.cooperative import (
+    CoopParams,
+    SegmentGraph,
+    expand_planes,
+    neighbour_plane_candidates,
+)
+from prismstereo.matching.local.selection import weighted_median_filter
+from prismstereo.matching.segments.planes import PlaneParams, SegmentIndex, render_planes
+from prismstereo.matching.segments.segmentation import SegmentationParams
+
+__all__ = ["STEP_NAMES", "BoundaryParams", "BpaswPlanesParams", "Evidence", "FallbackParams", "FineParams",
+           "GroupMovesParams", "MedianParams", "OcclusionParams", "PlaneLabels", "RefitParams", "StepParams",
+           "SweepParams", "coerce_params", "run_steps"]
+
+F32 = npt.NDArray[np.float32]
+F64 = npt.NDArray[np.float64]
+I32 = npt.NDArray[np.int32]
+I64 = npt.NDArray[np.int64]
+B = npt.NDArray[np.bool_]
+
+STEP_NAMES = ("optimise", "refit", "bpasw_planes", "sweep", "group_moves", "fine", "boundary", "occlusion",
+              "median", "fallback")
+
+
+def _need(ok: bool, what: str, value: object) -> None:
+    if not ok:
+        raise ConfigError(f"expected {what}, got {value!r}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class RefitParams:
+    """``refit``: rounds of joint refitting of the segments that share a plane (0 = off)."""
+
+    rounds: int = 1
+
+    def __post_init__(self) -> None:
+        _need(isinstance(self.rounds, int) and self.rounds >= 0, "refit.rounds an integer >= 0", self.rounds)
+
+
+@dataclass(frozen=True, kw_only=True)
+class BpaswPlanesParams:
+    """``bpasw_planes``: 1 = planes fitted per segment to the cross-checked BPASW map, 2 = also their merged
+    clusters, 3 = also planes refitted over groups of segments sharing a plane (0 = off)."""
+
+    rounds: int = 3
+
+    def __post_init__(self) -> None:
+        _need(isinstance(self.rounds, int) and 0 <= self.rounds <= 3, "bpasw_planes.rounds in 0..3", self.rounds)
+
+
+@dataclass(frozen=True, kw_only=True)
+class SweepParams:
+    """``sweep``: the ``frac`` of the segments (of at least ``min_px`` pixels) whose plane has the highest mean
+    slanted-window cost (sampled every ``step`` px, window every ``dilation`` px) are offered the ``keep``
+    cheapest planes of a sweep over the whole range x the vertical slopes ``slopes``; with ``row_box`` >= 0 the
+    data term on their pixels is the pixel cost boxed along the row only (radius ``row_box``); ``neighbours``
+    lets segments take their neighbours' candidates. ``frac`` 0 = off."""
+
+    frac: float = 0.5
+    slopes: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0)
+    keep: int = 2
+    min_px: int = 20
+    step: int = 4
+    dilation: int = 3
+    row_box: int = 1
+    neighbours: bool = False
+
+    def __post_init__(self) -> None:
+        _need(0.0 <= float(self.frac) <= 1.0, "sweep.frac in [0, 1]", self.frac)
+        _need(len(self.slopes) > 0, "sweep.slopes non-empty", self.slopes)
+        _need(self.keep >= 1 and self.min_px >= 1 and self.step >= 1 and self.dilation >= 1,
+              "sweep.keep, min_px, step, dilation >= 1", (self.keep, self.min_px, self.step, self.dilation))
+        _need(self.row_box >= -1, "sweep.row_box >= -1 (-1 = off)", self.row_box)
+        object.__setattr__(self, "slopes", tuple(float(b) for b in self.slopes))
+
+
+@dataclass(frozen=True, kw_only=True)
+class GroupMovesParams:
+    """``group_moves``: sweep candidates and planes held across a segment boundary may move a connected region
+    of segments at once (:func:`~prismstereo.matching.coop.cooperative.expand_planes`)."""
+
+    enabled: bool = True
+
+
+@dataclass(frozen=True, kw_only=True)
+class FineParams:
+    """``fine``: one level per ``(hr, min_region)`` of ``levels``, each a mean shift of that range radius inside
+    the previous level's segments; fine segments touching another plane resume the optimisation and keep a move
+    only when at least ``check`` more of their evidence pixels lie within 1 px of the new plane than of the old
+    (0 = keep every move). ``levels`` empty = off."""
+
+    levels: tuple[tuple[float, int], ...] = ((3.0, 10),)
+    check: int = 1
+
+    def __post_init__(self) -> None:
+        lv = tuple((float(h), int(m)) for h, m in self.levels)
+        _need(all(h > 0 and m >= 1 for h, m in lv), "fine.levels of (hr > 0, min_region >= 1)", self.levels)
+        _need(self.check >= 0, "fine.check >= 0", self.check)
+        object.__setattr__(self, "levels", lv)
+
+
+@dataclass(frozen=True, kw_only=True)
+class BoundaryParams:
+    """``boundary``: a pixel may take the plane of a segment within ``radius`` px (its planes fitted to the
+    BPASW map and to the initial map too with ``bplanes`` 1 / 2) where the BPASW aggregated cost is lower than
+    its own plane's by more than ``margin`` and the plane lies within ``tol`` px of the reliable BPASW map;
+    ``agree`` 1: the initial map must agree there too, 2: only for moves to a larger disparity. ``radius`` 0 =
+    off."""
+
+    radius: int = 5
+    margin: float = 5.0
+    tol: float = 1.0
+    agree: int = 0
+    bplanes: int = 2
+
+    def __post_init__(self) -> None:
+        _need(self.radius >= 0 and self.tol >= 0 and self.agree in (0, 1, 2) and self.bplanes in (0, 1, 2),
+              "boundary.radius >= 0, tol >= 0, agree and bplanes in 0..2",
+              (self.radius, self.tol, self.agree, self.bplanes))
+
+
+@dataclass(frozen=True, kw_only=True)
+class OcclusionParams:
+    """``occlusion``: a pixel whose match reliably sees a surface farther by more than ``tol`` px takes the
+    background plane; one whose own BPASW match is reliable at a smaller disparity takes instead the plane
+    within ``rematch_radius`` px closest to it (0 = never)."""
+
+    enabled: bool = True
+    tol: float = 1.0
+    rematch_radius: int = 5
+
+    def __post_init__(self) -> None:
+        _need(self.tol >= 0 and self.rematch_radius >= 0, "occlusion.tol, rematch_radius >= 0",
+              (self.tol, self.rematch_radius))
+
+
+@dataclass(frozen=True, kw_only=True)
+class MedianParams:
+    """``median``: radius of the colour-weighted median that only overrides disparities it moves by more than
+    1 px, so subpixel plane disparities are kept (0 = off)."""
+
+    radius: int = 4
+
+    def __post_init__(self) -> None:
+        _need(self.radius >= 0, "median.radius >= 0", self.radius)
+
+
+@dataclass(frozen=True, kw_only=True)
+class FallbackParams:
+    """``fallback``: the segments that failed the plane support test take the local matcher's map, and so do
+    the segments of at least ``min_pixels`` whose evidence covers less than ``min_coverage`` of their pixels (their
+    plane is extrapolated over most of the segment: nothing supports it there)."""
+
+    enabled: bool = True
+    min_coverage: float = 0.4
+    min_pixels: int = 5000
+
+    def __post_init__(self) -> None:
+        _need(0.0 <= self.min_coverage <= 1.0 and self.min_pixels >= 1,
+              "fallback.min_coverage in [0, 1] and min_pixels >= 1", (self.min_coverage, self.min_pixels))
+
+
+P = TypeVar("P")
+
+
+def coerce_params(cls: type[P], value: object, name: str, base: P | None = None) -> P:
+    """``value`` as a ``cls``: None -> ``base`` (default: ``cls()``), a mapping -> ``base`` with those fields
+    replaced (nested step mappings too, as the CLI's ``-p`` JSON gives them); anything else is a
+    :class:`~prismstereo.errors.ConfigError`."""
+    if value is None:
+        return cls() if base is None else base
+    if isinstance(value, cls):
+        return value
+    if isinstance(value, Mapping):
+        kw = dict(value)
+        hints = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+        unknown = sorted(set(kw) - set(hints))
+        _need(not unknown, f"{name} fields among {', '.join(hints)}", unknown)
+        for k, v in kw.items():
+            sub = _STEP_TYPES.get(k) if cls is StepParams else None
+            if sub is not None:
+                kw[k] = coerce_params(sub, v, f"{name}.{k}", None if base is None else getattr(base, k))
+            elif isinstance(v, list):
+                kw[k] = tuple(tuple(x) if isinstance(x, list) else x for x in v)
+        try:
+            return cls(**kw) if base is None else dataclasses.replace(base, **kw)  # type: ignore[type-var]
+        except (TypeError, ValueError) as exc:
+            if isinstance(exc, ConfigError):
+                raise
+            raise ConfigError(f"expected valid {name} parameters, got {value!r} ({exc})") from None
+    raise ConfigError(f"expected {name} as a {cls.__name__} or a mapping, got {value!r}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class StepParams:
+    """One parameter set per step of :data:`STEP_NAMES` (``optimise`` reads the method's ``CoopParams``)."""
+
+    refit: RefitParams = field(default_factory=RefitParams)
+    bpasw_planes: BpaswPlanesParams = field(default_factory=BpaswPlanesParams)
+    sweep: SweepParams = field(default_factory=SweepParams)
+    group_moves: GroupMovesParams = field(default_factory=GroupMovesParams)
+    fine: FineParams = field(default_factory=FineParams)
+    boundary: BoundaryParams = field(default_factory=BoundaryParams)
+    occlusion: OcclusionParams = field(default_factory=OcclusionParams)
+    median: MedianParams = field(default_factory=MedianParams)
+    fallback: FallbackParams = field(default_factory=FallbackParams)
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            object.__setattr__(self, f.name, coerce_params(_STEP_TYPES[f.name], getattr(self, f.name),
+                                                           f"steps.{f.name}"))
+
+    def without(self, *names: str) -> StepParams:
+        """These steps switched off (``optimise`` cannot be)."""
+        off: dict[str, Any] = {"refit": RefitParams(rounds=0), "bpasw_planes": BpaswPlanesParams(rounds=0),
+                               "sweep": dataclasses.replace(self.sweep, frac=0.0),
+                               "group_moves": GroupMovesParams(enabled=False), "fine": FineParams(levels=()),
+                               "boundary": dataclasses.replace(self.boundary, radius=0),
+                               "occlusion": dataclasses.replace(self.occlusion, enabled=False),
+                               "median": MedianParams(radius=0), "fallback": FallbackParams(enabled=False)}
+        bad = sorted(set(names) - set(off))
+        _need(not bad, f"steps among {', '.join(off)}", bad)
+        return dataclasses.replace(self, **{n: off[n] for n in names})
+
+
+_STEP_TYPES: dict[str, type] = {"refit": RefitParams, "bpasw_planes": BpaswPlanesParams, "sweep": SweepParams,
+                                "group_moves": GroupMovesParams, "fine": FineParams, "boundary": BoundaryParams,
+                                "occlusion": OcclusionParams, "median": MedianParams,
+                                "fallback": FallbackParams}
+
+
+@dataclass(frozen=True)
+class PlaneLabels:
+    """The state the steps pass on.
+
+    Attributes
+    ----------
+    labels : (H, W) int32          segments (the finest level after ``fine``).
+    index : SegmentIndex           their pixels.
+    graph : SegmentGraph           adjacency and smoothness weights of the segments the optimiser works on.
+    assign : (K,) int32            plane per segment, into ``planes``.
+    planes : (L, 3) float64        plane set ``(a, b, c)``, ``d = a x + b y + c``.
+    own : (K, 2) int64             each segment's own fitted plane and merged-cluster plane (-1 none).
+    parent : (K,) int64            segment of the front end each segment lies in.
+    pairs : (P, 2) int32           adjacent segment pairs of the front end's segments (for merging).
+    bfit_ids : (K,) int64 or None  each segment's plane fitted to the BPASW map (after ``bpasw_planes``).
+    sweep_ids : (K, m) int64       each segment's sweep candidates (after ``sweep``; m = 0 before).
+    disparity : (H, W) float32 or None   the map, from ``boundary`` on.
+    info : dict                    energies, counts.
+    """
+
+    labels: I32
+    index: SegmentIndex
+    graph: SegmentGraph
+    assign: I32
+    planes: F64
+    own: I64
+    parent: I64
+    pairs: I32
+    bfit_ids: I64 | None = None
+    sweep_ids: I64 | None = None
+    disparity: F32 | None = None
+    info: dict[str, float] = field(default_factory=dict)
+
+    def render(self) -> F32:
+        return np.asarray(render_planes(self.index, self.planes, self.assign), np.float32)
+
+
+class Evidence(Protocol):
+    """What a method gives the steps: its data term and the evidence each step reads."""
+
+    image: npt.NDArray[np.uint8]      # (H, W, 3) reference image
+    data: F32                         # data-term volume of the optimiser (the sweep step may replace pixels)
+    reliable: B                       # data-term reliability mask of the optimiser
+    coop: CoopParams
+    segmentation: SegmentationParams
+    plane_params: PlaneParams
+    min_disp: int
+    max_disp: int
+    slopes: tuple[float, ...] | None  # the data volume's vertical slopes (None: one unsheared volume)
+
+    def optimise(self, s: PlaneLabels, assign: I32, planes: F64, own: I64, *,
+                 neighbour_own_planes: bool = False) -> tuple[I32, F64, dict[str, float]]: ...
+
+    def refit(self, s: PlaneLabels, assign: I32, planes: F64) -> tuple[F64, I64] | None: ...
+
+    def bpasw_map(self) -> tuple[F32, B] | None: ...
+
+    def sweep(self, s: PlaneLabels, p: SweepParams) -> tuple[F64, I64]: ...
+
+    def row_box(self, selected: B, p: SweepParams) -> None: ...
+
+    def fine_evidence(self, tol: float) -> tuple[B, F32] | None: ...
+
+    def boundary_evidence(self, tol: float) -> tuple[F32, F32, B, B] | None: ...
+
+    def occlusion(self, s: PlaneLabels, final: F32, p: OcclusionParams) -> F32: ...
+
+    def fallback(self, s: PlaneLabels, final: F32, p: FallbackParams) -> F32: ...
+
+
+def _merge(s: PlaneLabels, info: Mapping[str, float]) -> dict[str, float]:
+    return {**s.info, **info, "energy_before": s.info.get("energy_before", info.get("energy_before", 0.0))}
+
+
+def step_optimise(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
+    assign, planes, info = ev.optimise(s, s.assign, s.planes, s.own)
+    return dataclasses.replace(s, assign=assign, planes=planes, info=_merge(s, info))
+
+
+def step_refit(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
+    for _ in range(p.refit.rounds):
+        refit = ev.refit(s, s.assign, s.planes)
+        if refit is None:
+            break
+        planes, group_ids = refit
+        own2 = s.own.copy()
+        own2[:, 1] = group_ids
+        assign, planes, info = ev.optimise(s, s.assign, planes, own2)
+        s = dataclasses.replace(s, assign=assign, planes=planes, info=_merge(s, info))
+    return s
+
+
+def step_bpasw_planes(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
+    bm = ev.bpasw_map()
+    if bm is None or p.bpasw_planes.rounds <= 0:
+        return s
+    from prismstereo.matching.coop.pipeline import bpasw_candidate_rounds
+
+    def optimise(a: I32, pl: F64, own: I64) -> tuple[I32, F64, dict[str, float]]:
+        return ev.optimise(s, a, pl, own)
+
+    assign, planes, info, bfit_ids = bpasw_candidate_rounds(s.assign, s.planes, s.own, s.index, s.pairs, bm[0],
+                                                            bm[1], optimise, planes=ev.plane_params,
+                                                            rounds=p.bpasw_planes.rounds)
+    return dataclasses.replace(s, assign=assign, planes=planes, bfit_ids=bfit_ids,
+                               info=s.info if info is None else _merge(s, info))
+
+
+def step_sweep(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
+    sp = p.sweep
+    if sp.frac <= 0:
+        return s
+    planes, ids = ev.sweep(s, sp)
+    if (ids >= 0).any() and sp.row_box >= 0:
+        # the selected segments' pixels: pixel cost boxed along the row only (a square box favours
+        # fronto-parallel planes on surfaces slanted in y)
+        ev.row_box((ids[:, 0] >= 0)[s.labels], sp)
+    assign = s.assign
+    info = dict(s.info)
+    k = assign.shape[0]
+    for col in range(0, ids.shape[1], 2):
+        own6 = np.full((k, 2), -1, np.int64)
+        own6[:, :min(2, ids.shape[1] - col)] = ids[:, col:col + 2]
+        if (own6 >= 0).any():
+            assign, planes, info2 = ev.optimise(s, assign, planes, own6, neighbour_own_planes=sp.neighbours)
+            info = {**info, **info2, "energy_before": info.get("energy_before", 0.0)}
+    info["sweep_segments"] = float((ids[:, 0] >= 0).sum())
+    return dataclasses.replace(s, assign=assign, planes=planes, sweep_ids=ids, info=info)
+
+
+def step_group_moves(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
+    if not p.group_moves.enabled:
+        return s
+    k = s.assign.shape[0]
+    sw = s.sweep_ids if s.sweep_ids is not None else np.full((k, 0), -1, np.int64)
+    # sweep candidates and the planes across each segment's boundary, moved over whole regions
+    cands = np.concatenate([sw, neighbour_plane_candidates(s.graph, s.assign)], axis=1)
+    assign, ginfo = expand_planes(s.assign, s.planes, s.index, s.graph, ev.data, ev.reliable, cands,
+                                  min_disp=ev.min_disp, params=ev.coop, slopes=ev.slopes)
+    assign, planes, info = ev.optimise(s, assign, s.planes, s.own)
+    return dataclasses.replace(s, assign=assign, planes=planes, info={**_merge(s, info), **ginfo})
+
+
+def step_fine(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
+    if not p.fine.levels:
+        return s
+    evid = ev.fine_evidence(p.boundary.tol)
+    if evid is None:
+        return s
+    from prismstereo.matching.coop.pipeline import refine_fine_segments
+
+    evidence, reference = evid
+    for hr, min_region in p.fine.levels:
+        fs = refine_fine_segments(ev.image, s.labels, s.assign, s.planes, ev.data, ev.reliable, evidence,
+                                  reference, segmentation=dataclasses.replace(ev.segmentation, hr=float(hr),
+                                                                              min_region=int(min_region)),
+                                  coop=ev.coop, min_disp=ev.min_disp, check=p.fine.check, slopes=ev.slopes)
+        s = dataclasses.replace(s, labels=fs.labels, index=fs.index, assign=fs.assign, planes=fs.planes,
+                                own=s.own[fs.parent], parent=s.parent[fs.parent],
+                                bfit_ids=None if s.bfit_ids is None else s.bfit_ids[fs.parent],
+                                sweep_ids=None if s.sweep_ids is None else s.sweep_ids[fs.parent],
+                                info=_merge(s, fs.info))
+    return s
+
+
+def step_boundary(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
+    from prismstereo.matching.coop.pipeline import boundary_pixel_planes
+
+    bp = p.boundary
+    evid = ev.boundary_evidence(bp.tol) if bp.radius > 0 else None
+    if evid is None:
+        return dataclasses.replace(s, disparity=s.render())
+    cost, bdisp, brel, bagree = evid
+    extra = []
+    if bp.bplanes and s.bfit_ids is not None:
+        extra.append(s.bfit_ids)
+    if bp.bplanes > 1:
+        extra.append(s.own[:, 0])
+    k = s.own.shape[0]
+    bown = np.ascontiguousarray(np.stack(extra, axis=1) if extra else np.full((k, 1), -1), dtype=np.int32)
+    rel = bagree if bp.agree == 1 else brel
+    final = boundary_pixel_planes(np.ascontiguousarray(s.labels, dtype=np.int32), s.assign.astype(np.int32),
+                                  s.planes, cost, int(ev.min_disp), int(bp.radius), float(bp.margin),
+                                  np.ascontiguousarray(rel), bdisp, float(bp.tol),
+                                  np.ascontiguousarray(bagree if bp.agree else rel), bown)
+    return dataclasses.replace(s, disparity=np.asarray(final, np.float32))
+
+
+def step_occlusion(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
+    if not p.occlusion.enabled:
+        return s
+    assert s.disparity is not None
+    return dataclasses.replace(s, disparity=np.asarray(ev.occlusion(s, s.disparity, p.occlusion), np.float32))
+
+
+def step_median(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
+    if p.median.radius <= 0:
+        return s
+    assert s.disparity is not None
+    final = s.disparity
+    wm = weighted_median_filter(final, ev.image, radius=p.median.radius)
+    # the median works on integer bins: keep the subpixel plane disparity where it agrees within 1 px
+    return dataclasses.replace(s, disparity=np.where(np.abs(wm - final) <= 1.0, final, wm).astype(np.float32))
+
+
+def step_fallback(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
+    if not p.fallback.enabled:
+        return s
+    assert s.disparity is not None
+    return dataclasses.replace(s, disparity=np.asarray(ev.fallback(s, s.disparity, p.fallback), np.float32))
+
+
+STEPS: dict[str, Callable[[PlaneLabels, Evidence, StepParams], PlaneLabels]] = {
+    "optimise": step_optimise, "refit": step_refit, "bpasw_planes": step_bpasw_planes, "sweep": step_sweep,
+    "group_moves": step_group_moves, "fine": step_fine, "boundary": step_boundary, "occlusion": step_occlusion,
+    "median": step_median, "fallback": step_fallback}
+
+
+def run_steps(state: PlaneLabels, evidence: Evidence, params: StepParams, *,
+              snapshot: Callable[[str, PlaneLabels], None] | None = None) -> PlaneLabels:
+    """Run :data:`STEP_NAMES` in order on ``state``; ``snapshot(name, state)`` after each. Returns the final
+    state, whose ``disparity`` (H, W) float32 is clipped to the method's range."""
+    for name in STEP_NAMES:
+        state = STEPS[name](state, evidence, params)
+        if snapshot is not None:
+            snapshot(name, state)
+    assert state.disparity is not None
+    return dataclasses.replace(state, disparity=np.clip(state.disparity, evidence.min_disp,
+                                                        evidence.max_disp).astype(np.float32))
