@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from prismstereo.matching.registry import MatchResult
 from prismstereo.matching.local.selection import fill_holes, subpixel_refine, weighted_median_filter, winner_take_all
+from prismstereo.matching.registry import MatchResult
 from prismstereo.multiview.baseline import CostName, check_views, fuse_costs, pair_cost, resolve_occlusion
 from prismstereo.multiview.sharedbpasw import bpasw_pair_costs
 
