@@ -59,13 +59,62 @@ def _census(gray: F32, ry: int, rx: int) -> npt.NDArray[np.uint64]:
     return _census_sheared(gray, ry, rx, 0.0)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _popcount(v: np.uint64) -> int:
-    n = 0
-    while v:
-        v &= v - np.uint64(1)
-        n += 1
-    return n
+    # SWAR bit count: branch-free, so the loops that call it vectorise
+    v = v - ((v >> np.uint64(1)) & np.uint64(0x5555555555555555))
+    v = (v & np.uint64(0x3333333333333333)) + ((v >> np.uint64(2)) & np.uint64(0x3333333333333333))
+    v = (v + (v >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    return int((v * np.uint64(0x0101010101010101)) >> np.uint64(56))
+
+
+@njit(cache=True)
+def _census_table(lam_c: float) -> npt.NDArray[np.float64]:
+    """``1 - exp(-hd / λ_census)`` for every Hamming distance of a 64-bit census (the same float64 values as
+    evaluating it per pixel)."""
+    t = np.empty(65, np.float64)
+    for hd in range(65):
+        t[hd] = 1.0 - np.exp(-hd / lam_c)
+    return t
+
+
+@njit(cache=True, parallel=True)
+def _ad_term(left: F32, right: F32, gl: F32, gr: F32, min_disp: int, ndisp: int, tau_c: float, tau_g: float,
+             lam_ad: float) -> npt.NDArray[np.float64]:
+    """The colour + gradient part ``1 - exp(-(AD + ∇) / λ_ad)`` of :func:`_raw_cost` (NaN where x - d falls
+    outside the right image): it does not depend on the census window, so sheared volumes share it."""
+    h, w, ch = left.shape
+    out = np.full((h, w, ndisp), np.nan)
+    for y in prange(h):
+        for x in range(w):
+            for k in range(ndisp):
+                xr = x - (min_disp + k)
+                if xr < 0 or xr >= w:
+                    continue
+                ad = 0.0
+                for c in range(ch):
+                    ad += abs(left[y, x, c] - right[y, xr, c])
+                ad = min(ad / ch, tau_c)
+                gd = min(abs(gl[y, x] - gr[y, xr]), tau_g)
+                out[y, x, k] = 1.0 - np.exp(-(ad + gd) / lam_ad)
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _add_census(ad: npt.NDArray[np.float64], cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint64],
+                min_disp: int, lam_c: float) -> F32:
+    """:func:`_raw_cost` from its colour + gradient part ``ad`` (:func:`_ad_term`) and the census pair."""
+    h, w, ndisp = ad.shape
+    tab = _census_table(lam_c)
+    out = np.full((h, w, ndisp), 2.0, dtype=np.float32)
+    for y in prange(h):
+        for x in range(w):
+            for k in range(ndisp):
+                xr = x - (min_disp + k)
+                if xr < 0 or xr >= w:
+                    continue
+                out[y, x, k] = ad[y, x, k] + tab[_popcount(cl[y, x] ^ cr[y, xr])]
+    return out
 
 
 @njit(cache=True, parallel=True)
@@ -74,6 +123,7 @@ def _raw_cost(left: F32, right: F32, gl: F32, gr: F32, cl: npt.NDArray[np.uint64
               lam_ad: float, lam_c: float) -> F32:
     """Raw left-view cost C(y, x, k) for d = min_disp + k; pixels with x - d < 0 get the maximum 2."""
     h, w, ch = left.shape
+    tab = _census_table(lam_c)
     out = np.full((h, w, ndisp), 2.0, dtype=np.float32)
     for y in prange(h):
         for x in range(w):
@@ -86,8 +136,7 @@ def _raw_cost(left: F32, right: F32, gl: F32, gr: F32, cl: npt.NDArray[np.uint64
                     ad += abs(left[y, x, c] - right[y, xr, c])
                 ad = min(ad / ch, tau_c)
                 gd = min(abs(gl[y, x] - gr[y, xr]), tau_g)
-                hd = _popcount(cl[y, x] ^ cr[y, xr])
-                out[y, x, k] = (1.0 - np.exp(-(ad + gd) / lam_ad)) + (1.0 - np.exp(-hd / lam_c))
+                out[y, x, k] = (1.0 - np.exp(-(ad + gd) / lam_ad)) + tab[_popcount(cl[y, x] ^ cr[y, xr])]
     return out
 
 
@@ -308,10 +357,10 @@ def sheared_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic],
     nd = max_disp - min_disp + 1
     h, w = gray_l.shape
     out = np.empty((len(slopes), h, w, nd), np.float32)
+    ad = _ad_term(lf, rf, gxl, gxr, int(min_disp), nd, p.tau_color, p.tau_grad, p.lambda_ad)
     for i, b in enumerate(slopes):
         cr = _census_sheared(gray_r, p.census_ry, p.census_rx, float(b))
-        raw = _raw_cost(lf, rf, gxl, gxr, cl, cr, int(min_disp), nd, p.tau_color, p.tau_grad, p.lambda_ad,
-                        p.lambda_census)
+        raw = _add_census(ad, cl, cr, int(min_disp), p.lambda_census)
         if radius <= 0:
             out[i] = raw
             continue
