@@ -309,18 +309,30 @@ def _census_sheared(gray: F32, ry: int, rx: int, slope: float) -> npt.NDArray[np
 def _shear_box_rows(hb: F32, slope: float, r: int, out: F32) -> None:
     """``out[y, x, k] = mean over |dy| <= r of hb[y + dy, x, k + slope * dy]`` (linear in k, rows clamped)."""
     h, w, nd = hb.shape
+    # the interpolation taps depend on (dy, k) only
+    nr = 2 * r + 1
+    k0s = np.empty((nr, nd), np.int64)
+    k1s = np.empty((nr, nd), np.int64)
+    fs = np.empty((nr, nd))
+    gs = np.empty((nr, nd))
+    for i in range(nr):
+        for k in range(nd):
+            kk = min(max(k + slope * (i - r), 0.0), nd - 1.0)
+            k0s[i, k] = int(kk)
+            k1s[i, k] = min(int(kk) + 1, nd - 1)
+            fs[i, k] = kk - int(kk)
+            gs[i, k] = 1.0 - fs[i, k]
     for y in prange(h):
+        s = np.empty(nd)
         for x in range(w):
+            s[:] = 0.0
+            # rows outside, disparities inside: the inner loop vectorises, each sum still runs over dy in order
+            for i in range(nr):
+                yy = min(max(y + i - r, 0), h - 1)
+                for k in range(nd):
+                    s[k] += gs[i, k] * hb[yy, x, k0s[i, k]] + fs[i, k] * hb[yy, x, k1s[i, k]]
             for k in range(nd):
-                s = 0.0
-                for dy in range(-r, r + 1):
-                    yy = min(max(y + dy, 0), h - 1)
-                    kk = min(max(k + slope * dy, 0.0), nd - 1.0)
-                    k0 = int(kk)
-                    k1 = min(k0 + 1, nd - 1)
-                    f = kk - k0
-                    s += (1.0 - f) * hb[yy, x, k0] + f * hb[yy, x, k1]
-                out[y, x, k] = s / (2 * r + 1)
+                out[y, x, k] = s[k] / nr
 
 
 def sheared_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, max_disp: int,
