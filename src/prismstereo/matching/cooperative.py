@@ -312,11 +312,138 @@ def _energy(assign: I32, planes: F64, order: I64, starts: I64, w: int, cost: F32
     return e
 
 
+_CACHE = 64  # data terms remembered per segment (its candidates of the last sweeps)
+
+
+@njit(cache=True)
+def _cache_refresh(z1: F64, o1: I64, z2: F64, zc1: F64, oc1: I64, zc2: F64, zvalid: npt.NDArray[np.bool_],
+                   bbox: I64, planes: F64, clab: I64, cval: F64, cn: I64, w: int) -> None:
+    """Drops the remembered data terms (Eqs. 6.21-6.22) that the new right-view z-buffer may change.
+
+    An entry of segment ``j`` under plane ``l`` reads the z-buffer only on the right-view pixels its
+    bounding box maps to under ``l``; it is kept when none of them changed, so a remembered value is always
+    the one :func:`_data` would return now."""
+    n = z1.size
+    h = n // w
+    k = cn.size
+    if not zvalid[0]:
+        cn[:] = 0
+    else:
+        ii = np.zeros((h + 1, w + 1), np.int64)  # integral image of the changed right-view pixels
+        anyc = False
+        for y in range(h):
+            run = 0
+            for x in range(w):
+                q = y * w + x
+                if z1[q] != zc1[q] or o1[q] != oc1[q] or z2[q] != zc2[q]:
+                    run += 1
+                    anyc = True
+                ii[y + 1, x + 1] = ii[y, x + 1] + run
+        if anyc:
+            for j in range(k):
+                y0 = bbox[j, 2]
+                y1 = bbox[j, 3]
+                t = 0
+                while t < cn[j]:
+                    pl = planes[clab[j, t]]
+                    lo = 1e300
+                    hi = -1e300
+                    for xx in (bbox[j, 0], bbox[j, 1]):
+                        for yy in (y0, y1):
+                            v = xx - (pl[0] * xx + pl[1] * yy + pl[2])
+                            lo = min(lo, v)
+                            hi = max(hi, v)
+                    # one pixel of slack for the rounding of the per-pixel evaluation
+                    c0 = max(int(np.floor(lo + 0.5)) - 1, 0) if lo > -1e18 else 0
+                    c1 = min(int(np.floor(hi + 0.5)) + 1, w - 1) if hi < 1e18 else w - 1
+                    hit = False
+                    if c0 <= c1:
+                        hit = (ii[y1 + 1, c1 + 1] - ii[y0, c1 + 1] - ii[y1 + 1, c0] + ii[y0, c0]) > 0
+                    if hit or not (np.isfinite(lo) and np.isfinite(hi)):
+                        cn[j] -= 1
+                        clab[j, t] = clab[j, cn[j]]
+                        cval[j, t] = cval[j, cn[j]]
+                    else:
+                        t += 1
+    zc1[:] = z1
+    oc1[:] = o1
+    zc2[:] = z2
+    zvalid[0] = True
+
+
+@njit(cache=True)
+def _data_cached(j: int, lab: int, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
+                 reliable: npt.NDArray[np.bool_], prm: F64, z1: F64, o1: I64, z2: F64, clab: I64, cval: F64,
+                 cn: I64) -> float:
+    """:func:`_data` of segment ``j`` under plane ``lab``, remembered until the z-buffer changes under it."""
+    for t in range(cn[j]):
+        if clab[j, t] == lab:
+            return cval[j, t]
+    v = _data(j, planes[lab], order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2)
+    if cn[j] >= clab.shape[1]:
+        cn[j] = 0
+    clab[j, cn[j]] = lab
+    cval[j, cn[j]] = v
+    cn[j] += 1
+    return v
+
+
+@njit(cache=True)
+def _energy_cached(assign: I32, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
+                   reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
+                   prm: F64, zc1: F64, oc1: I64, zc2: F64, zvalid: npt.NDArray[np.bool_], bbox: I64, clab: I64,
+                   cval: F64, cn: I64) -> float:
+    """:func:`_energy` with the data terms remembered across calls (the same value)."""
+    k = starts.size - 1
+    h = cost.shape[1] // w
+    z1, o1, z2 = _zbuffer(assign, planes, order, starts, h, w)
+    _cache_refresh(z1, o1, z2, zc1, oc1, zc2, zvalid, bbox, planes, clab, cval, cn, w)
+    gamma = prm[5]
+    thr = prm[6]
+    e = 0.0
+    for j in range(k):
+        e += _data_cached(j, assign[j], planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
+                          clab, cval, cn)
+    for ed in range(pairs.shape[0]):
+        lo = pairs[ed, 0]
+        hi = pairs[ed, 1]
+        if assign[lo] != assign[hi]:
+            e += 2.0 * gamma * _smooth(lo, hi, ed, planes[assign[lo]], planes[assign[hi]], pairs, bstart,
+                                       bp_lo, bp_hi, bw, w, thr)
+    return e
+
+
+@njit(cache=True)
+def _segment_bbox(order: I64, starts: I64, w: int) -> I64:
+    """(K, 4) x_min, x_max, y_min, y_max of every segment."""
+    k = starts.size - 1
+    out = np.empty((k, 4), np.int64)
+    for j in range(k):
+        x0 = w
+        x1 = -1
+        y0 = 1 << 40
+        y1 = -1
+        for t in range(starts[j], starts[j + 1]):
+            x = order[t] % w
+            y = order[t] // w
+            x0 = min(x0, x)
+            x1 = max(x1, x)
+            y0 = min(y0, y)
+            y1 = max(y1, y)
+        out[j, 0] = x0
+        out[j, 1] = max(x1, x0)
+        out[j, 2] = y0 if y1 >= 0 else 0
+        out[j, 3] = max(y1, y0) if y1 >= 0 else 0
+    return out
+
+
 @njit(cache=True)
 def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
            reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
-           nstart: I64, nbr: I64, nedge: I64, prm: F64, active: npt.NDArray[np.bool_]) -> int:
-    """One cooperative sweep over the active segments (Eq. 6.19), in place; returns the number of changes."""
+           nstart: I64, nbr: I64, nedge: I64, prm: F64, active: npt.NDArray[np.bool_], zc1: F64, oc1: I64,
+           zc2: F64, zvalid: npt.NDArray[np.bool_], bbox: I64, clab: I64, cval: F64, cn: I64) -> int:
+    """One cooperative sweep over the active segments (Eq. 6.19), in place; returns the number of changes.
+    The data terms are remembered across sweeps (:func:`_data_cached`)."""
     k = starts.size - 1
     h = cost.shape[1] // w
     kappa = prm[0]
@@ -324,6 +451,7 @@ def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost:
     gamma = prm[5]
     thr = prm[6]
     z1, o1, z2 = _zbuffer(a, planes, order, starts, h, w)
+    _cache_refresh(z1, o1, z2, zc1, oc1, zc2, zvalid, bbox, planes, clab, cval, cn, w)
     cand = np.empty(64, np.int64)
     changes = 0
     for j in range(k):
@@ -361,7 +489,8 @@ def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost:
         best = a[j]
         for u in range(nc):
             lab = cand[u]
-            dj = _data(j, planes[lab], order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2)
+            dj = _data_cached(j, lab, planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
+                              clab, cval, cn)
             sm_f = 0.0
             sm = 0.0
             for t in range(nstart[j], nstart[j + 1]):
@@ -616,7 +745,12 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
     prm = _prm(p, slopes)
     common = (index.order, index.starts, index.shape[1], fc, int(min_disp), rel, graph.pairs, graph.bstart,
               graph.bp_lo, graph.bp_hi, graph.bw)
-    e0 = _energy(a, pl, *common, prm)
+    # remembered data terms of (segment, plane) and the z-buffer they were computed under
+    npx = int(index.order.size)
+    cache = (np.empty(npx), np.empty(npx, np.int64), np.empty(npx), np.zeros(1, np.bool_),
+             _segment_bbox(index.order, index.starts, index.shape[1]), np.empty((k, _CACHE), np.int64),
+             np.empty((k, _CACHE)), np.zeros(k, np.int64))
+    e0 = _energy_cached(a, pl, *common, prm, *cache)
     e_cur = e0
     sweeps = 0
     changes = 0
@@ -624,11 +758,11 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
     for rnd in range(rounds + 1):
         for _ in range(p.max_iter):
             prev = a.copy()
-            n = _sweep(a, own_arr.ravel(), pl, *common, graph.nstart, graph.nbr, graph.nedge, prm, act)
+            n = _sweep(a, own_arr.ravel(), pl, *common, graph.nstart, graph.nbr, graph.nedge, prm, act, *cache)
             sweeps += 1
             if n == 0:
                 break
-            e_new = _energy(a, pl, *common, prm)
+            e_new = _energy_cached(a, pl, *common, prm, *cache)
             if e_new > e_cur:
                 a = prev
                 break
@@ -640,6 +774,7 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
         n_prev = n_used
         n_used, n = _refine_pass(a, pl, n_used, *common, graph.nstart, graph.nbr, graph.nedge, prm,
                                  int(p.powell_cycles), int(p.refine_min_size))
+        cache[3][0] = False  # the refined planes were appended where rejected ones may have been
         e_new = _energy(a, pl, *common, prm)
         if n == 0 or e_new > e_cur:
             a = prev
