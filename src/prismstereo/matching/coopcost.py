@@ -202,20 +202,79 @@ def guided_filter_volume(guide: npt.NDArray[np.generic], vol: F32, *, radius: in
     sig += eps * np.eye(3)
     inv = np.linalg.inv(sig).astype(np.float32)  # H W 3 3
     out = np.empty(vol.shape, np.float32)
-    # disparity slices are independent: filter them in blocks to bound the temporaries' memory
+    img = np.ascontiguousarray(img)
+    mean_i = np.ascontiguousarray(mean_i)
+    inv = np.ascontiguousarray(inv)
+    # disparity slices are independent: filter them in blocks to bound the temporaries' memory; the
+    # element-wise steps run fused in numba (float32, the same operations in the same order as numpy's)
     for s0 in range(0, vol.shape[2], 16):
         blk = np.ascontiguousarray(vol[:, :, s0:s0 + 16])
         mean_p = _box(blk, r)
-        cov = [(_box(blk * img[:, :, c:c + 1], r) - mean_i[:, :, c:c + 1] * mean_p) for c in range(3)]
-        a = [inv[:, :, i, 0, None] * cov[0] + inv[:, :, i, 1, None] * cov[1] + inv[:, :, i, 2, None] * cov[2]
-             for i in range(3)]
-        del cov
-        b = mean_p - a[0] * mean_i[:, :, 0:1] - a[1] * mean_i[:, :, 1:2] - a[2] * mean_i[:, :, 2:3]
-        q = _box(b, r)
-        for c in range(3):
-            q += _box(a[c], r) * img[:, :, c:c + 1]
-        out[:, :, s0:s0 + 16] = q
+        prod = _gf_products(blk, img)
+        boxed = [_box(np.ascontiguousarray(prod[c]), r) for c in range(3)]
+        del prod
+        ab = _gf_coefficients(mean_p, boxed[0], boxed[1], boxed[2], mean_i, inv)
+        del boxed
+        _gf_output(_box(np.ascontiguousarray(ab[3]), r), _box(np.ascontiguousarray(ab[0]), r),
+                   _box(np.ascontiguousarray(ab[1]), r), _box(np.ascontiguousarray(ab[2]), r), img,
+                   out[:, :, s0:s0 + 16])
     return out
+
+
+@njit(cache=True, parallel=True)
+def _gf_products(blk: F32, img: F32) -> F32:
+    """(3, H, W, S): ``blk * img[..., c]`` per colour channel."""
+    h, w, ns = blk.shape
+    out = np.empty((3, h, w, ns), np.float32)
+    for y in prange(h):
+        for x in range(w):
+            for c in range(3):
+                g = img[y, x, c]
+                for k in range(ns):
+                    out[c, y, x, k] = blk[y, x, k] * g
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _gf_coefficients(mean_p: F32, b0: F32, b1: F32, b2: F32, mean_i: F32, inv: F32) -> F32:
+    """(4, H, W, S): the guided filter's a (3 channels) and b from the boxed products (He et al. 2013)."""
+    h, w, ns = mean_p.shape
+    out = np.empty((4, h, w, ns), np.float32)
+    for y in prange(h):
+        for x in range(w):
+            m0 = mean_i[y, x, 0]
+            m1 = mean_i[y, x, 1]
+            m2 = mean_i[y, x, 2]
+            for k in range(ns):
+                mp = mean_p[y, x, k]
+                c0 = b0[y, x, k] - m0 * mp
+                c1 = b1[y, x, k] - m1 * mp
+                c2 = b2[y, x, k] - m2 * mp
+                a0 = inv[y, x, 0, 0] * c0 + inv[y, x, 0, 1] * c1 + inv[y, x, 0, 2] * c2
+                a1 = inv[y, x, 1, 0] * c0 + inv[y, x, 1, 1] * c1 + inv[y, x, 1, 2] * c2
+                a2 = inv[y, x, 2, 0] * c0 + inv[y, x, 2, 1] * c1 + inv[y, x, 2, 2] * c2
+                out[0, y, x, k] = a0
+                out[1, y, x, k] = a1
+                out[2, y, x, k] = a2
+                out[3, y, x, k] = mp - a0 * m0 - a1 * m1 - a2 * m2
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _gf_output(qb: F32, qa0: F32, qa1: F32, qa2: F32, img: F32, out: F32) -> None:
+    """``out = box(b) + Σ_c box(a_c) img_c`` (in that order of additions)."""
+    h, w, ns = qb.shape
+    for y in prange(h):
+        for x in range(w):
+            g0 = img[y, x, 0]
+            g1 = img[y, x, 1]
+            g2 = img[y, x, 2]
+            for k in range(ns):
+                q = qb[y, x, k]
+                q = q + qa0[y, x, k] * g0
+                q = q + qa1[y, x, k] * g1
+                q = q + qa2[y, x, k] * g2
+                out[y, x, k] = q
 
 
 def _cost_inputs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic]) -> tuple[F32, ...]:
