@@ -644,6 +644,15 @@ def _refine_pass(a: I32, planes: F64, n_used: int, order: I64, starts: I64, w: i
     return n_used, changed
 
 
+def _new_cache(index: SegmentIndex, k: int) -> tuple[npt.NDArray[np.generic], ...]:
+    """Empty remembered data terms for :func:`_sweep` / :func:`_energy_cached` / :func:`_expand`: the z-buffer
+    they hold (z1, o1, z2, valid), the segments' boxes, and per segment up to ``_CACHE`` (plane, value)."""
+    npx = int(index.shape[0]) * int(index.shape[1])
+    return (np.empty(npx), np.empty(npx, np.int64), np.empty(npx), np.zeros(1, np.bool_),
+            _segment_bbox(index.order, index.starts, index.shape[1]), np.empty((k, _CACHE), np.int64),
+            np.empty((k, _CACHE)), np.zeros(k, np.int64))
+
+
 def _flat_cost(cost: F32, slopes: tuple[float, ...] | None) -> F32:
     """(S, H*W, D) view of an (H, W, D) volume or of (S, H, W, D) volumes, one per vertical slope."""
     c = np.asarray(cost)
@@ -746,10 +755,7 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
     common = (index.order, index.starts, index.shape[1], fc, int(min_disp), rel, graph.pairs, graph.bstart,
               graph.bp_lo, graph.bp_hi, graph.bw)
     # remembered data terms of (segment, plane) and the z-buffer they were computed under
-    npx = int(index.order.size)
-    cache = (np.empty(npx), np.empty(npx, np.int64), np.empty(npx), np.zeros(1, np.bool_),
-             _segment_bbox(index.order, index.starts, index.shape[1]), np.empty((k, _CACHE), np.int64),
-             np.empty((k, _CACHE)), np.zeros(k, np.int64))
+    cache = _new_cache(index, k)
     e0 = _energy_cached(a, pl, *common, prm, *cache)
     e_cur = e0
     sweeps = 0
@@ -791,9 +797,12 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
 @njit(cache=True)
 def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: I64, starts: I64, w: int,
             cost: F32, min_disp: int, reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64,
-            bp_hi: I64, bw: F64, nstart: I64, nbr: I64, nedge: I64, prm: F64, max_region: int) -> int:
+            bp_hi: I64, bw: F64, nstart: I64, nbr: I64, nedge: I64, prm: F64, max_region: int, zc1: F64,
+            oc1: I64, zc2: F64, zvalid: npt.NDArray[np.bool_], bbox: I64, clab: I64, cval: F64, cn: I64) -> int:
     """Group moves, in place: for each candidate plane, the connected region of segments grown from its seeds
-    through segments whose data term it does not raise moves to it at once when that lowers E (Eq. 6.18)."""
+    through segments whose data term it does not raise moves to it at once when that lowers E (Eq. 6.18).
+    Data terms are remembered (:func:`_data_cached`); the cache always holds the z-buffer ``z1, o1, z2``
+    they are read under."""
     k = starts.size - 1
     h = cost.shape[1] // w
     gamma = prm[5]
@@ -804,8 +813,10 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
     dnew = np.empty(k, np.float64)
     dold = np.empty(k, np.float64)
     prev = np.empty(k, np.int32)
+    cache = (zc1, oc1, zc2, zvalid, bbox, clab, cval, cn)
+    e_cur = _energy_cached(a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo, bp_hi, bw,
+                           prm, *cache)
     z1, o1, z2 = _zbuffer(a, planes, order, starts, h, w)
-    e_cur = _energy(a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo, bp_hi, bw, prm)
     accepted = 0
     for m in range(cand.size):
         lab = cand[m]
@@ -816,8 +827,10 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
             s = seeds[t]
             if a[s] != lab and not seen[s]:
                 seen[s] = True
-                dn = _data(s, pl, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2)
-                do = _data(s, planes[a[s]], order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2)
+                dn = _data_cached(s, lab, planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
+                                  clab, cval, cn)
+                do = _data_cached(s, a[s], planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
+                                  clab, cval, cn)
                 if dn <= do:
                     region[n] = s
                     dnew[n] = dn
@@ -832,8 +845,10 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
                 if seen[i] or a[i] == lab:
                     continue
                 seen[i] = True
-                dn = _data(i, pl, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2)
-                do = _data(i, planes[a[i]], order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2)
+                dn = _data_cached(i, lab, planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
+                                  clab, cval, cn)
+                do = _data_cached(i, a[i], planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
+                                  clab, cval, cn)
                 if dn <= do and n < max_region:
                     region[n] = i
                     dnew[n] = dn
@@ -861,8 +876,8 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
             for r in range(n):
                 prev[r] = a[region[r]]
                 a[region[r]] = lab
-            e_new = _energy(a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo, bp_hi,
-                            bw, prm)
+            e_new = _energy_cached(a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo,
+                                   bp_hi, bw, prm, *cache)
             if e_new < e_cur - 1e-9:
                 e_cur = e_new
                 accepted += 1
@@ -870,6 +885,8 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
             else:
                 for r in range(n):
                     a[region[r]] = prev[r]
+                # back to the z-buffer of the kept assignment (the cache now holds the rejected one's)
+                _cache_refresh(z1, o1, z2, zc1, oc1, zc2, zvalid, bbox, planes, clab, cval, cn, w)
         for r in range(n):
             in_s[region[r]] = False
         seen[:] = False  # also the segments visited but not taken
@@ -915,7 +932,8 @@ def expand_planes(assign: npt.NDArray[np.integer], planes: F64, index: SegmentIn
     n = _expand(a, np.asarray(planes, np.float64), uniq.astype(np.int64), seed_start, segs.astype(np.int64),
                 index.order, index.starts, index.shape[1], _flat_cost(cost, slopes), int(min_disp),
                 np.asarray(reliable, np.bool_).ravel(), graph.pairs, graph.bstart, graph.bp_lo, graph.bp_hi,
-                graph.bw, graph.nstart, graph.nbr, graph.nedge, _prm(p, slopes), int(max_region))
+                graph.bw, graph.nstart, graph.nbr, graph.nedge, _prm(p, slopes), int(max_region),
+                *_new_cache(index, a.size))
     return a, {"group_moves": float(n)}
 
 
