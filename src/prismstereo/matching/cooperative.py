@@ -644,7 +644,8 @@ def _refine_pass(a: I32, planes: F64, n_used: int, order: I64, starts: I64, w: i
     return n_used, changed
 
 
-def _new_cache(index: SegmentIndex, k: int) -> tuple[npt.NDArray[np.generic], ...]:
+def _new_cache(index: SegmentIndex, k: int
+               ) -> tuple[F64, I64, F64, npt.NDArray[np.bool_], I64, I64, F64, I64]:
     """Empty remembered data terms for :func:`_sweep` / :func:`_energy_cached` / :func:`_expand`: the z-buffer
     they hold (z1, o1, z2, valid), the segments' boxes, and per segment up to ``_CACHE`` (plane, value)."""
     npx = int(index.shape[0]) * int(index.shape[1])

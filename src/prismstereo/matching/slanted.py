@@ -163,9 +163,10 @@ def plane_cost(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], plane:
 
 @njit(cache=True)
 def _sample_pixels(seg: npt.NDArray[np.int32], cand: npt.NDArray[np.int64], step: int,
-                   ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.float64]]:  # pragma: no cover
+                   ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64],
+                              npt.NDArray[np.float64]]:  # pragma: no cover - numba
     """The ``step``-grid pixels of the segments with candidates, grouped by segment in row-major order
-    (CSR ``pstart``/``pix``), and the sampled pixel count of every segment."""
+    (``pix[nper[s]:nper[s + 1]]``), and the sampled pixel count of every segment."""
     h, w = seg.shape
     k = cand.shape[0]
     cnt = np.zeros(k)
