@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from numba import njit
+from numba import njit, prange
 
 from prismstereo.matching.planes import SegmentIndex
 
@@ -438,6 +438,37 @@ def _segment_bbox(order: I64, starts: I64, w: int) -> I64:
 
 
 @njit(cache=True)
+def _candidates(j: int, a: I32, own: I64, nstart: I64, nbr: I64, prm: F64, cand: I64) -> int:
+    """Candidate planes of segment j into ``cand``: current, own fitted/merged planes, neighbours' current
+    planes (and with ``neighbour_own_planes`` theirs); returns their number (at most 64)."""
+    nc = 0
+    cand[nc] = a[j]
+    nc += 1
+    for extra in (own[2 * j], own[2 * j + 1]):
+        if extra >= 0:
+            dup = False
+            for u in range(nc):
+                if cand[u] == extra:
+                    dup = True
+            if not dup and nc < 64:
+                cand[nc] = extra
+                nc += 1
+    for t in range(nstart[j], nstart[j + 1]):
+        for m in range(3 if prm[10] > 0.5 else 1):
+            lab = a[nbr[t]] if m == 0 else own[2 * nbr[t] + m - 1]
+            if lab < 0:
+                continue
+            dup = False
+            for u in range(nc):
+                if cand[u] == lab:
+                    dup = True
+            if not dup and nc < 64:
+                cand[nc] = lab
+                nc += 1
+    return nc
+
+
+@njit(cache=True, parallel=True)
 def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
            reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
            nstart: I64, nbr: I64, nedge: I64, prm: F64, active: npt.NDArray[np.bool_], zc1: F64, oc1: I64,
@@ -452,36 +483,23 @@ def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost:
     thr = prm[6]
     z1, o1, z2 = _zbuffer(a, planes, order, starts, h, w)
     _cache_refresh(z1, o1, z2, zc1, oc1, zc2, zvalid, bbox, planes, clab, cval, cn, w)
+    # the data terms of the candidates at the sweep's start, in parallel (each segment's cache row is written
+    # by one thread); the serial sweep below reads them and computes the few new candidates it meets
+    for j in prange(k):
+        if not active[j]:
+            continue
+        cj = np.empty(64, np.int64)
+        ncj = _candidates(j, a, own, nstart, nbr, prm, cj)
+        if ncj > 1:
+            for u in range(ncj):
+                _data_cached(j, cj[u], planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
+                             clab, cval, cn)
     cand = np.empty(64, np.int64)
     changes = 0
     for j in range(k):
         if not active[j]:
             continue
-        # candidate planes: current, own fitted/merged planes, neighbours' current planes
-        nc = 0
-        cand[nc] = a[j]
-        nc += 1
-        for extra in (own[2 * j], own[2 * j + 1]):
-            if extra >= 0:
-                dup = False
-                for u in range(nc):
-                    if cand[u] == extra:
-                        dup = True
-                if not dup and nc < 64:
-                    cand[nc] = extra
-                    nc += 1
-        for t in range(nstart[j], nstart[j + 1]):
-            for m in range(3 if prm[10] > 0.5 else 1):
-                lab = a[nbr[t]] if m == 0 else own[2 * nbr[t] + m - 1]
-                if lab < 0:
-                    continue
-                dup = False
-                for u in range(nc):
-                    if cand[u] == lab:
-                        dup = True
-                if not dup and nc < 64:
-                    cand[nc] = lab
-                    nc += 1
+        nc = _candidates(j, a, own, nstart, nbr, prm, cand)
         if nc == 1:
             continue
         cur_e = 0.0
