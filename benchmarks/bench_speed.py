@@ -27,9 +27,11 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(os.path.dirname(__file__), "..", ".numba_cache"))
+# prismstereo sets this on import; numpy is imported first here, and reads it then
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
 
 from prismstereo.evaluation.middlebury import bad_pixel_rate  # noqa: E402
 from prismstereo.io import read_image  # noqa: E402
@@ -67,13 +69,16 @@ def load_folder(folder: Path, group: str) -> Scene:
                  read_image(folder / "nonocc.png", gray=True) == 255, int(rng["max"]), int(rng.get("min", 0)))
 
 
-def _time(fn, repeat: int) -> tuple[float, object]:  # type: ignore[no-untyped-def]
-    best, out = np.inf, None
+def _time(fn, repeat: int) -> tuple[float, float, object]:  # type: ignore[no-untyped-def]
+    """Best wall seconds of ``repeat`` runs, the CPU seconds (all threads) of that run, the result."""
+    best, best_cpu, out = np.inf, np.inf, None
     for _ in range(max(1, repeat)):
-        t = time.perf_counter()
+        c, t = time.process_time(), time.perf_counter()
         out = fn()
-        best = min(best, time.perf_counter() - t)
-    return best, out
+        wall = time.perf_counter() - t
+        if wall < best:
+            best, best_cpu = wall, time.process_time() - c
+    return best, best_cpu, out
 
 
 def stereo(scenes: list[Scene], methods: list[str], repeat: int, slow: set[str]) -> None:
@@ -83,13 +88,15 @@ def stereo(scenes: list[Scene], methods: list[str], repeat: int, slow: set[str])
     for m in methods:
         match(warm, warm, max_disp=4, method=m)
     secs: dict[str, dict[str, float]] = {m: {} for m in methods}
+    cpus: dict[str, dict[str, float]] = {m: {} for m in methods}
     bad: dict[str, dict[str, float]] = {m: {} for m in methods}
     for sc in scenes:
         for m in methods:
             reps = 1 if m in slow else repeat
-            t, res = _time(lambda m=m, sc=sc: match(sc.left, sc.right, max_disp=sc.max_disp,  # type: ignore[misc]
-                                                      min_disp=sc.min_disp, method=m), reps)
+            t, c, res = _time(lambda m=m, sc=sc: match(sc.left, sc.right, max_disp=sc.max_disp,  # type: ignore[misc]
+                                                         min_disp=sc.min_disp, method=m), reps)
             secs[m][sc.name] = t
+            cpus[m][sc.name] = c
             bad[m][sc.name] = bad_pixel_rate(res.disparity, sc.gt, sc.nonocc, threshold=1.0)  # type: ignore[attr-defined]
             print(f"  {sc.name:9s} {m:6s} {t:7.3f} s  bad1 nonocc {bad[m][sc.name]:6.2f}", file=sys.stderr,
                   flush=True)
@@ -107,6 +114,14 @@ def stereo(scenes: list[Scene], methods: list[str], repeat: int, slow: set[str])
             total = sum(secs[m][n] for n in names)
             worst = max(secs[m][n] / ref[n] for n in names)
             print(f"| {m} | {cells} | {total:.2f} | {total / sum(ref[n] for n in names):.2f} | {worst:.2f} |")
+        print(f"\n### {g}: CPU seconds per pair, all threads (× OpenCV SGBM's CPU seconds)\n")
+        print("| method | " + " | ".join(names) + " | total s | × SGBM (total) |")
+        print("|---" * (len(names) + 3) + "|")
+        cref = cpus["sgbm"]
+        for m in methods:
+            cells = " | ".join(f"{cpus[m][n]:.3f} ({cpus[m][n] / max(cref[n], 1e-6):.1f}×)" for n in names)
+            total = sum(cpus[m][n] for n in names)
+            print(f"| {m} | {cells} | {total:.2f} | {total / max(sum(cref[n] for n in names), 1e-6):.2f} |")
         print(f"\n### {g}: bad > 1 px nonocc (%)\n")
         print("| method | " + " | ".join(names) + " | avg | × SGBM here | × SGBM quoted |")
         print("|---" * (len(names) + 4) + "|")
@@ -146,15 +161,15 @@ def _depth_rows(presets: list[str], frames: int, cpu: dict[str, float]) -> None:
     video = hasattr(pl, "prepare_depth") and hasattr(pl, "run_depth_frame")
     print(f"\n### depth on the {cap.image.shape[1]}×{cap.image.shape[0]} demo capture (robot scene), warm, "
           f"{frames} frames; load average {os.getloadavg()[0]:.1f}\n")
-    print("| preset | method | whole run_depth s/frame | frames/s | stages after set-up s/frame | frames/s | "
-          "their CPU s/frame | 1/CPU | video path s/frame | frames/s | stages of one frame (s) | "
-          "median rel. depth error | coverage |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| preset | method | whole run_depth s/frame | frames/s | its CPU s/frame | 1/CPU | "
+          "stages after set-up s/frame | frames/s | their CPU s/frame | 1/CPU | video path s/frame | frames/s | "
+          "its CPU s/frame | 1/CPU | stages of one frame (s) | median rel. depth error | coverage |")
+    print("|---" * 17 + "|")
     for p in presets:
         m = PRESETS[p]
         cfg = DepthConfig(method=m)
         res = run_depth(rig, cap.image, config=cfg, progress=False)  # warm-up (numba cache, OpenCV)
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         per_frame = []
         cpu.clear()
         for _ in range(frames):
@@ -163,23 +178,26 @@ def _depth_rows(presets: list[str], frames: int, cpu: dict[str, float]) -> None:
             for k, v in res.cpu_timings.items():
                 cpu[k] = cpu.get(k, 0.0) + v
         whole = (time.perf_counter() - t) / frames
+        whole_cpu = (time.process_time() - c) / frames
         rest = float(np.mean(per_frame))
         rest_cpu = sum(v for k, v in cpu.items() if k not in _SETUP_STAGES) / frames
-        vid, vfps, stages = float("nan"), float("nan"), res.timings
+        vid, vfps, vid_cpu, stages = float("nan"), float("nan"), float("nan"), res.timings
         if video:
             setup = pl.prepare_depth(rig, config=cfg)
             pl.run_depth_frame(setup, cap.image)
-            t = time.perf_counter()
+            t, c = time.perf_counter(), time.process_time()
             for _ in range(frames):
                 res = pl.run_depth_frame(setup, cap.image)
             vid = (time.perf_counter() - t) / frames
+            vid_cpu = (time.process_time() - c) / frames
             vfps = 1.0 / vid
             stages = res.timings
         acc = evaluate_depth(res, scene=scene)
         st = ", ".join(f"{k} {v:.2f}" for k, v in stages.items() if k not in ("total", "validate") and v >= 0.005)
-        print(f"| {p} | {m} | {whole:.2f} | {1.0 / whole:.2f} | {rest:.2f} | {1.0 / rest:.2f} | {rest_cpu:.2f} | "
+        print(f"| {p} | {m} | {whole:.2f} | {1.0 / whole:.2f} | {whole_cpu:.2f} | {1.0 / whole_cpu:.2f} | "
+              f"{rest:.2f} | {1.0 / rest:.2f} | {rest_cpu:.2f} | "
               f"{1.0 / rest_cpu:.2f} | {vid:.2f} | "
-              f"{vfps:.2f} | {st} | "
+              f"{vfps:.2f} | {vid_cpu:.2f} | {1.0 / vid_cpu:.2f} | {st} | "
               f"{100 * acc['median_rel']:.3f} % | {100 * acc['coverage']:.1f} % |")
     if not video:
         print("\n(the video path, prepare_depth + run_depth_frame, is not in this pipeline version; 'stages after "

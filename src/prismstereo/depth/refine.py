@@ -59,17 +59,30 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
         lmean /= m
         d = init
         textured = True
+        w = R.shape[1]
         for _ in range(iterations):
             sr = 0.0
             sj = 0.0
             slj = 0.0
             srj = 0.0
             sjj = 0.0
+            # every window pixel is shifted by the same d: one pair of taps for the whole window, and
+            # contiguous reads when the window stays inside the row (else the edge-replicating sampler)
+            xf0 = x - d
+            b0 = int(np.floor(xf0))
+            fa = xf0 - b0
+            fb = 1.0 - fa
+            inner = b0 - radius >= 0 and b0 + radius + 1 <= w - 1
             for dy in range(-radius, radius + 1):
                 for dx in range(-radius, radius + 1):
-                    xf = x + dx - d
-                    rv = _sample(R, y + dy, xf)
-                    jv = _sample(Rx, y + dy, xf)
+                    if inner:
+                        xa = b0 + dx
+                        rv = fb * R[y + dy, xa] + fa * R[y + dy, xa + 1]
+                        jv = fb * Rx[y + dy, xa] + fa * Rx[y + dy, xa + 1]
+                    else:
+                        xf = x + dx - d
+                        rv = _sample(R, y + dy, xf)
+                        jv = _sample(Rx, y + dy, xf)
                     lz = L[y + dy, x + dx] - lmean
                     sr += rv
                     sj += jv

@@ -83,6 +83,33 @@ def test_energy_never_increases_across_iterations() -> None:
     assert energies[-1] < energies[0]
 
 
+def test_remembered_data_terms_match_fresh_ones() -> None:
+    """Sweeps within one call reuse data terms across z-buffer changes; one sweep per call computes them all
+    afresh. Both must take the same path, and the reported energy must be the recomputed one."""
+    from prismstereo.matching.coop import initial_disparity
+    from prismstereo.matching.coopcost import aggregated_costs, raw_cost
+    from prismstereo.matching.planes import fit_planes
+    from prismstereo.matching.segmentation import mean_shift_segment
+
+    left, right, _ = _synthetic_pair(2)
+    labels = mean_shift_segment(left)
+    cl, cr = aggregated_costs(left, right, max_disp=20)
+    init, rel = initial_disparity(cl, cr)
+    idx = build_segment_index(labels)
+    planes, _ = fit_planes(idx, init, rel)
+    pset = planes[np.isfinite(planes[:, 0])]
+    a0 = np.random.default_rng(3).integers(0, len(pset), size=len(planes)).astype(np.int32)
+    graph = build_segment_graph(labels, left)
+    cost = raw_cost(left, right, max_disp=20)
+    a_one, _, info = cooperative_optimize(a0, pset, idx, graph, cost, rel, params=CoopParams(max_iter=30))
+    assert info["sweeps"] > 2  # the remembered terms were used after z-buffer changes
+    assert total_energy(a_one, pset, idx, graph, cost, rel) == info["energy_after"]
+    a_step = a0
+    for _ in range(int(info["sweeps"])):
+        a_step, _, _ = cooperative_optimize(a_step, pset, idx, graph, cost, rel, params=CoopParams(max_iter=1))
+    np.testing.assert_array_equal(a_one, a_step)
+
+
 def test_powell_refinement_lowers_energy_and_keeps_it_monotone() -> None:
     from prismstereo.matching.coop.coopcost import aggregated_costs, raw_cost
     from prismstereo.matching.coop.pipeline import initial_disparity

@@ -59,13 +59,62 @@ def census_bits(gray: F32, ry: int, rx: int) -> npt.NDArray[np.uint64]:
     return _census_sheared(gray, ry, rx, 0.0)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _popcount(v: np.uint64) -> int:
-    n = 0
-    while v:
-        v &= v - np.uint64(1)
-        n += 1
-    return n
+    # SWAR bit count: branch-free, so the loops that call it vectorise
+    v = v - ((v >> np.uint64(1)) & np.uint64(0x5555555555555555))
+    v = (v & np.uint64(0x3333333333333333)) + ((v >> np.uint64(2)) & np.uint64(0x3333333333333333))
+    v = (v + (v >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    return int((v * np.uint64(0x0101010101010101)) >> np.uint64(56))
+
+
+@njit(cache=True)
+def _census_table(lam_c: float) -> npt.NDArray[np.float64]:
+    """``1 - exp(-hd / λ_census)`` for every Hamming distance of a 64-bit census (the same float64 values as
+    evaluating it per pixel)."""
+    t = np.empty(65, np.float64)
+    for hd in range(65):
+        t[hd] = 1.0 - np.exp(-hd / lam_c)
+    return t
+
+
+@njit(cache=True, parallel=True)
+def _ad_term(left: F32, right: F32, gl: F32, gr: F32, min_disp: int, ndisp: int, tau_c: float, tau_g: float,
+             lam_ad: float) -> npt.NDArray[np.float64]:
+    """The colour + gradient part ``1 - exp(-(AD + ∇) / λ_ad)`` of :func:`_raw_cost` (NaN where x - d falls
+    outside the right image): it does not depend on the census window, so sheared volumes share it."""
+    h, w, ch = left.shape
+    out = np.full((h, w, ndisp), np.nan)
+    for y in prange(h):
+        for x in range(w):
+            for k in range(ndisp):
+                xr = x - (min_disp + k)
+                if xr < 0 or xr >= w:
+                    continue
+                ad = 0.0
+                for c in range(ch):
+                    ad += abs(left[y, x, c] - right[y, xr, c])
+                ad = min(ad / ch, tau_c)
+                gd = min(abs(gl[y, x] - gr[y, xr]), tau_g)
+                out[y, x, k] = 1.0 - np.exp(-(ad + gd) / lam_ad)
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _add_census(ad: npt.NDArray[np.float64], cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint64],
+                min_disp: int, lam_c: float) -> F32:
+    """:func:`_raw_cost` from its colour + gradient part ``ad`` (:func:`_ad_term`) and the census pair."""
+    h, w, ndisp = ad.shape
+    tab = _census_table(lam_c)
+    out = np.full((h, w, ndisp), 2.0, dtype=np.float32)
+    for y in prange(h):
+        for x in range(w):
+            for k in range(ndisp):
+                xr = x - (min_disp + k)
+                if xr < 0 or xr >= w:
+                    continue
+                out[y, x, k] = ad[y, x, k] + tab[_popcount(cl[y, x] ^ cr[y, xr])]
+    return out
 
 
 @njit(cache=True, parallel=True)
@@ -74,6 +123,7 @@ def _raw_cost(left: F32, right: F32, gl: F32, gr: F32, cl: npt.NDArray[np.uint64
               lam_ad: float, lam_c: float) -> F32:
     """Raw left-view cost C(y, x, k) for d = min_disp + k; pixels with x - d < 0 get the maximum 2."""
     h, w, ch = left.shape
+    tab = _census_table(lam_c)
     out = np.full((h, w, ndisp), 2.0, dtype=np.float32)
     for y in prange(h):
         for x in range(w):
@@ -86,8 +136,7 @@ def _raw_cost(left: F32, right: F32, gl: F32, gr: F32, cl: npt.NDArray[np.uint64
                     ad += abs(left[y, x, c] - right[y, xr, c])
                 ad = min(ad / ch, tau_c)
                 gd = min(abs(gl[y, x] - gr[y, xr]), tau_g)
-                hd = _popcount(cl[y, x] ^ cr[y, xr])
-                out[y, x, k] = (1.0 - np.exp(-(ad + gd) / lam_ad)) + (1.0 - np.exp(-hd / lam_c))
+                out[y, x, k] = (1.0 - np.exp(-(ad + gd) / lam_ad)) + tab[_popcount(cl[y, x] ^ cr[y, xr])]
     return out
 
 
@@ -153,20 +202,79 @@ def guided_filter_volume(guide: npt.NDArray[np.generic], vol: F32, *, radius: in
     sig += eps * np.eye(3)
     inv = np.linalg.inv(sig).astype(np.float32)  # H W 3 3
     out = np.empty(vol.shape, np.float32)
-    # disparity slices are independent: filter them in blocks to bound the temporaries' memory
+    img = np.ascontiguousarray(img)
+    mean_i = np.ascontiguousarray(mean_i)
+    inv = np.ascontiguousarray(inv)
+    # disparity slices are independent: filter them in blocks to bound the temporaries' memory; the
+    # element-wise steps run fused in numba (float32, the same operations in the same order as numpy's)
     for s0 in range(0, vol.shape[2], 16):
         blk = np.ascontiguousarray(vol[:, :, s0:s0 + 16])
         mean_p = _box(blk, r)
-        cov = [(_box(blk * img[:, :, c:c + 1], r) - mean_i[:, :, c:c + 1] * mean_p) for c in range(3)]
-        a = [inv[:, :, i, 0, None] * cov[0] + inv[:, :, i, 1, None] * cov[1] + inv[:, :, i, 2, None] * cov[2]
-             for i in range(3)]
-        del cov
-        b = mean_p - a[0] * mean_i[:, :, 0:1] - a[1] * mean_i[:, :, 1:2] - a[2] * mean_i[:, :, 2:3]
-        q = _box(b, r)
-        for c in range(3):
-            q += _box(a[c], r) * img[:, :, c:c + 1]
-        out[:, :, s0:s0 + 16] = q
+        prod = _gf_products(blk, img)
+        boxed = [_box(np.ascontiguousarray(prod[c]), r) for c in range(3)]
+        del prod
+        ab = _gf_coefficients(mean_p, boxed[0], boxed[1], boxed[2], mean_i, inv)
+        del boxed
+        _gf_output(_box(np.ascontiguousarray(ab[3]), r), _box(np.ascontiguousarray(ab[0]), r),
+                   _box(np.ascontiguousarray(ab[1]), r), _box(np.ascontiguousarray(ab[2]), r), img,
+                   out[:, :, s0:s0 + 16])
     return out
+
+
+@njit(cache=True, parallel=True)
+def _gf_products(blk: F32, img: F32) -> F32:
+    """(3, H, W, S): ``blk * img[..., c]`` per colour channel."""
+    h, w, ns = blk.shape
+    out = np.empty((3, h, w, ns), np.float32)
+    for y in prange(h):
+        for x in range(w):
+            for c in range(3):
+                g = img[y, x, c]
+                for k in range(ns):
+                    out[c, y, x, k] = blk[y, x, k] * g
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _gf_coefficients(mean_p: F32, b0: F32, b1: F32, b2: F32, mean_i: F32, inv: F32) -> F32:
+    """(4, H, W, S): the guided filter's a (3 channels) and b from the boxed products (He et al. 2013)."""
+    h, w, ns = mean_p.shape
+    out = np.empty((4, h, w, ns), np.float32)
+    for y in prange(h):
+        for x in range(w):
+            m0 = mean_i[y, x, 0]
+            m1 = mean_i[y, x, 1]
+            m2 = mean_i[y, x, 2]
+            for k in range(ns):
+                mp = mean_p[y, x, k]
+                c0 = b0[y, x, k] - m0 * mp
+                c1 = b1[y, x, k] - m1 * mp
+                c2 = b2[y, x, k] - m2 * mp
+                a0 = inv[y, x, 0, 0] * c0 + inv[y, x, 0, 1] * c1 + inv[y, x, 0, 2] * c2
+                a1 = inv[y, x, 1, 0] * c0 + inv[y, x, 1, 1] * c1 + inv[y, x, 1, 2] * c2
+                a2 = inv[y, x, 2, 0] * c0 + inv[y, x, 2, 1] * c1 + inv[y, x, 2, 2] * c2
+                out[0, y, x, k] = a0
+                out[1, y, x, k] = a1
+                out[2, y, x, k] = a2
+                out[3, y, x, k] = mp - a0 * m0 - a1 * m1 - a2 * m2
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _gf_output(qb: F32, qa0: F32, qa1: F32, qa2: F32, img: F32, out: F32) -> None:
+    """``out = box(b) + Σ_c box(a_c) img_c`` (in that order of additions)."""
+    h, w, ns = qb.shape
+    for y in prange(h):
+        for x in range(w):
+            g0 = img[y, x, 0]
+            g1 = img[y, x, 1]
+            g2 = img[y, x, 2]
+            for k in range(ns):
+                q = qb[y, x, k]
+                q = q + qa0[y, x, k] * g0
+                q = q + qa1[y, x, k] * g1
+                q = q + qa2[y, x, k] * g2
+                out[y, x, k] = q
 
 
 def _cost_inputs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic]) -> tuple[F32, ...]:
@@ -260,18 +368,30 @@ def _census_sheared(gray: F32, ry: int, rx: int, slope: float) -> npt.NDArray[np
 def _shear_box_rows(hb: F32, slope: float, r: int, out: F32) -> None:
     """``out[y, x, k] = mean over |dy| <= r of hb[y + dy, x, k + slope * dy]`` (linear in k, rows clamped)."""
     h, w, nd = hb.shape
+    # the interpolation taps depend on (dy, k) only
+    nr = 2 * r + 1
+    k0s = np.empty((nr, nd), np.int64)
+    k1s = np.empty((nr, nd), np.int64)
+    fs = np.empty((nr, nd))
+    gs = np.empty((nr, nd))
+    for i in range(nr):
+        for k in range(nd):
+            kk = min(max(k + slope * (i - r), 0.0), nd - 1.0)
+            k0s[i, k] = int(kk)
+            k1s[i, k] = min(int(kk) + 1, nd - 1)
+            fs[i, k] = kk - int(kk)
+            gs[i, k] = 1.0 - fs[i, k]
     for y in prange(h):
+        s = np.empty(nd)
         for x in range(w):
+            s[:] = 0.0
+            # rows outside, disparities inside: the inner loop vectorises, each sum still runs over dy in order
+            for i in range(nr):
+                yy = min(max(y + i - r, 0), h - 1)
+                for k in range(nd):
+                    s[k] += gs[i, k] * hb[yy, x, k0s[i, k]] + fs[i, k] * hb[yy, x, k1s[i, k]]
             for k in range(nd):
-                s = 0.0
-                for dy in range(-r, r + 1):
-                    yy = min(max(y + dy, 0), h - 1)
-                    kk = min(max(k + slope * dy, 0.0), nd - 1.0)
-                    k0 = int(kk)
-                    k1 = min(k0 + 1, nd - 1)
-                    f = kk - k0
-                    s += (1.0 - f) * hb[yy, x, k0] + f * hb[yy, x, k1]
-                out[y, x, k] = s / (2 * r + 1)
+                out[y, x, k] = s[k] / nr
 
 
 def sheared_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, max_disp: int,
@@ -308,10 +428,10 @@ def sheared_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic],
     nd = max_disp - min_disp + 1
     h, w = gray_l.shape
     out = np.empty((len(slopes), h, w, nd), np.float32)
+    ad = _ad_term(lf, rf, gxl, gxr, int(min_disp), nd, p.tau_color, p.tau_grad, p.lambda_ad)
     for i, b in enumerate(slopes):
         cr = _census_sheared(gray_r, p.census_ry, p.census_rx, float(b))
-        raw = _raw_cost(lf, rf, gxl, gxr, cl, cr, int(min_disp), nd, p.tau_color, p.tau_grad, p.lambda_ad,
-                        p.lambda_census)
+        raw = _add_census(ad, cl, cr, int(min_disp), p.lambda_census)
         if radius <= 0:
             out[i] = raw
             continue

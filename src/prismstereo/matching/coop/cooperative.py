@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from numba import njit
+from numba import njit, prange
 
 from prismstereo.matching.segments.planes import SegmentIndex
 
@@ -312,11 +312,169 @@ def _energy(assign: I32, planes: F64, order: I64, starts: I64, w: int, cost: F32
     return e
 
 
+_CACHE = 64  # data terms remembered per segment (its candidates of the last sweeps)
+
+
 @njit(cache=True)
+def _cache_refresh(z1: F64, o1: I64, z2: F64, zc1: F64, oc1: I64, zc2: F64, zvalid: npt.NDArray[np.bool_],
+                   bbox: I64, planes: F64, clab: I64, cval: F64, cn: I64, w: int) -> None:
+    """Drops the remembered data terms (Eqs. 6.21-6.22) that the new right-view z-buffer may change.
+
+    An entry of segment ``j`` under plane ``l`` reads the z-buffer only on the right-view pixels its
+    bounding box maps to under ``l``; it is kept when none of them changed, so a remembered value is always
+    the one :func:`_data` would return now."""
+    n = z1.size
+    h = n // w
+    k = cn.size
+    if not zvalid[0]:
+        cn[:] = 0
+    else:
+        ii = np.zeros((h + 1, w + 1), np.int64)  # integral image of the changed right-view pixels
+        anyc = False
+        for y in range(h):
+            run = 0
+            for x in range(w):
+                q = y * w + x
+                if z1[q] != zc1[q] or o1[q] != oc1[q] or z2[q] != zc2[q]:
+                    run += 1
+                    anyc = True
+                ii[y + 1, x + 1] = ii[y, x + 1] + run
+        if anyc:
+            for j in range(k):
+                y0 = bbox[j, 2]
+                y1 = bbox[j, 3]
+                t = 0
+                while t < cn[j]:
+                    pl = planes[clab[j, t]]
+                    lo = 1e300
+                    hi = -1e300
+                    for xx in (bbox[j, 0], bbox[j, 1]):
+                        for yy in (y0, y1):
+                            v = xx - (pl[0] * xx + pl[1] * yy + pl[2])
+                            lo = min(lo, v)
+                            hi = max(hi, v)
+                    # one pixel of slack for the rounding of the per-pixel evaluation
+                    c0 = max(int(np.floor(lo + 0.5)) - 1, 0) if lo > -1e18 else 0
+                    c1 = min(int(np.floor(hi + 0.5)) + 1, w - 1) if hi < 1e18 else w - 1
+                    hit = False
+                    if c0 <= c1:
+                        hit = (ii[y1 + 1, c1 + 1] - ii[y0, c1 + 1] - ii[y1 + 1, c0] + ii[y0, c0]) > 0
+                    if hit or not (np.isfinite(lo) and np.isfinite(hi)):
+                        cn[j] -= 1
+                        clab[j, t] = clab[j, cn[j]]
+                        cval[j, t] = cval[j, cn[j]]
+                    else:
+                        t += 1
+    zc1[:] = z1
+    oc1[:] = o1
+    zc2[:] = z2
+    zvalid[0] = True
+
+
+@njit(cache=True)
+def _data_cached(j: int, lab: int, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
+                 reliable: npt.NDArray[np.bool_], prm: F64, z1: F64, o1: I64, z2: F64, clab: I64, cval: F64,
+                 cn: I64) -> float:
+    """:func:`_data` of segment ``j`` under plane ``lab``, remembered until the z-buffer changes under it."""
+    for t in range(cn[j]):
+        if clab[j, t] == lab:
+            return cval[j, t]
+    v = _data(j, planes[lab], order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2)
+    if cn[j] >= clab.shape[1]:
+        cn[j] = 0
+    clab[j, cn[j]] = lab
+    cval[j, cn[j]] = v
+    cn[j] += 1
+    return v
+
+
+@njit(cache=True)
+def _energy_cached(assign: I32, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
+                   reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
+                   prm: F64, zc1: F64, oc1: I64, zc2: F64, zvalid: npt.NDArray[np.bool_], bbox: I64, clab: I64,
+                   cval: F64, cn: I64) -> float:
+    """:func:`_energy` with the data terms remembered across calls (the same value)."""
+    k = starts.size - 1
+    h = cost.shape[1] // w
+    z1, o1, z2 = _zbuffer(assign, planes, order, starts, h, w)
+    _cache_refresh(z1, o1, z2, zc1, oc1, zc2, zvalid, bbox, planes, clab, cval, cn, w)
+    gamma = prm[5]
+    thr = prm[6]
+    e = 0.0
+    for j in range(k):
+        e += _data_cached(j, assign[j], planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
+                          clab, cval, cn)
+    for ed in range(pairs.shape[0]):
+        lo = pairs[ed, 0]
+        hi = pairs[ed, 1]
+        if assign[lo] != assign[hi]:
+            e += 2.0 * gamma * _smooth(lo, hi, ed, planes[assign[lo]], planes[assign[hi]], pairs, bstart,
+                                       bp_lo, bp_hi, bw, w, thr)
+    return e
+
+
+@njit(cache=True)
+def _segment_bbox(order: I64, starts: I64, w: int) -> I64:
+    """(K, 4) x_min, x_max, y_min, y_max of every segment."""
+    k = starts.size - 1
+    out = np.empty((k, 4), np.int64)
+    for j in range(k):
+        x0 = w
+        x1 = -1
+        y0 = 1 << 40
+        y1 = -1
+        for t in range(starts[j], starts[j + 1]):
+            x = order[t] % w
+            y = order[t] // w
+            x0 = min(x0, x)
+            x1 = max(x1, x)
+            y0 = min(y0, y)
+            y1 = max(y1, y)
+        out[j, 0] = x0
+        out[j, 1] = max(x1, x0)
+        out[j, 2] = y0 if y1 >= 0 else 0
+        out[j, 3] = max(y1, y0) if y1 >= 0 else 0
+    return out
+
+
+@njit(cache=True)
+def _candidates(j: int, a: I32, own: I64, nstart: I64, nbr: I64, prm: F64, cand: I64) -> int:
+    """Candidate planes of segment j into ``cand``: current, own fitted/merged planes, neighbours' current
+    planes (and with ``neighbour_own_planes`` theirs); returns their number (at most 64)."""
+    nc = 0
+    cand[nc] = a[j]
+    nc += 1
+    for extra in (own[2 * j], own[2 * j + 1]):
+        if extra >= 0:
+            dup = False
+            for u in range(nc):
+                if cand[u] == extra:
+                    dup = True
+            if not dup and nc < 64:
+                cand[nc] = extra
+                nc += 1
+    for t in range(nstart[j], nstart[j + 1]):
+        for m in range(3 if prm[10] > 0.5 else 1):
+            lab = a[nbr[t]] if m == 0 else own[2 * nbr[t] + m - 1]
+            if lab < 0:
+                continue
+            dup = False
+            for u in range(nc):
+                if cand[u] == lab:
+                    dup = True
+            if not dup and nc < 64:
+                cand[nc] = lab
+                nc += 1
+    return nc
+
+
+@njit(cache=True, parallel=True)
 def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
            reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
-           nstart: I64, nbr: I64, nedge: I64, prm: F64, active: npt.NDArray[np.bool_]) -> int:
-    """One cooperative sweep over the active segments (Eq. 6.19), in place; returns the number of changes."""
+           nstart: I64, nbr: I64, nedge: I64, prm: F64, active: npt.NDArray[np.bool_], zc1: F64, oc1: I64,
+           zc2: F64, zvalid: npt.NDArray[np.bool_], bbox: I64, clab: I64, cval: F64, cn: I64) -> int:
+    """One cooperative sweep over the active segments (Eq. 6.19), in place; returns the number of changes.
+    The data terms are remembered across sweeps (:func:`_data_cached`)."""
     k = starts.size - 1
     h = cost.shape[1] // w
     kappa = prm[0]
@@ -324,36 +482,24 @@ def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost:
     gamma = prm[5]
     thr = prm[6]
     z1, o1, z2 = _zbuffer(a, planes, order, starts, h, w)
+    _cache_refresh(z1, o1, z2, zc1, oc1, zc2, zvalid, bbox, planes, clab, cval, cn, w)
+    # the data terms of the candidates at the sweep's start, in parallel (each segment's cache row is written
+    # by one thread); the serial sweep below reads them and computes the few new candidates it meets
+    for j in prange(k):
+        if not active[j]:
+            continue
+        cj = np.empty(64, np.int64)
+        ncj = _candidates(j, a, own, nstart, nbr, prm, cj)
+        if ncj > 1:
+            for u in range(ncj):
+                _data_cached(j, cj[u], planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
+                             clab, cval, cn)
     cand = np.empty(64, np.int64)
     changes = 0
     for j in range(k):
         if not active[j]:
             continue
-        # candidate planes: current, own fitted/merged planes, neighbours' current planes
-        nc = 0
-        cand[nc] = a[j]
-        nc += 1
-        for extra in (own[2 * j], own[2 * j + 1]):
-            if extra >= 0:
-                dup = False
-                for u in range(nc):
-                    if cand[u] == extra:
-                        dup = True
-                if not dup and nc < 64:
-                    cand[nc] = extra
-                    nc += 1
-        for t in range(nstart[j], nstart[j + 1]):
-            for m in range(3 if prm[10] > 0.5 else 1):
-                lab = a[nbr[t]] if m == 0 else own[2 * nbr[t] + m - 1]
-                if lab < 0:
-                    continue
-                dup = False
-                for u in range(nc):
-                    if cand[u] == lab:
-                        dup = True
-                if not dup and nc < 64:
-                    cand[nc] = lab
-                    nc += 1
+        nc = _candidates(j, a, own, nstart, nbr, prm, cand)
         if nc == 1:
             continue
         cur_e = 0.0
@@ -361,7 +507,8 @@ def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost:
         best = a[j]
         for u in range(nc):
             lab = cand[u]
-            dj = _data(j, planes[lab], order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2)
+            dj = _data_cached(j, lab, planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
+                              clab, cval, cn)
             sm_f = 0.0
             sm = 0.0
             for t in range(nstart[j], nstart[j + 1]):
@@ -515,6 +662,16 @@ def _refine_pass(a: I32, planes: F64, n_used: int, order: I64, starts: I64, w: i
     return n_used, changed
 
 
+def _new_cache(index: SegmentIndex, k: int
+               ) -> tuple[F64, I64, F64, npt.NDArray[np.bool_], I64, I64, F64, I64]:
+    """Empty remembered data terms for :func:`_sweep` / :func:`_energy_cached` / :func:`_expand`: the z-buffer
+    they hold (z1, o1, z2, valid), the segments' boxes, and per segment up to ``_CACHE`` (plane, value)."""
+    npx = int(index.shape[0]) * int(index.shape[1])
+    return (np.empty(npx), np.empty(npx, np.int64), np.empty(npx), np.zeros(1, np.bool_),
+            _segment_bbox(index.order, index.starts, index.shape[1]), np.empty((k, _CACHE), np.int64),
+            np.empty((k, _CACHE)), np.zeros(k, np.int64))
+
+
 def _flat_cost(cost: F32, slopes: tuple[float, ...] | None) -> F32:
     """(S, H*W, D) view of an (H, W, D) volume or of (S, H, W, D) volumes, one per vertical slope."""
     c = np.asarray(cost)
@@ -616,7 +773,9 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
     prm = _prm(p, slopes)
     common = (index.order, index.starts, index.shape[1], fc, int(min_disp), rel, graph.pairs, graph.bstart,
               graph.bp_lo, graph.bp_hi, graph.bw)
-    e0 = _energy(a, pl, *common, prm)
+    # remembered data terms of (segment, plane) and the z-buffer they were computed under
+    cache = _new_cache(index, k)
+    e0 = _energy_cached(a, pl, *common, prm, *cache)
     e_cur = e0
     sweeps = 0
     changes = 0
@@ -624,11 +783,11 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
     for rnd in range(rounds + 1):
         for _ in range(p.max_iter):
             prev = a.copy()
-            n = _sweep(a, own_arr.ravel(), pl, *common, graph.nstart, graph.nbr, graph.nedge, prm, act)
+            n = _sweep(a, own_arr.ravel(), pl, *common, graph.nstart, graph.nbr, graph.nedge, prm, act, *cache)
             sweeps += 1
             if n == 0:
                 break
-            e_new = _energy(a, pl, *common, prm)
+            e_new = _energy_cached(a, pl, *common, prm, *cache)
             if e_new > e_cur:
                 a = prev
                 break
@@ -640,6 +799,7 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
         n_prev = n_used
         n_used, n = _refine_pass(a, pl, n_used, *common, graph.nstart, graph.nbr, graph.nedge, prm,
                                  int(p.powell_cycles), int(p.refine_min_size))
+        cache[3][0] = False  # the refined planes were appended where rejected ones may have been
         e_new = _energy(a, pl, *common, prm)
         if n == 0 or e_new > e_cur:
             a = prev
@@ -656,9 +816,12 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
 @njit(cache=True)
 def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: I64, starts: I64, w: int,
             cost: F32, min_disp: int, reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64,
-            bp_hi: I64, bw: F64, nstart: I64, nbr: I64, nedge: I64, prm: F64, max_region: int) -> int:
+            bp_hi: I64, bw: F64, nstart: I64, nbr: I64, nedge: I64, prm: F64, max_region: int, zc1: F64,
+            oc1: I64, zc2: F64, zvalid: npt.NDArray[np.bool_], bbox: I64, clab: I64, cval: F64, cn: I64) -> int:
     """Group moves, in place: for each candidate plane, the connected region of segments grown from its seeds
-    through segments whose data term it does not raise moves to it at once when that lowers E (Eq. 6.18)."""
+    through segments whose data term it does not raise moves to it at once when that lowers E (Eq. 6.18).
+    Data terms are remembered (:func:`_data_cached`); the cache always holds the z-buffer ``z1, o1, z2``
+    they are read under."""
     k = starts.size - 1
     h = cost.shape[1] // w
     gamma = prm[5]
@@ -669,8 +832,10 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
     dnew = np.empty(k, np.float64)
     dold = np.empty(k, np.float64)
     prev = np.empty(k, np.int32)
+    cache = (zc1, oc1, zc2, zvalid, bbox, clab, cval, cn)
+    e_cur = _energy_cached(a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo, bp_hi, bw,
+                           prm, *cache)
     z1, o1, z2 = _zbuffer(a, planes, order, starts, h, w)
-    e_cur = _energy(a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo, bp_hi, bw, prm)
     accepted = 0
     for m in range(cand.size):
         lab = cand[m]
@@ -681,8 +846,10 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
             s = seeds[t]
             if a[s] != lab and not seen[s]:
                 seen[s] = True
-                dn = _data(s, pl, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2)
-                do = _data(s, planes[a[s]], order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2)
+                dn = _data_cached(s, lab, planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
+                                  clab, cval, cn)
+                do = _data_cached(s, a[s], planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
+                                  clab, cval, cn)
                 if dn <= do:
                     region[n] = s
                     dnew[n] = dn
@@ -697,8 +864,10 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
                 if seen[i] or a[i] == lab:
                     continue
                 seen[i] = True
-                dn = _data(i, pl, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2)
-                do = _data(i, planes[a[i]], order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2)
+                dn = _data_cached(i, lab, planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
+                                  clab, cval, cn)
+                do = _data_cached(i, a[i], planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
+                                  clab, cval, cn)
                 if dn <= do and n < max_region:
                     region[n] = i
                     dnew[n] = dn
@@ -726,8 +895,8 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
             for r in range(n):
                 prev[r] = a[region[r]]
                 a[region[r]] = lab
-            e_new = _energy(a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo, bp_hi,
-                            bw, prm)
+            e_new = _energy_cached(a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo,
+                                   bp_hi, bw, prm, *cache)
             if e_new < e_cur - 1e-9:
                 e_cur = e_new
                 accepted += 1
@@ -735,6 +904,8 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
             else:
                 for r in range(n):
                     a[region[r]] = prev[r]
+                # back to the z-buffer of the kept assignment (the cache now holds the rejected one's)
+                _cache_refresh(z1, o1, z2, zc1, oc1, zc2, zvalid, bbox, planes, clab, cval, cn, w)
         for r in range(n):
             in_s[region[r]] = False
         seen[:] = False  # also the segments visited but not taken
@@ -780,7 +951,8 @@ def expand_planes(assign: npt.NDArray[np.integer], planes: F64, index: SegmentIn
     n = _expand(a, np.asarray(planes, np.float64), uniq.astype(np.int64), seed_start, segs.astype(np.int64),
                 index.order, index.starts, index.shape[1], _flat_cost(cost, slopes), int(min_disp),
                 np.asarray(reliable, np.bool_).ravel(), graph.pairs, graph.bstart, graph.bp_lo, graph.bp_hi,
-                graph.bw, graph.nstart, graph.nbr, graph.nedge, _prm(p, slopes), int(max_region))
+                graph.bw, graph.nstart, graph.nbr, graph.nedge, _prm(p, slopes), int(max_region),
+                *_new_cache(index, a.size))
     return a, {"group_moves": float(n)}
 
 

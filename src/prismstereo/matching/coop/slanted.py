@@ -161,40 +161,135 @@ def plane_cost(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], plane:
                            int(radius), int(dilation), float(gamma), float(alpha), float(tau_col), float(tau_grad))
 
 
+@njit(cache=True)
+def _sample_pixels(seg: npt.NDArray[np.int32], cand: npt.NDArray[np.int64], step: int,
+                   ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64],
+                              npt.NDArray[np.float64]]:  # pragma: no cover - numba
+    """The ``step``-grid pixels of the segments with candidates, grouped by segment in row-major order
+    (``pix[nper[s]:nper[s + 1]]``), and the sampled pixel count of every segment."""
+    h, w = seg.shape
+    k = cand.shape[0]
+    cnt = np.zeros(k)
+    has = np.zeros(k, np.bool_)
+    for s in range(k):
+        for j in range(cand.shape[1]):
+            if cand[s, j] >= 0:
+                has[s] = True
+                break
+    nper = np.zeros(k + 1, np.int64)
+    for y in range(0, h, step):
+        for x in range((y // step) % step, w, step):
+            s = seg[y, x]
+            cnt[s] += 1.0
+            if has[s]:
+                nper[s + 1] += 1
+    for s in range(k):
+        nper[s + 1] += nper[s]
+    pix = np.empty(nper[k], np.int64)
+    fill = nper[:k].copy()
+    for y in range(0, h, step):
+        for x in range((y // step) % step, w, step):
+            s = seg[y, x]
+            if has[s]:
+                pix[fill[s]] = y * w + x
+                fill[s] += 1
+    return nper, pix, cnt
+
+
 @njit(cache=True, parallel=True, fastmath=True)
 def _segment_costs(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint64], lam_cen: float,
                    seg: npt.NDArray[np.int32], cand: npt.NDArray[np.int64], planes: npt.NDArray[np.float64],
                    step: int, radius: int, dil: int, gamma: float, alpha: float, tau_col: float, tau_grad: float,
                    dmin: float, dmax: float,
                    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:  # pragma: no cover - numba
-    """Per row: sums of the slanted cost of each segment's candidate planes over its pixels on a ``step`` grid."""
+    """Sums of the slanted cost of each segment's candidate planes over its pixels on a ``step`` grid.
+
+    Every sampled pixel is one parallel task (balanced however the segments' sizes differ); the sums are then
+    taken row by row in row-major order, so the totals do not depend on the number of threads."""
     h, w = seg.shape
     k, m = cand.shape
-    ys = np.arange(0, h, step)
-    acc = np.zeros((ys.size, k, m))
-    cnt = np.zeros((ys.size, k))
+    nper, pix, cnt = _sample_pixels(seg, cand, step)
+    npx = pix.size
+    val = np.empty((npx, m))
     mw = (2 * radius // dil + 1) ** 2
-    for r in prange(ys.size):
-        y = ys[r]
+    wr = fr.shape[1]
+    for t in prange(npx):
+        y = pix[t] // w
+        x = pix[t] % w
+        s = seg[y, x]
         wy = np.empty(mw, np.int64)
         wx = np.empty(mw, np.int64)
         ww = np.empty(mw, np.float32)
-        for x in range((y // step) % step, w, step):
-            s = seg[y, x]
-            n = _window(fl, y, x, radius, dil, gamma, wy, wx, ww)
-            cnt[r, s] += 1.0
+        n = _window(fl, y, x, radius, dil, gamma, wy, wx, ww)
+        # the segment's candidate planes, contiguous: the inner loop runs over candidates (vectorised), the
+        # window samples outside, so each candidate still sums its samples in window order
+        pa = np.empty(m)
+        pb = np.empty(m)
+        pc = np.empty(m)
+        num = np.zeros(m)
+        nc = 0
+        for j in range(m):
+            c = cand[s, j]
+            if c >= 0:
+                pa[nc] = planes[c, 0]
+                pb[nc] = planes[c, 1]
+                pc[nc] = planes[c, 2]
+                nc += 1
+        den = 0.0
+        for q in range(n):
+            qy = wy[q]
+            qx = wx[q]
+            l0 = fl[qy, qx, 0]
+            l1 = fl[qy, qx, 1]
+            l2 = fl[qy, qx, 2]
+            l3 = fl[qy, qx, 3]
+            clq = cl[qy, qx] if lam_cen > 0.0 else np.uint64(0)
+            wq = ww[q]
+            den += wq
+            for j in range(nc):
+                xr = qx - (pa[j] * qx + pb[j] * qy + pc[j])
+                xc = min(max(xr, 0.0), wr - 1.0)
+                x0 = min(int(xc), wr - 2)
+                f = xc - x0
+                g = 1.0 - f
+                col = (abs(l0 - (g * fr[qy, x0, 0] + f * fr[qy, x0 + 1, 0]))
+                       + abs(l1 - (g * fr[qy, x0, 1] + f * fr[qy, x0 + 1, 1]))
+                       + abs(l2 - (g * fr[qy, x0, 2] + f * fr[qy, x0 + 1, 2])))
+                gr = abs(l3 - (g * fr[qy, x0, 3] + f * fr[qy, x0 + 1, 3]))
+                rho = (1.0 - alpha) * min(col, tau_col) + alpha * min(gr, tau_grad)
+                if lam_cen > 0.0:
+                    xi = min(max(int(np.floor(xr + 0.5)), 0), wr - 1)
+                    rho += lam_cen * _popcount(clq ^ cr[qy, xi])
+                num[j] += wq * rho
+        nc = 0
+        for j in range(m):
+            c = cand[s, j]
+            if c < 0:
+                val[t, j] = 0.0
+                continue
+            d = pa[nc] * x + pb[nc] * y + pc[nc]
+            pen = 0.0
+            if d < dmin - 0.5 or d > dmax + 0.5:
+                pen = 1e3
+            val[t, j] = (num[nc] / den if den > 0 else 0.0) + pen
+            nc += 1
+    acc = np.zeros((k, m))
+    for s in prange(k):
+        row = np.zeros(m)
+        prev_y = -1
+        for t in range(nper[s], nper[s + 1]):
+            y = pix[t] // w
+            if y != prev_y and prev_y >= 0:
+                for j in range(m):
+                    acc[s, j] += row[j]
+                    row[j] = 0.0
+            prev_y = y
             for j in range(m):
-                c = cand[s, j]
-                if c < 0:
-                    continue
-                pl = planes[c]
-                d = pl[0] * x + pl[1] * y + pl[2]
-                pen = 0.0
-                if d < dmin - 0.5 or d > dmax + 0.5:
-                    pen = 1e3
-                acc[r, s, j] += _cost(fl, fr, cl, cr, lam_cen, n, wy, wx, ww, pl[0], pl[1], pl[2], alpha, tau_col,
-                                      tau_grad) + pen
-    return acc.sum(axis=0), cnt.sum(axis=0)
+                row[j] += val[t, j]
+        if prev_y >= 0:
+            for j in range(m):
+                acc[s, j] += row[j]
+    return acc, cnt
 
 
 def segment_plane_costs(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], labels: npt.NDArray[np.int32],
