@@ -179,9 +179,10 @@ def parse_scene_free(text: str | Sequence[str] | None) -> tuple[str, ...]:
         if item in ("apex_distance", "refractive_index", "corner_angle"):
             raise ConfigError(f"--free: {item} sets the depth scale, which feature matches cannot observe; calibrate "
                               "it with a checkerboard (calibrate-prism --board) and fit rotation, tilt, decenter here")
-        if item not in FREE_GROUPS:
+        names = FREE_GROUPS.get(item, (item,) if item in STD_LIMIT else ())
+        if not names:
             raise ConfigError(f"--free: expected a comma list of {', '.join(FREE_GROUPS)}, got {item!r}")
-        out += [p for p in FREE_GROUPS[item] if p not in out]
+        out += [p for p in names if p not in out]
     if not out:
         raise ConfigError("--free: expected at least one parameter to fit, got none")
     return tuple(out)

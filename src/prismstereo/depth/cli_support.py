@@ -30,8 +30,9 @@ def depth_command(rig_path: str, image_path: str, out_dir: str, *, method: str =
                   params: dict[str, Any] | None = None, depth_range: tuple[float, float] | None = None,
                   roi: tuple[int, int, int, int] | None = None, views: Any = None,
                   triangulation: str = "exact", calibration: str = "fit", gt: str | None = None,
-                  refine: bool = True, preset: str | None = None) -> str:
-    """Run ``prismstereo depth`` and return the lines to print (``preset``: its name, for the report)."""
+                  refine: bool = True, preset: str | None = None, self_calibrate: bool = False) -> str:
+    """Run ``prismstereo depth`` and return the lines to print (``preset``: its name, for the report;
+    ``self_calibrate``: refine the prism's pose from the capture's own feature matches first)."""
     from prismstereo.config import load_rig
     from prismstereo.depth.outputs import write_depth_outputs
     from prismstereo.depth.pipeline import DepthConfig, run_depth, validate_inputs
@@ -43,6 +44,12 @@ def depth_command(rig_path: str, image_path: str, out_dir: str, *, method: str =
     check_output_dir(out_dir)
     image = read_image(image_path, expected_size=(rig.camera.width, rig.camera.height),
                        what="capture (the rig's camera size)")
+    pre: list[str] = []
+    extra: dict[str, Any] = {}
+    refined = None
+    if self_calibrate:
+        refined, pre, extra = _self_calibrate(rig, image)
+        rig = refined
     if views == "all" and rig.prism.faces >= 3:
         # every face at once: plane sweep in a reference view + exact multi-ray triangulation (multiview)
         from prismstereo.depth.pipeline import validate_image
@@ -62,6 +69,8 @@ def depth_command(rig_path: str, image_path: str, out_dir: str, *, method: str =
                          "--depth-range MIN,MAX to set it)")
         elif not 0 < depth_range[0] < depth_range[1]:
             raise ConfigError(f"--depth-range: expected 0 < MIN < MAX mm, got {depth_range[0]:g},{depth_range[1]:g}")
+        if self_calibrate:
+            raise ConfigError("--self-calibrate: expected a face pair (--views I,J), got --views all")
         return "\n".join(notes + [all_views_command(rig_path, image_path, out_dir, depth_range=depth_range,
                                                      calibration=calibration, gt=gt)])
     config = DepthConfig(method=method, matcher_params=dict(params or {}), depth_range=depth_range, roi=roi,
@@ -79,7 +88,7 @@ def depth_command(rig_path: str, image_path: str, out_dir: str, *, method: str =
         lines.append(format_accuracy(acc))
     outputs = write_depth_outputs(res, out_dir, extra={"inputs": {"rig": str(rig_path), "image": str(image_path),
                                                                  "gt": gt},
-                                                                 "preset": preset})
+                                                                 "preset": preset, **extra})
     c = res.counts()
     t = res.timings
     zr = res.depth_range
@@ -91,8 +100,24 @@ def depth_command(rig_path: str, image_path: str, out_dir: str, *, method: str =
                     f"(" + ", ".join(f"{k} {v:.1f}" for k, v in t.items() if k not in ("total", "validate")) + ")")
     if preset is not None:
         lines.append(f"preset {preset}: method {config.method}")
-    lines.append(f"wrote {', '.join(p.name for p in outputs.values())} to {out_dir}")
-    return "\n".join(lines)
+    names = [p.name for p in outputs.values()]
+    if refined is not None:
+        from pathlib import Path
+
+        refined.save(Path(out_dir) / "rig_refined.toml")
+        names.append("rig_refined.toml")
+    lines.append(f"wrote {', '.join(names)} to {out_dir}")
+    return "\n".join(pre + lines)
+
+
+def _self_calibrate(rig: Any, image: Any) -> tuple[Any, list[str], dict[str, Any]]:
+    """Refine the prism's pose from the capture (``depth --self-calibrate``): the rig, lines, run.json entry."""
+    from prismstereo.calibration.from_scene import calibrate_from_scene
+
+    cal = calibrate_from_scene(rig, [image])
+    lines = ["self-calibration from the capture:", cal.summary()]
+    report = {k: v for k, v in cal.report().items() if k != "rig"}
+    return cal.rig, lines, {"self_calibration": report}
 
 
 def demo_command(out_dir: str, *, method: str = "bpasw") -> str:
