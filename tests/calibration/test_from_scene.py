@@ -107,3 +107,18 @@ def test_scene_calibration_keeps_the_depth_scale(start_rig, scene_capture):
     assert (p1.apex_distance, p1.refractive_index, p1.corner_angle) == (p0.apex_distance, p0.refractive_index,
                                                                           p0.corner_angle)
     assert dataclasses.asdict(cal.rig.camera) == dataclasses.asdict(start_rig.camera)
+
+
+def test_depth_self_calibrate(tmp_path, start_rig, scene_capture, capsys):
+    cap = tmp_path / "capture.png"
+    write_image(cap, scene_capture)
+    rig_path = tmp_path / "nominal.toml"
+    start_rig.save(rig_path)
+    out = tmp_path / "out"
+    assert main(["depth", str(rig_path), str(cap), "-o", str(out), "--method", "sgm", "--no-refine",
+                 "--self-calibrate"]) == 0
+    run = json.loads((out / "run.json").read_text())
+    sc = run["self_calibration"]
+    assert abs(sc["estimates"]["rotation"] - 1.4) < 0.05 and sc["n_matches"] >= 200
+    refined = (out / "rig_refined.toml").read_text()
+    assert "rotation" in refined and "self-calibration" in capsys.readouterr().out
