@@ -285,6 +285,9 @@ def _add_depth(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--gt", default=None, metavar="DEPTH_GT.pfm",
                    help="ground-truth depth per real pixel (simulate's depth_gt.pfm): adds accuracy to run.json")
     p.add_argument("--no-refine", action="store_true", help="skip the sub-pixel disparity refinement")
+    p.add_argument("--self-calibrate", action="store_true",
+                   help="first refine the prism's rotation and tilt from feature matches in this capture "
+                        "(calibrate-prism --from-scene); the refined rig is written as rig_refined.toml")
     p.set_defaults(handler=_cmd_depth)
 
 
@@ -300,7 +303,8 @@ def _cmd_depth(args: argparse.Namespace) -> int:
                         params=_parse_params(args.param),
                         depth_range=depth_range, roi=_parse_roi(args.roi), views=views,
                         triangulation=args.triangulation, calibration=args.calibration, gt=args.gt,
-                        refine=False if args.no_refine else None, config_path=args.config))
+                        refine=False if args.no_refine else None, config_path=args.config,
+                        self_calibrate=args.self_calibrate))
     return 0
 
 
@@ -377,9 +381,9 @@ def _add_common(p: argparse.ArgumentParser) -> None:
                        help="no progress bars (they show only on a terminal anyway)")
 
 # --------------------------------------------------------------------------- real rigs
-from prismstereo.apps.cli_calibration import add_calibrate_camera, add_calibrate_prism  # noqa: E402
+from prismstereo.apps.cli_calibration import add_calibrate_camera, add_calibrate_prism, add_check  # noqa: E402
 
-_ADDERS += [add_calibrate_camera, add_calibrate_prism]
+_ADDERS += [add_calibrate_camera, add_calibrate_prism, add_check]
 
 # --------------------------------------------------------------------------- warmup
 def _add_warmup(sub: argparse._SubParsersAction) -> None:

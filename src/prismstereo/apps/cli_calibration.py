@@ -1,6 +1,6 @@
-"""The ``calibrate-camera`` and ``calibrate-prism`` subcommands: thin wrappers over
-:mod:`prismstereo.calibration`, registered by :mod:`prismstereo.cli`. The handlers import the calibration
-when they run, so that the command line starts without the numerical packages."""
+"""The ``calibrate-camera``, ``calibrate-prism`` (checkerboards or ``--from-scene``) and ``check`` subcommands:
+thin wrappers over :mod:`prismstereo.calibration`, registered by :mod:`prismstereo.cli`. The handlers import
+the calibration when they run, so that the command line starts without the numerical packages."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from pathlib import Path
 
 import tomli_w
 
-from prismstereo.errors import ImageError
+from prismstereo.errors import ConfigError, ImageError
 
 
 def _read_images(paths: list[str]) -> list:
@@ -45,15 +45,21 @@ def _cmd_calibrate_camera(args: argparse.Namespace) -> int:
 
 
 def add_calibrate_prism(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("calibrate-prism", help="fit the prism's pose to checkerboard captures through it -> rig TOML")
+    p = sub.add_parser("calibrate-prism", help="fit the prism's pose to checkerboard captures through it, or "
+                                               "(--from-scene) to feature matches in ordinary captures -> rig TOML")
     p.add_argument("rig", help="rig TOML: the calibrated [camera] and the nominal [prism]")
-    p.add_argument("captures", nargs="+", help="captures of a checkerboard seen whole through every face")
-    p.add_argument("--board", required=True, help="inner corners COLSxROWS, e.g. 8x6")
-    p.add_argument("--square", required=True, type=float, help="square side, mm")
-    p.add_argument("--free", default="rotation,tilt,decenter,focal",
+    p.add_argument("captures", nargs="+", help="captures of a checkerboard seen whole through every face, or with "
+                                               "--from-scene captures of any textured scene")
+    p.add_argument("--from-scene", action="store_true",
+                   help="self-calibration: refine the prism's rotation and tilt from SIFT matches between the "
+                        "sub-images (no checkerboard; the depth scale, apex distance and index, is kept)")
+    p.add_argument("--board", default=None, help="inner corners COLSxROWS, e.g. 8x6 (checkerboard calibration)")
+    p.add_argument("--square", default=None, type=float, help="square side, mm (checkerboard calibration)")
+    p.add_argument("--free", default=None,
                    help="parameters to fit: rotation, tilt, decenter, apex_distance, refractive_index, "
                         "corner_angle (prism), focal, principal_point, k1 (camera) "
-                        "(comma list; default rotation,tilt,decenter,focal)")
+                        "(comma list; default rotation,tilt,decenter,focal; with --from-scene rotation, tilt or "
+                        "decenter, default rotation,tilt)")
     p.add_argument("-o", "--output", required=True,
                    help="rig TOML to write; <name>.report.json and <name>.residuals.png are written beside it")
     p.set_defaults(handler=_cmd_calibrate_prism)
@@ -66,6 +72,11 @@ def _cmd_calibrate_prism(args: argparse.Namespace) -> int:
     from prismstereo.io.atomic import atomic_write_bytes
     from prismstereo.io.jsonio import write_json
 
+    if args.from_scene:
+        return _cmd_calibrate_from_scene(args)
+    if args.board is None or args.square is None:
+        raise ConfigError("calibrate-prism: expected --board COLSxROWS and --square MM (checkerboard captures) or "
+                          "--from-scene (captures of a textured scene), got neither")
     rig = load_rig(args.rig)
     board = parse_board(args.board, args.square)
     free = parse_free(args.free)
@@ -82,3 +93,62 @@ def _cmd_calibrate_prism(args: argparse.Namespace) -> int:
     print(result.summary())
     print(f"wrote {out}, {report_path}, {plot_path}")
     return 0
+
+
+def _cmd_calibrate_from_scene(args: argparse.Namespace) -> int:
+    from prismstereo.calibration.from_scene import calibrate_from_scene, parse_scene_free
+    from prismstereo.config import load_rig
+    from prismstereo.io.atomic import check_output_file
+    from prismstereo.io.jsonio import write_json
+
+    if args.board is not None or args.square is not None:
+        raise ConfigError("calibrate-prism --from-scene: expected no --board/--square (the scene needs no "
+                          "checkerboard), got them")
+    rig = load_rig(args.rig)
+    free = parse_scene_free(args.free)
+    out = Path(args.output)
+    check_output_file(out)
+    images = _read_images(args.captures)
+    result = calibrate_from_scene(rig, images, free=free)
+    stem = out.with_suffix("") if out.suffix == ".toml" else out
+    report_path = Path(f"{stem}.report.json")
+    write_json(report_path, {"inputs": {"rig": str(args.rig), "captures": list(args.captures)}, **result.report()})
+    result.rig.save(out)  # last: a rig file on disk means the whole calibration succeeded
+    print(result.summary())
+    print(f"wrote {out}, {report_path}")
+    return 0
+
+
+def add_check(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("check", help="measure the rectified row misalignment of a capture: does the rig need "
+                                     "recalibrating? (exit 0 no, 3 yes)")
+    p.add_argument("rig", help="rig TOML (docs/rig.md)")
+    p.add_argument("capture", help="a capture of a textured scene (the rig's sensor size)")
+    p.add_argument("-o", "--output", default=None, help="JSON report to write (optional)")
+    p.add_argument("--calibration", default="fit", choices=["fit", "thesis"], help="virtual camera model")
+    p.set_defaults(handler=_cmd_check)
+
+
+#: exit status of ``check`` when the rig needs recalibrating (0: aligned, 2: error)
+NEEDS_RECALIBRATION_EXIT = 3
+
+
+def _cmd_check(args: argparse.Namespace) -> int:
+    from prismstereo.calibration.drift import row_misalignment
+    from prismstereo.config import load_rig
+    from prismstereo.io import read_image
+    from prismstereo.io.atomic import check_output_file
+    from prismstereo.io.jsonio import write_json
+
+    rig = load_rig(args.rig)
+    if args.output is not None:
+        check_output_file(args.output)
+    image = read_image(args.capture, expected_size=(rig.camera.width, rig.camera.height),
+                       what="capture (the rig's camera size)")
+    result = row_misalignment(rig, image, calibration=args.calibration)
+    if args.output is not None:
+        write_json(args.output, {"inputs": {"rig": str(args.rig), "capture": str(args.capture)}, **result.report()})
+    print(result.summary())
+    if args.output is not None:
+        print(f"wrote {args.output}")
+    return NEEDS_RECALIBRATION_EXIT if result.needs_recalibration else 0

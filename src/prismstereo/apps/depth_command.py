@@ -10,10 +10,12 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from pathlib import Path
 from typing import Any
 
 from prismstereo.apps.demo import run_demo
 from prismstereo.apps.replay import replay_options
+from prismstereo.calibration.from_scene import calibrate_from_scene
 from prismstereo.depth.outputs import write_depth_outputs
 from prismstereo.depth.pipeline import DepthConfig, run_depth, validate_inputs
 from prismstereo.errors import ConfigError
@@ -38,16 +40,27 @@ def depth_command(rig_path: str | None, image_path: str | None, out_dir: str, *,
                   params: dict[str, Any] | None = None, depth_range: tuple[float, float] | None = None,
                   roi: tuple[int, int, int, int] | None = None, views: Any = None,
                   triangulation: str | None = None, calibration: str | None = None, gt: str | None = None,
-                  refine: bool | None = None, preset: str | None = None, config_path: str | None = None) -> str:
-    """Run ``prismstereo depth`` and return the lines to print (``preset``: its name, for the report)."""
+                  refine: bool | None = None, preset: str | None = None, config_path: str | None = None,
+                  self_calibrate: bool = False) -> str:
+    """Run ``prismstereo depth`` and return the lines to print (``preset``: its name, for the report;
+    ``self_calibrate``: refine the prism's pose from the capture's own feature matches first; the refined
+    rig is the one recorded in run.json, so a replay does not calibrate again)."""
     opts = replay_options(config_path, rig_path, image_path, method=method, params=params, depth_range=depth_range,
                           roi=roi, views=_resolve_views(views), triangulation=triangulation, calibration=calibration,
                           gt=gt, refine=refine, preset=preset)
     rig, gt, preset = opts.rig, opts.gt, opts.preset
+    if self_calibrate and opts.config.views == "all" and rig.prism.faces >= 3:
+        raise ConfigError("--self-calibrate: expected a face pair (--views I,J), got --views all")
     check_output_dir(out_dir)
     image = read_image(opts.image_path, expected_size=(rig.camera.width, rig.camera.height),
                        what="capture (the rig's camera size)")
     _, config = validate_inputs(rig, image, opts.config)  # matcher and parameters too, before the heavy work
+    pre: list[str] = []
+    extra: dict[str, Any] = {}
+    refined = None
+    if self_calibrate:
+        refined, pre, extra = _self_calibrate(rig, image)
+        rig = refined
     depth_gt = None
     if gt is not None:
         depth_gt = read_depth_gt(gt, rig)
@@ -59,7 +72,7 @@ def depth_command(rig_path: str | None, image_path: str | None, out_dir: str, *,
         lines.append(format_accuracy(acc))
     outputs = write_depth_outputs(res, out_dir, extra={"inputs": {"rig": opts.rig_path, "image": opts.image_path,
                                                                  "gt": gt},
-                                                                 "preset": preset})
+                                                                 "preset": preset, **extra})
     c = res.counts()
     t = res.timings
     zr = res.depth_range
@@ -75,8 +88,20 @@ def depth_command(rig_path: str | None, image_path: str | None, out_dir: str, *,
                     f"({100.0 * c['points'] / max(c['region_pixels'], 1):.1f} % of the view), {t['total']:.1f} s")
     if preset is not None:
         lines.append(f"preset {preset}: method {config.method}")
-    lines.append(f"wrote {', '.join(p.name for p in outputs.values())} to {out_dir}")
-    return "\n".join(lines)
+    names = [p.name for p in outputs.values()]
+    if refined is not None:
+        refined.save(Path(out_dir) / "rig_refined.toml")
+        names.append("rig_refined.toml")
+    lines.append(f"wrote {', '.join(names)} to {out_dir}")
+    return "\n".join(pre + lines)
+
+
+def _self_calibrate(rig: Any, image: Any) -> tuple[Any, list[str], dict[str, Any]]:
+    """Refine the prism's pose from the capture (``depth --self-calibrate``): the rig, lines, run.json entry."""
+    cal = calibrate_from_scene(rig, [image])
+    lines = ["self-calibration from the capture:", cal.summary()]
+    report = {k: v for k, v in cal.report().items() if k != "rig"}
+    return cal.rig, lines, {"self_calibration": report}
 
 
 def demo_command(out_dir: str, *, method: str = "bpasw") -> str:

@@ -26,6 +26,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from prismstereo.cameras.overlap import MODEL_FRACTION, working_depth_range
 from prismstereo.cameras.pinhole import PinholeCamera, rotation_from_axis
 from prismstereo.config import Rig, rig_from_dict
 from prismstereo.errors import ConfigError, GeometryError
@@ -35,6 +36,8 @@ from prismstereo.optics import RayBundle, closest_points_between_lines, pixel_gr
 log = logging.getLogger(__name__)
 
 METHODS = ("thesis", "fit")
+#: a fixed range for callers that want one (the models default to the rig's working range,
+#: :func:`~prismstereo.cameras.overlap.working_depth_range`)
 DEPTH_RANGE_MM = (500.0, 3000.0)
 
 
@@ -157,16 +160,29 @@ def _points_at_depth(b: RayBundle, idx: np.ndarray, z: np.ndarray) -> np.ndarray
 
 def reprojection_error(
     camera: PinholeCamera, rig: Rig, face: int, *, n: int = 2000, seed: int = 1,
-    depth_range: tuple[float, float] = DEPTH_RANGE_MM,
+    depth_range: tuple[float, float] | None = None,
 ) -> tuple[float, float]:
     """RMS and max reprojection error (px) of a model against exact refraction.
 
-    Points at world depths in ``depth_range`` (0.5–3 m by default) seen through ``face`` are projected
-    with the model and compared with the real pixel that sees them.
+    Points at world depths in ``depth_range`` (default the rig's working range,
+    :func:`~prismstereo.cameras.overlap.working_depth_range`) seen through ``face`` are projected with the
+    model and compared with the real pixel that sees them.
     """
+    if depth_range is None:
+        depth_range = _model_depth_range(rig)
     px, pts = sample_points(rig, face, n=n, depth_range=depth_range, seed=seed)
     err = np.linalg.norm(camera.project(pts) - px, axis=1)
     return float(np.sqrt(np.mean(err**2))), float(np.max(err))
+
+
+def _model_depth_range(rig: Rig) -> tuple[float, float]:
+    """The models' depth range (:mod:`prismstereo.cameras.overlap`), or :data:`DEPTH_RANGE_MM` for a rig whose
+    views never overlap."""
+    try:
+        return working_depth_range(rig, near_fraction=MODEL_FRACTION)
+    except GeometryError as exc:
+        log.info("no working depth range (%s): models fitted over %g–%g mm", exc, *DEPTH_RANGE_MM)
+        return DEPTH_RANGE_MM
 
 
 def thesis_camera(rig: Rig, face: int, *, n_rays: int = 16) -> PinholeCamera:
@@ -199,14 +215,15 @@ def fit_camera(
     face: int,
     *,
     distortion: bool = True,
-    depth_range: tuple[float, float] = DEPTH_RANGE_MM,
+    depth_range: tuple[float, float] | None = None,
     step: float = 16.0,
     n_depths: int = 6,
 ) -> PinholeCamera:
     """A pinhole camera (+ optional 5-term distortion) fitted to the exact rays of ``face``.
 
     The exact rays of a grid of pixels over the face's image region are sampled at ``n_depths`` world
-    depths spanning ``depth_range``; K (fx, fy, cx, cy), the rotation, the optical centre and, if
+    depths spanning ``depth_range`` (default the depths at which the rig's views share a field,
+    :mod:`prismstereo.cameras.overlap`); K (fx, fy, cx, cy), the rotation, the optical centre and, if
     ``distortion``, (k1, k2, p1, p2, k3) minimise the reprojection error of those points to their pixels
     (Levenberg–Marquardt, started from the thesis construction).
 
@@ -215,8 +232,10 @@ def fit_camera(
     not the physical optical axis of the thesis construction (for the thesis bi-prism it turns the right
     view by +2.1° with cx ≈ 1014 px, where the thesis's axis is −3.2° with cx = 511.5). Pinning R to the
     physical axis and fitting only K, C and distortion doubles the error (0.37 px RMS instead of 0.20
-    on the thesis bi-prism), so the free fit is kept; the model is judged by how it reprojects.
+    on the thesis bi-prism over 0.5–3 m), so the free fit is kept; the model is judged by how it reprojects.
     """
+    if depth_range is None:
+        depth_range = _model_depth_range(rig)
     init = thesis_camera(rig, face)
     px = face_pixels(rig, face, step=step)
     b = trace_pixels(rig, px)
@@ -245,15 +264,16 @@ def fit_camera(
     return cam
 
 
-def virtual_view(rig: Rig, face: int, *, method: str = "fit") -> VirtualView:
-    """Build one virtual camera with the chosen model and measure its reprojection error."""
-    if method == "thesis":
-        cam = thesis_camera(rig, face)
-    elif method == "fit":
-        cam = fit_camera(rig, face)
-    else:
+def virtual_view(rig: Rig, face: int, *, method: str = "fit",
+                 depth_range: tuple[float, float] | None = None) -> VirtualView:
+    """Build one virtual camera with the chosen model and measure its reprojection error (both over
+    ``depth_range``, default the rig's working range)."""
+    if method not in METHODS:
         raise ConfigError(f"expected a virtual camera method in {METHODS}, got {method!r}")
-    rms, mx = reprojection_error(cam, rig, face)
+    if depth_range is None:
+        depth_range = _model_depth_range(rig)
+    cam = thesis_camera(rig, face) if method == "thesis" else fit_camera(rig, face, depth_range=depth_range)
+    rms, mx = reprojection_error(cam, rig, face, depth_range=depth_range)
     return VirtualView(face=face, name=rig.view_name(face), method=method, camera=cam, rms_px=rms, max_px=mx)
 
 
@@ -261,7 +281,8 @@ def calibrate_rig(rig: Rig, *, method: str = "fit") -> list[VirtualView]:
     """All virtual cameras of a rig (one per face) with the chosen model (``thesis`` or ``fit``)."""
     if method not in METHODS:
         raise ConfigError(f"expected a virtual camera method in {METHODS}, got {method!r}")
-    return [virtual_view(rig, k, method=method) for k in range(rig.prism.faces)]
+    depth_range = _model_depth_range(rig)
+    return [virtual_view(rig, k, method=method, depth_range=depth_range) for k in range(rig.prism.faces)]
 
 
 def write_cameras_json(path: str | os.PathLike[str], rig: Rig, views: list[VirtualView], *, method: str) -> None:

@@ -9,6 +9,16 @@ direction perpendicular to the baseline that is closest to the real camera's +Y;
 thesis's r2 = Y_w to baselines that are not along X_w). Each rectified camera is then
 P = K_rect [R_rect | −R_rect C] (thesis Eq. 3.37–3.38 with a world-to-camera R) with one common K_rect
 (the real camera's focal length in pixels, so the views keep about their native resolution).
+
+Common view: a strongly deviating prism (a 20° bi-prism) sees its scene only over a narrow band of depths,
+where every point has a large disparity (~1200–1700 px): with one K both rectified views would have to span
+the two footprints and the disparity between them (1951 px wide for 377 px of view each). The right view's
+principal point is then moved by a disparity offset d₀ (OpenCV's cx' ≠ cx, Q[3, 3] = d₀ / B): image
+disparities x_left − x_right are the true ones minus d₀, the images shrink to the common view, and :attr:`Q`
+and the remap tables account for it. d₀ is the smallest true disparity of the common view over the depths at
+which the views overlap (:func:`~prismstereo.cameras.overlap.pair_depth_range`), less
+:data:`OFFSET_PAD_PX`, and it is used only when it reaches :data:`OFFSET_MIN_PX` (a weak prism's pair keeps
+d = f B / Z).
 The sign of r1 is chosen so that r1 points along the real camera's +X (or +Y for a vertical baseline),
 and the "left" camera is the one with the smaller coordinate along r1, so d = x_left − x_right ≥ 0 for
 points in front of the cameras.
@@ -39,6 +49,7 @@ import numpy as np
 from scipy.ndimage import map_coordinates
 
 from prismstereo.cameras import VirtualView
+from prismstereo.cameras.overlap import pair_depth_range
 from prismstereo.config import Rig
 from prismstereo.errors import ConfigError, GeometryError, ImageError
 from prismstereo.optics import project_exact, trace_pixels
@@ -52,6 +63,10 @@ REMAPS = ("model", "exact")
 #: reference depth (mm, world Z) of the ``exact`` remap
 REFERENCE_DEPTH_MM = 1500.0
 _MAP_STEP = 8  # px: the remap tables are solved on this grid and interpolated bilinearly
+#: disparity kept below the common view's smallest one when the right view is offset, px
+OFFSET_PAD_PX = 16
+#: smallest disparity offset worth using, px (below it a pair keeps d = f B / Z)
+OFFSET_MIN_PX = 64
 
 
 # --------------------------------------------------------------------------- rotations
@@ -275,6 +290,9 @@ class RectifiedPair:
         Reference depth of the ``exact`` remap (world Z, mm).
     view_left, view_right : VirtualView
     rig : Rig
+    disparity_offset : float
+        d₀, px: the right view's principal point is cx + d₀, so the true disparity of an image match is
+        x_left − x_right + d₀ (module docstring; 0 for most rigs).
     """
 
     left_face: int
@@ -294,8 +312,21 @@ class RectifiedPair:
     view_left: VirtualView = field(repr=False)
     view_right: VirtualView = field(repr=False)
     rig: Rig = field(repr=False)
+    disparity_offset: float = 0.0
 
     # ---- geometry
+    @property
+    def K_left(self) -> np.ndarray:
+        """Intrinsics of the left rectified view (:attr:`K`)."""
+        return self.K
+
+    @property
+    def K_right(self) -> np.ndarray:
+        """Intrinsics of the right rectified view: :attr:`K` with cx moved by :attr:`disparity_offset`."""
+        K = self.K.copy()
+        K[0, 2] += self.disparity_offset
+        return K
+
     @property
     def R_left(self) -> np.ndarray:
         """World-to-rectified rotation of the left camera (the common rotation)."""
@@ -321,8 +352,8 @@ class RectifiedPair:
 
     @property
     def P_right(self) -> np.ndarray:
-        """3×4 K [R | −R C_right] (thesis Eq. 3.38)."""
-        return self.K @ np.hstack([self.R, -(self.R @ self.C_right)[:, None]])
+        """3×4 K_right [R | −R C_right] (thesis Eq. 3.38)."""
+        return self.K_right @ np.hstack([self.R, -(self.R @ self.C_right)[:, None]])
 
     @property
     def Q(self) -> np.ndarray:
@@ -330,10 +361,12 @@ class RectifiedPair:
 
         ``Q @ [x, y, d, 1]`` is the homogeneous 3D point in the rectified LEFT camera frame (mm) for a
         left rectified pixel (x, y) with disparity d = x_left − x_right: X = (x − c_x) B / d,
-        Y = (y − c_y) B / d, Z = f B / d. See :meth:`left_to_world`.
+        Y = (y − c_y) B / d, Z = f B / d, with d the true disparity (image disparity + :attr:`disparity_offset`,
+        which Q[3, 3] = d₀ / B adds). See :meth:`left_to_world`.
         """
         f, cx, cy, B = self.K[0, 0], self.K[0, 2], self.K[1, 2], self.baseline_mm
-        return np.array([[1.0, 0.0, 0.0, -cx], [0.0, 1.0, 0.0, -cy], [0.0, 0.0, 0.0, f], [0.0, 0.0, 1.0 / B, 0.0]])
+        return np.array([[1.0, 0.0, 0.0, -cx], [0.0, 1.0, 0.0, -cy], [0.0, 0.0, 0.0, f],
+                         [0.0, 0.0, 1.0 / B, self.disparity_offset / B]])
 
     def left_to_world(self, points: np.ndarray) -> np.ndarray:
         """(..., 3) points in the rectified left camera frame → world frame (mm)."""
@@ -381,7 +414,7 @@ class RectifiedPair:
     def real_to_rectified(self, pixels: np.ndarray, side: str = "left") -> np.ndarray:
         """(N, 2) real-image pixels of the side's face → (N, 2) rectified pixels (inverse of the remap)."""
         dirs = self._mapper(side).real_to_rect_dirs(pixels)
-        return _dirs_to_rect_pixels(dirs, self.K)
+        return _dirs_to_rect_pixels(dirs, self.K if self._side(side) == "left" else self.K_right)
 
     def valid_masks(self) -> tuple[np.ndarray, np.ndarray]:
         """(h, w) bool masks of the left and right rectified images."""
@@ -409,7 +442,8 @@ class RectifiedPair:
         left = self._side(side) == "left"
         v = self.view_left if left else self.view_right
         C = self.C_left if left else self.C_right
-        return {"face": v.face, "name": v.name, "side": side, "K": self.K, "R": self.R, "C": C,
+        return {"face": v.face, "name": v.name, "side": side, "K": self.K if left else self.K_right, "R": self.R,
+                "C": C,
                 "P": self.P_left if left else self.P_right}
 
     def to_json(self) -> dict[str, Any]:
@@ -418,7 +452,7 @@ class RectifiedPair:
             "method": self.method, "remap": self.remap, "reference_depth_mm": self.reference_depth_mm,
             "size": list(self.size), "left_face": self.left_face, "right_face": self.right_face,
             "views": [self.view_dict("left"), self.view_dict("right")],
-            "baseline_mm": self.baseline_mm, "Q": self.Q,
+            "baseline_mm": self.baseline_mm, "Q": self.Q, "disparity_offset": self.disparity_offset,
         }
 
 
@@ -440,6 +474,7 @@ def rectify_pair(
     margin_px: int = MARGIN_PX,
     reference_depth_mm: float = REFERENCE_DEPTH_MM,
     regions: list[ViewRegion] | None = None,
+    depth_range: tuple[float, float] | None = None,
 ) -> RectifiedPair:
     """Rectify two virtual cameras of a rig (thesis §3.2.2, Eq. 3.36–3.38; Q of Eq. 7.23).
 
@@ -461,6 +496,10 @@ def rectify_pair(
         Depth (world Z) at which the ``exact`` remap is exact.
     regions : list of ViewRegion, optional
         Precomputed :func:`view_regions`.
+    depth_range : (near, far) mm, optional
+        Depths at which the scene may lie, for the common view and the disparity offset (module docstring);
+        default the depths at which the two views overlap (:func:`~prismstereo.cameras.overlap.pair_depth_range`).
+        Used only when ``size`` is None.
 
     Returns
     -------
@@ -485,16 +524,48 @@ def rectify_pair(
     if not _views_overlap(feet[0], feet[1], True):
         raise GeometryError(f"expected faces {left.face} and {right.face} to see a common part of the scene, got "
                             "views that do not overlap")
-    K, wh = _common_K(feet, f, size)
-    maps = [_build_map(m, K, wh) for m in mappers]
-    valid = [_roundtrip_valid(m, mp, K, _valid_from_map(mp, regions[v.face].mask))
-             for m, mp, v in zip(mappers, maps, (left, right), strict=True)]
-    log.info("rectified faces %d (left) and %d (right): %dx%d, baseline %.2f mm", left.face, right.face, *wh,
-             float(np.linalg.norm(right.camera.C - left.camera.C)))
+    offset = 0.0
+    if size is None:
+        if depth_range is None:
+            depth_range = pair_depth_range(rig, left.face, right.face, depth_step_cap=False)
+        if depth_range is not None:
+            offset = _disparity_offset(mappers, feet, f, depth_range)
+    K, wh = _common_K([feet[0], feet[1] + np.array([offset, 0.0])], f, size)
+    K_right = K.copy()
+    K_right[0, 2] += offset
+    maps = [_build_map(m, k, wh) for m, k in zip(mappers, (K, K_right), strict=True)]
+    valid = [_roundtrip_valid(m, mp, k, _valid_from_map(mp, regions[v.face].mask))
+             for m, mp, k, v in zip(mappers, maps, (K, K_right), (left, right), strict=True)]
+    log.info("rectified faces %d (left) and %d (right): %dx%d, baseline %.2f mm, disparity offset %.0f px", left.face,
+             right.face, *wh, float(np.linalg.norm(right.camera.C - left.camera.C)), offset)
     return RectifiedPair(left_face=left.face, right_face=right.face, K=K, R=R, C_left=left.camera.C.copy(),
                          C_right=right.camera.C.copy(), size=wh, map_left=maps[0], map_right=maps[1],
                          valid_left=valid[0], valid_right=valid[1], method=left.method, remap=remap,
-                         reference_depth_mm=float(reference_depth_mm), view_left=left, view_right=right, rig=rig)
+                         reference_depth_mm=float(reference_depth_mm), view_left=left, view_right=right, rig=rig,
+                         disparity_offset=float(offset))
+
+
+def _disparity_offset(mappers: list[_ViewMapper], feet: list[np.ndarray], f: float,
+                      depth_range: tuple[float, float], *, n_depths: int = 8) -> float:
+    """d₀ (px, see the module docstring) for two footprints (K with focal f, principal point 0), or 0."""
+    left, right = mappers
+    K0 = np.array([[f, 0.0, 0.0], [0.0, f, 0.0], [0.0, 0.0, 1.0]])
+    d_world = _rect_pixels_to_dirs(feet[0], K0) @ left.R
+    fr = feet[1]
+    lo_r, hi_r = fr.min(axis=0), fr.max(axis=0)
+    d_min = np.inf
+    for z in np.geomspace(depth_range[0], depth_range[1], n_depths):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = (z - left.C[2]) / d_world[:, 2]
+            X = left.C + np.where(s > 0, s, np.nan)[:, None] * d_world
+            xr = _dirs_to_rect_pixels((X - right.C) @ right.R.T, K0)
+        ok = np.all(np.isfinite(xr), axis=1) & np.all((xr >= lo_r) & (xr <= hi_r), axis=1)
+        if ok.any():
+            d_min = min(d_min, float(np.min(feet[0][ok, 0] - xr[ok, 0])))
+    if not np.isfinite(d_min):
+        return 0.0
+    offset = float(np.floor(d_min)) - OFFSET_PAD_PX
+    return offset if offset >= OFFSET_MIN_PX else 0.0
 
 
 def common_view(pair: RectifiedPair, depth_min_mm: float, depth_max_mm: float, *, n_depths: int = 12
@@ -556,7 +627,8 @@ def disparity_range(pair: RectifiedPair, depth_min_mm: float, depth_max_mm: floa
     """Disparity search range (px) for scene depths (world Z, mm) in [depth_min_mm, depth_max_mm].
 
     The disparities of :func:`common_view`: those of the left pixels whose point, somewhere in the depth
-    range, is seen by the right view (thesis Eq. 7.22).
+    range, is seen by the right view (thesis Eq. 7.22); image disparities, i.e. the true ones less the pair's
+    :attr:`~RectifiedPair.disparity_offset`.
 
     Returns
     -------

@@ -121,8 +121,9 @@ def common_depth_range(pair: RectifiedPair) -> tuple[float, float]:
     """
     cols_l = np.flatnonzero(pair.valid_left.any(axis=0))
     cols_r = np.flatnonzero(pair.valid_right.any(axis=0))
-    d_max = cols_l.max() - cols_r.min()
-    d_min = max(cols_l.min() - cols_r.max(), 1e-6)
+    # image disparities plus the pair's offset are the true ones
+    d_max = cols_l.max() - cols_r.min() + pair.disparity_offset
+    d_min = max(cols_l.min() - cols_r.max() + pair.disparity_offset, 1e-6)
     if d_max <= 0:
         raise GeometryError(f"expected faces {pair.left_face} and {pair.right_face} to share a view, got none")
     fb = pair.focal_px * pair.baseline_mm

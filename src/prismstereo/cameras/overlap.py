@@ -1,0 +1,116 @@
+"""The working depth range of a rig: the depths at which two faces' views share a field.
+
+A prism's views overlap only over some depths: a weak bi-prism (the thesis's 6.4°) from ~0.3 m to infinity,
+a strong one (20°) only around where its converging views cross (~250–400 mm), a tri-prism's three views
+near 0.3–0.8 m. The virtual cameras are fitted, and a pair rectified, over these depths rather than over a
+fixed range, so that the models are accurate where the scene can be matched at all.
+
+For a pair of faces the exact ray of every pixel of a grid over face a's sub-image is followed to a depth
+and projected exactly into face b (:func:`~prismstereo.optics.project_exact`); the share of those points
+that face b sees inside the image is the overlap at that depth. The working range is where the overlap is at
+least :data:`OVERLAP_FRACTION` of its largest value, cut at the depth where one pixel of disparity spans more
+than :data:`DEPTH_STEP_LIMIT` of the depth (Z ≤ DEPTH_STEP_LIMIT · f · B): a weak prism's views keep
+overlapping to infinity, but beyond that depth the rig no longer measures depth.
+
+The virtual cameras are fitted over a narrower range: from the depth at which the views share
+:data:`MODEL_FRACTION` of their best overlap (nearer, the views' rays cross the glass at their most
+different angles and a pinhole fits them worst, while little of the scene is seen twice) to the far end
+(the thesis bi-prism: 0.66–5.1 m; the 20° bi-prism: 258–331 mm; the thesis tri-prism: 0.3–3.0 m).
+"""
+
+from __future__ import annotations
+
+from itertools import combinations
+
+import numpy as np
+
+from prismstereo.config import Rig
+from prismstereo.errors import GeometryError
+from prismstereo.optics import pixel_grid, project_exact, trace_pixels
+
+__all__ = ["DEPTH_STEP_LIMIT", "MODEL_FRACTION", "OVERLAP_FRACTION", "face_overlap", "working_depth_range"]
+
+#: a depth can be matched when the views share at least this share of their best overlap
+OVERLAP_FRACTION = 0.25
+#: the virtual cameras are fitted from the depth where the views share this share of their best overlap
+MODEL_FRACTION = 0.8
+#: farthest depth of the working range: one pixel of disparity at most this share of the depth
+DEPTH_STEP_LIMIT = 0.04
+#: farthest depth looked at, mm
+FAR_MM = 100_000.0
+
+
+def face_overlap(rig: Rig, face_a: int, face_b: int, depths_mm: np.ndarray, *, step: float = 32.0
+                 ) -> np.ndarray:
+    """(D,) share of face a's sampled pixels whose point at each world depth face b sees inside the image."""
+    w, h = rig.camera.width, rig.camera.height
+    grid = pixel_grid(w, h, step=step).reshape(-1, 2) + (step - 1) / 2.0
+    grid = grid[(grid[:, 0] <= w - 1) & (grid[:, 1] <= h - 1)]
+    b = trace_pixels(rig, grid)
+    sel = b.face == face_a
+    if sel.sum() < 8:
+        raise GeometryError(f"expected face {face_a} to be seen by the camera, got {int(sel.sum())} sample pixels")
+    out = np.zeros(len(depths_mm))
+    for i, z in enumerate(depths_mm):
+        X = b.point_at_depth(float(z))[sel]
+        px, ok = project_exact(X, rig, face_b, tolerance_px=0.05)
+        ok &= (px[:, 0] >= 0) & (px[:, 0] <= w - 1) & (px[:, 1] >= 0) & (px[:, 1] <= h - 1)
+        out[i] = ok.mean()
+    return out
+
+
+def _crossings(depths: np.ndarray, frac: np.ndarray, level: float) -> tuple[float, float]:
+    """Near and far depth where ``frac`` crosses ``level`` (log-linear interpolation between samples)."""
+    keep = np.flatnonzero(frac >= level)
+    i0, i1 = int(keep[0]), int(keep[-1])
+    lz = np.log(depths)
+
+    def cross(i: int, j: int) -> float:
+        f0, f1 = frac[i], frac[j]
+        t = 0.0 if f1 == f0 else (level - f0) / (f1 - f0)
+        return float(np.exp(lz[i] + np.clip(t, 0.0, 1.0) * (lz[j] - lz[i])))
+
+    near = float(depths[i0]) if i0 == 0 else cross(i0 - 1, i0)
+    far = float(depths[i1]) if i1 == len(depths) - 1 else cross(i1, i1 + 1)
+    return near, far
+
+
+def _baseline(rig: Rig, face_a: int, face_b: int) -> float:
+    from prismstereo.cameras.virtual import thesis_camera
+
+    return float(np.linalg.norm(thesis_camera(rig, face_a).C - thesis_camera(rig, face_b).C))
+
+
+def pair_depth_range(rig: Rig, face_a: int, face_b: int, *, near_fraction: float = OVERLAP_FRACTION,
+                     n_depths: int = 32, depth_step_cap: bool = True) -> tuple[float, float] | None:
+    """(near, far) mm of the working range of one face pair (module docstring), or None if they never overlap.
+
+    ``depth_step_cap`` False keeps every depth where the views overlap (no cut at the depth-resolution limit).
+    """
+    depths = np.geomspace(rig.prism.back_distance * 1.05, FAR_MM, n_depths)
+    frac = face_overlap(rig, face_a, face_b, depths)
+    if not (frac > 0).any():
+        return None
+    near, _ = _crossings(depths, frac, near_fraction * float(frac.max()))
+    _, far = _crossings(depths, frac, OVERLAP_FRACTION * float(frac.max()))
+    if far <= near * 1.05:
+        # a narrow overlap between two samples: resample finely around it
+        fine = np.geomspace(near / 1.5, far * 1.5, n_depths)
+        fine = fine[fine > rig.prism.back_distance * 1.02]
+        f2 = face_overlap(rig, face_a, face_b, fine)
+        near, _ = _crossings(fine, f2, near_fraction * float(f2.max()))
+        _, far = _crossings(fine, f2, OVERLAP_FRACTION * float(f2.max()))
+    if depth_step_cap:
+        far = min(far, DEPTH_STEP_LIMIT * rig.camera.focal_px * _baseline(rig, face_a, face_b))
+    return near, max(far, near * 1.05)
+
+
+def working_depth_range(rig: Rig, faces: tuple[int, ...] | None = None, *,
+                        near_fraction: float = OVERLAP_FRACTION) -> tuple[float, float]:
+    """(near, far) mm: the union of the working ranges of the face pairs among ``faces`` (default all)."""
+    fs = tuple(range(rig.prism.faces)) if faces is None else tuple(faces)
+    ranges = [r for a, b in combinations(fs, 2)
+              if (r := pair_depth_range(rig, a, b, near_fraction=near_fraction)) is not None]
+    if not ranges:
+        raise GeometryError(f"expected faces {fs} to share a view at some depth, got views that never overlap")
+    return min(r[0] for r in ranges), max(r[1] for r in ranges)

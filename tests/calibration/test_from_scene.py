@@ -1,0 +1,124 @@
+"""Self-calibration from an ordinary capture, and the drift check, on a small (512×384) misaligned rig."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from prismstereo.calibration.drift import row_misalignment
+from prismstereo.calibration.from_scene import calibrate_from_scene, parse_scene_free
+from prismstereo.cli import main
+from prismstereo.errors import ConfigError, ImageError
+from prismstereo.io import write_image
+
+
+def _planes(noise_scale: float = 1.0, solid: bool = False):
+    from prismstereo.simulate import NoiseTexture, Plane, Rectangle, Scene, SolidTexture
+
+    def tex(scale: float, seed: int):
+        return SolidTexture(color=(0.5, 0.5, 0.5)) if solid else NoiseTexture(scale=scale * noise_scale, seed=seed)
+
+    return Scene(objects=(
+        Plane(center=(0.0, 0.0, 1800.0), rotation=(0.0, 15.0, 0.0), texture=tex(30.0, 1), name="wall"),
+        Rectangle(center=(-30.0, -40.0, 1300.0), size=(120.0, 90.0), rotation=(10.0, -25.0, 0.0),
+                  texture=tex(20.0, 2), name="a"),
+        Rectangle(center=(30.0, 50.0, 1100.0), size=(110.0, 80.0), rotation=(-15.0, 20.0, 0.0),
+                  texture=tex(15.0, 3), name="b"),
+    ), supersample=2, noise=1.0, vignetting=0.2, seed=5, name="planes")
+
+
+@pytest.fixture(scope="module")
+def start_rig(small_true):
+    """The true camera (calibrated lens) with the nominal, centred prism."""
+    return small_true.with_prism(rotation=0.0, tilt=(0.0, 0.0), decenter=(0.0, 0.0))
+
+
+@pytest.fixture(scope="module")
+def scene_capture(small_true):
+    from prismstereo.simulate import render_capture
+
+    return render_capture(small_true, _planes()).image
+
+
+def test_self_calibration_recovers_rotation_and_tilt(start_rig, small_true, scene_capture):
+    cal = calibrate_from_scene(start_rig, [scene_capture])
+    assert cal.n_matches >= 200
+    assert abs(cal.estimates["rotation"] - 1.4) < 0.05
+    assert abs(cal.estimates["tilt_x"] - 1.0) < 0.15
+    assert cal.observed["rotation"] and cal.observed["tilt_x"]
+    assert cal.residual_before["p95"] > 3.0 and cal.residual_after["p95"] < 0.3
+    # the refined rig rectifies the capture's rows as well as the true one; the nominal one does not
+    nominal = row_misalignment(start_rig, scene_capture)
+    refined = row_misalignment(cal.rig, scene_capture)
+    assert nominal.needs_recalibration and nominal.p95_px > 4.0
+    assert not refined.needs_recalibration and refined.p95_px < 0.5
+
+
+def test_self_calibration_refuses_a_textureless_scene(small_true, start_rig):
+    from prismstereo.simulate import render_capture
+
+    flat = render_capture(small_true, _planes(solid=True)).image
+    with pytest.raises(ImageError, match="too little texture"):
+        calibrate_from_scene(start_rig, [flat])
+
+
+def test_scene_free_refuses_the_scale_parameters():
+    assert parse_scene_free("rotation,tilt") == ("rotation", "tilt_x", "tilt_y")
+    with pytest.raises(ConfigError, match="depth scale"):
+        parse_scene_free("rotation,refractive_index")
+
+
+def test_check_and_calibrate_from_scene_commands(tmp_path, start_rig, small_true, scene_capture, capsys):
+    cap = tmp_path / "capture.png"
+    write_image(cap, scene_capture)
+    nominal_path, true_path = tmp_path / "nominal.toml", tmp_path / "true.toml"
+    start_rig.save(nominal_path)
+    small_true.save(true_path)
+    report = tmp_path / "check.json"
+    assert main(["check", str(nominal_path), str(cap), "-o", str(report)]) == 3
+    data = json.loads(report.read_text())
+    assert data["needs_recalibration"] is True and data["p95_dy_px"] > 4.0
+    assert main(["check", str(true_path), str(cap)]) == 0
+    assert "no recalibration needed" in capsys.readouterr().out
+
+    out = tmp_path / "refined.toml"
+    assert main(["calibrate-prism", str(nominal_path), str(cap), "--from-scene", "-o", str(out)]) == 0
+    assert out.exists() and (tmp_path / "refined.report.json").exists()
+    assert main(["check", str(out), str(cap)]) == 0
+    # refusals: one line, exit 2, nothing written
+    bad = tmp_path / "bad.toml"
+    assert main(["calibrate-prism", str(nominal_path), str(cap), "--from-scene", "--free", "apex_distance",
+                 "-o", str(bad)]) == 2
+    flat = tmp_path / "flat.png"
+    write_image(flat, np.full_like(scene_capture, 128))
+    assert main(["calibrate-prism", str(nominal_path), str(flat), "--from-scene", "-o", str(bad)]) == 2
+    assert main(["check", str(nominal_path), str(flat)]) == 2
+    assert not bad.exists()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err and all(line.startswith("prismstereo ") for line in err)
+
+
+def test_scene_calibration_keeps_the_depth_scale(start_rig, scene_capture):
+    cal = calibrate_from_scene(start_rig, [scene_capture], free="rotation")
+    p0, p1 = start_rig.prism, cal.rig.prism
+    assert (p1.apex_distance, p1.refractive_index, p1.corner_angle) == (p0.apex_distance, p0.refractive_index,
+                                                                          p0.corner_angle)
+    assert dataclasses.asdict(cal.rig.camera) == dataclasses.asdict(start_rig.camera)
+
+
+def test_depth_self_calibrate(tmp_path, start_rig, scene_capture, capsys):
+    cap = tmp_path / "capture.png"
+    write_image(cap, scene_capture)
+    rig_path = tmp_path / "nominal.toml"
+    start_rig.save(rig_path)
+    out = tmp_path / "out"
+    assert main(["depth", str(rig_path), str(cap), "-o", str(out), "--method", "sgm", "--no-refine",
+                 "--self-calibrate"]) == 0
+    run = json.loads((out / "run.json").read_text())
+    sc = run["self_calibration"]
+    assert abs(sc["estimates"]["rotation"] - 1.4) < 0.05 and sc["n_matches"] >= 200
+    refined = (out / "rig_refined.toml").read_text()
+    assert "rotation" in refined and "self-calibration" in capsys.readouterr().out
