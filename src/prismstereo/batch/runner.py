@@ -169,7 +169,7 @@ def process_frame(setup: DepthSetup, frame: Frame, frames_dir: str, outputs: Seq
     Errors of the frame (bad capture, pipeline failure) are returned in the row (``status`` ``failed``,
     ``error`` one line), never raised, so that Dask's retries are spent only on lost workers.
     """
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     row = _base_row(frame)
     row["worker"] = f"{os.uname().nodename}:{os.getpid()}"
     row["numba_threads"] = _limit_threads(host_threads or {}, client_pid, numba_threads)
@@ -197,6 +197,8 @@ def process_frame(setup: DepthSetup, frame: Frame, frames_dir: str, outputs: Seq
     row["warnings"] = " | ".join(handler.lines)
     row["rss_mb"] = _rss_mb()
     row["t_total_s"] = time.perf_counter() - t0
+    # CPU seconds of the worker process while the frame ran (all its threads: numba's and OpenCV's too)
+    row["cpu_s"] = time.process_time() - cpu0
     return row
 
 
