@@ -1,6 +1,8 @@
 from __future__ import annotations
 
 import math
+import re
+from pathlib import Path
 
 import pytest
 
@@ -162,3 +164,16 @@ def test_new_keys_are_validated_with_one_line(section, changes, needle):
         rig_from_dict(_with(section, **changes))
     msg = str(info.value)
     assert needle in msg and "\n" not in msg
+
+
+def test_rig_reference_lists_every_key():
+    """docs/rig.md's key tables name every key the loader accepts, and no other."""
+    from prismstereo.config import _CAMERA_OPTIONAL, _CAMERA_REQUIRED, _PRISM_OPTIONAL, _PRISM_REQUIRED
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "rig.md").read_text(encoding="utf-8")
+    for section, keys in (("camera", _CAMERA_REQUIRED | _CAMERA_OPTIONAL),
+                          ("prism", _PRISM_REQUIRED | _PRISM_OPTIONAL)):
+        table = text.split(f"## `[{section}]`", 1)[1].split("\n\n", 2)[1]
+        documented = {k for row in table.splitlines() if row.startswith("| `")
+                      for k in re.findall(r"`(\w+)`", row.split("|")[1])}
+        assert documented == keys, section

@@ -163,6 +163,53 @@ def test_video_frames_decoded_by_index(tmp_path, rig, captures, client):
         assert abs(float(np.median(mm[mm > 0])) - z_true) < 0.05 * z_true
 
 
+def test_a_long_video_keeps_only_a_window_of_frames_in_flight(tmp_path, rig, captures, client):
+    """Frames are decoded on the workers by index and submitted a window at a time: however long the video,
+    the scheduler knows only a few frame tasks (2 per worker thread + 2), each returning only its row."""
+    video = tmp_path / "long.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (rig.camera.width, rig.camera.height))
+    for i in range(10):
+        writer.write(cv2.cvtColor(captures[i % len(captures)], cv2.COLOR_RGB2BGR))
+    writer.release()
+
+    def frame_tasks(dask_scheduler):
+        return sum(str(k).startswith("prismstereo-frame") for k in dask_scheduler.tasks)
+
+    in_flight = []
+    s = run_batch(rig, [video], tmp_path / "out", config=CONFIG, client=client, outputs="depth.pfm",
+                  on_frame=lambda row: in_flight.append(client.run_on_scheduler(frame_tasks)))
+    assert s.exit_code == 0 and len(s.rows) == 10
+    window = 2 * sum(client.nthreads().values()) + 2
+    assert len(in_flight) == 10 and 1 <= max(in_flight) <= window < 10
+    assert all(isinstance(v, int | float | str | bool) for r in s.rows for v in r.values() if v is not None
+               and not isinstance(v, dict))  # rows only: no arrays come back to the client
+
+
+def test_dashboard_notice_without_a_dashboard(tmp_path, rig, frames_dir, client):
+    lines = []
+    run_batch(rig, [frames_dir / "f0.png"], tmp_path / "out", config=CONFIG, client=client, outputs="depth.pfm",
+              echo=lines.append)
+    sched = json.loads((tmp_path / "out" / "run.json").read_text())["scheduler"]
+    assert sched["dashboard"] is None and "dashboard_note" in sched
+    assert [line for line in lines if line.startswith("dask dashboard: none (")]
+
+
+def test_dashboard_link_printed_and_recorded(tmp_path, rig, frames_dir):
+    pytest.importorskip("bokeh")
+    import urllib.request
+
+    lines = []
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=":0") as c, \
+            distributed.Client(c) as cl:
+        run_batch(rig, [frames_dir / "f0.png"], tmp_path / "out", config=CONFIG, client=cl, outputs="depth.pfm",
+                  echo=lines.append)
+        link = json.loads((tmp_path / "out" / "run.json").read_text())["scheduler"]["dashboard"]
+        assert link.startswith("http://") and link.endswith("/status")
+        assert f"dask dashboard: {link}" in lines
+        with urllib.request.urlopen(link, timeout=30) as page:  # the page is served (no browser opened)
+            assert page.status == 200 and b"<html" in page.read().lower()
+
+
 def test_interrupt_leaves_only_complete_frames(tmp_path, rig, frames_dir):
     out = tmp_path / "out"
 

@@ -172,7 +172,7 @@ def process_frame(setup: DepthSetup, frame: Frame, frames_dir: str, outputs: Seq
     Errors of the frame (bad capture, pipeline failure) are returned in the row (``status`` ``failed``,
     ``error`` one line), never raised, so that Dask's retries are spent only on lost workers.
     """
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     row = _base_row(frame)
     row["worker"] = f"{os.uname().nodename}:{os.getpid()}"
     row["numba_threads"] = _limit_threads(host_threads or {}, client_pid, numba_threads)
@@ -200,6 +200,8 @@ def process_frame(setup: DepthSetup, frame: Frame, frames_dir: str, outputs: Seq
     row["warnings"] = " | ".join(handler.lines)
     row["rss_mb"] = _rss_mb()
     row["t_total_s"] = time.perf_counter() - t0
+    # CPU seconds of the worker process while the frame ran (all its threads: numba's and OpenCV's too)
+    row["cpu_s"] = time.process_time() - cpu0
     return row
 
 
@@ -218,7 +220,7 @@ def local_cluster(workers: int | None = None, *, threads_per_worker: int = 1, pr
     retries : int
         Times a frame is rerun when its worker dies (the scheduler's ``allowed-failures``).
     dashboard_address : str or None
-        Where the dashboard listens (``:0`` = a free port; it needs ``bokeh``); None for none.
+        Where the dashboard listens (``:0`` = a free port; it needs ``bokeh``); None for no dashboard.
 
     Notes
     -----
@@ -273,12 +275,32 @@ def _dask_client(client: Any, scheduler: str | None, workers: int | None, thread
         cluster.close()
 
 
-def _dashboard(client: Any) -> str | None:
+def _serves_dashboard(dask_scheduler: Any) -> bool | None:
+    """On the scheduler: whether its web server serves the bokeh dashboard (None when it cannot tell).
+
+    The scheduler always runs a web server and lists it as its ``dashboard`` service; without bokeh, or
+    when started without a dashboard, ``/status`` is only a notice. The dashboard is a bokeh application
+    added to that server.
+    """
+    apps = getattr(getattr(dask_scheduler, "http_application", None), "applications", None)
+    return None if apps is None else any("Bokeh" in type(a).__name__ for a in apps)
+
+
+def _dashboard(client: Any) -> tuple[str | None, str]:
+    """(link of the scheduler's Dask dashboard or None, a one-line notice for the user)."""
     try:
         services = client.scheduler_info().get("services", {})
-    except Exception:  # noqa: BLE001 - the link is a convenience
-        return None
-    return str(client.dashboard_link) if "dashboard" in services else None
+        serves = client.run_on_scheduler(_serves_dashboard) if "dashboard" in services else False
+    except Exception:  # noqa: BLE001 - the link is a convenience (run_on_scheduler may be refused)
+        services, serves = {}, None
+    if "dashboard" in services and serves is not False:
+        link = str(client.dashboard_link)
+        return link, f"dask dashboard: {link}"
+    try:
+        import bokeh  # noqa: F401 - only whether the dashboard could run here
+    except ImportError:
+        return None, "dask dashboard: none (it needs bokeh>=3.1: pip install 'bokeh>=3.1')"
+    return None, "dask dashboard: none (the scheduler runs without one)"
 
 
 def _host_threads(client: Any) -> dict[str, int]:
@@ -429,7 +451,11 @@ def run_batch(rig: Rig | str | os.PathLike[str], inputs: Sequence[str | os.PathL
     if todo:
         try:
             with _dask_client(client, scheduler, workers, threads_per_worker, processes, retries) as (c, sched):
-                run["scheduler"] = {**sched, "numba_threads": numba_threads or "auto", "dashboard": _dashboard(c)}
+                link, notice = _dashboard(c)
+                say(notice)
+                run["scheduler"] = {**sched, "numba_threads": numba_threads or "auto", "dashboard": link}
+                if link is None:
+                    run["scheduler"]["dashboard_note"] = notice.split(": ", 1)[1]
                 interrupted = _submit_all(c, setup, todo, frames_dir, chosen, rows, retries=retries,
                                           numba_threads=numba_threads,
                                           progress=_progress_bar(len(frames), len(rows), progress), say=say,
@@ -465,8 +491,6 @@ def _submit_all(c: Any, setup: DepthSetup, todo: list[Frame], frames_dir: Path, 
     """Submit the frames a window at a time and collect their rows; returns True when interrupted."""
     from distributed import as_completed
 
-    if run["scheduler"].get("dashboard"):
-        say(f"dask dashboard: {run['scheduler']['dashboard']}")
     host_threads = _host_threads(c)
     nthreads = max(1, sum(c.nthreads().values()))
     say(f"batch: {len(todo)} frames on {len(host_threads)} Dask workers ({nthreads} threads)")

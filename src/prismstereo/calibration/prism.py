@@ -75,7 +75,7 @@ FREE_GROUPS = {
 DEFAULT_FREE = ("rotation", "tilt", "decenter", "focal")
 #: search band (px) beyond the input rig's sub-image in which a board is looked for
 SEARCH_BAND_PX = 48
-#: corner noise (px) that the decenter prior is weighed against
+#: corner noise (px) that the decenter prior is weighed against until the fit has measured it
 PRIOR_NOISE_PX = 0.1
 #: the decenter may move at most this far (mm) from the input rig's: beyond it a fit is using the decenter's
 #: tiny effect to absorb some other error
@@ -373,12 +373,18 @@ def calibrate_prism(
             else:
                 res[k] = project_near(r_rig, X, k, rays)
         # (face, capture, corner) → (capture, face, corner) so that a board's rows are contiguous
-        out = np.nan_to_num(res.reshape(n_faces, n_cap, m, 2).transpose(1, 0, 2, 3).ravel(), nan=1e3)
-        pri = [x[free_params.index(k)] * scale[k] / decenter_prior_mm * PRIOR_NOISE_PX for k in prior]
-        return np.concatenate([out, np.asarray(pri)])
+        out = res.reshape(n_faces, n_cap, m, 2).transpose(1, 0, 2, 3)
+        if not exact:
+            out = out * weight
+        pri = [x[free_params.index(k)] * scale[k] / decenter_prior_mm * noise_px[0] for k in prior]
+        return np.concatenate([np.nan_to_num(out.ravel(), nan=1e3), np.asarray(pri)])
 
     n_res = n_cap * n_faces * m * 2
     x0 = np.concatenate([np.zeros(n_p), poses0.ravel()])
+    # per view and axis weights of the corner residuals (set after the plain fit) and the corner noise
+    # that the decenter prior is weighed against
+    weight = np.ones((n_cap, n_faces, 1, 2))
+    noise_px = [PRIOR_NOISE_PX]
 
     def sparsity(prism_free: bool) -> lil_matrix:
         S = lil_matrix((n_res + len(prior), x0.size), dtype=np.int8)
@@ -405,6 +411,15 @@ def calibrate_prism(
     bounds = (lo, hi)
     s2 = least_squares(residuals, np.concatenate([zeros, s1.x]), jac_sparsity=sparsity(True), x_scale="jac",
                        method="trf", max_nfev=60, bounds=bounds)
+    # 3. corner noise differs between views and axes (a board seen small, foreshortened or with its edges
+    #    along the pixel rows is located less well): weigh each view's x and y residuals by the inverse of
+    #    their RMS in the plain fit (variance components; the residuals of a view track its corner errors
+    #    closely, as the boards' poses absorb little of them), relative to the median view's, at most 2×
+    sigma = np.sqrt(np.mean(s2.fun[:n_res].reshape(n_cap, n_faces, m, 2) ** 2, axis=2, keepdims=True))
+    ref = float(np.median(sigma))
+    if np.isfinite(ref) and ref > 0:
+        weight = ref / np.maximum(sigma, 0.5 * ref)
+        noise_px[0] = ref
     sol = least_squares(residuals, s2.x, jac_sparsity=sparsity(True), loss="huber", f_scale=loss_scale_px,
                         x_scale="jac", method="trf", max_nfev=30, bounds=bounds)
     log.debug("prism calibration: costs %.4g -> %.4g -> %.4g (%d, %d, %d evaluations)", s1.cost, s2.cost,
@@ -415,7 +430,7 @@ def calibrate_prism(
     # covariance of the prism parameters (Gauss–Newton, scaled by the residual variance)
     J = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
     dof = max(1, n_res - x0.size)
-    var = float(np.sum(res**2)) / dof
+    var = float(np.sum((res * weight) ** 2)) / dof
     JTJ = J.T @ J
     try:
         cov = np.linalg.inv(JTJ) * var
