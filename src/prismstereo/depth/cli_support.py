@@ -8,6 +8,7 @@ the options; the geometry (views that do not overlap) is checked by rectificatio
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 from typing import Any
 
 from prismstereo.errors import ConfigError
@@ -30,8 +31,11 @@ def depth_command(rig_path: str, image_path: str, out_dir: str, *, method: str =
                   params: dict[str, Any] | None = None, depth_range: tuple[float, float] | None = None,
                   roi: tuple[int, int, int, int] | None = None, views: Any = None,
                   triangulation: str = "exact", calibration: str = "fit", gt: str | None = None,
-                  refine: bool = True, preset: str | None = None) -> str:
-    """Run ``prismstereo depth`` and return the lines to print (``preset``: its name, for the report)."""
+                  refine: bool = True, preset: str | None = None, min_confidence: float | None = None) -> str:
+    """Run ``prismstereo depth`` and return the lines to print (``preset``: its name, for the report).
+
+    ``min_confidence`` None keeps :class:`~prismstereo.depth.pipeline.DepthConfig`'s default threshold.
+    """
     from prismstereo.config import load_rig
     from prismstereo.depth.outputs import write_depth_outputs
     from prismstereo.depth.pipeline import DepthConfig, run_depth, validate_inputs
@@ -67,6 +71,8 @@ def depth_command(rig_path: str, image_path: str, out_dir: str, *, method: str =
     config = DepthConfig(method=method, matcher_params=dict(params or {}), depth_range=depth_range, roi=roi,
                          views=_resolve_views(views, rig.prism.faces), triangulation=triangulation,
                          calibration=calibration, refine=refine)
+    if min_confidence is not None:
+        config = replace(config, min_confidence=min_confidence)
     validate_inputs(rig, image, config)
     get_matcher(config.method, **config.matcher_params)  # parameters checked before the heavy work
     depth_gt = None

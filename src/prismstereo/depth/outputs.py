@@ -1,8 +1,9 @@
 """Files of a depth run (docs/cli.md, docs/formats.md), written together through a staging folder.
 
 ``disparity.pfm`` (px, inf = invalid), ``disparity.png`` (colourised), ``depth.pfm`` (world Z in mm on the
-rectified left grid, inf = invalid), ``points.ply`` (valid points, mm, world frame, RGB), ``report.png``
-and ``run.json``. If anything fails, the output folder is left as it was.
+rectified left grid, inf = invalid), ``confidence.pfm`` (each point's confidence on the same grid),
+``points.ply`` (valid points, mm, world frame, RGB, confidence), ``report.png`` and ``run.json``. If
+anything fails, the output folder is left as it was.
 """
 
 from __future__ import annotations
@@ -17,7 +18,8 @@ from prismstereo.io import output_dir, write_image, write_json, write_pfm, write
 
 __all__ = ["OUTPUT_FILES", "write_depth_files", "write_depth_outputs"]
 
-OUTPUT_FILES = ("disparity.pfm", "disparity.png", "depth.pfm", "points.ply", "report.png", "run.json")
+OUTPUT_FILES = ("disparity.pfm", "disparity.png", "depth.pfm", "confidence.pfm", "points.ply", "report.png",
+                "run.json")
 
 
 def write_depth_outputs(result: DepthResult, out_dir: str | os.PathLike[str], *, report: bool = True,
@@ -70,8 +72,12 @@ def write_depth_files(result: DepthResult, folder: Path, names: Sequence[str], s
         write_image(folder / "disparity.png", colorize_disparity(result.disparity, colorbar="disparity (px)"))
     if "depth.pfm" in names:
         write_pfm(folder / "depth.pfm", result.depth)
+    confidence = result.point_confidence()
+    if "confidence.pfm" in names:
+        write_pfm(folder / "confidence.pfm", confidence)
     if "points.ply" in names:
-        write_ply(folder / "points.ply", pts, cols)
+        assert result.valid is not None
+        write_ply(folder / "points.ply", pts, cols, properties={"confidence": confidence[result.valid]})
     if "report.png" in names:
         from prismstereo.viz.report import write_depth_report
 

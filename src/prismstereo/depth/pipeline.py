@@ -89,10 +89,12 @@ class DepthConfig:
         refine_disparity`) before triangulating.
     refine_radius : int
         Half-size of the refinement window, px.
+    refine_min_texture : float
+        Mean squared horizontal gradient (grey levels²/px²) a window needs to be refined.
     min_confidence : float or None
-        With ``refine``: keep only matches that the refinement could refine (textured window, inside
-        both views, within a pixel of the matcher's value) and whose windows then correlate (ZNCC) at
-        least this much. None keeps every match.
+        Keep only matches whose confidence (:func:`~prismstereo.depth.confidence.confident_matches`: ZNCC
+        of the refined windows, 0 where the refinement could not confirm the match) is at least this.
+        None keeps every match; the confidence of each point is in the outputs either way.
     speckle_fraction : float or None
         Remove connected patches of disparity (neighbours within 1 px) smaller than this fraction of the
         matched region (at least 20 px): isolated wrong matches (OpenCV ``filterSpeckles``). None keeps them.
@@ -108,8 +110,9 @@ class DepthConfig:
     use_filled: bool = False
     max_gap_mm: float | None = None
     refine: bool = True
-    refine_radius: int = 3
-    min_confidence: float | None = 0.8
+    refine_radius: int = 5
+    refine_min_texture: float = 0.05
+    min_confidence: float | None = 0.5
     speckle_fraction: float | None = 0.001
 
     def to_dict(self) -> dict[str, Any]:
@@ -153,7 +156,8 @@ class DepthResult:
     roi_mask : (h, w) bool
         The pixels matched: region of interest ∩ the common view of the two faces in the depth range.
     confidence : (h, w) float32 or None
-        ZNCC of the refined matches (NaN where not refined).
+        Confidence in [0, 1] of each point (:func:`~prismstereo.depth.confidence.confident_matches`; 0 for
+        every point without refinement), NaN where ``valid`` is False.
     stage_counts : dict
         Pixels left after each filtering stage (cross-checked matches, refined and confident, despeckled).
     accuracy : dict or None
@@ -201,6 +205,12 @@ class DepthResult:
         pts = self.points[self.valid]
         cols = self.left[self.valid] if self.left.ndim == 3 else np.repeat(self.left[self.valid][:, None], 3, 1)
         return pts, cols.astype(np.uint8)
+
+    def point_confidence(self) -> np.ndarray:
+        """(h, w) float32 confidence of each point, NaN where ``valid`` is False (0 without refinement)."""
+        assert self.valid is not None
+        conf = self.confidence if self.confidence is not None else np.zeros(self.valid.shape, dtype=np.float32)
+        return np.where(self.valid, conf, np.float32(np.nan)).astype(np.float32)
 
     def counts(self) -> dict[str, int]:
         assert self.valid is not None and self.roi_mask is not None and self.disparity_filled is not None
@@ -313,6 +323,8 @@ def validate_inputs(rig: Rig, image: Any, config: DepthConfig) -> tuple[np.ndarr
         x, y, w, h = config.roi
         if w <= 0 or h <= 0 or x < 0 or y < 0:
             raise ConfigError(f"--roi: expected x,y,w,h with x, y >= 0 and w, h > 0, got {list(config.roi)}")
+    if config.min_confidence is not None and not 0.0 <= config.min_confidence <= 1.0:
+        raise ConfigError(f"min_confidence: expected a number in [0, 1] or None, got {config.min_confidence!r}")
     if config.max_gap_mm is not None and not config.max_gap_mm > 0:
         raise ConfigError(f"max_gap_mm: expected a positive number, got {config.max_gap_mm!r}")
     resolved = DepthConfig(**{**asdict(config), "views": (int(views[0]), int(views[1])),
@@ -542,37 +554,28 @@ def triangulate_matches(st: DepthResult, method: str, ys: np.ndarray, xs: np.nda
 
 @register_stage("refine")
 def _stage_refine(st: DepthResult) -> None:
-    from prismstereo.depth.refine import refine_disparity
+    from prismstereo.depth.confidence import confident_matches
 
-    if not st.config.refine:
-        return
     assert st.left is not None and st.right is not None and st.disparity is not None
+    if not st.config.refine:
+        st.confidence = np.where(np.isfinite(st.disparity), np.float32(0.0), np.float32(np.nan))
+        return
     vl, vr = st.pair.valid_masks()
-    disp, conf = refine_disparity(st.left, st.right, st.disparity, radius=st.config.refine_radius,
-                                  valid_left=vl, valid_right=vr)
-    st.confidence = conf
-    if st.config.min_confidence is not None:
-        with np.errstate(invalid="ignore"):
-            disp = np.where(conf >= st.config.min_confidence, disp, np.float32(np.nan))
-    st.disparity = disp
-    st.stage_counts["refined"] = int(np.isfinite(disp).sum())
+    st.disparity, st.confidence = confident_matches(
+        st.left, st.right, st.disparity, radius=st.config.refine_radius, min_texture=st.config.refine_min_texture,
+        min_confidence=st.config.min_confidence, valid_left=vl, valid_right=vr)
+    st.stage_counts["refined"] = int(np.isfinite(st.disparity).sum())
 
 
 @register_stage("speckles")
 def _stage_speckles(st: DepthResult) -> None:
-    import cv2
+    from prismstereo.depth.confidence import remove_speckles
 
     if st.config.speckle_fraction is None:
         return
     assert st.disparity is not None and st.roi_mask is not None
-    disp = st.disparity
-    finite = np.isfinite(disp)
-    if not finite.any() or float(np.nanmax(disp)) * 16 > 32000:
-        return
     size = max(20, int(st.config.speckle_fraction * int(st.roi_mask.sum())))
-    d16 = np.where(finite, np.rint(disp * 16.0), -16).astype(np.int16)
-    cv2.filterSpeckles(d16, -16, size, 16)
-    st.disparity = np.where(d16 == -16, np.float32(np.nan), disp).astype(np.float32)
+    st.disparity = remove_speckles(st.disparity, max_size=size)
     st.stage_counts["despeckled"] = int(np.isfinite(st.disparity).sum())
 
 
@@ -595,6 +598,8 @@ def _stage_triangulate(st: DepthResult) -> None:
     valid[ys[ok], xs[ok]] = True
     st.points, st.gaps, st.valid = points, gaps, valid
     st.depth = np.where(valid, points[..., 2], np.nan).astype(np.float32)
+    if st.confidence is not None:
+        st.confidence = np.where(valid, st.confidence, np.float32(np.nan)).astype(np.float32)
 
 
 @register_stage("diagnose")
