@@ -160,11 +160,13 @@ class Setting:
     radius: int
     min_texture: float
     min_confidence: float | None
-    speckles: bool
+    speckles: bool = True
+    border: bool = True  # second try with a 3 px window at the views' edges
 
     def label(self) -> str:
         c = "all" if self.min_confidence is None else f"{self.min_confidence:g}"
-        return f"r={self.radius} tex={self.min_texture:g} conf≥{c} speckles={'on' if self.speckles else 'off'}"
+        return (f"r={self.radius} tex={self.min_texture:g} conf≥{c} edges={'r3' if self.border else '-'} "
+                f"speckles={'on' if self.speckles else 'off'}")
 
 
 def _metrics(err: np.ndarray, keep: np.ndarray, common: np.ndarray) -> dict[str, float]:
@@ -197,9 +199,10 @@ def measure_case(case: Case, grid: list[Setting]) -> dict[Setting, dict[str, flo
     assert res.disparity is not None and res.roi_mask is not None
     speckle_size = max(20, int((DepthConfig().speckle_fraction or 0.0) * int(res.roi_mask.sum())))
     out: dict[Setting, dict[str, float]] = {}
-    for (radius, tex), group in itertools.groupby(grid, key=lambda s: (s.radius, s.min_texture)):
+    for (radius, tex, border), group in itertools.groupby(grid, key=lambda s: (s.radius, s.min_texture, s.border)):
         disp, conf = confident_matches(res.left, res.right, res.disparity, radius=radius, min_texture=tex,
-                                       min_confidence=None, valid_left=vl, valid_right=vr)
+                                       min_confidence=None, border_radius=3 if border else None,
+                                       valid_left=vl, valid_right=vr)
         err = _rel_error(res, gt, disp)
         for s in group:
             kept = disp if s.min_confidence is None else np.where(conf >= s.min_confidence, disp, np.nan)
@@ -222,16 +225,18 @@ def main() -> None:
     args = ap.parse_args()
     d = DepthConfig()
     if args.quick:
-        grid = [Setting(3, 1.0, 0.8, True), Setting(3, 1.0, None, True)]
-        grid += [Setting(d.refine_radius, d.refine_min_texture, c, True) for c in (None, 0.5, 0.8)]
+        grid = [Setting(3, 1.0, 0.8, border=False), Setting(3, 1.0, None, border=False)]
+        grid += [Setting(d.refine_radius, d.refine_min_texture, c) for c in (None, 0.5, 0.7)]
     else:
-        grid = [Setting(r, t, c, sp) for r, t in ((3, 1.0), (3, 0.05), (5, 1.0), (5, 0.2), (5, 0.05), (5, 0.01),
-                                                   (7, 0.05))
-                for c in (None, 0.0, 0.5, 0.7, 0.8, 0.9) for sp in (True, False)]
+        old = [Setting(3, 1.0, c, sp, border=False) for c in (None, 0.5, 0.8, 0.9) for sp in (True, False)]
+        grid = old + [Setting(r, t, c, sp, b) for r, t, b in ((3, 0.01, False), (3, 0.01, True), (5, 1.0, False),
+                                                             (5, 0.05, False), (5, 0.01, False), (5, 0.01, True),
+                                                             (7, 0.01, True))
+                      for c in (None, 0.5, 0.6, 0.7, 0.8) for sp in ((True, False) if c == 0.5 else (True,))]
     todo = cases(args.data, quick=args.quick)
     print(f"# Depth density on rendered captures with held-out textures ({len(todo)} captures; matcher "
           f"{d.method}; default: r={d.refine_radius} tex={d.refine_min_texture:g} conf≥{d.min_confidence} "
-          f"speckles={d.speckle_fraction})\n")
+          f"edges=r3 speckles={d.speckle_fraction})\n")
     results: dict[str, dict[Setting, dict[str, float]]] = {}
     for case in todo:
         t, c = time.perf_counter(), time.process_time()

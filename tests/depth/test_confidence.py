@@ -45,6 +45,20 @@ def test_matches_the_refinement_cannot_confirm_get_zero_and_the_threshold_drops_
     assert np.array_equal(np.isfinite(kept), np.isfinite(kconf))
 
 
+def test_matches_near_the_edge_of_a_view_are_refined_with_a_smaller_window():
+    left, right = _shifted_pair(7.3)
+    valid = np.ones(left.shape, dtype=bool)
+    valid[:, 60:] = False  # the left view ends at column 60
+    init = np.where(valid, np.float32(7.0), np.float32(np.nan))
+    band = (slice(8, -8), slice(55, 57))  # the 11 px window is cut by the edge, a 7 px one is not
+    d_one, c_one = confident_matches(left, right, init, radius=5, border_radius=None, valid_left=valid)
+    d_two, c_two = confident_matches(left, right, init, radius=5, border_radius=3, valid_left=valid)
+    assert np.all(c_one[band] == 0.0)
+    assert np.all(c_two[band] > 0.9) and np.all(np.abs(d_two[band] - 7.3) < 0.1)  # from 0.3 px off
+    inner = (slice(8, -8), slice(20, 50))
+    assert np.array_equal(d_one[inner], d_two[inner])  # away from the edge: the first window only
+
+
 def test_remove_speckles_drops_small_patches_only():
     d = np.full((60, 60), np.nan, dtype=np.float32)
     d[5:45, 5:45] = 20.0 + np.linspace(0, 0.5, 40)[None, :]  # a smooth surface

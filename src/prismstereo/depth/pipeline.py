@@ -111,7 +111,7 @@ class DepthConfig:
     max_gap_mm: float | None = None
     refine: bool = True
     refine_radius: int = 5
-    refine_min_texture: float = 0.05
+    refine_min_texture: float = 0.01
     min_confidence: float | None = 0.5
     speckle_fraction: float | None = 0.001
 
