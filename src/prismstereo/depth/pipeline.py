@@ -324,7 +324,8 @@ def validate_inputs(rig: Rig, image: Any, config: DepthConfig) -> tuple[np.ndarr
         if w <= 0 or h <= 0 or x < 0 or y < 0:
             raise ConfigError(f"--roi: expected x,y,w,h with x, y >= 0 and w, h > 0, got {list(config.roi)}")
     if config.min_confidence is not None and not 0.0 <= config.min_confidence <= 1.0:
-        raise ConfigError(f"min_confidence: expected a number in [0, 1] or None, got {config.min_confidence!r}")
+        raise ConfigError(f"--min-confidence: expected a number in [0, 1] (0 keeps every match), "
+                          f"got {config.min_confidence!r}")
     if config.max_gap_mm is not None and not config.max_gap_mm > 0:
         raise ConfigError(f"max_gap_mm: expected a positive number, got {config.max_gap_mm!r}")
     resolved = DepthConfig(**{**asdict(config), "views": (int(views[0]), int(views[1])),
