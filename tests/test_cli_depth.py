@@ -43,9 +43,11 @@ def test_depth_options(capture_folder, tmp_path, capsys):
     out = tmp_path / "out"
     code, _, err = _run(["depth", str(capture_folder / "rig.toml"), str(capture_folder / "capture.png"),
                          "-o", str(out), "--method", "sad", "--triangulation", "q", "--depth-range", "1000,3000",
-                         "--roi", "40,40,120,120", "--views", "1,0", "-p", "radius=3"], capsys)
+                         "--roi", "40,40,120,120", "--views", "1,0", "-p", "radius=3", "--min-confidence", "0"],
+                        capsys)
     assert code == 0, err
     run = json.loads((out / "run.json").read_text())
+    assert run["config"]["min_confidence"] == 0.0
     assert run["config"]["roi"] == [40, 40, 120, 120] and run["config"]["matcher_params"]["radius"] == 3
     # the resolved configuration: every matcher parameter with its default
     assert run["config"]["matcher_params"]["cross_check"] is True and "subpixel" in run["config"]["matcher_params"]
@@ -130,7 +132,8 @@ def test_views_that_do_not_overlap(tmp_path, capsys):
 
 @pytest.mark.parametrize("args,needle", [(["--views", "0,0"], "--views"), (["--method", "nope"], "--method"),
                                          (["--depth-range", "5000,800"], "--depth-range"),
-                                         (["--roi", "1,2,3"], "--roi"), (["--views", "0,7"], "--views")])
+                                         (["--roi", "1,2,3"], "--roi"), (["--views", "0,7"], "--views"),
+                                         (["--min-confidence", "1.5"], "--min-confidence")])
 def test_bad_options(capture_folder, tmp_path, capsys, args, needle):
     out = tmp_path / "out"
     code, _, err = _run(["depth", str(capture_folder / "rig.toml"), str(capture_folder / "capture.png"),

@@ -70,6 +70,17 @@ def test_outputs_are_written_together(plane_run, tmp_path):
     assert pts.shape[0] == int(plane_run.valid.sum()) and cols is not None
     assert np.isfinite(pts).all()
     assert np.allclose(np.nanmedian(depth), np.median(pts[:, 2]), rtol=1e-3)
+    conf = read_pfm(out / "confidence.pfm")
+    assert conf.shape == depth.shape
+    assert np.array_equal(np.isfinite(conf), np.isfinite(depth))
+    from plyfile import PlyData
+
+    vertex = PlyData.read(str(out / "points.ply"))["vertex"]
+    assert "confidence" in vertex.data.dtype.names
+    ply_conf = np.asarray(vertex["confidence"])
+    assert ply_conf.shape[0] == pts.shape[0]
+    assert np.array_equal(ply_conf, conf[plane_run.valid])  # same row-major order as the points
+    assert ply_conf.min() >= plane_run.config.min_confidence and ply_conf.max() <= 1.0
 
 
 def test_roi_restricts_the_points(plane_capture):

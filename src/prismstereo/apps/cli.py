@@ -288,6 +288,9 @@ def _add_depth(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--self-calibrate", action="store_true",
                    help="first refine the prism's rotation and tilt from feature matches in this capture "
                         "(calibrate-prism --from-scene); the refined rig is written as rig_refined.toml")
+    p.add_argument("--min-confidence", type=float, default=None, metavar="C",
+                   help="keep points whose confidence (0..1, in confidence.pfm and points.ply) is at least C; "
+                        "0 keeps every match (default: DepthConfig's, docs/formats.md)")
     p.set_defaults(handler=_cmd_depth)
 
 
@@ -304,7 +307,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
                         depth_range=depth_range, roi=_parse_roi(args.roi), views=views,
                         triangulation=args.triangulation, calibration=args.calibration, gt=args.gt,
                         refine=False if args.no_refine else None, config_path=args.config,
-                        self_calibrate=args.self_calibrate))
+                        self_calibrate=args.self_calibrate, min_confidence=args.min_confidence))
     return 0
 
 
@@ -424,7 +427,8 @@ def _add_batch(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-refine", action="store_true", help="skip the sub-pixel disparity refinement")
     p.add_argument("--outputs", default=None, metavar="FILES",
                    help="files per frame, comma-separated, among disparity.pfm, disparity.png, depth.pfm, "
-                        "depth.png (16-bit, mm), points.ply, report.png, run.json (default: depth's files)")
+                        "confidence.pfm, depth.png (16-bit, mm), points.ply, report.png, run.json (default: "
+                        "depth's files)")
     p.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="use a running Dask scheduler")
     p.add_argument("--workers", type=int, default=None, help="local cluster: worker processes (default: one per core)")
     p.add_argument("--threads-per-worker", type=int, default=1, help="local cluster: threads per worker (default 1)")

@@ -1,10 +1,11 @@
 """Files of a depth run (docs/cli.md, docs/formats.md), written together through a staging folder.
 
 A pair run: ``disparity.pfm`` (px, inf = invalid), ``disparity.png`` (colourised), ``depth.pfm`` (world Z in
-mm on the rectified left grid, inf = invalid), ``points.ply`` (valid points, mm, world frame, RGB),
-``report.png`` and ``run.json``. An all-view run (no disparity; its grid is the real capture):
-``depth.pfm``, ``depth.png`` and ``views.png`` (views that triangulated each pixel), ``points.ply`` and
-``run.json``. If anything fails, the output folder is left as it was.
+mm on the rectified left grid, inf = invalid), ``confidence.pfm`` (each point's confidence on the same grid),
+``points.ply`` (valid points, mm, world frame, RGB, confidence), ``report.png`` and ``run.json``. An
+all-view run (no disparity; its grid is the real capture): ``depth.pfm``, ``depth.png`` and ``views.png``
+(views that triangulated each pixel), ``points.ply`` (no confidence) and ``run.json``. If anything fails,
+the output folder is left as it was.
 """
 
 from __future__ import annotations
@@ -24,7 +25,8 @@ from prismstereo.viz.report import write_depth_report
 __all__ = ["ALL_VIEW_FILES", "OUTPUT_FILES", "output_files", "write_depth_files", "write_depth_outputs"]
 
 #: the files of a pair run
-OUTPUT_FILES = ("disparity.pfm", "disparity.png", "depth.pfm", "points.ply", "report.png", "run.json")
+OUTPUT_FILES = ("disparity.pfm", "disparity.png", "depth.pfm", "confidence.pfm", "points.ply", "report.png",
+                "run.json")
 #: the files of an all-view run
 ALL_VIEW_FILES = ("depth.pfm", "depth.png", "views.png", "points.ply", "run.json")
 
@@ -92,8 +94,14 @@ def write_depth_files(result: DepthResult, folder: Path, names: Sequence[str], s
         write_image(folder / "views.png", colorize_disparity(
             np.where(counts > 0, counts.astype(np.float32), np.float32(np.nan)), vmin=0.0,
             vmax=float(len(result.faces)), colorbar="views per pixel"))
+    # an all-view run has no per-point confidence: its files and points carry none
+    confidence = result.point_confidence() if result.confidence is not None else None
+    if "confidence.pfm" in names and confidence is not None:
+        write_pfm(folder / "confidence.pfm", confidence)
     if "points.ply" in names:
-        write_ply(folder / "points.ply", pts, cols)
+        assert result.valid is not None
+        props = None if confidence is None else {"confidence": confidence[result.valid]}
+        write_ply(folder / "points.ply", pts, cols, properties=props)
     if "report.png" in names and disparity is not None and result.right is not None:
         write_depth_report(folder / "report.png", capture=result.image, left=result.left, right=result.right,
                            disparity=disparity, depth=result.depth, points=pts, colors=cols, summary=summary)

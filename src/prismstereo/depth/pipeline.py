@@ -35,13 +35,13 @@ from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-import cv2
 import numpy as np
 
 from prismstereo import __version__
 from prismstereo.cameras import VirtualView, calibrate_rig
 from prismstereo.config import DEFAULT_DEPTH_RANGE_MM, Rig
-from prismstereo.depth.refine import refine_disparity
+from prismstereo.depth.confidence import confident_matches
+from prismstereo.depth.confidence import remove_speckles as drop_small_patches
 from prismstereo.depth.search_range import (
     SearchRange,
     auto_search_range,
@@ -127,9 +127,9 @@ class DepthConfig:
     refine_radius : int
         Half-size of the refinement window, px.
     min_confidence : float or None
-        With ``refine``: keep only matches that the refinement could refine (textured window, inside
-        both views, within a pixel of the matcher's value) and whose windows then correlate (ZNCC) at
-        least this much. None keeps every match.
+        Keep only matches whose confidence (:func:`~prismstereo.depth.confidence.confident_matches`: ZNCC
+        of the refined windows, 0 where the refinement could not confirm the match) is at least this.
+        None keeps every match; the confidence of each point is in the outputs either way.
     speckle_fraction : float or None
         Remove connected patches of disparity (neighbours within 1 px) smaller than this fraction of the
         matched region (at least 20 px): isolated wrong matches (OpenCV ``filterSpeckles``). None keeps them.
@@ -150,12 +150,12 @@ class DepthConfig:
     use_filled: bool = False
     max_gap_mm: float | None = None
     refine: bool = True
-    refine_radius: int = 3
-    min_confidence: float | None = 0.8
+    refine_radius: int = 5
+    min_confidence: float | None = 0.5
     speckle_fraction: float | None = 0.001
     refine_iterations: int = 6
     refine_max_shift: float = 1.0
-    refine_min_texture: float = 1.0
+    refine_min_texture: float = 0.01
     sweep: SweepParams = field(default_factory=SweepParams)
 
     def to_dict(self) -> dict[str, Any]:
@@ -348,7 +348,8 @@ class DepthResult:
     faces : tuple of int
         (left, right) of a pair; (reference, others...) of an all-view run.
     confidence : (h, w) float32 or None
-        ZNCC of the refined matches (NaN where not refined).
+        Confidence in [0, 1] of each point (:func:`~prismstereo.depth.confidence.confident_matches`; 0 for
+        every point without refinement), NaN where ``valid`` is False.
     view_counts : (h, w) uint8 or None
         Views that triangulated each pixel (all-view runs).
     stage_counts : dict
@@ -412,6 +413,12 @@ class DepthResult:
         if self.pair is None:
             return self.roi_mask
         return self.roi_mask & np.asarray(self.pair.valid_masks()[0], dtype=bool)
+
+    def point_confidence(self) -> np.ndarray:
+        """(h, w) float32 confidence of each point, NaN where ``valid`` is False (0 without refinement)."""
+        assert self.valid is not None
+        conf = self.confidence if self.confidence is not None else np.zeros(self.valid.shape, dtype=np.float32)
+        return np.where(self.valid, conf, np.float32(np.nan)).astype(np.float32)
 
     def counts(self) -> dict[str, int]:
         return {
@@ -524,6 +531,9 @@ def validate_config(rig: Rig, config: DepthConfig) -> DepthConfig:
         x, y, w, h = config.roi
         if w <= 0 or h <= 0 or x < 0 or y < 0:
             raise ConfigError(f"--roi: expected x,y,w,h with x, y >= 0 and w, h > 0, got {list(config.roi)}")
+    if config.min_confidence is not None and not 0.0 <= config.min_confidence <= 1.0:
+        raise ConfigError(f"--min-confidence: expected a number in [0, 1] (0 keeps every match), "
+                          f"got {config.min_confidence!r}")
     if config.max_gap_mm is not None and not config.max_gap_mm > 0:
         raise ConfigError(f"max_gap_mm: expected a positive number, got {config.max_gap_mm!r}")
     method = config.method.lower()
@@ -658,31 +668,25 @@ def match_pair(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, region:
 
 
 def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, disparity: np.ndarray,
-                   config: DepthConfig) -> tuple[np.ndarray, np.ndarray | None]:
-    """Sub-pixel refinement and the confidence filter; returns (disparity, ZNCC confidence or None)."""
+                   config: DepthConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Sub-pixel refinement, confidence and the confidence filter
+    (:func:`~prismstereo.depth.confidence.confident_matches`); returns (disparity, confidence in [0, 1],
+    0 for every match when the refinement is off, NaN where there is no match)."""
     if not config.refine:
-        return disparity, None
+        return disparity, np.where(np.isfinite(disparity), np.float32(0.0), np.float32(np.nan))
     vl, vr = pair.valid_masks()
-    disp, conf = refine_disparity(left, right, disparity, radius=config.refine_radius,
-                                  iterations=config.refine_iterations, max_shift=config.refine_max_shift,
-                                  min_texture=config.refine_min_texture, valid_left=vl, valid_right=vr)
-    if config.min_confidence is not None:
-        with np.errstate(invalid="ignore"):
-            disp = np.where(conf >= config.min_confidence, disp, np.float32(np.nan))
-    return disp, conf
+    return confident_matches(left, right, disparity, radius=config.refine_radius,
+                             iterations=config.refine_iterations, max_shift=config.refine_max_shift,
+                             min_texture=config.refine_min_texture, min_confidence=config.min_confidence,
+                             valid_left=vl, valid_right=vr)
 
 
 def remove_speckles(disparity: np.ndarray, region: SearchRegion, config: DepthConfig) -> np.ndarray:
     """Remove small connected patches of disparity (OpenCV ``filterSpeckles``); see ``speckle_fraction``."""
     if config.speckle_fraction is None:
         return disparity
-    finite = np.isfinite(disparity)
-    if not finite.any() or float(np.nanmax(disparity)) * 16 > 32000:
-        return disparity
     size = max(20, int(config.speckle_fraction * int(region.mask.sum())))
-    d16 = np.where(finite, np.rint(disparity * 16.0), -16).astype(np.int16)
-    cv2.filterSpeckles(d16, -16, size, 16)
-    return np.where(d16 == -16, np.float32(np.nan), disparity).astype(np.float32)
+    return drop_small_patches(disparity, max_size=size)
 
 
 def triangulate_disparity(rig: Rig, pair: RectifiedPair, views: Sequence[VirtualView], disparity: np.ndarray,
@@ -804,7 +808,8 @@ def _run_frame(setup: DepthSetup, image: np.ndarray, left: np.ndarray, right: np
         disparity=despeckled, disparity_filled=matched.filled, raw_disparity=matched.raw, points=pts.points,
         depth=pts.depth, gaps=pts.gaps, valid=pts.valid, roi_mask=region.mask,
         disparity_range=region.disparity_range, depth_range=region.depth_range, depth_range_source=region.source,
-        faces=(int(pair.left_face), int(pair.right_face)), confidence=conf, stage_counts=counts,
+        faces=(int(pair.left_face), int(pair.right_face)),
+        confidence=np.where(pts.valid, conf, np.float32(np.nan)).astype(np.float32), stage_counts=counts,
         timings=dict(setup.timings), match_timings=matched.timings, warnings=region.warnings)
     return _finish(result, clock, t0)
 

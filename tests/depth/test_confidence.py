@@ -1,0 +1,128 @@
+"""Per-match confidence, the confidence filter and the speckle filter; the default's density on a held-out texture."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from prismstereo.depth.confidence import confident_matches, remove_speckles
+
+
+def _shifted_pair(d: float, *, seed: int = 0, h: int = 40, w: int = 120) -> tuple[np.ndarray, np.ndarray]:
+    """A smooth random texture and its copy shifted right by ``d`` px (left x ↔ right x − d)."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    base = cv2.GaussianBlur(rng.random((h, w + 40)).astype(np.float32) * 255, (0, 0), 1.2)
+    xs = np.arange(w, dtype=np.float32)
+    left = base[:, 20:20 + w]
+    right = np.stack([np.interp(xs + 20 + d, np.arange(w + 40), row) for row in base]).astype(np.float32)
+    return left, right
+
+
+def test_confidence_is_high_on_texture_and_refines_to_the_true_disparity():
+    left, right = _shifted_pair(7.3)
+    init = np.full(left.shape, 7.0, dtype=np.float32)
+    disp, conf = confident_matches(left, right, init, radius=5, min_confidence=None)
+    inner = (slice(8, -8), slice(20, -20))
+    assert np.nanmedian(conf[inner]) > 0.95
+    assert abs(float(np.nanmedian(disp[inner])) - 7.3) < 0.02
+    assert np.all((conf[np.isfinite(conf)] >= 0) & (conf[np.isfinite(conf)] <= 1))
+
+
+def test_matches_the_refinement_cannot_confirm_get_zero_and_the_threshold_drops_them():
+    left, right = _shifted_pair(7.3)
+    left[:, :40] = right[:, :40] = 100.0  # no texture: nothing to refine on
+    init = np.full(left.shape, 7.0, dtype=np.float32)
+    init[0, 0] = np.nan
+    disp, conf = confident_matches(left, right, init, radius=3, min_confidence=None)
+    flat = (slice(5, -5), slice(5, 25))
+    assert np.all(conf[flat] == 0.0) and np.all(disp[flat] == 7.0)  # kept, flagged
+    assert np.isnan(disp[0, 0]) and np.isnan(conf[0, 0])  # no match, no confidence
+    kept, kconf = confident_matches(left, right, init, radius=3, min_confidence=0.5)
+    assert np.all(np.isnan(kept[flat])) and np.all(np.isnan(kconf[flat]))
+    assert np.isfinite(kept[20, 60]) and kconf[20, 60] >= 0.5
+    assert np.array_equal(np.isfinite(kept), np.isfinite(kconf))
+
+
+def test_matches_near_the_edge_of_a_view_are_refined_with_a_smaller_window():
+    left, right = _shifted_pair(7.3)
+    valid = np.ones(left.shape, dtype=bool)
+    valid[:, 60:] = False  # the left view ends at column 60
+    init = np.where(valid, np.float32(7.0), np.float32(np.nan))
+    band = (slice(8, -8), slice(55, 57))  # the 11 px window is cut by the edge, a 7 px one is not
+    d_one, c_one = confident_matches(left, right, init, radius=5, border_radius=None, valid_left=valid)
+    d_two, c_two = confident_matches(left, right, init, radius=5, border_radius=3, valid_left=valid)
+    assert np.all(c_one[band] == 0.0)
+    assert np.all(c_two[band] > 0.9) and np.all(np.abs(d_two[band] - 7.3) < 0.1)  # from 0.3 px off
+    inner = (slice(8, -8), slice(20, 50))
+    assert np.array_equal(d_one[inner], d_two[inner])  # away from the edge: the first window only
+
+
+def test_remove_speckles_drops_small_patches_only():
+    d = np.full((60, 60), np.nan, dtype=np.float32)
+    d[5:45, 5:45] = 20.0 + np.linspace(0, 0.5, 40)[None, :]  # a smooth surface
+    d[50:53, 50:53] = 35.0  # an isolated wrong match
+    out = remove_speckles(d, max_size=20)
+    assert np.isnan(out[50:53, 50:53]).all()
+    assert np.array_equal(out[5:45, 5:45], d[5:45, 5:45])
+
+
+def _held_out_scene():
+    """Two surfaces with textures unlike the noise the pipeline was developed on: gratings, sparse dots."""
+    from prismstereo.simulate import ImageTexture, NoiseTexture, Plane, Rectangle, Scene
+
+    rng = np.random.default_rng(1401)
+    n = 256
+    y, x = np.mgrid[0:n, 0:n] / n
+    grating = np.zeros((n, n, 3))
+    for _ in range(4):
+        f = rng.uniform(3.0, 14.0, 2)
+        grating += np.sin(2 * np.pi * (f @ np.stack([x.ravel(), y.ravel()])).reshape(n, n)
+                          + rng.uniform(0, 6.3))[..., None] * rng.uniform(0.3, 1.0, 3)
+    grating = np.clip(0.5 + 0.12 * grating, 0, 1)
+    dots = np.full((n, n, 3), 0.55)
+    k = n * n // 40
+    iy, ix = rng.integers(0, n - 1, k), rng.integers(0, n - 1, k)
+    c = rng.random((k, 3))
+    for dy in (0, 1):
+        for dx in (0, 1):
+            dots[iy + dy, ix + dx] = c
+    return Scene(objects=(
+        Plane(center=(0.0, 0.0, 1800.0), name="wall",
+              texture=NoiseTexture(scale=40.0, octaves=4, persistence=0.6, contrast=1.2, seed=1402)),
+        Rectangle(center=(-15.0, -35.0, 1350.0), size=(110.0, 80.0), rotation=(0.0, 25.0, 0.0), name="grating",
+                  texture=ImageTexture(image=(grating * 255).astype(np.uint8), size=(80.0, 80.0))),
+        Rectangle(center=(10.0, 55.0, 1500.0), size=(110.0, 70.0), rotation=(15.0, -20.0, 0.0), name="dots",
+                  texture=ImageTexture(image=(dots * 255).astype(np.uint8), size=(60.0, 60.0))),
+    ), supersample=2, name="held-out")
+
+
+@pytest.fixture(scope="module")
+def held_out_run():
+    from prismstereo.apps.demo import demo_rig
+    from prismstereo.depth import DepthConfig, run_depth
+    from prismstereo.evaluation.depth_metrics import evaluate_depth
+    from prismstereo.simulate import render_capture
+
+    rig, scene = demo_rig(), _held_out_scene()
+    cap = render_capture(rig, scene)
+    res = run_depth(rig, cap.image, config=DepthConfig(depth_range=(1100.0, 2400.0)), progress=False)
+    return dataclasses.replace(res, accuracy=evaluate_depth(res, scene=scene))
+
+
+def test_default_keeps_most_of_the_view_accurately_on_a_held_out_texture(held_out_run):
+    acc = held_out_run.accuracy
+    assert acc["coverage"] >= 0.80
+    assert acc["median_rel"] <= 0.001
+    assert acc["within_1pct"] >= 0.90
+
+
+def test_confidence_is_aligned_with_the_depth_map(held_out_run):
+    res = held_out_run
+    assert res.confidence is not None and res.confidence.shape == res.depth.shape
+    assert np.array_equal(np.isfinite(res.confidence), np.isfinite(res.depth))
+    c = res.confidence[np.isfinite(res.confidence)]
+    assert c.min() >= res.config.min_confidence and c.max() <= 1.0
