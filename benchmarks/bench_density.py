@@ -32,8 +32,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from prismstereo.apps.demo import demo_rig, scaled_rig
 
+from prismstereo.apps.demo import demo_rig, scaled_rig
 from prismstereo.config import Rig, thesis_biprism, thesis_triprism
 from prismstereo.depth import DepthConfig, run_depth, triangulate_matches
 from prismstereo.depth.confidence import confident_matches, remove_speckles

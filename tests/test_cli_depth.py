@@ -182,7 +182,7 @@ def test_depth_replays_a_run_from_its_run_json(capture_folder, tmp_path, capsys)
     run = json.loads((first / "run.json").read_text())
     # the resolved configuration: the parameter given and every default of the matcher and the steps
     assert run["config"]["matcher_params"]["radius"] == 4 and "tolerance" in run["config"]["matcher_params"]
-    assert run["config"]["min_confidence"] == 0.8 and run["config"]["views"] == [1, 0]
+    assert run["config"]["min_confidence"] == 0.5 and run["config"]["views"] == [1, 0]
     code, _, err = _run(["depth", "--config", str(first / "run.json"), "-o", str(again)], capsys)
     assert code == 0, err
     rerun = json.loads((again / "run.json").read_text())
