@@ -40,10 +40,15 @@ DEPTH_STEP_LIMIT = 0.04
 FAR_MM = 100_000.0
 
 
-def face_overlap(rig: Rig, face_a: int, face_b: int, depths_mm: np.ndarray, *, step: float = 32.0
+def face_overlap(rig: Rig, face_a: int, face_b: int, depths_mm: np.ndarray, *, step: float | None = None
                  ) -> np.ndarray:
-    """(D,) share of face a's sampled pixels whose point at each world depth face b sees inside the image."""
+    """(D,) share of face a's sampled pixels whose point at each world depth face b sees inside the image.
+
+    ``step``: grid spacing of the sampled pixels (default 768 samples over the image, at most 32 px).
+    """
     w, h = rig.camera.width, rig.camera.height
+    if step is None:
+        step = float(np.clip(np.sqrt(w * h / 768.0), 1.0, 32.0))
     grid = pixel_grid(w, h, step=step).reshape(-1, 2) + (step - 1) / 2.0
     grid = grid[(grid[:, 0] <= w - 1) & (grid[:, 1] <= h - 1)]
     b = trace_pixels(rig, grid)

@@ -527,7 +527,10 @@ def rectify_pair(
     offset = 0.0
     if size is None:
         if depth_range is None:
-            depth_range = pair_depth_range(rig, left.face, right.face, depth_step_cap=False)
+            try:
+                depth_range = pair_depth_range(rig, left.face, right.face, depth_step_cap=False)
+            except GeometryError as exc:  # too few pixels to measure the overlap: keep one principal point
+                log.info("no overlap range for faces %d and %d (%s): no disparity offset", left.face, right.face, exc)
         if depth_range is not None:
             offset = _disparity_offset(mappers, feet, f, depth_range)
     K, wh = _common_K([feet[0], feet[1] + np.array([offset, 0.0])], f, size)
