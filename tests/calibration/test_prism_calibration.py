@@ -29,9 +29,11 @@ def test_calibration_recovers_a_known_pose(board_captures, small_true, small_nom
     _, images = board_captures
     start = dataclasses.replace(small_nominal, camera=small_true.camera)
     res = calibrate_prism(start, images, Board(8, 6, 5.0))
-    assert abs(res.estimates["rotation"] - 1.4) < 0.1
-    assert abs(res.estimates["tilt_x"] - 1.0) < 0.5 and abs(res.estimates["tilt_y"] + 0.8) < 0.5
-    assert res.rms_px < 0.3 and res.std["rotation"] < 0.05
+    assert abs(res.estimates["rotation"] - 1.4) < 0.01
+    # the target (0.2°); the fit measures 0.04° with std 0.05° here (5 captures at half resolution)
+    assert abs(res.estimates["tilt_x"] - 1.0) < 0.2 and abs(res.estimates["tilt_y"] + 0.8) < 0.2
+    assert res.std["tilt_x"] < 0.1 and res.std["tilt_y"] < 0.1
+    assert res.rms_px < 0.1 and res.std["rotation"] < 0.01
     assert set(res.per_view_rms) == {f"capture{i}:{k}" for i in range(5) for k in range(2)}
     assert res.rig.prism.rotation == res.estimates["rotation"]
     # the focal lengths are refined by default (they start at the truth here and must stay there)
