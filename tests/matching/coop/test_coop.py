@@ -86,11 +86,10 @@ def test_energy_never_increases_across_iterations() -> None:
 def test_remembered_data_terms_match_fresh_ones() -> None:
     """Sweeps within one call reuse data terms across z-buffer changes; one sweep per call computes them all
     afresh. Both must take the same path, and the reported energy must be the recomputed one."""
+    from prismstereo.matching.coop import initial_disparity
     from prismstereo.matching.coop.coopcost import aggregated_costs, raw_cost
     from prismstereo.matching.segments.planes import fit_planes
     from prismstereo.matching.segments.segmentation import mean_shift_segment
-
-    from prismstereo.matching.coop import initial_disparity
 
     left, right, _ = _synthetic_pair(2)
     labels = mean_shift_segment(left)
