@@ -3,6 +3,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -40,3 +41,17 @@ def test_bad_rig_is_one_line_exit_2(tmp_path):
     assert proc.stderr.count("\n") == 1 and "refractive_index" in proc.stderr
     assert "Traceback" not in proc.stderr
     assert not out.exists()
+
+
+def test_quiet_does_not_leak_into_later_calls(monkeypatch, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import os
+
+    from prismstereo.cli import main
+
+    monkeypatch.delenv("TQDM_DISABLE", raising=False)
+    rig = Path(__file__).resolve().parents[1] / "examples" / "rigs" / "biprism.toml"
+    assert main(["calibrate", str(rig), "-o", str(tmp_path / "cams.json"), "--quiet"]) == 0
+    assert "TQDM_DISABLE" not in os.environ
+    monkeypatch.setenv("TQDM_DISABLE", "0")
+    assert main(["calibrate", str(rig), "-o", str(tmp_path / "cams2.json"), "--quiet"]) == 0
+    assert os.environ["TQDM_DISABLE"] == "0"

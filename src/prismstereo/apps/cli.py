@@ -514,9 +514,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(_join_signed_values(sys.argv[1:] if argv is None else argv))
     _setup_logging(args.command, args.verbose)
-    if args.quiet:  # tqdm reads its defaults from TQDM_* variables; bars show only on a terminal anyway
-        os.environ["TQDM_DISABLE"] = "1"
     handler: Handler = args.handler
+    if not args.quiet:
+        return _run_handler(handler, args)
+    # tqdm reads its defaults from TQDM_* variables (bars show only on a terminal anyway); put the variable
+    # back afterwards, so that --quiet does not silence later calls of main() in the same process
+    previous = os.environ.get("TQDM_DISABLE")
+    os.environ["TQDM_DISABLE"] = "1"
+    try:
+        return _run_handler(handler, args)
+    finally:
+        if previous is None:
+            del os.environ["TQDM_DISABLE"]
+        else:
+            os.environ["TQDM_DISABLE"] = previous
+
+
+def _run_handler(handler: Handler, args: argparse.Namespace) -> int:
+    """Run a subcommand's handler; errors become one line on stderr and the exit code."""
     try:
         return handler(args)
     except PrismStereoError as exc:
