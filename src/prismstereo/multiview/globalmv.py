@@ -12,7 +12,7 @@ to all views, and they reuse the ``coop`` building blocks of :mod:`prismstereo.m
    disparity set are stacked into one least-squares system ``A [a b c]ᵀ = B`` (Eq. 7.11) solved with the
    pseudo-inverse (Eqs. 7.12–7.13), with the outlier rules of §6.1.2 (cross-check, the reliable-region
    rule Eq. 6.8 over all views' pixels, the distance rule Eq. 6.9 with the Eq. 6.10 iteration) — the
-   robust solver :func:`prismstereo.matching.segments.planes._fit_one` run on the stacked observations. By default
+   robust solver :func:`prismstereo.matching.segments.planes.fit_one_plane` run on the stacked observations. By default
    (``fit_source="both"``) one more disparity set joins the stack: the winner of the views' aggregated
    costs fused on the unit grid (the local method's map), reliable where a pair agrees with it — a
    deviation that measured better on both Tsukuba (five views) and Cones (nine views) than the pairs' maps
@@ -81,9 +81,9 @@ from prismstereo.matching.registry import MatchResult
 from prismstereo.matching.segments.planes import (
     PlaneParams,
     SegmentIndex,
-    _fit_one,
     build_segment_index,
     fill_missing_planes,
+    fit_one_plane,
     group_refit_planes,
     merge_planes,
     render_planes,
@@ -251,7 +251,7 @@ def _fit_all_joint(order: npt.NDArray[np.int64], starts: npt.NDArray[np.int64], 
                     ys[q] = p // w
                     ds[q] = disp[v, p]
                     q += 1
-        a, b, c, n_in = _fit_one(xs, ys, ds, t_out, eps, max_iter, min_pix, trials, max_slope, j + 1)
+        a, b, c, n_in = fit_one_plane(xs, ys, ds, t_out, eps, max_iter, min_pix, trials, max_slope, j + 1)
         if n_in >= min_pix:
             planes[j, 0] = a
             planes[j, 1] = b

@@ -15,7 +15,7 @@ from typing import Any, Literal
 import numpy as np
 
 from prismstereo.errors import ConfigError
-from prismstereo.matching.local import costs, selection
+from prismstereo.matching.local import aggregation, costs, selection
 from prismstereo.matching.registry import MatchResult, register_matcher
 
 log = logging.getLogger(__name__)
@@ -191,8 +191,6 @@ class BPASWMatcher(LocalMatcher):
 
     def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
                     min_disp: int) -> np.ndarray:
-        from prismstereo.matching.local import aggregation
-
         vol = self.pixel_cost(left, right, max_disp=max_disp, min_disp=min_disp)
         kw: dict[str, Any] = dict(radius=self.radius, dilation=self.dilation, min_disp=min_disp, kernel=self.kernel,
                   similarity_s0=self.similarity_s0, gamma_color=self.gamma_color,
