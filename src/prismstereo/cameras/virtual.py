@@ -151,8 +151,8 @@ def fit_camera(
     principal point are nearly interchangeable, and the least-squares optimum uses both: the fitted R is
     not the physical optical axis of the thesis construction (for the thesis bi-prism it turns the right
     view by +2.1° with cx ≈ 1014 px, where the thesis's axis is −3.2° with cx = 511.5). Pinning R to the
-    physical axis and fitting only K, C and distortion doubles the error (0.37 px RMS instead of 0.20
-    on the thesis bi-prism over 0.5–3 m), so the free fit is kept; the model is judged by how it reprojects.
+    physical axis and fitting only K, C and distortion about doubles the reprojection error on the thesis
+    bi-prism (docs/EXPERIMENTS.md), so the free fit is kept; the model is judged by how it reprojects.
     """
     if depth_range is None:
         depth_range = _model_depth_range(rig)

@@ -12,8 +12,8 @@ Front end (kept in :class:`CoopResult`):
 
 then the steps of :mod:`prismstereo.matching.coop.steps`, shared with the global multi-view method
 (optimise, refit, bpasw_planes, sweep, group_moves, fine, boundary, occlusion, median, fallback), on the
-two-view evidence (:class:`_PairEvidence`: the pair's data term, issue 3's BPASW cost volume of the pair and
-its cross-checked map)                                        -> ``disparity`` (thesis Table 6.2)
+two-view evidence (:class:`_PairEvidence`: the pair's data term, the ``bpasw`` matcher's cost volume of the pair
+and its cross-checked map)                                        -> ``disparity`` (thesis Table 6.2)
 
 Default parameters (the same for every scene): hs = 5, hr = 4, M = 20; guided filter r = 9, ε = 1e-4;
 γ_segment = 0.9, t_outlier = 1, ε(6.10) = 0.99, δ = 0.8; κ = 0.5, μ = 1, ω_occ = 1, γ = 0.5;
@@ -185,7 +185,7 @@ def box_filter_volume(vol: F32, r: int, *, vertical: bool = True) -> F32:
 
 def bpasw_volume(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, max_disp: int,
                  min_disp: int = 0) -> F32:
-    """Issue 3's BPASW aggregated cost volume of the left view (thesis §5.2, Eqs. 5.6-5.14).
+    """The ``bpasw`` matcher's aggregated cost volume of the left view (thesis §5.2, Eqs. 5.6-5.14).
 
     S_AD plus half the census distance, aggregated with symmetric Weber-Fechner adaptive support weights
     (the ``bpasw`` matcher's defaults). Symmetric weights make the right view's volume the diagonal read of
@@ -196,7 +196,7 @@ def bpasw_volume(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, m
 
 
 def bpasw_dense_map(vol: F32, image: npt.NDArray[np.uint8], *, min_disp: int = 0) -> F32:
-    """Issue 3's ``bpasw`` matcher output from its cost volume: WTA, cross-check (1 px), background fill and
+    """The ``bpasw`` matcher's output from its cost volume: WTA, cross-check (1 px), background fill and
     colour-weighted median (radius 9), as :class:`prismstereo.matching.local.matchers.BPASWMatcher` with defaults.
     Returns (H, W) float32, dense."""
     disp = selection.winner_take_all(vol, min_disp=min_disp)
@@ -377,7 +377,7 @@ class DataTermParams:
 
 class _PairEvidence:
     """The two-view evidence of the steps (:class:`~prismstereo.matching.coop.steps.Evidence`): the pair's
-    data term, issue 3's BPASW volume of the pair and its cross-checked map, the initial map."""
+    data term, the ``bpasw`` matcher's volume of the pair and its cross-checked map, the initial map."""
 
     def __init__(self, lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uint8], *, min_disp: int, max_disp: int,
                  data: F32, reliable: npt.NDArray[np.bool_], initial: F32, bvol: F32, bdisp: F32,

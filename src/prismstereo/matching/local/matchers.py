@@ -154,13 +154,11 @@ class BPASWMatcher(LocalMatcher):
     using the first pass's winners as the neighbours' disparities (off by default: it raised the Middlebury
     error; docs/EXPERIMENTS.md).
 
-    Defaults (measured on the four Middlebury v2 scenes, bad > 1 px after cross-check and filling):
-    a 33×33 window sampled every 2 px, S_AD with ω = 0.5 and truncations 20 / 8 grey levels, plus
-    ``census_weight`` × the census Hamming distance (7×9), Weber–Fechner colour threshold S0 = 28 ΔE
-    (S0 = 10 / 28 / 50 / 100 gave 2.90 / 2.66 / 2.70 / 2.82 % nonocc; exp weights 2.80).
-    ``subpixel`` is off by default because the parabola fit did not lower the 1-px error here; switch
-    it on for depth. The dense map gets a final colour-weighted median (``final_median``): at S0 = 50
-    it took the 4-scene averages from 3.19 to 2.70 % nonocc and from 6.99 to 6.09 % all.
+    Defaults (chosen on the four Middlebury v2 scenes, bad > 1 px after cross-check and filling;
+    docs/EXPERIMENTS.md): a 33×33 window sampled every 2 px, S_AD with ω = 0.5 and truncations 20 / 8 grey
+    levels, plus ``census_weight`` × the census Hamming distance (7×9), Weber–Fechner colour threshold
+    S0 = 28 ΔE. ``subpixel`` is off by default because the parabola fit did not lower the 1-px error here;
+    switch it on for depth. The dense map gets a final colour-weighted median (``final_median``).
     """
 
     subpixel: bool = False
