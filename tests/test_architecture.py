@@ -3,7 +3,8 @@
 The layer order is written here, lowest first. A package may import from its own layer (its own modules,
 or a package listed beside it) and from the layers below, never from a layer above; a new package must be
 placed in :data:`LAYERS` before it can be imported. Imports are read with ``ast`` from the source, at module
-level AND inside functions (a function-level import that dodges a cycle is still an upward import).
+level AND inside functions (a function-level import that dodges a cycle is still an upward import). Outside
+the commands (``apps/``) imports sit at module level, and no module imports another's underscore names.
 """
 
 from __future__ import annotations
@@ -90,6 +91,30 @@ def _sources() -> list[Path]:
     return sorted(PACKAGE.rglob("*.py"))
 
 
+#: function-level prismstereo imports allowed outside ``apps/`` ("path relative to src:line" -> why); the
+#: commands in ``apps/`` import their algorithms lazily to keep the CLI's start-up short
+LAZY_IMPORTS_ALLOWED: dict[str, str] = {}
+
+
+def _function_level_imports(text: str, here: str, *, is_package: bool = False) -> Iterator[tuple[int, str]]:
+    """(line, imported prismstereo module) of every import inside a function body of module ``here``."""
+    inside = {sub.lineno for node in ast.walk(ast.parse(text))
+              if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))
+              for sub in ast.walk(node) if isinstance(sub, (ast.Import, ast.ImportFrom))}
+    for line, target in _imports_in(text, here, is_package=is_package):
+        if line in inside:
+            yield line, target
+
+
+def _private_names_imported(text: str) -> Iterator[tuple[int, str]]:
+    """(line, "module.name") of every underscore name (dunders aside) imported from a prismstereo module."""
+    for node in ast.walk(ast.parse(text)):
+        if isinstance(node, ast.ImportFrom) and (node.level or (node.module or "").split(".")[0] == "prismstereo"):
+            for alias in node.names:
+                if alias.name.startswith("_") and not alias.name.endswith("__"):
+                    yield node.lineno, f"{'.' * node.level}{node.module or ''}.{alias.name}"
+
+
 def test_every_package_has_a_layer() -> None:
     packages = {_package_of(_module_name(p)) for p in _sources()}
     unplaced = sorted(packages - set(RANK))
@@ -114,6 +139,43 @@ def test_the_reader_sees_imports_hidden_in_functions() -> None:
     found = list(_imports_in(body, "prismstereo.optics.fake"))
     assert found == [(2, "prismstereo.depth.pipeline"), (5, "prismstereo.apps")]
     assert all(RANK[_package_of(m)] > RANK["optics"] for _, m in found)
+
+
+def test_no_function_level_imports_outside_apps() -> None:
+    """Imports sit at module level (a lazy import hides a cycle); only the commands in ``apps/`` stay lazy."""
+    lazy = []
+    for path in _sources():
+        rel = path.relative_to(SRC)
+        if rel.parts[1] == "apps":
+            continue
+        text = path.read_text(encoding="utf-8")
+        for line, target in _function_level_imports(text, _module_name(path), is_package=path.name == "__init__.py"):
+            if f"{rel}:{line}" not in LAZY_IMPORTS_ALLOWED:
+                lazy.append(f"{rel}:{line}: {target}")
+    assert not lazy, "function-level imports (hoist them; break a cycle by moving code down):\n" + "\n".join(lazy)
+
+
+def test_the_lazy_import_check_can_fail() -> None:
+    body = ("from prismstereo.errors import ConfigError\n"
+            "def f():\n    from prismstereo.optics import trace_pixels\n    return trace_pixels\n"
+            "class C:\n    def m(self):\n        from . import sibling\n        return sibling\n")
+    assert list(_function_level_imports(body, "prismstereo.cameras.fake")) == [
+        (3, "prismstereo.optics"), (7, "prismstereo.cameras")]
+
+
+def test_no_private_names_imported_across_modules() -> None:
+    """A helper another module needs is public (documented, no underscore)."""
+    private = [f"{path.relative_to(SRC)}:{line}: {name}" for path in _sources()
+               for line, name in _private_names_imported(path.read_text(encoding="utf-8"))]
+    assert not private, "underscore names imported from another module (make them public):\n" + "\n".join(private)
+
+
+def test_the_private_import_check_can_fail() -> None:
+    body = ("from prismstereo import __version__\n"
+            "from prismstereo.matching.local._sgm import sgm_kernel\n"
+            "from prismstereo.calibration.prism import PARAMETERS, _helper\n"
+            "def f():\n    from .planes import _fit\n    return _fit\n")
+    assert list(_private_names_imported(body)) == [(3, "prismstereo.calibration.prism._helper"), (5, ".planes._fit")]
 
 
 def test_importing_the_pipeline_loads_nothing_above_it() -> None:

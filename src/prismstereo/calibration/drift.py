@@ -20,8 +20,10 @@ import numpy as np
 
 from prismstereo.calibration.boards import to_gray
 from prismstereo.calibration.from_scene import consistent_matches, match_features, sift_features
+from prismstereo.cameras import calibrate_rig
 from prismstereo.config import Rig
 from prismstereo.errors import GeometryError, ImageError
+from prismstereo.rectify import rectify_pair
 
 log = logging.getLogger(__name__)
 
@@ -92,8 +94,6 @@ def row_misalignment(rig: Rig, image: np.ndarray, *, calibration: str = "fit",
     ImageError
         Fewer than ``min_matches`` consistent matches in all pairs together (too little texture).
     """
-    from prismstereo.cameras import calibrate_rig
-    from prismstereo.rectify import rectify_pair
 
     views = calibrate_rig(rig, method=calibration)
     pairs: list[dict[str, object]] = []

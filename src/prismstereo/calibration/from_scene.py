@@ -43,7 +43,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from prismstereo.calibration.boards import to_gray
-from prismstereo.calibration.prism import PARAMETERS, _prism_values, _with_values
+from prismstereo.calibration.prism import PARAMETERS, prism_values, with_prism_values
 from prismstereo.config import Rig
 from prismstereo.errors import ConfigError, GeometryError, ImageError
 from prismstereo.optics import face_map, rays_from_pixels, trace_pixels, trace_rays
@@ -410,7 +410,7 @@ def calibrate_from_scene(
     dist = cam.distortion if cam.has_distortion else None
     dirs_a = rays_from_pixels(pa, cam.K, dist)
     dirs_b = rays_from_pixels(pb, cam.K, dist)
-    init = _prism_values(rig)
+    init = prism_values(rig)
     r0, normals = ray_residuals(rig, dirs_a, dirs_b, fa, fb)
     prior = [k for k in free_params if k in PRIOR_STD]
     noise_px = loss_scale_px
@@ -419,7 +419,7 @@ def calibrate_from_scene(
         values = dict(init)
         for i, k in enumerate(free_params):
             values[k] = init[k] + x[i]
-        return _with_values(rig, values)
+        return with_prism_values(rig, values)
 
     def residuals(x: np.ndarray) -> np.ndarray:
         try:
@@ -443,7 +443,7 @@ def calibrate_from_scene(
     sigma = max(1.4826 * float(np.median(np.abs(r1[np.isfinite(r1)]))), 1e-3)
     std_all = _std(J, sigma)
     std_data = _std(J[:total], sigma)
-    estimates = {k: float(_prism_values(fitted)[k]) for k in free_params}
+    estimates = {k: float(prism_values(fitted)[k]) for k in free_params}
     std = {k: float(std_all[i]) for i, k in enumerate(free_params)}
     sdata = {k: float(std_data[i]) for i, k in enumerate(free_params)}
     observed = {k: k not in PRIOR_STD or sdata[k] < OBSERVED_SHARE * PRIOR_STD[k] for k in free_params}

@@ -35,7 +35,7 @@ from scipy.sparse import lil_matrix
 from scipy.spatial.transform import Rotation
 
 from prismstereo.calibration.boards import MAX_EDGE_WIDTH_PX, Board, detect_board, to_gray
-from prismstereo.cameras.virtual import thesis_camera
+from prismstereo.cameras.faces import thesis_camera
 from prismstereo.config import Rig
 from prismstereo.errors import ConfigError, GeometryError, ImageError
 from prismstereo.optics import face_map, project_exact, rays_from_pixels, trace_pixels, trace_rays
@@ -161,7 +161,9 @@ def parse_free(text: str | Sequence[str] | None) -> tuple[str, ...]:
     return tuple(out)
 
 
-def _prism_values(rig: Rig) -> dict[str, float]:
+def prism_values(rig: Rig) -> dict[str, float]:
+    """The rig's fittable values by name (the keys of :data:`PARAMETERS`: prism pose and shape, mm and degrees;
+    camera focal lengths, principal point and first distortion term, px)."""
     p, c = rig.prism, rig.camera
     fx, fy = c.focal_xy
     return {"rotation": p.rotation, "tilt_x": p.tilt[0], "tilt_y": p.tilt[1], "decenter_x": p.decenter[0],
@@ -170,14 +172,16 @@ def _prism_values(rig: Rig) -> dict[str, float]:
             "fx": fx, "fy": fy, "cx": c.center[0], "cy": c.center[1], "k1": c.distortion[0]}
 
 
-def _with_values(rig: Rig, values: dict[str, float]) -> Rig:
+def with_prism_values(rig: Rig, values: dict[str, float]) -> Rig:
+    """``rig`` with the values of :func:`prism_values` replaced by ``values`` (every key present); a new apex
+    distance moves the back plane with it (the glass keeps its thickness)."""
     changes: dict[str, object] = {
         "rotation": values["rotation"], "tilt": (values["tilt_x"], values["tilt_y"]),
         "decenter": (values["decenter_x"], values["decenter_y"]), "refractive_index": values["refractive_index"],
         "corner_angle": values["corner_angle"],
     }
     cam = rig.camera
-    if any(values[k] != v for k, v in _prism_values(rig).items() if k in _CAMERA_PARAMS):
+    if any(values[k] != v for k, v in prism_values(rig).items() if k in _CAMERA_PARAMS):
         cam = dataclasses.replace(cam, fx=values["fx"], fy=values["fy"], principal_point=(values["cx"], values["cy"]),
                                   distortion=(values["k1"],) + cam.distortion[1:])
         rig = dataclasses.replace(rig, camera=cam)
@@ -305,7 +309,7 @@ def calibrate_prism(
     n_cap, m = len(obs), board.n_corners
     obj = board.object_points()
     poses0 = np.stack([_initial_pose(rig, board, o[0], 0) for o in obs])
-    init = _prism_values(rig)
+    init = prism_values(rig)
     scale = {"rotation": 1.0, "tilt_x": 1.0, "tilt_y": 1.0, "decenter_x": 1.0, "decenter_y": 1.0,
              "apex_distance": 1.0, "refractive_index": 0.01, "corner_angle": 0.1, "fx": 1.0, "fy": 1.0, "cx": 1.0,
              "cy": 1.0, "k1": 0.01}
@@ -319,7 +323,7 @@ def calibrate_prism(
         values = dict(init)
         for i, k in enumerate(free_params):
             values[k] = init[k] + x[i] * scale[k]
-        return _with_values(rig, values), x[n_p:].reshape(n_cap, 6)
+        return with_prism_values(rig, values), x[n_p:].reshape(n_cap, 6)
 
     def corners_world(poses: np.ndarray) -> np.ndarray:
         R = Rotation.from_rotvec(poses[:, :3]).as_matrix()  # (n_cap, 3, 3)
@@ -452,7 +456,7 @@ def calibrate_prism(
                 f"expected the fitted prism to show each board through the face it was found in, got "
                 f"{int((~seen).sum())} of {seen.size} corners of face {face} elsewhere; the fit is ill-conditioned "
                 f"(check the camera calibration, or fit fewer parameters with --free)")
-    values = _prism_values(fitted)
+    values = prism_values(fitted)
     estimates = {k: float(values[k]) for k in free_params}
     std = {k: float(std_all[i] * scale[k]) for i, k in enumerate(free_params)}
     bad = [k for k in free_params if not np.isfinite(std[k]) or std[k] > PARAMETERS[k][1]]

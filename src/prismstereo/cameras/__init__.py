@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from prismstereo.cameras.faces import face_pixels, thesis_camera
 from prismstereo.cameras.pinhole import PinholeCamera, project_points, rotation_from_axis
 from prismstereo.cameras.virtual import (
     METHODS,
@@ -9,12 +10,10 @@ from prismstereo.cameras.virtual import (
     VirtualView,
     calibrate_rig,
     cameras_table,
-    face_pixels,
     fit_camera,
     read_cameras_json,
     reprojection_error,
     sample_points,
-    thesis_camera,
     virtual_view,
     write_cameras_json,
 )

@@ -24,6 +24,7 @@ from itertools import combinations
 
 import numpy as np
 
+from prismstereo.cameras.faces import thesis_camera
 from prismstereo.config import Rig
 from prismstereo.errors import GeometryError
 from prismstereo.optics import pixel_grid, project_exact, trace_pixels
@@ -81,8 +82,6 @@ def _crossings(depths: np.ndarray, frac: np.ndarray, level: float) -> tuple[floa
 
 
 def _baseline(rig: Rig, face_a: int, face_b: int) -> float:
-    from prismstereo.cameras.virtual import thesis_camera
-
     return float(np.linalg.norm(thesis_camera(rig, face_a).C - thesis_camera(rig, face_b).C))
 
 

@@ -12,13 +12,11 @@ import numpy as np
 
 __all__ = ["LIMIT_SHARE", "MIN_VALID_SHARE", "limit_shares", "limit_warnings"]
 
-#: share of consistent matches within half a pixel of a search limit that triggers a warning. Measured
-#: (bpasw): Middlebury v2 with its own ranges at most 0.16 %; the README's robot pair (true disparities
-#: 58–106 px) searched to 64 px: 2.8 %, to 176 px: 0 %
+#: share of consistent matches within half a pixel of a search limit that triggers a warning (chosen
+#: between a range that holds the scene and one that cuts it: docs/EXPERIMENTS.md)
 LIMIT_SHARE = 0.02
 #: share of the image's pixels (black rectification borders excluded) passing the left–right check below
-#: which a map is reported as unreliable. Measured (bpasw): Middlebury v2 86.7–95.8 %; the robot pair
-#: searched to 64 px: 59.6 %, to 176 px: 86 %
+#: which a map is reported as unreliable (docs/EXPERIMENTS.md)
 MIN_VALID_SHARE = 0.7
 
 

@@ -12,11 +12,10 @@ to all views, and they reuse the ``coop`` building blocks of :mod:`prismstereo.m
    disparity set are stacked into one least-squares system ``A [a b c]ᵀ = B`` (Eq. 7.11) solved with the
    pseudo-inverse (Eqs. 7.12–7.13), with the outlier rules of §6.1.2 (cross-check, the reliable-region
    rule Eq. 6.8 over all views' pixels, the distance rule Eq. 6.9 with the Eq. 6.10 iteration) — the
-   robust solver :func:`prismstereo.matching.segments.planes._fit_one` run on the stacked observations. By default
+   robust solver :func:`prismstereo.matching.segments.planes.fit_one_plane` run on the stacked observations. By default
    (``fit_source="both"``) one more disparity set joins the stack: the winner of the views' aggregated
    costs fused on the unit grid (the local method's map), reliable where a pair agrees with it — a
-   deviation that measured better on both Tsukuba (five views) and Cones (nine views) than the pairs' maps
-   alone (``fit_source="pairs"``, the literal Eq. 7.11).
+   deviation from the literal Eq. 7.11 (``fit_source="pairs"``: the pairs' maps alone).
 4. **Merging** of similar neighbouring planes (§6.1.3, :func:`~prismstereo.matching.segments.planes.merge_planes`)
    on the per-pixel mean of the views' reliable disparities (the normal equations of Eq. 7.14 only see
    that mean, weighted by the number of views).
@@ -81,9 +80,9 @@ from prismstereo.matching.registry import MatchResult
 from prismstereo.matching.segments.planes import (
     PlaneParams,
     SegmentIndex,
-    _fit_one,
     build_segment_index,
     fill_missing_planes,
+    fit_one_plane,
     group_refit_planes,
     merge_planes,
     render_planes,
@@ -141,11 +140,8 @@ class GlobalMultiViewParams:
     segmentation, planes, coop : the ``coop`` building blocks' parameter sets. Two defaults differ from
         ``coop``'s: the segmentation keeps neighbours apart whose fused initial disparities differ by
         ``depth_tau`` = 2.5 px (:func:`~prismstereo.matching.segments.segmentation.mean_shift_segment` with the map of
-        the views' fused aggregated costs, which is far more reliable than one pair's: on Tsukuba it lowers
-        the segmentation's own floor, the error of the best constant per segment, from 1.03 % to 0.81 %;
-        measured without it, the other defaults unchanged: Tsukuba five views 1.02 nonocc instead of 0.98,
-        Cones nine views 1.77 instead of 1.80), and the smoothness weight γ is 0.6 (the data term carries
-        ``data_agg`` on top of the pixel cost; γ 0.5 measured Tsukuba 1.01, Cones 1.75).
+        the views' fused aggregated costs, which is far more reliable than one pair's), and the smoothness
+        weight γ is 0.6 (the data term carries ``data_agg`` on top of the pixel cost).
     occlusion : {"auto", "sides", "sum"}
         How the views' data costs combine (:func:`data_volume`); ``"sum"`` is the thesis's plain sum;
         ``"auto"`` chooses (:func:`~prismstereo.multiview.baseline.resolve_occlusion`). With
@@ -156,8 +152,7 @@ class GlobalMultiViewParams:
         number of views of the data term: the data term is a mean over views whose noise falls as
         ``1/√n_eff``, so the two-view balance of data and smoothness (``coop``'s γ, tuned for one view)
         is kept at equal noise. ``n_eff = 1`` for one view, so one view reproduces ``coop``. Off by default
-        since ``coop``'s γ was lowered to 0.5 (its own tuning); on, Tsukuba's five views went from
-        2.53/2.94/9.32 to 2.61/3.06/9.62 with that γ (better with the earlier γ = 1).
+        (with ``coop``'s γ = 0.5).
     weight_by_baseline : bool
         Weight each view's data cost by ``min(|δᵢ|, 1)`` (see :func:`data_volume`).
     fit_min_ratio : float
@@ -178,21 +173,18 @@ class GlobalMultiViewParams:
         The multi-view evidence of the steps after ``refit`` (:mod:`prismstereo.multiview.poststeps`: the
         fused BPASW cost and map, the per-side occlusion views); None = those steps off.
     fit_bpasw : bool
-        Also stack the fused BPASW map (reliable where multi-view consistent) into the joint plane fit
-        (off: Tsukuba five views 1.75 -> 2.13 nonocc).
+        Also stack the fused BPASW map (reliable where multi-view consistent) into the joint plane fit.
     data_bpasw : float
         Add this times the fused BPASW cost's residual above its per-pixel minimum to the data term (as
-        ``coop``'s ``data_term="both"``). Off: on Tsukuba five views 0.08-0.1 gave 1.53 nonocc but 0.06-0.07
-        gave 3.1 and 0.12 1.73 (a large segment flips), Cones 0.1 was slightly worse — not robust.
+        ``coop``'s ``data_term="both"``). Off by default: the result turns on the exact factor (a large
+        segment flips).
     data_agg : float
         Add this times the views' fused AGGREGATED (guided) cost's residual above its per-pixel minimum to the
         data term (not on the sweep step's row-boxed pixels: the aggregated cost's square support favours
-        fronto-parallel planes, which is what the row box avoids there; with it there too Cones nine views
-        measured 1.86 instead of 1.80, Tsukuba 0.987 instead of 0.982). Why: a fine segment of 3–30
+        fronto-parallel planes, which is what the row box avoids there). Why: a fine segment of 3–30
         pixels along a depth edge sums too few pixel costs for Eq. 7.16 to tell its two neighbours' planes
         apart; the edge-aware aggregated cost brings the colour-weighted support of the initial maps. Its
-        residual is ≈ 0–1 against the pixel cost's truncation at ``coop.data_trunc``. Measured (nonocc, the
-        other defaults unchanged): Tsukuba five views 1.18 -> 0.98, Cones nine views 1.76 -> 1.80.
+        residual is ≈ 0–1 against the pixel cost's truncation at ``coop.data_trunc``.
     """
 
     cost: CostName = "guided"
@@ -251,7 +243,7 @@ def _fit_all_joint(order: npt.NDArray[np.int64], starts: npt.NDArray[np.int64], 
                     ys[q] = p // w
                     ds[q] = disp[v, p]
                     q += 1
-        a, b, c, n_in = _fit_one(xs, ys, ds, t_out, eps, max_iter, min_pix, trials, max_slope, j + 1)
+        a, b, c, n_in = fit_one_plane(xs, ys, ds, t_out, eps, max_iter, min_pix, trials, max_slope, j + 1)
         if n_in >= min_pix:
             planes[j, 0] = a
             planes[j, 1] = b

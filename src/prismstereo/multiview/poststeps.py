@@ -2,7 +2,7 @@
 median) carried over to the global multi-view method with multi-view evidence.
 
 The two-view ``coop`` (:mod:`prismstereo.matching.coop`) follows its cooperative optimisation with steps that
-read issue 3's BPASW aggregated cost of the one pair. Here each step reads the evidence of all views:
+read the ``bpasw`` matcher's aggregated cost of the one pair. Here each step reads the evidence of all views:
 
 * **Fused BPASW cost** (:func:`fused_bpasw`): the BPASW aggregated cost of the reference against each view
   whose ``|δ|`` lies in ``[bpasw_min_ratio, bpasw_max_ratio]``, resampled to the unit baseline and summed

@@ -206,7 +206,7 @@ def _straddling_scene() -> tuple[np.ndarray, ...]:
 
 
 def test_fine_segments_move_the_straddling_columns_to_their_plane() -> None:
-    from prismstereo.matching.coop.pipeline import refine_fine_segments
+    from prismstereo.matching.coop.refine import refine_fine_segments
     from prismstereo.matching.segments.segmentation import SegmentationParams
 
     img, labels, planes, cost, truth = _straddling_scene()
@@ -220,7 +220,7 @@ def test_fine_segments_move_the_straddling_columns_to_their_plane() -> None:
 
 
 def test_fine_segments_keep_moves_only_with_evidence() -> None:
-    from prismstereo.matching.coop.pipeline import refine_fine_segments
+    from prismstereo.matching.coop.refine import refine_fine_segments
     from prismstereo.matching.segments.segmentation import SegmentationParams
 
     img, labels, planes, cost, truth = _straddling_scene()

@@ -12,8 +12,8 @@ Front end (kept in :class:`CoopResult`):
 
 then the steps of :mod:`prismstereo.matching.coop.steps`, shared with the global multi-view method
 (optimise, refit, bpasw_planes, sweep, group_moves, fine, boundary, occlusion, median, fallback), on the
-two-view evidence (:class:`_PairEvidence`: the pair's data term, issue 3's BPASW cost volume of the pair and
-its cross-checked map)                                        -> ``disparity`` (thesis Table 6.2)
+two-view evidence (:class:`_PairEvidence`: the pair's data term, the ``bpasw`` matcher's cost volume of the pair
+and its cross-checked map)                                        -> ``disparity`` (thesis Table 6.2)
 
 Default parameters (the same for every scene): hs = 5, hr = 4, M = 20; guided filter r = 9, ε = 1e-4;
 γ_segment = 0.9, t_outlier = 1, ε(6.10) = 0.99, δ = 0.8; κ = 0.5, μ = 1, ω_occ = 1, γ = 0.5;
@@ -26,7 +26,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -42,7 +41,7 @@ from prismstereo.matching.coop.cooperative import (
     build_segment_graph,
     cooperative_optimize,
 )
-from prismstereo.matching.coop.slanted import add_unique
+from prismstereo.matching.coop.slanted import segment_plane_costs
 from prismstereo.matching.coop.steps import (
     FallbackParams,
     OcclusionParams,
@@ -52,14 +51,13 @@ from prismstereo.matching.coop.steps import (
     coerce_params,
     run_steps,
 )
+from prismstereo.matching.local import selection
+from prismstereo.matching.local.matchers import BPASWMatcher
 from prismstereo.matching.local.selection import right_cost_volume
 from prismstereo.matching.registry import MatchResult, register_matcher
 from prismstereo.matching.segments.planes import (
     PlaneParams,
-    SegmentIndex,
-    build_segment_index,
     fill_missing_planes,
-    fit_planes,
     fit_planes_splitting,
     group_refit_planes,
     merge_planes,
@@ -69,10 +67,8 @@ from prismstereo.matching.segments.segmentation import SegmentationParams, mean_
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CoopMatcher", "CoopResult", "DataTermParams", "FineSegments", "boundary_pixel_planes",
-           "bpasw_candidate_rounds", "coop_match", "initial_disparity",
-           "occlusion_background_fill", "refine_fine_segments",
-           "segment_sweep_candidates"]
+__all__ = ["CoopMatcher", "CoopResult", "DataTermParams", "coop_match", "initial_disparity",
+           "occlusion_background_fill", "segment_sweep_candidates"]
 
 F32 = npt.NDArray[np.float32]
 
@@ -189,82 +185,20 @@ def box_filter_volume(vol: F32, r: int, *, vertical: bool = True) -> F32:
 
 def bpasw_volume(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, max_disp: int,
                  min_disp: int = 0) -> F32:
-    """Issue 3's BPASW aggregated cost volume of the left view (thesis §5.2, Eqs. 5.6-5.14).
+    """The ``bpasw`` matcher's aggregated cost volume of the left view (thesis §5.2, Eqs. 5.6-5.14).
 
     S_AD plus half the census distance, aggregated with symmetric Weber-Fechner adaptive support weights
     (the ``bpasw`` matcher's defaults). Symmetric weights make the right view's volume the diagonal read of
     this one (:func:`prismstereo.matching.local.selection.right_cost_volume`).
     """
-    from prismstereo.matching.local.matchers import BPASWMatcher
-
     return np.asarray(BPASWMatcher().cost_volume(left, right, max_disp=max_disp, min_disp=min_disp),
                       dtype=np.float32)
 
 
-@njit(cache=True)
-def boundary_pixel_planes(seg: npt.NDArray[np.int32], assign: npt.NDArray[np.int32], planes: npt.NDArray[np.float64],
-                  cost: F32, min_disp: int, radius: int, margin: float,
-                  active: npt.NDArray[np.bool_], dref: F32, tol: float,
-                  active_up: npt.NDArray[np.bool_], assign2: npt.NDArray[np.int32]) -> F32:  # assign2: (K, M)
-    """Per pixel, the disparity of the plane with the lowest aggregated cost among the planes of the segments
-    within ``radius`` (its own first; another wins only when cheaper by more than ``margin``)."""
-    h, w = seg.shape
-    nd = cost.shape[2]
-    out = np.empty((h, w), np.float32)
-    nm = assign2.shape[1] + 1
-    cand = np.empty(nm * (2 * radius + 1) ** 2, np.int64)
-    for y in range(h):
-        for x in range(w):
-            own = assign[seg[y, x]]
-            nc = 0
-            if not active[y, x]:
-                pl = planes[own]
-                out[y, x] = pl[0] * x + pl[1] * y + pl[2]
-                continue
-            for yy in range(max(0, y - radius), min(h, y + radius + 1)):
-                for xx in range(max(0, x - radius), min(w, x + radius + 1)):
-                    for m in range(nm):
-                        lab = assign[seg[yy, xx]] if m == 0 else assign2[seg[yy, xx], m - 1]
-                        if lab != own and lab >= 0:
-                            nc = add_unique(cand, nc, lab)
-            pl = planes[own]
-            best_d = pl[0] * x + pl[1] * y + pl[2]
-            own_d = best_d
-            if nc == 0:
-                out[y, x] = best_d
-                continue
-            best = 1e30
-            for t in range(-1, nc):
-                pl = planes[own] if t < 0 else planes[cand[t]]
-                d = pl[0] * x + pl[1] * y + pl[2]
-                k = d - min_disp
-                if k < 0.0 or k > nd - 1.0 or x - d < 0.0:
-                    if t < 0:
-                        break  # own plane without evidence here: keep it
-                    continue
-                if tol > 0 and t >= 0 and abs(d - dref[y, x]) > tol:
-                    continue
-                if t >= 0 and d > own_d and not active_up[y, x]:
-                    continue
-                k0 = int(k)
-                k1 = min(k0 + 1, nd - 1)
-                f = k - k0
-                c = (1.0 - f) * cost[y, x, k0] + f * cost[y, x, k1]
-                if t >= 0:
-                    c += margin
-                if c < best:
-                    best = c
-                    best_d = d
-            out[y, x] = best_d
-    return out
-
-
 def bpasw_dense_map(vol: F32, image: npt.NDArray[np.uint8], *, min_disp: int = 0) -> F32:
-    """Issue 3's ``bpasw`` matcher output from its cost volume: WTA, cross-check (1 px), background fill and
+    """The ``bpasw`` matcher's output from its cost volume: WTA, cross-check (1 px), background fill and
     colour-weighted median (radius 9), as :class:`prismstereo.matching.local.matchers.BPASWMatcher` with defaults.
     Returns (H, W) float32, dense."""
-    from prismstereo.matching.local import selection
-
     disp = selection.winner_take_all(vol, min_disp=min_disp)
     valid = selection.cross_check(disp, selection.right_disparity(vol, min_disp=min_disp), tolerance=1.0)
     raw = np.where(valid, disp, np.float32(np.nan)).astype(np.float32)
@@ -279,49 +213,6 @@ def bpasw_dense_map(vol: F32, image: npt.NDArray[np.uint8], *, min_disp: int = 0
 def _bpasw_reliable(vol: F32, min_disp: int) -> tuple[npt.NDArray[np.bool_], F32]:
     d, rel = initial_disparity(vol, right_cost_volume(vol, min_disp=min_disp), min_disp=min_disp)
     return rel, d
-
-
-Optimise = Callable[[npt.NDArray[np.int32], npt.NDArray[np.float64], npt.NDArray[np.int64]],
-                    tuple[npt.NDArray[np.int32], npt.NDArray[np.float64], dict[str, float]]]
-
-
-def bpasw_candidate_rounds(assign: npt.NDArray[np.int32], plane_set: npt.NDArray[np.float64],
-                           own: npt.NDArray[np.int64], index: SegmentIndex, pairs: npt.NDArray[np.int32],
-                           disparity: F32, reliable: npt.NDArray[np.bool_], optimise: Optimise, *,
-                           planes: PlaneParams, rounds: int
-                           ) -> tuple[npt.NDArray[np.int32], npt.NDArray[np.float64], dict[str, float] | None,
-                                      npt.NDArray[np.int64] | None]:
-    """``coop``'s ``bpasw_planes`` rounds: planes fitted per segment to the cross-checked BPASW map
-    ``disparity`` (reliable where ``reliable``) offered as each segment's first candidate (1), with their
-    merged-cluster planes as second (2), then one plane refitted per group of segments sharing a plane (3);
-    ``optimise(assign, planes, own)`` resumes the cooperative optimisation after each. Returns assign,
-    planes, the last optimisation's info (None when none ran) and each segment's own BPASW-fit plane id
-    (-1 none)."""
-    info: dict[str, float] | None = None
-    bfit_ids: npt.NDArray[np.int64] | None = None
-    if rounds <= 0:
-        return assign, plane_set, info, bfit_ids
-    bfit, _ = fit_planes(index, disparity, reliable, params=planes)
-    okb = np.flatnonzero(np.isfinite(bfit[:, 0]))
-    if okb.size:
-        own3 = own.copy()
-        own3[:, 0] = -1
-        own3[okb, 0] = plane_set.shape[0] + np.arange(okb.size)
-        bfit_ids = own3[:, 0].copy()
-        plane_set = np.concatenate([plane_set, bfit[okb]])
-        if rounds > 1:
-            bcl, bcp = merge_planes(index, bfit, pairs, disparity, reliable, params=planes)
-            own3[:, 1] = np.where(bcl >= 0, bcl + plane_set.shape[0], -1)
-            plane_set = np.concatenate([plane_set, bcp])
-        assign, plane_set, info = optimise(assign, plane_set, own3)
-    if rounds > 2:
-        refit = group_refit_planes(assign, plane_set, index, disparity, reliable, params=planes)
-        if refit is not None:
-            plane_set, group_ids = refit
-            own4 = own.copy()
-            own4[:, 1] = group_ids
-            assign, plane_set, info = optimise(assign, plane_set, own4)
-    return assign, plane_set, info, bfit_ids
 
 
 @njit(cache=True)
@@ -388,8 +279,6 @@ def segment_sweep_candidates(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uin
     the slopes ``b`` in ``slopes`` (``a`` = 0 and the current ``a``); the ``keep`` cheapest (at least 2 px
     apart in centre disparity or differing in slope) are returned as new planes and a (K, keep) index array
     into the extended plane set (-1 = none)."""
-    from prismstereo.matching.coop.slanted import segment_plane_costs
-
     k = assign.shape[0]
     h, w = labels.shape
     cur = segment_plane_costs(lft, rgt, labels, assign.astype(np.int64)[:, None], plane_set,
@@ -452,94 +341,6 @@ def segment_sweep_candidates(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uin
     return np.concatenate([plane_set, np.asarray(chosen)]), out_ids
 
 
-@dataclass(frozen=True)
-class FineSegments:
-    """Result of :func:`refine_fine_segments`.
-
-    Attributes
-    ----------
-    labels : (H, W) int32       fine segments (each inside one segment of the coarse labels).
-    parent : (K_f,) int64       coarse segment of each fine segment.
-    index : SegmentIndex        pixels of the fine segments.
-    assign : (K_f,) int32       plane per fine segment, into ``planes``.
-    planes : (L, 3) float64
-    info : dict                 energies, sweeps, ``fine_segments``, ``fine_moves``.
-    """
-
-    labels: npt.NDArray[np.int32]
-    parent: npt.NDArray[np.int64]
-    index: Any
-    assign: npt.NDArray[np.int32]
-    planes: npt.NDArray[np.float64]
-    info: dict[str, float]
-
-
-def refine_fine_segments(image: npt.NDArray[np.uint8], labels: npt.NDArray[np.int32],
-                         assign: npt.NDArray[np.int32], planes: npt.NDArray[np.float64], cost: F32,
-                         reliable: npt.NDArray[np.bool_], evidence: npt.NDArray[np.bool_], reference: F32, *,
-                         segmentation: SegmentationParams, coop: CoopParams, min_disp: int = 0,
-                         beta_scale: float = 1.0, check: int = 1,
-                         slopes: tuple[float, ...] | None = None) -> FineSegments:
-    """Finer segments along plane boundaries resume the cooperative optimisation (an addition to §6.2).
-
-    The image is segmented again with ``segmentation`` (a smaller range radius) and intersected with
-    ``labels``; each fine segment starts from its segment's plane, and those touching a fine segment on
-    another plane may take a neighbour's plane by the cooperative scheme (Eq. 6.19) on ``cost``. A move is
-    kept only when at least ``check`` more of the fine segment's ``evidence`` pixels lie within 1 px of
-    ``reference`` under the new plane than under the old (0 = keep every move).
-
-    Parameters
-    ----------
-    image : (H, W, 3) uint8 reference image.
-    labels : (H, W) int32 segments; assign : (K,) plane per segment; planes : (L, 3).
-    cost : (H, W, D) or (S, H, W, D) float32 data-term pixel cost (as :func:`cooperative_optimize`, with
-        ``slopes``).
-    reliable : (H, W) bool cross-check mask of the data term.
-    evidence : (H, W) bool pixels whose ``reference`` disparity is trusted.
-    reference : (H, W) float32 disparity map the moves are checked against.
-    """
-    fine = mean_shift_segment(image, params=segmentation)
-    comb = labels.astype(np.int64) * (int(fine.max()) + 1) + fine
-    _, inv = np.unique(comb, return_inverse=True)
-    flab = inv.reshape(labels.shape).astype(np.int32)
-    parent = np.zeros(int(flab.max()) + 1, np.int64)
-    parent[flab.ravel()] = labels.ravel()
-    findex = build_segment_index(flab)
-    fgraph = build_segment_graph(flab, image, beta_scale=beta_scale)
-    fa = np.asarray(assign, np.int32)[parent]
-    fown = np.full((parent.size, 2), -1, np.int64)
-    fown[:, 0] = fa
-    # interiors keep their segment's plane: only fine segments touching another plane may move
-    diff = fa[fgraph.pairs[:, 0]] != fa[fgraph.pairs[:, 1]]
-    active = np.zeros(parent.size, bool)
-    active[fgraph.pairs[diff, 0]] = True
-    active[fgraph.pairs[diff, 1]] = True
-    new, planes_out, info = cooperative_optimize(fa, planes, findex, fgraph, cost, reliable, own=fown,
-                                                 min_disp=min_disp, active=active, slopes=slopes,
-                                                 params=dataclasses.replace(coop, neighbour_own_planes=False))
-    moved = np.flatnonzero(new != fa)
-    if check and moved.size:
-        # the data term of a 10-pixel segment is noisy: the trusted initial disparities must side with the move
-        h, w = labels.shape
-        yy, xx = np.mgrid[0:h, 0:w]
-        fl = flab.ravel()
-        ev = np.asarray(evidence, bool).ravel()
-        ref = np.asarray(reference, np.float64).ravel()
-
-        def support(lab: npt.NDArray[np.int32]) -> npt.NDArray[np.float64]:
-            pl = planes_out[lab][fl]
-            d = pl[:, 0] * xx.ravel() + pl[:, 1] * yy.ravel() + pl[:, 2]
-            return np.bincount(fl, weights=(ev & (np.abs(d - ref) <= 1.0)).astype(np.float64),
-                               minlength=parent.size).astype(np.float64)
-
-        sn, so = support(new), support(fa)
-        undo = moved[sn[moved] < so[moved] + check]
-        new = new.copy()
-        new[undo] = fa[undo]
-    info = {**info, "fine_segments": float(parent.size), "fine_moves": float((new != fa).sum())}
-    return FineSegments(flab, parent, findex, new.astype(np.int32), planes_out, info)
-
-
 @dataclass(frozen=True, kw_only=True)
 class DataTermParams:
     """The front end's data-term choices.
@@ -576,7 +377,7 @@ class DataTermParams:
 
 class _PairEvidence:
     """The two-view evidence of the steps (:class:`~prismstereo.matching.coop.steps.Evidence`): the pair's
-    data term, issue 3's BPASW volume of the pair and its cross-checked map, the initial map."""
+    data term, the ``bpasw`` matcher's volume of the pair and its cross-checked map, the initial map."""
 
     def __init__(self, lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uint8], *, min_disp: int, max_disp: int,
                  data: F32, reliable: npt.NDArray[np.bool_], initial: F32, bvol: F32, bdisp: F32,

@@ -24,6 +24,8 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit, prange
 
+from prismstereo.matching.coop.coopcost import census_bits
+
 __all__ = ["add_unique", "plane_cost", "segment_plane_costs", "slanted_inputs"]
 
 F32 = npt.NDArray[np.float32]
@@ -46,7 +48,6 @@ def _census_pair(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8],
     if weight <= 0:
         z = np.zeros((1, 1), np.uint64)
         return z, z
-    from prismstereo.matching.coop.coopcost import census_bits
 
     def grey(im: npt.NDArray[np.uint8]) -> F32:
         f = np.asarray(im, np.float32)

@@ -38,6 +38,7 @@ from prismstereo.matching.coop.cooperative import (
     expand_planes,
     neighbour_plane_candidates,
 )
+from prismstereo.matching.coop.refine import boundary_pixel_planes, bpasw_candidate_rounds, refine_fine_segments
 from prismstereo.matching.local.selection import weighted_median_filter
 from prismstereo.matching.segments.planes import PlaneParams, SegmentIndex, render_planes
 from prismstereo.matching.segments.segmentation import SegmentationParams
@@ -359,7 +360,6 @@ def step_bpasw_planes(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabel
     bm = ev.bpasw_map()
     if bm is None or p.bpasw_planes.rounds <= 0:
         return s
-    from prismstereo.matching.coop.pipeline import bpasw_candidate_rounds
 
     def optimise(a: I32, pl: F64, own: I64) -> tuple[I32, F64, dict[str, float]]:
         return ev.optimise(s, a, pl, own)
@@ -412,7 +412,6 @@ def step_fine(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
     evid = ev.fine_evidence(p.boundary.tol)
     if evid is None:
         return s
-    from prismstereo.matching.coop.pipeline import refine_fine_segments
 
     evidence, reference = evid
     for hr, min_region in p.fine.levels:
@@ -429,8 +428,6 @@ def step_fine(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
 
 
 def step_boundary(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
-    from prismstereo.matching.coop.pipeline import boundary_pixel_planes
-
     bp = p.boundary
     evid = ev.boundary_evidence(bp.tol) if bp.radius > 0 else None
     if evid is None:

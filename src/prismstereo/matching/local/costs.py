@@ -18,6 +18,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from prismstereo.errors import MatchingError
+
 __all__ = [
     "census_transform",
     "cost_ad",
@@ -153,8 +155,6 @@ def cost_s_ad(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: i
     ndarray, float32, (H, W, D)
     """
     if not 0.0 <= omega <= 1.0:
-        from prismstereo.errors import MatchingError
-
         raise MatchingError(f"expected 0 <= omega <= 1, got {omega}")
     ad = cost_ad(left, right, max_disp=max_disp, min_disp=min_disp, truncation=tau_color)
     gr = cost_gradient(left, right, max_disp=max_disp, min_disp=min_disp, truncation=tau_gradient)
@@ -277,8 +277,6 @@ def census_transform(image: np.ndarray, *, window: tuple[int, int] = (7, 9)) -> 
     """
     wh, ww = int(window[0]), int(window[1])
     if wh % 2 == 0 or ww % 2 == 0 or wh < 1 or ww < 1 or wh * ww - 1 > 64:
-        from prismstereo.errors import MatchingError
-
         raise MatchingError(f"expected an odd census window with at most 65 pixels, got {window}")
     return _census(to_gray(image), wh // 2, ww // 2)
 

@@ -15,7 +15,7 @@ from typing import Any, Literal
 import numpy as np
 
 from prismstereo.errors import ConfigError
-from prismstereo.matching.local import costs, selection
+from prismstereo.matching.local import aggregation, costs, selection
 from prismstereo.matching.registry import MatchResult, register_matcher
 
 log = logging.getLogger(__name__)
@@ -154,13 +154,11 @@ class BPASWMatcher(LocalMatcher):
     using the first pass's winners as the neighbours' disparities (off by default: it raised the Middlebury
     error; docs/EXPERIMENTS.md).
 
-    Defaults (measured on the four Middlebury v2 scenes, bad > 1 px after cross-check and filling):
-    a 33×33 window sampled every 2 px, S_AD with ω = 0.5 and truncations 20 / 8 grey levels, plus
-    ``census_weight`` × the census Hamming distance (7×9), Weber–Fechner colour threshold S0 = 28 ΔE
-    (S0 = 10 / 28 / 50 / 100 gave 2.90 / 2.66 / 2.70 / 2.82 % nonocc; exp weights 2.80).
-    ``subpixel`` is off by default because the parabola fit did not lower the 1-px error here; switch
-    it on for depth. The dense map gets a final colour-weighted median (``final_median``): at S0 = 50
-    it took the 4-scene averages from 3.19 to 2.70 % nonocc and from 6.99 to 6.09 % all.
+    Defaults (chosen on the four Middlebury v2 scenes, bad > 1 px after cross-check and filling;
+    docs/EXPERIMENTS.md): a 33×33 window sampled every 2 px, S_AD with ω = 0.5 and truncations 20 / 8 grey
+    levels, plus ``census_weight`` × the census Hamming distance (7×9), Weber–Fechner colour threshold
+    S0 = 28 ΔE. ``subpixel`` is off by default because the parabola fit did not lower the 1-px error here;
+    switch it on for depth. The dense map gets a final colour-weighted median (``final_median``).
     """
 
     subpixel: bool = False
@@ -191,8 +189,6 @@ class BPASWMatcher(LocalMatcher):
 
     def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
                     min_disp: int) -> np.ndarray:
-        from prismstereo.matching.local import aggregation
-
         vol = self.pixel_cost(left, right, max_disp=max_disp, min_disp=min_disp)
         kw: dict[str, Any] = dict(radius=self.radius, dilation=self.dilation, min_disp=min_disp, kernel=self.kernel,
                   similarity_s0=self.similarity_s0, gamma_color=self.gamma_color,

@@ -9,6 +9,8 @@ import cv2
 import numpy as np
 
 from prismstereo.errors import MatchingError
+from prismstereo.matching.local._wmf import wmf_kernel
+from prismstereo.matching.local.aggregation import to_lab
 
 __all__ = [
     "cross_check",
@@ -172,8 +174,6 @@ def weighted_median_filter(disp: np.ndarray, image: np.ndarray, *, mask: np.ndar
 
     Returns float32 ``(H, W)``.
     """
-    from prismstereo.matching.local._wmf import wmf_kernel
-    from prismstereo.matching.local.aggregation import to_lab
 
     d = np.ascontiguousarray(disp, dtype=np.float32)
     m = np.ones(d.shape, dtype=bool) if mask is None else np.ascontiguousarray(mask, dtype=bool)

@@ -30,6 +30,7 @@ import numpy as np
 
 from prismstereo.errors import ConfigError
 from prismstereo.matching.local import costs, selection
+from prismstereo.matching.local._sgm import census_codes, census_kernel, select_kernel, sgm_kernel
 from prismstereo.matching.local.matchers import BPASWMatcher
 from prismstereo.matching.registry import MatchResult, register_matcher
 
@@ -60,7 +61,6 @@ def census_cost_volume(left: np.ndarray, right: np.ndarray, *, max_disp: int, mi
     ndarray, uint16, (H, W, max_disp - min_disp + 1)
         Out-of-range matches (``x - d < 0``) get the largest value the cost can take.
     """
-    from prismstereo.matching.local._sgm import census_codes, census_kernel
 
     wh, ww = int(window[0]), int(window[1])
     if wh % 2 == 0 or ww % 2 == 0 or wh < 1 or ww < 1 or wh * ww - 1 > 64:
@@ -106,7 +106,6 @@ def sgm_aggregate(cost: np.ndarray, gray: np.ndarray, *, p1: int, p2: int,
         raise ConfigError(f"expected 4·(max cost + P2) <= 65535 for uint16 path sums, got {4 * top}")
     if not 0 <= p1 <= p2:
         raise ConfigError(f"expected 0 <= P1 <= P2, got P1={p1}, P2={p2}")
-    from prismstereo.matching.local._sgm import sgm_kernel
 
     return sgm_kernel(c, np.ascontiguousarray(gray, dtype=np.float32), int(p1), int(p2), float(p2_gamma))
 
@@ -131,7 +130,6 @@ def sgm_select(fwd: np.ndarray, bwd: np.ndarray, *, min_disp: int = 0, uniquenes
     reject : ndarray, uint8, (H, W)
         0 kept, 1 not unique, 2 failed the left–right check.
     """
-    from prismstereo.matching.local._sgm import select_kernel
 
     disp, _, code = select_kernel(np.ascontiguousarray(fwd), np.ascontiguousarray(bwd), int(min_disp),
                                    int(uniqueness), int(tolerance), bool(subpixel))

@@ -19,9 +19,12 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit
 
+from prismstereo.matching.segments.segmentation import split_segments
+
 log = logging.getLogger(__name__)
 
-__all__ = ["PlaneParams", "SegmentIndex", "build_segment_index", "fit_planes", "fit_planes_splitting", "merge_planes",
+__all__ = ["PlaneParams", "SegmentIndex", "build_segment_index", "fit_one_plane", "fit_planes", "fit_planes_splitting",
+           "merge_planes",
            "segment_label_map",
            "plane_similarity", "render_planes", "fill_missing_planes"]
 
@@ -128,9 +131,14 @@ def _lsq(xs: F64, ys: F64, ds: F64, cx: float, cy: float, full: bool) -> tuple[f
 
 
 @njit(cache=True)
-def _fit_one(xs: F64, ys: F64, ds: F64, t_out: float, eps: float, max_iter: int, min_pix: int,
-             trials: int, max_slope: float, seed: int) -> tuple[float, float, float, int]:
-    """Robust plane of one segment's reliable pixels; returns (a, b, c_centred, n_inliers)."""
+def fit_one_plane(xs: F64, ys: F64, ds: F64, t_out: float, eps: float, max_iter: int, min_pix: int,
+                  trials: int, max_slope: float, seed: int) -> tuple[float, float, float, int]:
+    """Robust plane ``d = a·(x - x̄) + b·(y - ȳ) + c`` of one segment's reliable pixels (thesis Eqs. 6.1-6.10).
+
+    ``xs, ys, ds``: (N,) float64 pixel coordinates and disparities; ``t_out``, ``eps``, ``max_iter``,
+    ``min_pix``, ``trials`` and ``max_slope`` as in :class:`PlaneParams`; ``seed`` seeds the random triples.
+    Returns (a, b, c_centred, n_inliers).
+    """
     n = xs.size
     cx = float(np.mean(xs))
     cy = float(np.mean(ys))
@@ -228,7 +236,7 @@ def _fit_all(order: npt.NDArray[np.int64], starts: npt.NDArray[np.int64], w: int
                 ys[q] = p // w
                 ds[q] = disp[p]
                 q += 1
-        a, b, c, n_in = _fit_one(xs, ys, ds, t_out, eps, max_iter, min_pix, trials, max_slope, j + 1)
+        a, b, c, n_in = fit_one_plane(xs, ys, ds, t_out, eps, max_iter, min_pix, trials, max_slope, j + 1)
         if n_in >= min_pix:
             planes[j, 0] = a
             planes[j, 1] = b
@@ -298,7 +306,6 @@ def fit_planes_splitting(labels: npt.NDArray[np.integer], image: npt.NDArray[np.
     planes : (K', 3) float64 as :func:`fit_planes`;
     ancestor : (K', 3) float64 plane of the original segment a piece was split from (NaN rows: not split).
     """
-    from prismstereo.matching.segments.segmentation import split_segments
 
     p = params or PlaneParams()
     lab = np.asarray(labels).astype(np.int32)
