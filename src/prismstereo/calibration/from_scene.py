@@ -43,7 +43,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from prismstereo.calibration.boards import to_gray
-from prismstereo.calibration.prism import PARAMETERS, prism_values, with_prism_values
+from prismstereo.calibration.prism import PARAMETERS, free_items, prism_values, with_prism_values
 from prismstereo.config import Rig
 from prismstereo.errors import ConfigError, GeometryError, ImageError
 from prismstereo.optics import face_map, rays_from_pixels, trace_pixels, trace_rays
@@ -167,15 +167,8 @@ class SceneCalibration:
 
 def parse_scene_free(text: str | Sequence[str] | None) -> tuple[str, ...]:
     """``"rotation,tilt"`` → the parameter names it frees (rotation, tilt, decenter only)."""
-    items: Sequence[str]
-    if text is None:
-        items = DEFAULT_FREE
-    elif isinstance(text, str):
-        items = [t.strip() for t in text.split(",") if t.strip()]
-    else:
-        items = list(text)
     out: list[str] = []
-    for item in items:
+    for item in free_items(text, DEFAULT_FREE):
         if item in ("apex_distance", "refractive_index", "corner_angle"):
             raise ConfigError(f"--free: {item} sets the depth scale, which feature matches cannot observe; calibrate "
                               "it with a checkerboard (calibrate-prism --board) and fit rotation, tilt, decenter here")

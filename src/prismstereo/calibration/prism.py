@@ -143,16 +143,19 @@ class PrismCalibration:
         }
 
 
+def free_items(text: str | Sequence[str] | None, default: Sequence[str]) -> list[str]:
+    """The names of a ``--free`` value: a comma list, a sequence of names, or None for ``default``."""
+    if text is None:
+        return list(default)
+    if isinstance(text, str):
+        return [t.strip() for t in text.split(",") if t.strip()]
+    return list(text)
+
+
 def parse_free(text: str | Sequence[str] | None) -> tuple[str, ...]:
     """``"rotation,tilt"`` → the parameter names it frees (see :data:`FREE_GROUPS`)."""
-    if text is None:
-        items: Sequence[str] = DEFAULT_FREE
-    elif isinstance(text, str):
-        items = [t.strip() for t in text.split(",") if t.strip()]
-    else:
-        items = list(text)
     out: list[str] = []
-    for item in items:
+    for item in free_items(text, DEFAULT_FREE):
         if item not in FREE_GROUPS and item not in PARAMETERS:
             raise ConfigError(f"--free: expected a comma list of {', '.join(FREE_GROUPS)}, got {item!r}")
         out += [p for p in FREE_GROUPS.get(item, (item,)) if p not in out]
