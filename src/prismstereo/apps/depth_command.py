@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from pathlib import Path
 from typing import Any
 
 from prismstereo.apps.demo import run_demo
@@ -70,9 +69,11 @@ def depth_command(rig_path: str | None, image_path: str | None, out_dir: str, *,
         acc = evaluate_depth(res, depth_gt=depth_gt)
         res = dataclasses.replace(res, accuracy=acc)
         lines.append(format_accuracy(acc))
+    # the refined rig is staged with the other files, so that all of them appear together or none
+    save_rig = None if refined is None else (lambda stage: refined.save(stage / "rig_refined.toml"))
     outputs = write_depth_outputs(res, out_dir, extra={"inputs": {"rig": opts.rig_path, "image": opts.image_path,
                                                                  "gt": gt},
-                                                                 "preset": preset, **extra})
+                                                                 "preset": preset, **extra}, also=save_rig)
     c = res.counts()
     t = res.timings
     zr = res.depth_range
@@ -88,10 +89,7 @@ def depth_command(rig_path: str | None, image_path: str | None, out_dir: str, *,
                     f"({100.0 * c['points'] / max(c['region_pixels'], 1):.1f} % of the view), {t['total']:.1f} s")
     if preset is not None:
         lines.append(f"preset {preset}: method {config.method}")
-    names = [p.name for p in outputs.values()]
-    if refined is not None:
-        refined.save(Path(out_dir) / "rig_refined.toml")
-        names.append("rig_refined.toml")
+    names = [p.name for p in outputs.values()] + ([] if refined is None else ["rig_refined.toml"])
     lines.append(f"wrote {', '.join(names)} to {out_dir}")
     return "\n".join(pre + lines)
 
