@@ -78,12 +78,24 @@ def _census_table(lam_c: float) -> npt.NDArray[np.float64]:
     return t
 
 
+@njit(cache=True, inline="always")
+def _ad_cost(left: F32, right: F32, gl: F32, gr: F32, y: int, x: int, xr: int, tau_c: float, tau_g: float,
+             lam_ad: float) -> float:
+    """``1 - exp(-(min(AD, τ_c) + min(|∇x|, τ_g)) / λ_ad)`` of left pixel (y, x) against right pixel (y, xr)."""
+    ad = 0.0
+    for c in range(left.shape[2]):
+        ad += abs(left[y, x, c] - right[y, xr, c])
+    ad = min(ad / left.shape[2], tau_c)
+    gd = min(abs(gl[y, x] - gr[y, xr]), tau_g)
+    return 1.0 - np.exp(-(ad + gd) / lam_ad)
+
+
 @njit(cache=True, parallel=True)
 def _ad_term(left: F32, right: F32, gl: F32, gr: F32, min_disp: int, ndisp: int, tau_c: float, tau_g: float,
              lam_ad: float) -> npt.NDArray[np.float64]:
     """The colour + gradient part ``1 - exp(-(AD + ∇) / λ_ad)`` of :func:`_raw_cost` (NaN where x - d falls
     outside the right image): it does not depend on the census window, so sheared volumes share it."""
-    h, w, ch = left.shape
+    h, w = left.shape[:2]
     out = np.full((h, w, ndisp), np.nan)
     for y in prange(h):
         for x in range(w):
@@ -91,12 +103,7 @@ def _ad_term(left: F32, right: F32, gl: F32, gr: F32, min_disp: int, ndisp: int,
                 xr = x - (min_disp + k)
                 if xr < 0 or xr >= w:
                     continue
-                ad = 0.0
-                for c in range(ch):
-                    ad += abs(left[y, x, c] - right[y, xr, c])
-                ad = min(ad / ch, tau_c)
-                gd = min(abs(gl[y, x] - gr[y, xr]), tau_g)
-                out[y, x, k] = 1.0 - np.exp(-(ad + gd) / lam_ad)
+                out[y, x, k] = _ad_cost(left, right, gl, gr, y, x, xr, tau_c, tau_g, lam_ad)
     return out
 
 
@@ -122,7 +129,7 @@ def _raw_cost(left: F32, right: F32, gl: F32, gr: F32, cl: npt.NDArray[np.uint64
               cr: npt.NDArray[np.uint64], min_disp: int, ndisp: int, tau_c: float, tau_g: float,
               lam_ad: float, lam_c: float) -> F32:
     """Raw left-view cost C(y, x, k) for d = min_disp + k; pixels with x - d < 0 get the maximum 2."""
-    h, w, ch = left.shape
+    h, w = left.shape[:2]
     tab = _census_table(lam_c)
     out = np.full((h, w, ndisp), 2.0, dtype=np.float32)
     for y in prange(h):
@@ -131,12 +138,8 @@ def _raw_cost(left: F32, right: F32, gl: F32, gr: F32, cl: npt.NDArray[np.uint64
                 xr = x - (min_disp + k)
                 if xr < 0 or xr >= w:
                     continue
-                ad = 0.0
-                for c in range(ch):
-                    ad += abs(left[y, x, c] - right[y, xr, c])
-                ad = min(ad / ch, tau_c)
-                gd = min(abs(gl[y, x] - gr[y, xr]), tau_g)
-                out[y, x, k] = (1.0 - np.exp(-(ad + gd) / lam_ad)) + tab[_popcount(cl[y, x] ^ cr[y, xr])]
+                out[y, x, k] = (_ad_cost(left, right, gl, gr, y, x, xr, tau_c, tau_g, lam_ad)
+                                + tab[_popcount(cl[y, x] ^ cr[y, xr])])
     return out
 
 

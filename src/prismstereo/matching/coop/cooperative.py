@@ -291,6 +291,20 @@ def _smooth(j: int, i: int, edge: int, plj: F64, pli: F64, pairs: I32, bstart: I
 
 
 @njit(cache=True)
+def _add_smoothness(e: float, assign: I32, planes: F64, pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64,
+                    bw: F64, w: int, gamma: float, thr: float) -> float:
+    """``e`` plus the smoothness term of every boundary between differently labelled segments, added one
+    boundary at a time (Eq. 6.24; each boundary appears in both segments' energies, Eq. 6.18)."""
+    for ed in range(pairs.shape[0]):
+        lo = pairs[ed, 0]
+        hi = pairs[ed, 1]
+        if assign[lo] != assign[hi]:
+            e += 2.0 * gamma * _smooth(lo, hi, ed, planes[assign[lo]], planes[assign[hi]], pairs, bstart,
+                                       bp_lo, bp_hi, bw, w, thr)
+    return e
+
+
+@njit(cache=True)
 def _energy(assign: I32, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
             reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
             prm: F64) -> float:
@@ -302,14 +316,7 @@ def _energy(assign: I32, planes: F64, order: I64, starts: I64, w: int, cost: F32
     e = 0.0
     for j in range(k):
         e += _data(j, planes[assign[j]], order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2)
-    for ed in range(pairs.shape[0]):
-        lo = pairs[ed, 0]
-        hi = pairs[ed, 1]
-        if assign[lo] != assign[hi]:
-            # each boundary appears in both segments' energies (Eq. 6.18)
-            e += 2.0 * gamma * _smooth(lo, hi, ed, planes[assign[lo]], planes[assign[hi]], pairs, bstart,
-                                       bp_lo, bp_hi, bw, w, thr)
-    return e
+    return _add_smoothness(e, assign, planes, pairs, bstart, bp_lo, bp_hi, bw, w, gamma, thr)
 
 
 _CACHE = 64  # data terms remembered per segment (its candidates of the last sweeps)
@@ -404,13 +411,7 @@ def _energy_cached(assign: I32, planes: F64, order: I64, starts: I64, w: int, co
     for j in range(k):
         e += _data_cached(j, assign[j], planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
                           clab, cval, cn)
-    for ed in range(pairs.shape[0]):
-        lo = pairs[ed, 0]
-        hi = pairs[ed, 1]
-        if assign[lo] != assign[hi]:
-            e += 2.0 * gamma * _smooth(lo, hi, ed, planes[assign[lo]], planes[assign[hi]], pairs, bstart,
-                                       bp_lo, bp_hi, bw, w, thr)
-    return e
+    return _add_smoothness(e, assign, planes, pairs, bstart, bp_lo, bp_hi, bw, w, gamma, thr)
 
 
 @njit(cache=True)
