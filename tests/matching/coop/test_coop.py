@@ -7,14 +7,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from prismstereo.matching.coop.coopcost import aggregated_costs, raw_cost
 from prismstereo.matching.coop.cooperative import (
     CoopParams,
+    SegmentGraph,
     build_segment_graph,
     cooperative_optimize,
     total_energy,
 )
-from prismstereo.matching.coop.pipeline import coop_match
-from prismstereo.matching.segments.planes import build_segment_index
+from prismstereo.matching.coop.pipeline import coop_match, initial_disparity
+from prismstereo.matching.segments.planes import SegmentIndex, build_segment_index, fit_planes
+from prismstereo.matching.segments.segmentation import mean_shift_segment
 
 
 def _synthetic_pair(seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -43,6 +46,19 @@ def _synthetic_pair(seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return left, right, np.rint(disp)
 
 
+def _optimisation_inputs(seed: int) -> tuple[SegmentIndex, np.ndarray, np.ndarray, SegmentGraph, np.ndarray]:
+    """What the cooperative optimisation works on for a synthetic pair: the segments, the planes fitted to
+    the initial map, its reliable pixels, the segment graph and the pixel cost."""
+    left, right, _ = _synthetic_pair(seed)
+    labels = mean_shift_segment(left)
+    cl, cr = aggregated_costs(left, right, max_disp=20)
+    init, rel = initial_disparity(cl, cr)
+    idx = build_segment_index(labels)
+    planes, _ = fit_planes(idx, init, rel)
+    pset = planes[np.isfinite(planes[:, 0])]
+    return idx, pset, rel, build_segment_graph(labels, left), raw_cost(left, right, max_disp=20)
+
+
 def test_synthetic_piecewise_planar_pair_is_recovered() -> None:
     left, right, gt = _synthetic_pair()
     res = coop_match(left, right, max_disp=20)
@@ -57,23 +73,9 @@ def test_synthetic_piecewise_planar_pair_is_recovered() -> None:
 
 
 def test_energy_never_increases_across_iterations() -> None:
-    from prismstereo.matching.coop.coopcost import aggregated_costs, raw_cost
-    from prismstereo.matching.coop.pipeline import initial_disparity
-    from prismstereo.matching.segments.planes import fit_planes
-    from prismstereo.matching.segments.segmentation import mean_shift_segment
-
-    left, right, _ = _synthetic_pair(1)
-    labels = mean_shift_segment(left)
-    cl, cr = aggregated_costs(left, right, max_disp=20)
-    init, rel = initial_disparity(cl, cr)
-    idx = build_segment_index(labels)
-    planes, _ = fit_planes(idx, init, rel)
-    ok = np.isfinite(planes[:, 0])
-    pset = planes[ok]
+    idx, pset, rel, graph, cost = _optimisation_inputs(1)
     # a poor start: every segment gets a random fitted plane
-    a = np.random.default_rng(0).integers(0, len(pset), size=len(planes)).astype(np.int32)
-    graph = build_segment_graph(labels, left)
-    cost = raw_cost(left, right, max_disp=20)
+    a = np.random.default_rng(0).integers(0, len(pset), size=idx.n_segments).astype(np.int32)
     energies = [total_energy(a, pset, idx, graph, cost, rel)]
     for _ in range(6):
         a, pset, info = cooperative_optimize(a, pset, idx, graph, cost, rel, params=CoopParams(max_iter=1))
@@ -86,21 +88,8 @@ def test_energy_never_increases_across_iterations() -> None:
 def test_remembered_data_terms_match_fresh_ones() -> None:
     """Sweeps within one call reuse data terms across z-buffer changes; one sweep per call computes them all
     afresh. Both must take the same path, and the reported energy must be the recomputed one."""
-    from prismstereo.matching.coop import initial_disparity
-    from prismstereo.matching.coop.coopcost import aggregated_costs, raw_cost
-    from prismstereo.matching.segments.planes import fit_planes
-    from prismstereo.matching.segments.segmentation import mean_shift_segment
-
-    left, right, _ = _synthetic_pair(2)
-    labels = mean_shift_segment(left)
-    cl, cr = aggregated_costs(left, right, max_disp=20)
-    init, rel = initial_disparity(cl, cr)
-    idx = build_segment_index(labels)
-    planes, _ = fit_planes(idx, init, rel)
-    pset = planes[np.isfinite(planes[:, 0])]
-    a0 = np.random.default_rng(3).integers(0, len(pset), size=len(planes)).astype(np.int32)
-    graph = build_segment_graph(labels, left)
-    cost = raw_cost(left, right, max_disp=20)
+    idx, pset, rel, graph, cost = _optimisation_inputs(2)
+    a0 = np.random.default_rng(3).integers(0, len(pset), size=idx.n_segments).astype(np.int32)
     a_one, _, info = cooperative_optimize(a0, pset, idx, graph, cost, rel, params=CoopParams(max_iter=30))
     assert info["sweeps"] > 2  # the remembered terms were used after z-buffer changes
     assert total_energy(a_one, pset, idx, graph, cost, rel) == info["energy_after"]
@@ -111,21 +100,8 @@ def test_remembered_data_terms_match_fresh_ones() -> None:
 
 
 def test_powell_refinement_lowers_energy_and_keeps_it_monotone() -> None:
-    from prismstereo.matching.coop.coopcost import aggregated_costs, raw_cost
-    from prismstereo.matching.coop.pipeline import initial_disparity
-    from prismstereo.matching.segments.planes import fit_planes
-    from prismstereo.matching.segments.segmentation import mean_shift_segment
-
-    left, right, _ = _synthetic_pair(3)
-    labels = mean_shift_segment(left)
-    cl, cr = aggregated_costs(left, right, max_disp=20)
-    init, rel = initial_disparity(cl, cr)
-    idx = build_segment_index(labels)
-    planes, _ = fit_planes(idx, init, rel)
-    pset = planes[np.isfinite(planes[:, 0])]
-    a0 = np.zeros(len(planes), np.int32)  # everything on one plane: a poor start
-    graph = build_segment_graph(labels, left)
-    cost = raw_cost(left, right, max_disp=20)
+    idx, pset, rel, graph, cost = _optimisation_inputs(3)
+    a0 = np.zeros(idx.n_segments, np.int32)  # everything on one plane: a poor start
     a_d, p_d, info_d = cooperative_optimize(a0, pset, idx, graph, cost, rel, params=CoopParams(refine_rounds=0))
     a_p, p_p, info_p = cooperative_optimize(a0, pset, idx, graph, cost, rel, params=CoopParams(refine_rounds=2))
     assert info_p["energy_after"] <= info_d["energy_after"] + 1e-6  # Powell reaches equal or lower energy
