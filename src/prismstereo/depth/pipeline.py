@@ -47,7 +47,7 @@ from prismstereo.depth.search_range import (
     auto_search_range,
     auto_search_range_of_capture,
     depth_warnings,
-    rig_search_range,
+    rig_depth_range,
 )
 from prismstereo.depth.triangulation import TRIANGULATIONS, triangulate_matches
 from prismstereo.errors import ConfigError, GeometryError, ImageError
@@ -595,19 +595,17 @@ def search_region(rig: Rig, pair: RectifiedPair, config: DepthConfig, left: np.n
         Views that do not overlap in the depth range.
     """
     width = pair.size[0] if left is None else left.shape[1]
-    if config.depth_range is None:
-        if left is not None and right is not None:
-            found = auto_search_range(pair, rig.prism.back_distance, left, right)
-        else:
-            found = rig_search_range(pair, rig.prism.back_distance)
+    if config.depth_range is None and left is not None and right is not None:
+        found = auto_search_range(pair, rig.prism.back_distance, left, right)
         zmin, zmax = found.depth_mm
         common, _ = common_view(pair, zmin, zmax)
         lo, hi = found.disparity_px
         source, warnings = found.source, tuple(found.warnings)
     else:
-        zmin, zmax = config.depth_range
+        source = "given" if config.depth_range is not None else "rig"
+        zmin, zmax = config.depth_range or rig_depth_range(pair, rig.prism.back_distance)
         common, (lo, hi) = common_view(pair, zmin, zmax)
-        source, warnings = "given", ()
+        warnings = ()
     hi = min(hi, width - 1)
     lo = min(lo, hi)
     h = common.shape[0]

@@ -31,7 +31,8 @@ from prismstereo.rectify import RectifiedPair, common_view, rectify_pair
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SearchRange", "auto_search_range", "depth_warnings", "estimate_disparity_range", "view_overlap"]
+__all__ = ["SearchRange", "auto_search_range", "depth_warnings", "estimate_disparity_range", "rig_depth_range",
+           "view_overlap"]
 
 #: a depth is part of the rig's range when the views share at least this fraction of their best overlap
 OVERLAP_FRACTION = 0.25
@@ -181,14 +182,12 @@ def estimate_disparity_range(left: np.ndarray, right: np.ndarray, region: np.nda
     return (rlo, rhi), support
 
 
-def rig_search_range(pair: RectifiedPair, back_mm: float) -> SearchRange:
-    """Every depth at which the two views of ``pair`` share a field, and its disparities (source ``"rig"``).
+def rig_depth_range(pair: RectifiedPair, back_mm: float) -> tuple[float, float]:
+    """Every depth (mm) at which the two views of ``pair`` share a field.
 
     What a sequence searches without a configured range: one frame's content says nothing of the next's.
     """
-    _, _, (zmin, zmax) = _rig_range(pair, back_mm)
-    _, (dlo, dhi) = common_view(pair, zmin, zmax)
-    return SearchRange((zmin, zmax), (dlo, dhi), "rig")
+    return _rig_range(pair, back_mm)[2]
 
 
 def auto_search_range(pair: RectifiedPair, back_mm: float, left: np.ndarray, right: np.ndarray) -> SearchRange:
