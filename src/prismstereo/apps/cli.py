@@ -532,6 +532,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _run_handler(handler: Handler, args: argparse.Namespace) -> int:
     """Run a subcommand's handler; errors become one line on stderr and the exit code."""
+    from prismstereo.numba_cache import tolerate_cache_write_errors
+
+    tolerate_cache_write_errors()  # a numba cache that cannot be written costs a compile, not the command
     try:
         return handler(args)
     except PrismStereoError as exc:

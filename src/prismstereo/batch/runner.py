@@ -125,6 +125,9 @@ def _limit_threads(host_threads: dict[str, int], client_pid: int, numba_threads:
     """Give this task's numba (and OpenCV) a share of the cores: cores // worker threads on this host."""
     import numba
 
+    from prismstereo.numba_cache import tolerate_cache_write_errors
+
+    tolerate_cache_write_errors()
     on_host = 1
     try:
         from distributed import get_worker

@@ -56,13 +56,12 @@ def face_overlap(rig: Rig, face_a: int, face_b: int, depths_mm: np.ndarray, *, s
     sel = b.face == face_a
     if sel.sum() < 8:
         raise GeometryError(f"expected face {face_a} to be seen by the camera, got {int(sel.sum())} sample pixels")
-    out = np.zeros(len(depths_mm))
-    for i, z in enumerate(depths_mm):
-        X = b.point_at_depth(float(z))[sel]
-        px, ok = project_exact(X, rig, face_b, tolerance_px=0.05)
-        ok &= (px[:, 0] >= 0) & (px[:, 0] <= w - 1) & (px[:, 1] >= 0) & (px[:, 1] <= h - 1)
-        out[i] = ok.mean()
-    return out
+    z = np.asarray(depths_mm, dtype=np.float64)
+    # every depth's points in one exact projection (the solver is per point; one call, not one per depth)
+    X = b.point_at_depth(z[:, None])[:, sel]
+    px, ok = project_exact(X.reshape(-1, 3), rig, face_b, tolerance_px=0.05)
+    ok &= (px[:, 0] >= 0) & (px[:, 0] <= w - 1) & (px[:, 1] >= 0) & (px[:, 1] <= h - 1)
+    return ok.reshape(z.size, -1).mean(axis=1)
 
 
 def _crossings(depths: np.ndarray, frac: np.ndarray, level: float) -> tuple[float, float]:

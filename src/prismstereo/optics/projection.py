@@ -17,10 +17,12 @@ from prismstereo.optics.prism import trace_pixels
 
 
 def _residual(rig: Rig, pixels: np.ndarray, points: np.ndarray, face: int) -> np.ndarray:
+    """(..., 2) offset in the plane z = Z of each point between the traced ray of its pixel and the point;
+    ``pixels`` (..., N, 2) broadcast against ``points`` (N, 3)."""
     b = trace_pixels(rig, pixels, face=face, bounded=False)
-    s = (points[:, 2] - b.origins[:, 2]) / b.directions[:, 2]
-    hit = b.origins + s[:, None] * b.directions
-    return hit[:, :2] - points[:, :2]
+    s = (points[..., 2] - b.origins[..., 2]) / b.directions[..., 2]
+    hit = b.origins + s[..., None] * b.directions
+    return hit[..., :2] - points[..., :2]
 
 
 def project_exact(
@@ -81,16 +83,17 @@ def project_exact(
     px[~active] = np.nan
     converged = np.zeros(n, dtype=bool)
     h = 0.5
-    du = np.array([h, 0.0])
-    dv = np.array([0.0, h])
+    # the pixel and its four central-difference neighbours, traced in one call
+    offsets = np.array([[0.0, 0.0], [h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])[:, None, :]
     for _ in range(max_iterations):
         idx = np.flatnonzero(active & ~converged)
         if idx.size == 0:
             break
         p, X = px[idx], pts[idx]
-        r = _residual(rig, p, X, face)
-        ju = (_residual(rig, p + du, X, face) - _residual(rig, p - du, X, face)) / (2 * h)
-        jv = (_residual(rig, p + dv, X, face) - _residual(rig, p - dv, X, face)) / (2 * h)
+        res = _residual(rig, p[None] + offsets, X, face)
+        r = res[0]
+        ju = (res[1] - res[2]) / (2 * h)
+        jv = (res[3] - res[4]) / (2 * h)
         det = ju[:, 0] * jv[:, 1] - jv[:, 0] * ju[:, 1]
         with np.errstate(divide="ignore", invalid="ignore"):
             step_u = (jv[:, 1] * r[:, 0] - jv[:, 0] * r[:, 1]) / det

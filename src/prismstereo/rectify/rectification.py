@@ -571,6 +571,61 @@ def _disparity_offset(mappers: list[_ViewMapper], feet: list[np.ndarray], f: flo
     return offset if offset >= OFFSET_MIN_PX else 0.0
 
 
+def _seen_by_right(pair: RectifiedPair, px: np.ndarray, depths_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Follow left rectified pixels (N, 2) to world depths (D,) and look them up in the right view.
+
+    Returns ok (D, N) bool, the point lands in the right view's valid region (thesis Eq. 7.22), and the
+    image disparities x_left − x_right (D, N), px.
+    """
+    vr = np.asarray(pair.valid_right, dtype=bool)
+    K = np.asarray(pair.K, dtype=np.float64)
+    R = np.asarray(pair.R_left, dtype=np.float64)
+    C = np.asarray(pair.C_left, dtype=np.float64)
+    rays = np.concatenate([px, np.ones((px.shape[0], 1))], axis=1) @ np.linalg.inv(K).T @ R  # world dirs
+    ok = np.zeros((len(depths_mm), px.shape[0]), dtype=bool)
+    disp = np.full((len(depths_mm), px.shape[0]), np.nan)
+    for i, z in enumerate(depths_mm):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = (z - C[2]) / rays[:, 2]
+        X = C + np.where(s > 0, s, np.nan)[:, None] * rays
+        xr = np.asarray(pair.project(X, "right"), dtype=np.float64)
+        good = np.all(np.isfinite(xr), axis=1)
+        ci = np.rint(np.where(good, xr[:, 0], -1)).astype(np.int64)
+        ri = np.rint(np.where(good, xr[:, 1], -1)).astype(np.int64)
+        good &= (ci >= 0) & (ci < vr.shape[1]) & (ri >= 0) & (ri < vr.shape[0])
+        good[good] &= vr[ri[good], ci[good]]
+        ok[i] = good
+        disp[i] = px[:, 0] - xr[:, 0]
+    return ok, disp
+
+
+def view_overlap(pair: RectifiedPair, depths_mm: np.ndarray, *, stride: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Shared fraction of the rectified left view and the median disparity at each world depth.
+
+    Every ``stride``-th valid left pixel is followed along its ray to each depth and projected into the
+    rectified right view (thesis Eq. 7.22), as in :func:`common_view`.
+
+    Returns
+    -------
+    fraction : (D,) float  share of the sampled left pixels whose point lands in the right view's valid region.
+    disparity : (D,) float  median disparity x_left − x_right of those samples, px (NaN where none).
+    """
+    vl = np.asarray(pair.valid_left, dtype=bool)
+    ys, xs = np.nonzero(vl[::stride, ::stride])
+    if ys.size == 0:
+        raise GeometryError("expected a rectified left view with valid pixels, got none")
+    px = np.stack([xs * stride, ys * stride], axis=1).astype(np.float64)
+    ok, d = _seen_by_right(pair, px, np.asarray(depths_mm, dtype=np.float64))
+    frac = ok.mean(axis=1)
+    disp = np.array([float(np.median(di[oi])) if oi.any() else np.nan for oi, di in zip(ok, d, strict=True)])
+    return frac, disp
+
+
+#: grid step of :func:`common_view`'s first pass, px (its cells are resolved pixel by pixel only where they
+#: straddle an edge of the common view or of the left view's valid region)
+_COMMON_VIEW_STEP = 4
+
+
 def common_view(pair: RectifiedPair, depth_min_mm: float, depth_max_mm: float, *, n_depths: int = 12
                 ) -> tuple[np.ndarray, tuple[int, int]]:
     """Where the two rectified views of a pair overlap for world depths in a range, and its disparities.
@@ -578,6 +633,11 @@ def common_view(pair: RectifiedPair, depth_min_mm: float, depth_max_mm: float, *
     The ray of every valid rectified-left pixel is followed to ``n_depths`` world depths between the
     bounds (geometric steps); a sample counts where its point projects into the valid region of the
     rectified right image (thesis Eq. 7.22: d = f λ / Z along the rectified axis).
+
+    The pixels are visited on a grid of ``_COMMON_VIEW_STEP`` px first: a grid cell whose corners agree
+    (all seen or none, at one depth) inside the valid left region takes its corners' answer, and only the
+    cells that straddle an edge are followed pixel by pixel (the regions are smooth and far wider than a
+    cell; the disparity is affine across a cell to far below a pixel, so its extremes are at corners).
 
     Returns
     -------
@@ -592,37 +652,58 @@ def common_view(pair: RectifiedPair, depth_min_mm: float, depth_max_mm: float, *
     GeometryError
         If no sample is seen by both views: the views do not overlap at these depths.
     """
-    vl, vr = (np.asarray(m, dtype=bool) for m in pair.valid_masks())
-    ys, xs = np.nonzero(vl)
-    mask = np.zeros(vl.shape, dtype=bool)
-    if ys.size == 0:
+    vl = np.asarray(pair.valid_left, dtype=bool)
+    if not vl.any():
         raise GeometryError("expected a rectified left view with valid pixels, got none")
-    px = np.stack([xs, ys], axis=1).astype(np.float64)
-    K = np.asarray(pair.K, dtype=np.float64)
-    R = np.asarray(pair.R_left, dtype=np.float64)
-    C = np.asarray(pair.C_left, dtype=np.float64)
-    rays = np.concatenate([px, np.ones((px.shape[0], 1))], axis=1) @ np.linalg.inv(K).T @ R  # world dirs
-    seen = np.zeros(ys.size, dtype=bool)
+    h, w = vl.shape
+    step = _COMMON_VIEW_STEP
+    gy = np.unique(np.append(np.arange(0, h, step), h - 1))
+    gx = np.unique(np.append(np.arange(0, w, step), w - 1))
+    # cell of each pixel (cells span grid line i to i + 1, both included; the last line closes the last cell)
+    cy = np.minimum(np.searchsorted(gy, np.arange(h), side="right") - 1, max(gy.size - 2, 0))
+    cx = np.minimum(np.searchsorted(gx, np.arange(w), side="right") - 1, max(gx.size - 2, 0))
+    # valid-left pixels per cell (integral image over the closed cell): a cell is uniform when all or none are
+    ii = np.zeros((h + 1, w + 1), dtype=np.int64)
+    ii[1:, 1:] = np.cumsum(np.cumsum(vl, axis=0), axis=1)
+    y0, y1 = gy[:-1], gy[1:] + 1
+    x0, x1 = gx[:-1], gx[1:] + 1
+    count = ii[y1][:, x1] - ii[y0][:, x1] - ii[y1][:, x0] + ii[y0][:, x0]
+    area = (y1 - y0)[:, None] * (x1 - x0)[None, :]
+    uniform = (count == 0) | (count == area)
+    if gy.size < 2 or gx.size < 2:  # a one-pixel-wide view: no cells, every pixel is followed
+        uniform = np.zeros((max(gy.size - 1, 1), max(gx.size - 1, 1)), dtype=bool)
+        cy, cx = np.zeros(h, dtype=np.int64), np.zeros(w, dtype=np.int64)
+    depths = np.geomspace(depth_min_mm, depth_max_mm, n_depths)
+    gyy, gxx = np.meshgrid(gy, gx, indexing="ij")
+    grid_px = np.stack([gxx.ravel(), gyy.ravel()], axis=1).astype(np.float64)
+    grid_ok, grid_d = _seen_by_right(pair, grid_px, depths)
+    grid_ok &= vl[gyy.ravel(), gxx.ravel()][None, :]
+    mask = np.zeros((h, w), dtype=bool)
     lo, hi = np.inf, -np.inf
-    for z in np.geomspace(depth_min_mm, depth_max_mm, n_depths):
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = (z - C[2]) / rays[:, 2]
-        X = C + np.where(s > 0, s, np.nan)[:, None] * rays
-        xr = np.asarray(pair.project(X, "right"), dtype=np.float64)
-        ok = np.all(np.isfinite(xr), axis=1)
-        ci = np.rint(np.where(ok, xr[:, 0], -1)).astype(np.int64)
-        ri = np.rint(np.where(ok, xr[:, 1], -1)).astype(np.int64)
-        ok &= (ci >= 0) & (ci < vr.shape[1]) & (ri >= 0) & (ri < vr.shape[0])
-        ok[ok] &= vr[ri[ok], ci[ok]]
-        if ok.any():
-            d = px[ok, 0] - xr[ok, 0]
+    for i, z in enumerate(depths):
+        ok = grid_ok[i].reshape(gy.size, gx.size)
+        if gy.size >= 2 and gx.size >= 2:
+            corners = (ok[:-1, :-1].astype(np.int8) + ok[1:, :-1] + ok[:-1, 1:] + ok[1:, 1:])
+            all_seen, pure = corners == 4, uniform & ((corners == 0) | (corners == 4))
+        else:
+            all_seen = pure = np.zeros_like(uniform)
+        seen = all_seen[cy][:, cx] & vl
+        ys, xs = np.nonzero(~pure[cy][:, cx] & vl)
+        if ys.size:
+            px = np.stack([xs, ys], axis=1).astype(np.float64)
+            ok_px, d_px = _seen_by_right(pair, px, depths[i:i + 1])
+            seen[ys, xs] = ok_px[0]
+            if ok_px[0].any():
+                d = d_px[0, ok_px[0]]
+                lo, hi = min(lo, float(d.min())), max(hi, float(d.max()))
+        if grid_ok[i].any():
+            d = grid_d[i, grid_ok[i]]
             lo, hi = min(lo, float(d.min())), max(hi, float(d.max()))
-        seen |= ok
-    if not seen.any():
+        mask |= seen
+    if not mask.any():
         raise GeometryError(f"expected faces {pair.left_face} and {pair.right_face} to see a common part of the "
                             f"scene at {depth_min_mm:g}–{depth_max_mm:g} mm, got views that do not overlap "
                             "(choose other --views or --depth-range)")
-    mask[ys[seen], xs[seen]] = True
     return mask, (max(0, int(np.floor(lo))), int(np.ceil(hi)))
 
 
