@@ -4,7 +4,8 @@ A fixed default range (say 0.8–5 m) silently fails for every scene outside it:
 nearest allowed disparity and the run reports success. Instead the range is derived
 
 1. from the rig: the depths at which the two rectified views share a sizeable part of their field
-   (:func:`view_overlap`: at least a quarter of the largest shared fraction, up to 100 m), and
+   (:func:`~prismstereo.rectify.view_overlap`, the sampled form of
+   :func:`~prismstereo.rectify.common_view`: at least a quarter of the largest shared fraction, up to 100 m), and
 2. from the images: a coarse OpenCV SGBM match over that whole range on downsampled rectified views;
    the 1st–99th percentiles of its consistent disparities, padded, give the range actually searched
    (:func:`estimate_disparity_range`).
@@ -27,7 +28,7 @@ from prismstereo.cameras import calibrate_rig
 from prismstereo.config import Rig
 from prismstereo.errors import GeometryError
 from prismstereo.matching.diagnostics import LIMIT_SHARE, limit_shares
-from prismstereo.rectify import RectifiedPair, common_view, rectify_pair
+from prismstereo.rectify import RectifiedPair, common_view, rectify_pair, view_overlap
 
 log = logging.getLogger(__name__)
 
@@ -66,46 +67,7 @@ class SearchRange:
     warnings: tuple[str, ...] = ()
 
 
-def view_overlap(pair: object, depths_mm: np.ndarray, *, stride: int = 4) -> tuple[np.ndarray, np.ndarray]:
-    """Shared fraction of the rectified left view and the median disparity at each world depth.
-
-    Every ``stride``-th valid left pixel is followed along its ray to each depth and projected into the
-    rectified right view (thesis Eq. 7.22).
-
-    Returns
-    -------
-    fraction : (D,) float  share of the sampled left pixels whose point lands in the right view's valid region.
-    disparity : (D,) float  median disparity x_left − x_right of those samples, px (NaN where none).
-    """
-    vl, vr = (np.asarray(m, dtype=bool) for m in pair.valid_masks())  # type: ignore[attr-defined]
-    ys, xs = np.nonzero(vl[::stride, ::stride])
-    ys, xs = ys * stride, xs * stride
-    if ys.size == 0:
-        raise GeometryError("expected a rectified left view with valid pixels, got none")
-    px = np.stack([xs, ys], axis=1).astype(np.float64)
-    K = np.asarray(pair.K, dtype=np.float64)  # type: ignore[attr-defined]
-    R = np.asarray(pair.R_left, dtype=np.float64)  # type: ignore[attr-defined]
-    C = np.asarray(pair.C_left, dtype=np.float64)  # type: ignore[attr-defined]
-    rays = np.concatenate([px, np.ones((px.shape[0], 1))], axis=1) @ np.linalg.inv(K).T @ R
-    frac = np.zeros(len(depths_mm))
-    disp = np.full(len(depths_mm), np.nan)
-    for i, z in enumerate(depths_mm):
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = (z - C[2]) / rays[:, 2]
-        X = C + np.where(s > 0, s, np.nan)[:, None] * rays
-        xr = np.asarray(pair.project(X, "right"), dtype=np.float64)  # type: ignore[attr-defined]
-        ok = np.all(np.isfinite(xr), axis=1)
-        ci = np.rint(np.where(ok, xr[:, 0], -1)).astype(np.int64)
-        ri = np.rint(np.where(ok, xr[:, 1], -1)).astype(np.int64)
-        ok &= (ci >= 0) & (ci < vr.shape[1]) & (ri >= 0) & (ri < vr.shape[0])
-        ok[ok] &= vr[ri[ok], ci[ok]]
-        frac[i] = ok.mean()
-        if ok.any():
-            disp[i] = float(np.median(px[ok, 0] - xr[ok, 0]))
-    return frac, disp
-
-
-def _rig_range(pair: object, back_mm: float) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
+def _rig_range(pair: RectifiedPair, back_mm: float) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
     depths = np.geomspace(back_mm * 1.02, FAR_MM, 32)
     frac, disp = view_overlap(pair, depths, stride=6)
     if not (frac > 0).any():

@@ -12,6 +12,7 @@ from prismstereo.rectify.rectification import (
     rectify_pair,
     rectify_views,
     rectifying_rotation,
+    view_overlap,
 )
 from prismstereo.rectify.regions import SubImage, ViewRegion, check_image_size, split_capture, view_regions
 from prismstereo.rectify.verify import (
@@ -40,5 +41,6 @@ __all__ = [
     "split_capture",
     "true_correspondences",
     "vertical_residual",
+    "view_overlap",
     "view_regions",
 ]

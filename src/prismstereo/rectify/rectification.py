@@ -680,7 +680,7 @@ def common_view(pair: RectifiedPair, depth_min_mm: float, depth_max_mm: float, *
     grid_ok &= vl[gyy.ravel(), gxx.ravel()][None, :]
     mask = np.zeros((h, w), dtype=bool)
     lo, hi = np.inf, -np.inf
-    for i, z in enumerate(depths):
+    for i in range(depths.size):
         ok = grid_ok[i].reshape(gy.size, gx.size)
         if gy.size >= 2 and gx.size >= 2:
             corners = (ok[:-1, :-1].astype(np.int8) + ok[1:, :-1] + ok[:-1, 1:] + ok[1:, 1:])
