@@ -12,6 +12,15 @@ from prismstereo.config import Rig, pyramid_rig, thesis_biprism, thesis_triprism
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _setup_cache(tmp_path_factory: pytest.TempPathFactory):
+    """The depth set-up cache of the test session (and of the CLI processes it starts): a fresh folder, not
+    the user's."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("PRISMSTEREO_CACHE_DIR", str(tmp_path_factory.mktemp("setup_cache")))
+        yield
+
+
 @pytest.fixture(scope="session")
 def biprism() -> Rig:
     return thesis_biprism()

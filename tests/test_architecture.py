@@ -22,7 +22,7 @@ PACKAGE = SRC / "prismstereo"
 
 #: lowest first; "" is the top-level package itself (prismstereo/__init__.py, its version)
 LAYERS: tuple[frozenset[str], ...] = (
-    frozenset({"", "errors", "progress"}),
+    frozenset({"", "errors", "progress", "numba_cache"}),
     frozenset({"io"}),  # files, atomic writes, JSON
     frozenset({"config"}),  # the rig (TOML) and the thesis's rigs
     frozenset({"optics"}),  # refraction through the prism, exact projection

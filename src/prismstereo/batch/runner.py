@@ -46,6 +46,7 @@ from prismstereo.io import to_jsonable, write_json
 from prismstereo.io.atomic import check_output_dir
 from prismstereo.io.jsonio import library_versions
 from prismstereo.matching import get_matcher
+from prismstereo.numba_cache import tolerate_cache_write_errors
 
 log = logging.getLogger(__name__)
 
@@ -124,8 +125,6 @@ class _FrameLog(logging.Handler):
 def _limit_threads(host_threads: dict[str, int], client_pid: int, numba_threads: int | None) -> int:
     """Give this task's numba (and OpenCV) a share of the cores: cores // worker threads on this host."""
     import numba
-
-    from prismstereo.numba_cache import tolerate_cache_write_errors
 
     tolerate_cache_write_errors()
     on_host = 1

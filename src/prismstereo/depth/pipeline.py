@@ -49,6 +49,7 @@ from prismstereo.depth.search_range import (
     depth_warnings,
     rig_depth_range,
 )
+from prismstereo.depth.setup_cache import load_setup, save_setup
 from prismstereo.depth.triangulation import TRIANGULATIONS, triangulate_matches
 from prismstereo.errors import ConfigError, GeometryError, ImageError
 from prismstereo.io.jsonio import library_versions
@@ -760,10 +761,11 @@ class _Clock:
             self._bar.set_description(f"depth: {name}")
         t, c = time.perf_counter(), time.process_time()
         yield
-        self.timings[name] = time.perf_counter() - t
-        self.cpu[name] = time.process_time() - c
+        again = name in self.timings  # a step timed in two parts adds up (and advances the bar once)
+        self.timings[name] = self.timings.get(name, 0.0) + time.perf_counter() - t
+        self.cpu[name] = self.cpu.get(name, 0.0) + time.process_time() - c
         log.info("step %s: %.2f s", name, self.timings[name])
-        if self._bar is not None:
+        if self._bar is not None and not again:
             self._bar.update(1)
 
     def close(self) -> None:
@@ -812,6 +814,22 @@ def _run_frame(setup: DepthSetup, image: np.ndarray, left: np.ndarray, right: np
     return _finish(result, clock, t0)
 
 
+def _geometry(rig: Rig, cfg: DepthConfig, clock: _Clock) -> tuple[tuple[VirtualView, ...], RectifiedPair]:
+    """The virtual cameras and the rectified pair, from the set-up cache when it holds them
+    (:mod:`prismstereo.depth.setup_cache`), else computed and stored there. The clock's ``rectify`` step
+    goes on in the caller (the capture's remap, the search region)."""
+    faces = _pair_faces(cfg)
+    with clock.step("cameras"):
+        cached = load_setup(rig, faces, cfg.calibration)
+        views = cached[0] if cached is not None else virtual_cameras(rig, cfg)
+    with clock.step("rectify"):
+        if cached is not None:
+            return views, cached[1]
+        pair = rectify_geometry(rig, views, cfg)
+        save_setup(rig, faces, cfg.calibration, views, pair)
+    return views, pair
+
+
 def run_depth(rig: Rig, image: Any, *, config: DepthConfig | None = None,
               progress: bool | None = None) -> DepthResult:
     """Recover depth from one prism capture (the steps of the module docstring).
@@ -846,10 +864,8 @@ def run_depth(rig: Rig, image: Any, *, config: DepthConfig | None = None,
         result = dataclasses.replace(result, timings={"validate": validated}, match_timings=sweep_timings)
         return _finish(result, clock, t0)
     clock = _Clock(_SETUP_STEPS + _FRAME_STEPS, progress)
-    with clock.step("cameras"):
-        views = virtual_cameras(rig, cfg)
+    views, pair = _geometry(rig, cfg, clock)
     with clock.step("rectify"):
-        pair = rectify_geometry(rig, views, cfg)
         left, right = rectify_capture(pair, img)
         region = search_region(rig, pair, cfg, left, right)
     setup = DepthSetup(rig=rig, config=cfg, views=views, pair=pair, region=region,
@@ -877,10 +893,8 @@ def prepare_depth(rig: Rig, *, config: DepthConfig | None = None) -> DepthSetup:
         raise ConfigError("--views: expected a pair I,J for a sequence, got 'all' (the all-view sweep is "
                           "depth-only)")
     clock = _Clock(_SETUP_STEPS, False)
-    with clock.step("cameras"):
-        views = virtual_cameras(rig, cfg)
+    views, pair = _geometry(rig, cfg, clock)
     with clock.step("rectify"):
-        pair = rectify_geometry(rig, views, cfg)
         region = search_region(rig, pair, cfg)
     return DepthSetup(rig=rig, config=cfg, views=views, pair=pair, region=region, timings=dict(clock.timings))
 

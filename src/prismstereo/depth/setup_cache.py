@@ -1,0 +1,157 @@
+"""On-disk cache of a rig's virtual cameras and rectification, the per-rig part of a depth run.
+
+Fitting the virtual cameras and building the rectification maps depend only on the rig, the pair of faces
+and the camera model, yet a ``prismstereo depth`` call (a new process) would redo them for every capture.
+They are kept in one ``.npz`` file per set-up (arrays only, read without pickle):
+
+- key: SHA-256 of the resolved rig (:meth:`~prismstereo.config.Rig.to_dict`, which holds the image size),
+  the pair of faces, the camera model, the package version and the source of the modules that compute the
+  set-up (``cameras``, ``optics``, ``rectify``, ``config``, this module), so that an edited library never
+  reads an older result;
+- folder: ``$PRISMSTEREO_CACHE_DIR``, else ``$XDG_CACHE_HOME/prismstereo``, else ``~/.cache/prismstereo``;
+  ``PRISMSTEREO_CACHE=0`` (or ``off``, ``no``, ``false``) disables it;
+- writes go to a temporary file in the folder, renamed over the entry (concurrent writers each write a
+  whole file, the last rename wins; readers never see a partial one); a file that cannot be read (truncated,
+  corrupt, another layout) counts as missing and is rewritten; a folder that cannot be written (read-only,
+  disk full) costs the saving only (logged), never the run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import tempfile
+import zipfile
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+import prismstereo
+from prismstereo.cameras import VirtualView
+from prismstereo.cameras.pinhole import PinholeCamera
+from prismstereo.config import Rig
+from prismstereo.rectify import RectifiedPair
+
+log = logging.getLogger(__name__)
+
+__all__ = ["cache_folder", "load_setup", "save_setup", "setup_key"]
+
+_OFF = {"0", "off", "no", "false"}
+#: bump when the file layout changes
+_LAYOUT = 1
+_SOURCES = ("cameras", "optics", "rectify", "config.py", "depth/setup_cache.py")
+
+
+def cache_folder() -> Path | None:
+    """The cache folder, or None when ``PRISMSTEREO_CACHE`` disables the cache."""
+    if os.environ.get("PRISMSTEREO_CACHE", "").strip().lower() in _OFF:
+        return None
+    if os.environ.get("PRISMSTEREO_CACHE_DIR"):
+        return Path(os.environ["PRISMSTEREO_CACHE_DIR"])
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "prismstereo"
+
+
+def _source_digest() -> bytes:
+    root = Path(prismstereo.__file__).parent
+    h = hashlib.sha256()
+    for name in _SOURCES:
+        p = root / name
+        for f in sorted(p.rglob("*.py")) if p.is_dir() else [p]:
+            h.update(str(f.relative_to(root)).encode())
+            h.update(f.read_bytes())
+    return h.digest()
+
+
+def setup_key(rig: Rig, faces: tuple[int, int], calibration: str) -> str:
+    """Hex key of a set-up (module docstring)."""
+    h = hashlib.sha256()
+    h.update(json.dumps({"rig": rig.to_dict(), "faces": list(faces), "calibration": calibration,
+                         "version": prismstereo.__version__, "layout": _LAYOUT}, sort_keys=True,
+                        default=str).encode())
+    h.update(_source_digest())
+    return h.hexdigest()[:40]
+
+
+def _path(rig: Rig, faces: tuple[int, int], calibration: str) -> Path | None:
+    folder = cache_folder()
+    return None if folder is None else folder / f"setup-{setup_key(rig, faces, calibration)}.npz"
+
+
+def load_setup(rig: Rig, faces: tuple[int, int], calibration: str
+               ) -> tuple[tuple[VirtualView, ...], RectifiedPair] | None:
+    """The cached virtual cameras and rectified pair of ``faces``, or None (no entry, unreadable, disabled)."""
+    path = _path(rig, faces, calibration)
+    if path is None or not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            d = {k: z[k] for k in z.files}
+        views = tuple(
+            VirtualView(face=int(f), name=str(n), method=str(d["method"]),
+                        camera=PinholeCamera(K=K, R=R, C=C, dist=dist[:int(nd)]), rms_px=float(rms),
+                        max_px=float(mx))
+            for f, n, K, R, C, dist, nd, rms, mx in zip(d["faces"], d["names"], d["K"], d["R"], d["C"],
+                                                        d["dist"], d["ndist"], d["rms"], d["max"], strict=True))
+        by_face = {v.face: v for v in views}
+        lf, rf = (int(v) for v in d["pair_faces"])
+        pair = RectifiedPair(
+            left_face=lf, right_face=rf, K=d["pair_K"], R=d["pair_R"], C_left=d["C_left"], C_right=d["C_right"],
+            size=(int(d["size"][0]), int(d["size"][1])), map_left=d["map_left"], map_right=d["map_right"],
+            valid_left=d["valid_left"], valid_right=d["valid_right"], method=str(d["pair_method"]),
+            remap=str(d["remap"]), reference_depth_mm=float(d["reference_depth_mm"]), view_left=by_face[lf],
+            view_right=by_face[rf], rig=rig, disparity_offset=float(d["disparity_offset"]))
+        if {lf, rf} != set(faces) or pair.map_left.shape[:2] != (pair.size[1], pair.size[0]):
+            raise ValueError("another set-up")
+    except (OSError, ValueError, KeyError, TypeError, IndexError, EOFError, zipfile.BadZipFile) as exc:
+        log.info("set-up cache entry %s unreadable (%s): computing it again", path, exc)
+        return None
+    log.debug("set-up of faces %s read from %s", faces, path)
+    return views, pair
+
+
+def save_setup(rig: Rig, faces: tuple[int, int], calibration: str, views: Sequence[VirtualView],
+               pair: RectifiedPair) -> Path | None:
+    """Store a set-up (best effort: returns the file, or None when disabled or it could not be written)."""
+    path = _path(rig, faces, calibration)
+    if path is None:
+        return None
+    nd = max((v.camera.dist.size for v in views), default=0)
+    dist = np.zeros((len(views), nd))
+    for i, v in enumerate(views):
+        dist[i, :v.camera.dist.size] = v.camera.dist
+    arrays = {
+        "faces": np.array([v.face for v in views]), "names": np.array([v.name for v in views]),
+        "method": np.array(views[0].method if views else ""),
+        "K": np.stack([v.camera.K for v in views]), "R": np.stack([v.camera.R for v in views]),
+        "C": np.stack([v.camera.C for v in views]), "dist": dist,
+        "ndist": np.array([v.camera.dist.size for v in views]),
+        "rms": np.array([v.rms_px for v in views]), "max": np.array([v.max_px for v in views]),
+        "pair_faces": np.array([pair.left_face, pair.right_face]), "pair_K": pair.K, "pair_R": pair.R,
+        "C_left": pair.C_left, "C_right": pair.C_right, "size": np.array(pair.size),
+        "map_left": pair.map_left, "map_right": pair.map_right, "valid_left": pair.valid_left,
+        "valid_right": pair.valid_right, "pair_method": np.array(pair.method), "remap": np.array(pair.remap),
+        "reference_depth_mm": np.array(pair.reference_depth_mm),
+        "disparity_offset": np.array(pair.disparity_offset),
+    }
+    tmp: str | None = None
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=".setup-", suffix=".tmp", dir=path.parent)
+        with os.fdopen(fd, "wb") as fh:
+            np.savez(fh, **arrays)  # type: ignore[arg-type]
+        os.replace(tmp, path)
+        tmp = None
+    except OSError as exc:
+        log.info("set-up not cached in %s (%s): the next run computes it again", path.parent, exc)
+        return None
+    finally:
+        if tmp is not None:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+    return path

@@ -1,0 +1,98 @@
+"""The on-disk cache of a rig's cameras and rectification gives the set-up it stored, or nothing."""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from prismstereo.apps.demo import demo_rig
+from prismstereo.depth import DepthConfig
+from prismstereo.depth import pipeline as pl
+from prismstereo.depth.setup_cache import cache_folder, load_setup, save_setup, setup_key
+
+
+@pytest.fixture()
+def cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    monkeypatch.setenv("PRISMSTEREO_CACHE_DIR", str(tmp_path / "c"))
+    monkeypatch.delenv("PRISMSTEREO_CACHE", raising=False)
+    return tmp_path / "c"
+
+
+@pytest.fixture(scope="module")
+def computed():
+    rig = demo_rig()
+    cfg = pl.validate_config(rig, DepthConfig(method="sad"))
+    views = pl.virtual_cameras(rig, cfg)
+    return rig, cfg, views, pl.rectify_geometry(rig, views, cfg)
+
+
+def _same(a, b) -> None:
+    for name in ("K", "R", "C_left", "C_right", "map_left", "map_right", "valid_left", "valid_right"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    assert (a.left_face, a.right_face, a.size, a.disparity_offset, a.remap, a.method) == \
+           (b.left_face, b.right_face, b.size, b.disparity_offset, b.remap, b.method)
+    for va, vb in ((a.view_left, b.view_left), (a.view_right, b.view_right)):
+        assert (va.face, va.name, va.method, va.rms_px, va.max_px) == (vb.face, vb.name, vb.method, vb.rms_px,
+                                                                        vb.max_px)
+        for f in ("K", "R", "C", "dist"):
+            assert np.array_equal(getattr(va.camera, f), getattr(vb.camera, f))
+
+
+def test_round_trip_and_run_depth_uses_it(cache: Path, computed) -> None:
+    rig, cfg, views, pair = computed
+    assert load_setup(rig, cfg.views, cfg.calibration) is None
+    path = save_setup(rig, cfg.views, cfg.calibration, views, pair)
+    assert path is not None and path.parent == cache and not list(cache.glob(".setup-*"))
+    got = load_setup(rig, cfg.views, cfg.calibration)
+    assert got is not None
+    _same(got[1], pair)
+    # another model or pair of faces is another entry
+    assert setup_key(rig, cfg.views, "thesis") != setup_key(rig, cfg.views, cfg.calibration)
+    assert setup_key(rig, (0, 1), cfg.calibration) != setup_key(rig, cfg.views, cfg.calibration)
+    setup = pl.prepare_depth(rig, config=DepthConfig(method="sad"))
+    _same(setup.pair, pair)
+
+
+def test_corrupt_entry_is_computed_again(cache: Path, computed) -> None:
+    rig, cfg, views, pair = computed
+    path = save_setup(rig, cfg.views, cfg.calibration, views, pair)
+    assert path is not None
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])  # truncated (a crash of another writer, a full disk)
+    assert load_setup(rig, cfg.views, cfg.calibration) is None
+    setup = pl.prepare_depth(rig, config=DepthConfig(method="sad"))
+    _same(setup.pair, pair)
+    assert load_setup(rig, cfg.views, cfg.calibration) is not None  # rewritten whole
+
+
+def test_disabled_or_unwritable_cache_costs_only_the_saving(cache: Path, computed, tmp_path: Path,
+                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    rig, cfg, views, pair = computed
+    monkeypatch.setenv("PRISMSTEREO_CACHE", "0")
+    assert cache_folder() is None
+    assert save_setup(rig, cfg.views, cfg.calibration, views, pair) is None
+    pl.prepare_depth(rig, config=DepthConfig(method="sad"))
+    assert not cache.exists()
+    monkeypatch.delenv("PRISMSTEREO_CACHE")
+    blocker = tmp_path / "file.txt"
+    blocker.write_text("x")
+    monkeypatch.setenv("PRISMSTEREO_CACHE_DIR", str(blocker / "c"))  # a folder inside a file
+    assert save_setup(rig, cfg.views, cfg.calibration, views, pair) is None
+    _same(pl.prepare_depth(rig, config=DepthConfig(method="sad")).pair, pair)
+
+
+def test_concurrent_writers_leave_one_whole_entry(cache: Path, computed) -> None:
+    rig, cfg, views, pair = computed
+    threads = [threading.Thread(target=save_setup, args=(rig, cfg.views, cfg.calibration, views, pair))
+               for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(list(cache.iterdir())) == 1
+    got = load_setup(rig, cfg.views, cfg.calibration)
+    assert got is not None
+    _same(got[1], pair)
