@@ -159,8 +159,14 @@ def _depth_rows(presets: list[str], frames: int, cpu: dict[str, float]) -> None:
     rig, scene = robot_scene(width=512)
     cap = render_capture(rig, scene)
     video = hasattr(pl, "prepare_depth") and hasattr(pl, "run_depth_frame")
+    try:
+        from prismstereo.depth.setup_cache import cache_folder
+        folder = cache_folder()
+        cache = f"set-up cache {folder}" if folder is not None else "set-up cache off (PRISMSTEREO_CACHE=0)"
+    except ImportError:
+        cache = "no set-up cache in this version"
     print(f"\n### depth on the {cap.image.shape[1]}×{cap.image.shape[0]} demo capture (robot scene), warm, "
-          f"{frames} frames; load average {os.getloadavg()[0]:.1f}\n")
+          f"{frames} frames; load average {os.getloadavg()[0]:.1f}; {cache}\n")
     print("| preset | method | whole run_depth s/frame | frames/s | its CPU s/frame | 1/CPU | "
           "stages after set-up s/frame | frames/s | their CPU s/frame | 1/CPU | video path s/frame | frames/s | "
           "its CPU s/frame | 1/CPU | stages of one frame (s) | median rel. depth error | coverage |")
