@@ -96,3 +96,20 @@ def test_concurrent_writers_leave_one_whole_entry(cache: Path, computed) -> None
     got = load_setup(rig, cfg.views, cfg.calibration)
     assert got is not None
     _same(got[1], pair)
+
+
+def test_old_entries_are_pruned(cache: Path, computed, monkeypatch: pytest.MonkeyPatch) -> None:
+    import os
+
+    from prismstereo.depth import setup_cache
+
+    rig, cfg, views, pair = computed
+    monkeypatch.setattr(setup_cache, "MAX_ENTRIES", 2)
+    cache.mkdir(parents=True)
+    for i in range(3):  # entries of other rigs or older code, oldest first
+        f = cache / f"setup-old{i}.npz"
+        f.write_bytes(b"x")
+        os.utime(f, (1000.0 + i, 1000.0 + i))
+    path = save_setup(rig, cfg.views, cfg.calibration, views, pair)
+    assert path is not None
+    assert sorted(p.name for p in cache.iterdir()) == sorted([path.name, "setup-old2.npz"])

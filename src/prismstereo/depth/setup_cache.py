@@ -13,7 +13,8 @@ They are kept in one ``.npz`` file per set-up (arrays only, read without pickle)
 - writes go to a temporary file in the folder, renamed over the entry (concurrent writers each write a
   whole file, the last rename wins; readers never see a partial one); a file that cannot be read (truncated,
   corrupt, another layout) counts as missing and is rewritten; a folder that cannot be written (read-only,
-  disk full) costs the saving only (logged), never the run.
+  disk full) costs the saving only (logged), never the run; the folder keeps the :data:`MAX_ENTRIES`
+  most recently written entries.
 """
 
 from __future__ import annotations
@@ -43,6 +44,8 @@ _OFF = {"0", "off", "no", "false"}
 #: bump when the file layout changes
 _LAYOUT = 1
 _SOURCES = ("cameras", "optics", "rectify", "config.py", "depth/setup_cache.py")
+#: entries kept in the folder (the oldest beyond are removed when one is written)
+MAX_ENTRIES = 32
 
 
 def cache_folder() -> Path | None:
@@ -154,4 +157,16 @@ def save_setup(rig: Rig, faces: tuple[int, int], calibration: str, views: Sequen
                 os.unlink(tmp)
             except OSError:
                 pass
+    _prune(path.parent)
     return path
+
+
+def _prune(folder: Path) -> None:
+    """Keep the :data:`MAX_ENTRIES` most recently written entries (each edit of the geometry code or rig makes
+    a new key; the old files would otherwise stay)."""
+    try:
+        entries = sorted(folder.glob("setup-*.npz"), key=lambda p: p.stat().st_mtime, reverse=True)
+        for old in entries[MAX_ENTRIES:]:
+            old.unlink()
+    except OSError:  # another process pruned first, or the folder went away: nothing to keep tidy
+        pass
