@@ -47,18 +47,46 @@ def test_matches_the_refinement_cannot_confirm_get_zero_and_the_threshold_drops_
     assert np.array_equal(np.isfinite(kept), np.isfinite(kconf))
 
 
-def test_matches_near_the_edge_of_a_view_are_refined_with_a_smaller_window():
+def test_matches_near_the_edge_of_a_view_are_refined_on_the_cut_window():
     left, right = _shifted_pair(7.3)
     valid = np.ones(left.shape, dtype=bool)
     valid[:, 60:] = False  # the left view ends at column 60
     init = np.where(valid, np.float32(7.0), np.float32(np.nan))
-    band = (slice(8, -8), slice(55, 57))  # the 11 px window is cut by the edge, a 7 px one is not
+    band = (slice(8, -8), slice(55, 60))  # the 11 px window is cut by the edge, down to the last column
     d_one, c_one = confident_matches(left, right, init, radius=5, border_radius=None, valid_left=valid)
     d_two, c_two = confident_matches(left, right, init, radius=5, border_radius=3, valid_left=valid)
     assert np.all(c_one[band] == 0.0)
     assert np.all(c_two[band] > 0.9) and np.all(np.abs(d_two[band] - 7.3) < 0.1)  # from 0.3 px off
     inner = (slice(8, -8), slice(20, 50))
-    assert np.array_equal(d_one[inner], d_two[inner])  # away from the edge: the first window only
+    assert np.array_equal(d_one[inner], d_two[inner])  # windows inside the view: the same refinement
+
+
+def test_a_thin_common_view_is_kept_to_its_edges_and_its_blended_rim_is_left_out():
+    """A 12 px wide strip seen by both views (a tri-prism's common view is such a strip): every window
+    there is cut by an edge of the left view or of the right one; the views' outermost pixels are darkened
+    as the remap leaves them (blended with what lies beyond the region)."""
+    true_d = 7.3
+    left, right = _shifted_pair(true_d, seed=3, w=160)
+    valid_l = np.zeros(left.shape, dtype=bool)
+    valid_l[:, 70:] = True  # the left view starts at column 70
+    valid_r = np.zeros(left.shape, dtype=bool)
+    valid_r[:, :75] = True  # the right view ends at column 75: left columns 70..81 see into it
+    for img, valid in ((left, valid_l), (right, valid_r)):
+        rim = valid & ~(np.roll(valid, 1, axis=1) & np.roll(valid, -1, axis=1))
+        img[rim] *= 0.6
+        img[~valid] = 0.0
+    strip = np.zeros(left.shape, dtype=bool)
+    strip[5:-5, 70:82] = True
+    init = np.where(strip, np.float32(7.0), np.float32(np.nan))
+    d, c = confident_matches(left, right, init, radius=5, border_radius=3, min_confidence=0.5,
+                             valid_left=valid_l, valid_right=valid_r)
+    kept = np.isfinite(d) & strip
+    err = np.abs(d[kept] - true_d)
+    assert kept.sum() >= 0.85 * strip.sum()
+    assert np.median(err) < 0.05 and np.percentile(err, 90) < 0.15  # with the rim in the windows: 0.39, 0.49
+    d_old, _ = confident_matches(left, right, init, radius=5, border_radius=None, min_confidence=0.5,
+                                 valid_left=valid_l, valid_right=valid_r)
+    assert not np.isfinite(d_old[strip]).any()  # whole windows only: nothing in the strip
 
 
 def test_remove_speckles_drops_small_patches_only():

@@ -7,9 +7,10 @@ The pipeline's ``refine`` and ``speckles`` steps are these plain functions on ar
   normalised cross-correlation of the two refined windows (negative values clipped to 0) where the
   refinement could confirm the match, 0 where it could not (window without texture or off a view, or the
   refinement moved it by a pixel or more: the matcher's value was off). Where the window is cut by the
-  edge of a view, a smaller window is tried: near the edges of a small common view (a tri-prism's) that
-  is a large share of it. Matches below ``min_confidence`` are dropped; ``min_confidence=None`` keeps them
-  all with their confidence, for the user to filter.
+  edge of a view, it is cut to the pixels both views have (``min_pixels`` of
+  :func:`~prismstereo.depth.refine.refine_disparity`): near the edges of a small common view (a
+  tri-prism's) that is a large share of it. Matches below ``min_confidence`` are dropped;
+  ``min_confidence=None`` keeps them all with their confidence, for the user to filter.
 - :func:`remove_speckles` drops connected patches of disparity smaller than a share of the matched region.
 """
 
@@ -45,8 +46,9 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
     min_confidence : float or None
         Drop matches whose confidence is below this; None keeps every match.
     border_radius : int or None
-        Half-size of the window tried again where the ``radius`` window is cut by the edge of a view
-        (rectified left, or right at the match); None: no second try.
+        Where the ``radius`` window is cut by the edge of the image or of a view (rectified left, or right
+        at the match), the window is cut to its pixels inside both and refined if it keeps at least as many
+        as a full ``border_radius`` window, (2·border_radius + 1)²; None: such matches are not refined.
     valid_left, valid_right : (H, W) bool, optional
         Valid regions of the rectified views.
 
@@ -58,21 +60,10 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
     confidence : (H, W) float32
         Confidence in [0, 1] of each remaining match, NaN where ``disparity`` is NaN.
     """
+    min_pixels = None if border_radius is None else (2 * border_radius + 1) ** 2
     disp, zncc = refine_disparity(left, right, disparity, radius=radius, iterations=iterations,
                                   max_shift=max_shift, min_texture=min_texture,
-                                  valid_left=valid_left, valid_right=valid_right)
-    if border_radius is not None and 0 < border_radius < radius:
-        # a window cut by the edge of a view cannot be refined; near the edges (a large share of a small
-        # common view) a smaller window still can
-        d0 = np.asarray(disparity, dtype=np.float32)
-        retry = np.isnan(zncc) & _near_edges(d0, radius, valid_left, valid_right)
-        if retry.any():
-            d2, z2 = refine_disparity(left, right, np.where(retry, d0, np.float32(np.nan)),
-                                      radius=border_radius, iterations=iterations, max_shift=max_shift,
-                                      min_texture=min_texture, valid_left=valid_left,
-                                      valid_right=valid_right)
-            take = retry & np.isfinite(z2)
-            disp[take], zncc[take] = d2[take], z2[take]
+                                  valid_left=valid_left, valid_right=valid_right, min_pixels=min_pixels)
     matched = np.isfinite(disp)
     conf = np.where(np.isfinite(zncc), np.clip(zncc, 0.0, 1.0), np.float32(0.0)).astype(np.float32)
     keep = matched if min_confidence is None else matched & (conf >= min_confidence)
@@ -106,22 +97,3 @@ def remove_speckles(disparity: np.ndarray, *, max_size: int) -> np.ndarray:
     cv2.filterSpeckles(d16, -16, int(max_size), 16)
     return np.where(d16 == -16, np.float32(np.nan), disp).astype(np.float32)
 
-
-def _near_edges(disparity: np.ndarray, radius: int, valid_left: np.ndarray | None,
-                valid_right: np.ndarray | None) -> np.ndarray:
-    """Matches whose ``radius`` window leaves the image or a view's valid region (left, or right at x − d)."""
-    h, w = disparity.shape
-    k = 2 * radius + 1
-    kernel = np.ones((k, k), np.uint8)
-    near = np.zeros((h, w), dtype=bool)
-    near[:radius] = near[h - radius:] = True
-    near[:, :radius] = near[:, w - radius:] = True
-    if valid_left is not None:
-        near |= cv2.dilate((~np.asarray(valid_left, dtype=bool)).astype(np.uint8), kernel) > 0
-    matched = np.isfinite(disparity)
-    if valid_right is not None:
-        bad_r = cv2.dilate((~np.asarray(valid_right, dtype=bool)).astype(np.uint8), kernel) > 0
-        ys, xs = np.nonzero(matched & ~near)
-        xr = np.clip(np.rint(xs - disparity[ys, xs]).astype(np.int64), 0, w - 1)
-        near[ys, xs] = bad_r[ys, xr]
-    return near & matched
