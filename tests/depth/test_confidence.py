@@ -86,7 +86,7 @@ def test_a_thin_common_view_is_kept_to_its_edges_and_its_blended_rim_is_left_out
     assert np.median(err) < 0.05 and np.percentile(err, 90) < 0.15  # with the rim in the windows: 0.39, 0.49
     d_old, _ = confident_matches(left, right, init, radius=5, border_radius=None, min_confidence=0.5,
                                  valid_left=valid_l, valid_right=valid_r)
-    assert not np.isfinite(d_old[strip]).any()  # whole windows only: nothing in the strip
+    assert np.isfinite(d_old[strip]).mean() < 0.3  # whole windows only: a few columns of the strip
 
 
 def test_remove_speckles_drops_small_patches_only():
