@@ -27,7 +27,8 @@ __all__ = ["confident_matches", "remove_speckles"]
 def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, *, radius: int = 5,
                       iterations: int = 6, max_shift: float = 1.0, min_texture: float = 0.01,
                       min_confidence: float | None = None,
-                      border_radius: int | None = 3, valid_left: np.ndarray | None = None,
+                      border_radius: int | None = 3, max_lr_gap: float | None = 0.5,
+                      valid_left: np.ndarray | None = None,
                       valid_right: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Refine matches, rate them and keep the confident ones.
 
@@ -49,6 +50,11 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
         Where the ``radius`` window is cut by the edge of the image or of a view (rectified left, or right
         at the match), the window is cut to its pixels inside both and refined if it keeps at least as many
         as a full ``border_radius`` window, (2·border_radius + 1)²; None: such matches are not refined.
+    max_lr_gap : float or None
+        Sub-pixel left–right check: the right view's disparities are refined too (from the matches seen
+        from the right) and a match whose refined disparity differs from the right view's at ``x − d`` by
+        more than this (px) gets confidence 0. A window across a depth edge is pulled towards the
+        surface with more texture differently from the two sides; the check finds those. None: no check.
     valid_left, valid_right : (H, W) bool, optional
         Valid regions of the rectified views.
 
@@ -66,6 +72,16 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
                                   valid_left=valid_left, valid_right=valid_right, min_pixels=min_pixels)
     matched = np.isfinite(disp)
     conf = np.where(np.isfinite(zncc), np.clip(zncc, 0.0, 1.0), np.float32(0.0)).astype(np.float32)
+    if max_lr_gap is not None:
+        # the right view's matches: the left's moved to x − d (the nearer surface wins a pixel), refined
+        # on the mirrored pair, where the right view is the left one
+        d_r, z_r = refine_disparity(_mirror(right), _mirror(left), _mirror(_seen_from_right(disparity)),
+                                    radius=radius, iterations=iterations, max_shift=max_shift,
+                                    min_texture=min_texture, min_pixels=min_pixels,
+                                    valid_left=None if valid_right is None else _mirror(valid_right),
+                                    valid_right=None if valid_left is None else _mirror(valid_left))
+        disp_r = _mirror(d_r)
+        conf[_lr_gap(disp, disp_r) > max_lr_gap] = 0.0
     keep = matched if min_confidence is None else matched & (conf >= min_confidence)
     nan = np.float32(np.nan)
     return np.where(keep, disp, nan).astype(np.float32), np.where(keep, conf, nan).astype(np.float32)
@@ -97,3 +113,41 @@ def remove_speckles(disparity: np.ndarray, *, max_size: int) -> np.ndarray:
     cv2.filterSpeckles(d16, -16, int(max_size), 16)
     return np.where(d16 == -16, np.float32(np.nan), disp).astype(np.float32)
 
+
+
+def _mirror(a: np.ndarray) -> np.ndarray:
+    """Left–right mirror image (a right view becomes a left one, disparities keep their sign)."""
+    return np.ascontiguousarray(np.asarray(a)[:, ::-1])
+
+
+def _seen_from_right(disparity: np.ndarray) -> np.ndarray:
+    """(H, W) float32: the left view's disparities at their right pixels x − d (rounded), the largest where
+    several land on one pixel (the nearer surface hides the other), NaN where none lands."""
+    d = np.asarray(disparity, dtype=np.float32)
+    h, w = d.shape
+    ys, xs = np.nonzero(np.isfinite(d))
+    xr = np.rint(xs - d[ys, xs]).astype(np.int64)
+    inside = (xr >= 0) & (xr < w)
+    out = np.full((h, w), -np.inf, dtype=np.float32)
+    np.maximum.at(out, (ys[inside], xr[inside]), d[ys[inside], xs[inside]])
+    out[np.isneginf(out)] = np.nan
+    return out
+
+
+def _lr_gap(disparity: np.ndarray, disparity_right: np.ndarray) -> np.ndarray:
+    """(H, W): |d(x) − d_right(x − d(x))| (d_right interpolated along the row; the one finite neighbour
+    where the other is NaN), NaN where either is missing."""
+    h, w = disparity.shape
+    gap = np.full((h, w), np.nan, dtype=np.float32)
+    ys, xs = np.nonzero(np.isfinite(disparity))
+    d = disparity[ys, xs]
+    xq = xs - d
+    x0 = np.floor(xq).astype(np.int64)
+    inside = (x0 >= 0) & (x0 + 1 < w)
+    ys, xs, d, xq, x0 = ys[inside], xs[inside], d[inside], xq[inside], x0[inside]
+    t = (xq - x0).astype(np.float32)
+    a, b = disparity_right[ys, x0], disparity_right[ys, x0 + 1]
+    with np.errstate(invalid="ignore"):
+        dr = np.where(np.isfinite(a) & np.isfinite(b), (1 - t) * a + t * b, np.where(np.isfinite(a), a, b))
+    gap[ys, xs] = np.abs(d - dr)
+    return gap
