@@ -5,8 +5,9 @@ The pipeline's ``refine`` and ``speckles`` steps are these plain functions on ar
 - :func:`confident_matches` refines every cross-checked match to sub-pixel precision
   (:func:`~prismstereo.depth.refine.refine_disparity`) and gives it a confidence in [0, 1]: the zero-mean
   normalised cross-correlation of the two refined windows (negative values clipped to 0) where the
-  refinement could confirm the match, 0 where it could not (window without texture or off a view, or the
-  refinement moved it by a pixel or more: the matcher's value was off). Where the window is cut by the
+  refinement could confirm the match, 0 where it could not (window without texture or off a view, the
+  refinement moved it by a pixel or more: the matcher's value was off, or the right view's own refined
+  disparity at x − d disagrees: a window pulled across a depth edge). Where the window is cut by the
   edge of a view, it is cut to the pixels both views have (``min_pixels`` of
   :func:`~prismstereo.depth.refine.refine_disparity`): near the edges of a small common view (a
   tri-prism's) that is a large share of it. Matches below ``min_confidence`` are dropped;
@@ -112,7 +113,6 @@ def remove_speckles(disparity: np.ndarray, *, max_size: int) -> np.ndarray:
     d16 = np.where(finite, np.rint(disp * 16.0), -16).astype(np.int16)
     cv2.filterSpeckles(d16, -16, int(max_size), 16)
     return np.where(d16 == -16, np.float32(np.nan), disp).astype(np.float32)
-
 
 
 def _mirror(a: np.ndarray) -> np.ndarray:
