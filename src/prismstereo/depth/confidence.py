@@ -5,11 +5,13 @@ The pipeline's ``refine`` and ``speckles`` steps are these plain functions on ar
 - :func:`confident_matches` refines every cross-checked match to sub-pixel precision
   (:func:`~prismstereo.depth.refine.refine_disparity`) and gives it a confidence in [0, 1]: the zero-mean
   normalised cross-correlation of the two refined windows (negative values clipped to 0) where the
-  refinement could confirm the match, 0 where it could not (window without texture or off a view, or the
-  refinement moved it by a pixel or more: the matcher's value was off). Where the window is cut by the
-  edge of a view, a smaller window is tried: near the edges of a small common view (a tri-prism's) that
-  is a large share of it. Matches below ``min_confidence`` are dropped; ``min_confidence=None`` keeps them
-  all with their confidence, for the user to filter.
+  refinement could confirm the match, 0 where it could not (window without texture or off a view, the
+  refinement moved it by a pixel or more: the matcher's value was off, or the right view's own refined
+  disparity at x − d disagrees: a window pulled across a depth edge). Where the window is cut by the
+  edge of a view, it is cut to the pixels both views have (``min_pixels`` of
+  :func:`~prismstereo.depth.refine.refine_disparity`): near the edges of a small common view (a
+  tri-prism's) that is a large share of it. Matches below ``min_confidence`` are dropped;
+  ``min_confidence=None`` keeps them all with their confidence, for the user to filter.
 - :func:`remove_speckles` drops connected patches of disparity smaller than a share of the matched region.
 """
 
@@ -26,7 +28,8 @@ __all__ = ["confident_matches", "remove_speckles"]
 def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, *, radius: int = 5,
                       iterations: int = 6, max_shift: float = 1.0, min_texture: float = 0.01,
                       min_confidence: float | None = None,
-                      border_radius: int | None = 3, valid_left: np.ndarray | None = None,
+                      border_radius: int | None = 3, max_lr_gap: float | None = 0.5,
+                      valid_left: np.ndarray | None = None,
                       valid_right: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Refine matches, rate them and keep the confident ones.
 
@@ -45,8 +48,14 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
     min_confidence : float or None
         Drop matches whose confidence is below this; None keeps every match.
     border_radius : int or None
-        Half-size of the window tried again where the ``radius`` window is cut by the edge of a view
-        (rectified left, or right at the match); None: no second try.
+        Where the ``radius`` window is cut by the edge of the image or of a view (rectified left, or right
+        at the match), the window is cut to its pixels inside both and refined if it keeps at least as many
+        as a full ``border_radius`` window, (2·border_radius + 1)²; None: such matches are not refined.
+    max_lr_gap : float or None
+        Sub-pixel left–right check: the right view's disparities are refined too (from the matches seen
+        from the right) and a match whose refined disparity differs from the right view's at ``x − d`` by
+        more than this (px) gets confidence 0. A window across a depth edge is pulled towards the
+        surface with more texture differently from the two sides; the check finds those. None: no check.
     valid_left, valid_right : (H, W) bool, optional
         Valid regions of the rectified views.
 
@@ -58,23 +67,22 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
     confidence : (H, W) float32
         Confidence in [0, 1] of each remaining match, NaN where ``disparity`` is NaN.
     """
+    min_pixels = None if border_radius is None else (2 * border_radius + 1) ** 2
     disp, zncc = refine_disparity(left, right, disparity, radius=radius, iterations=iterations,
                                   max_shift=max_shift, min_texture=min_texture,
-                                  valid_left=valid_left, valid_right=valid_right)
-    if border_radius is not None and 0 < border_radius < radius:
-        # a window cut by the edge of a view cannot be refined; near the edges (a large share of a small
-        # common view) a smaller window still can
-        d0 = np.asarray(disparity, dtype=np.float32)
-        retry = np.isnan(zncc) & _near_edges(d0, radius, valid_left, valid_right)
-        if retry.any():
-            d2, z2 = refine_disparity(left, right, np.where(retry, d0, np.float32(np.nan)),
-                                      radius=border_radius, iterations=iterations, max_shift=max_shift,
-                                      min_texture=min_texture, valid_left=valid_left,
-                                      valid_right=valid_right)
-            take = retry & np.isfinite(z2)
-            disp[take], zncc[take] = d2[take], z2[take]
+                                  valid_left=valid_left, valid_right=valid_right, min_pixels=min_pixels)
     matched = np.isfinite(disp)
     conf = np.where(np.isfinite(zncc), np.clip(zncc, 0.0, 1.0), np.float32(0.0)).astype(np.float32)
+    if max_lr_gap is not None:
+        # the right view's matches: the left's moved to x − d (the nearer surface wins a pixel), refined
+        # on the mirrored pair, where the right view is the left one
+        d_r, z_r = refine_disparity(_mirror(right), _mirror(left), _mirror(_seen_from_right(disparity)),
+                                    radius=radius, iterations=iterations, max_shift=max_shift,
+                                    min_texture=min_texture, min_pixels=min_pixels,
+                                    valid_left=None if valid_right is None else _mirror(valid_right),
+                                    valid_right=None if valid_left is None else _mirror(valid_left))
+        disp_r = _mirror(d_r)
+        conf[_lr_gap(disp, disp_r) > max_lr_gap] = 0.0
     keep = matched if min_confidence is None else matched & (conf >= min_confidence)
     nan = np.float32(np.nan)
     return np.where(keep, disp, nan).astype(np.float32), np.where(keep, conf, nan).astype(np.float32)
@@ -107,21 +115,39 @@ def remove_speckles(disparity: np.ndarray, *, max_size: int) -> np.ndarray:
     return np.where(d16 == -16, np.float32(np.nan), disp).astype(np.float32)
 
 
-def _near_edges(disparity: np.ndarray, radius: int, valid_left: np.ndarray | None,
-                valid_right: np.ndarray | None) -> np.ndarray:
-    """Matches whose ``radius`` window leaves the image or a view's valid region (left, or right at x − d)."""
+def _mirror(a: np.ndarray) -> np.ndarray:
+    """Left–right mirror image (a right view becomes a left one, disparities keep their sign)."""
+    return np.ascontiguousarray(np.asarray(a)[:, ::-1])
+
+
+def _seen_from_right(disparity: np.ndarray) -> np.ndarray:
+    """(H, W) float32: the left view's disparities at their right pixels x − d (rounded), the largest where
+    several land on one pixel (the nearer surface hides the other), NaN where none lands."""
+    d = np.asarray(disparity, dtype=np.float32)
+    h, w = d.shape
+    ys, xs = np.nonzero(np.isfinite(d))
+    xr = np.rint(xs - d[ys, xs]).astype(np.int64)
+    inside = (xr >= 0) & (xr < w)
+    out = np.full((h, w), -np.inf, dtype=np.float32)
+    np.maximum.at(out, (ys[inside], xr[inside]), d[ys[inside], xs[inside]])
+    out[np.isneginf(out)] = np.nan
+    return out
+
+
+def _lr_gap(disparity: np.ndarray, disparity_right: np.ndarray) -> np.ndarray:
+    """(H, W): |d(x) − d_right(x − d(x))| (d_right interpolated along the row; the one finite neighbour
+    where the other is NaN), NaN where either is missing."""
     h, w = disparity.shape
-    k = 2 * radius + 1
-    kernel = np.ones((k, k), np.uint8)
-    near = np.zeros((h, w), dtype=bool)
-    near[:radius] = near[h - radius:] = True
-    near[:, :radius] = near[:, w - radius:] = True
-    if valid_left is not None:
-        near |= cv2.dilate((~np.asarray(valid_left, dtype=bool)).astype(np.uint8), kernel) > 0
-    matched = np.isfinite(disparity)
-    if valid_right is not None:
-        bad_r = cv2.dilate((~np.asarray(valid_right, dtype=bool)).astype(np.uint8), kernel) > 0
-        ys, xs = np.nonzero(matched & ~near)
-        xr = np.clip(np.rint(xs - disparity[ys, xs]).astype(np.int64), 0, w - 1)
-        near[ys, xs] = bad_r[ys, xr]
-    return near & matched
+    gap = np.full((h, w), np.nan, dtype=np.float32)
+    ys, xs = np.nonzero(np.isfinite(disparity))
+    d = disparity[ys, xs]
+    xq = xs - d
+    x0 = np.floor(xq).astype(np.int64)
+    inside = (x0 >= 0) & (x0 + 1 < w)
+    ys, xs, d, xq, x0 = ys[inside], xs[inside], d[inside], xq[inside], x0[inside]
+    t = (xq - x0).astype(np.float32)
+    a, b = disparity_right[ys, x0], disparity_right[ys, x0 + 1]
+    with np.errstate(invalid="ignore"):
+        dr = np.where(np.isfinite(a) & np.isfinite(b), (1 - t) * a + t * b, np.where(np.isfinite(a), a, b))
+    gap[ys, xs] = np.abs(d - dr)
+    return gap

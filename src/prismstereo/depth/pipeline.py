@@ -137,6 +137,10 @@ class DepthConfig:
     refine_iterations, refine_max_shift, refine_min_texture : int, float, float
         The refinement's Gauss–Newton iterations, largest move from the matcher's value (px) and least
         window texture (:func:`~prismstereo.depth.refine.refine_disparity`).
+    refine_max_lr_gap : float or None
+        Sub-pixel left–right check of the refined matches: confidence 0 where the refined disparity and
+        the right view's refined disparity differ by more than this, px
+        (:func:`~prismstereo.depth.confidence.confident_matches`); None: no check.
     sweep : SweepParams
         The plane sweep of ``views="all"`` (:class:`~prismstereo.multiview.prism.SweepParams`).
     """
@@ -157,6 +161,7 @@ class DepthConfig:
     refine_iterations: int = 6
     refine_max_shift: float = 1.0
     refine_min_texture: float = 0.01
+    refine_max_lr_gap: float | None = 0.5
     sweep: SweepParams = field(default_factory=SweepParams)
 
     def to_dict(self) -> dict[str, Any]:
@@ -677,7 +682,7 @@ def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, dis
     return confident_matches(left, right, disparity, radius=config.refine_radius,
                              iterations=config.refine_iterations, max_shift=config.refine_max_shift,
                              min_texture=config.refine_min_texture, min_confidence=config.min_confidence,
-                             valid_left=vl, valid_right=vr)
+                             max_lr_gap=config.refine_max_lr_gap, valid_left=vl, valid_right=vr)
 
 
 def remove_speckles(disparity: np.ndarray, region: SearchRegion, config: DepthConfig) -> np.ndarray:

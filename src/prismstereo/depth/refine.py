@@ -115,6 +115,110 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
     return d_out, zncc, keep
 
 
+@njit(cache=True, inline="always")
+def _window_valid(VL: np.ndarray, VR: np.ndarray, y: int, xl: int, xa: int) -> bool:  # pragma: no cover - numba
+    """Whether a window pixel counts: inside the image and the left view, both right taps inside the right view."""
+    h, w = VL.shape
+    return (0 <= y < h and 0 <= xl < w and VL[y, xl] != 0 and 0 <= xa and xa + 1 < w and VR[y, xa] != 0
+            and VR[y, xa + 1] != 0)
+
+
+@njit(cache=True)
+def _refine_masked(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray, VR: np.ndarray, y: int, x: int,
+                   init: float, radius: int, iterations: int, max_shift: float, min_texture: float,
+                   min_pixels: int) -> tuple[float, float, bool]:  # pragma: no cover - numba
+    """Gauss–Newton of one pixel whose window is cut by an edge: the sums run over the window's pixels that
+    lie in both views (re-selected at each step, since the right taps move with d); the means, the texture
+    test and the ZNCC are those of these pixels. Fewer than ``min_pixels`` of them: not refined."""
+    d = init
+    textured = True
+    for _ in range(iterations):
+        m = 0
+        sl = 0.0
+        sr = 0.0
+        sj = 0.0
+        slj = 0.0
+        srj = 0.0
+        sjj = 0.0
+        for dy in range(-radius, radius + 1):
+            for dx in range(-radius, radius + 1):
+                xf = x + dx - d
+                xa = int(np.floor(xf))
+                if not _window_valid(VL, VR, y + dy, x + dx, xa):
+                    continue
+                fa = xf - xa
+                fb = 1.0 - fa
+                rv = fb * R[y + dy, xa] + fa * R[y + dy, xa + 1]
+                jv = fb * Rx[y + dy, xa] + fa * Rx[y + dy, xa + 1]
+                lv = L[y + dy, x + dx]
+                m += 1
+                sl += lv
+                sr += rv
+                sj += jv
+                slj += lv * jv
+                srj += rv * jv
+                sjj += jv * jv
+        if m < min_pixels:
+            return d, np.nan, False
+        num = (slj - sl * sj / m) - (srj - sr * sj / m)
+        den = sjj - sj * sj / m
+        textured = den > min_texture * m
+        step = num / den if textured else 0.0
+        step = min(max(step, -0.5), 0.5)
+        d = min(max(d - step, init - max_shift), init + max_shift)
+    m = 0
+    sl = 0.0
+    sll = 0.0
+    sr = 0.0
+    srr = 0.0
+    slr = 0.0
+    for dy in range(-radius, radius + 1):
+        for dx in range(-radius, radius + 1):
+            xf = x + dx - d
+            xa = int(np.floor(xf))
+            if not _window_valid(VL, VR, y + dy, x + dx, xa):
+                continue
+            fa = xf - xa
+            rv = (1.0 - fa) * R[y + dy, xa] + fa * R[y + dy, xa + 1]
+            lv = L[y + dy, x + dx]
+            m += 1
+            sl += lv
+            sll += lv * lv
+            sr += rv
+            srr += rv * rv
+            slr += lv * rv
+    if m < min_pixels:
+        return d, np.nan, False
+    den = np.sqrt(max(sll - sl * sl / m, 0.0) * max(srr - sr * sr / m, 0.0))
+    zncc = (slr - sl * sr / m) / den if den > 0.0 else np.nan
+    keep = textured and np.isfinite(d) and abs(d - init) < max_shift - 1e-3
+    return d, zncc, keep
+
+
+@njit(cache=True, parallel=True)
+def _refine_cut_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray, VR: np.ndarray,
+                       ys: np.ndarray, xs: np.ndarray, d0: np.ndarray, radius: int, iterations: int,
+                       max_shift: float, min_texture: float,
+                       min_pixels: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - numba
+    """:func:`_refine_masked` over the given pixels (the windows cut by an edge)."""
+    n = ys.size
+    d_out = np.empty(n, dtype=np.float32)
+    zncc = np.empty(n, dtype=np.float32)
+    keep = np.zeros(n, dtype=np.bool_)
+    for i in prange(n):
+        d, z, k = _refine_masked(L, R, Rx, VL, VR, ys[i], xs[i], float(d0[ys[i], xs[i]]), radius, iterations,
+                                 max_shift, min_texture, min_pixels)
+        d_out[i] = d
+        zncc[i] = z
+        keep[i] = k
+    return d_out, zncc, keep
+
+
+def _inner(valid: np.ndarray) -> np.ndarray:
+    """``valid`` without its outermost pixels (those next to an invalid one; the image's edge does not count)."""
+    return cv2.erode(valid.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+
+
 def _gray(img: np.ndarray) -> np.ndarray:
     a = np.asarray(img)
     if a.ndim == 3:
@@ -133,6 +237,7 @@ def refine_disparity(
     min_texture: float = 1.0,
     valid_left: np.ndarray | None = None,
     valid_right: np.ndarray | None = None,
+    min_pixels: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Refine a disparity map to sub-pixel precision (module docstring).
 
@@ -151,7 +256,13 @@ def refine_disparity(
     min_texture : float
         Minimum mean squared horizontal gradient (grey levels²/px²) in the window to refine.
     valid_left, valid_right : (H, W) bool, optional
-        Valid regions of the rectified images; windows touching invalid pixels are not refined.
+        Valid regions of the rectified images.
+    min_pixels : int or None
+        None: windows that leave the image or touch an invalid pixel (left, or right around the match) are
+        not refined. An int: such a window is cut to its pixels inside the image and both views (the right
+        ones at the current disparity) and refined on them if there are at least ``min_pixels``; the means,
+        the texture test and the confidence are then those of the cut window. Windows inside everything
+        are refined the same way either way.
 
     Returns
     -------
@@ -170,26 +281,57 @@ def refine_disparity(
     conf = np.full(d0.shape, np.nan, dtype=np.float32)
     finite = np.isfinite(d0)
     k = 2 * radius + 1
+    vl = np.ones((h, w), dtype=bool) if valid_left is None else np.asarray(valid_left, dtype=bool)
+    vr = np.ones((h, w), dtype=bool) if valid_right is None else np.asarray(valid_right, dtype=bool)
+    # window content: with cut windows, not the outermost pixel of a view's valid region either (its
+    # intensity is off: the remap blends it with what lies beyond the region)
+    vl_in, vr_in = (vl, vr) if min_pixels is None else (_inner(vl), _inner(vr))
     ok = finite.copy()
     if valid_left is not None:
-        bad = cv2.dilate((~np.asarray(valid_left, dtype=bool)).astype(np.uint8), np.ones((k, k), np.uint8)) > 0
+        bad = cv2.dilate((~vl_in).astype(np.uint8), np.ones((k, k), np.uint8)) > 0
         ok &= ~bad
     # keep windows inside the image
     ok[:radius] = ok[h - radius:] = False
     ok[:, :radius] = ok[:, w - radius:] = False
-    ys, xs = np.nonzero(ok)
-    if ys.size == 0:
-        return out, conf
+    cut = np.zeros((h, w), dtype=bool)
+    if min_pixels is not None:
+        # the whole window must stay in the right view for every disparity the update may reach (taps
+        # included), else it is a cut window
+        reach = radius + int(np.ceil(max_shift)) + 2
+        whole_r = cv2.erode(vr_in.astype(np.uint8), np.ones((k, 2 * reach + 1), np.uint8),
+                            borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
+        ys0, xs0 = np.nonzero(ok)
+        xr0 = np.rint(xs0 - d0[ys0, xs0]).astype(np.int64)
+        inside = (xr0 >= 0) & (xr0 < w)
+        stay = np.zeros(ys0.size, dtype=bool)
+        stay[inside] = whole_r[ys0[inside], xr0[inside]]
+        ok[ys0[~stay], xs0[~stay]] = False
+        cut = finite & vl & ~ok
     Rx = cv2.Sobel(R, cv2.CV_32F, 1, 0, ksize=3, scale=1.0 / 8.0)
-    d, zncc, keep = _refine_kernel(L, R, Rx, ys.astype(np.int64), xs.astype(np.int64), d0, int(radius),
-                                   int(iterations), float(max_shift), float(min_texture))
-    if valid_right is not None:
-        bad_r = cv2.dilate((~np.asarray(valid_right, dtype=bool)).astype(np.uint8), np.ones((k, k), np.uint8)) > 0
+    ys, xs = np.nonzero(ok)
+    if ys.size:
+        d, zncc, keep = _refine_kernel(L, R, Rx, ys.astype(np.int64), xs.astype(np.int64), d0, int(radius),
+                                       int(iterations), float(max_shift), float(min_texture))
+        if valid_right is not None and min_pixels is None:
+            bad_r = cv2.dilate((~vr).astype(np.uint8), np.ones((k, k), np.uint8)) > 0
+            xr = np.rint(xs - d).astype(np.int64)
+            inside = (xr >= 0) & (xr < w)
+            hit = np.ones(ys.size, dtype=bool)
+            hit[inside] = bad_r[ys[inside], xr[inside]]
+            keep &= ~hit
+        out[ys[keep], xs[keep]] = d[keep]
+        conf[ys[keep], xs[keep]] = zncc[keep]
+    ys, xs = np.nonzero(cut)
+    if ys.size and min_pixels is not None:
+        d, zncc, keep = _refine_cut_kernel(L, R, Rx, vl_in.astype(np.uint8), vr_in.astype(np.uint8),
+                                           ys.astype(np.int64), xs.astype(np.int64), d0, int(radius),
+                                           int(iterations), float(max_shift), float(min_texture),
+                                           int(min_pixels))
+        # the match itself must stay inside the right view
         xr = np.rint(xs - d).astype(np.int64)
         inside = (xr >= 0) & (xr < w)
-        hit = np.ones(ys.size, dtype=bool)
-        hit[inside] = bad_r[ys[inside], xr[inside]]
-        keep &= ~hit
-    out[ys[keep], xs[keep]] = d[keep]
-    conf[ys[keep], xs[keep]] = zncc[keep]
+        keep[inside] &= vr[ys[inside], xr[inside]]
+        keep &= inside
+        out[ys[keep], xs[keep]] = d[keep]
+        conf[ys[keep], xs[keep]] = zncc[keep]
     return out, conf
