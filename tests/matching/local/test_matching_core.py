@@ -134,6 +134,19 @@ def test_right_disparity_matches_flipped_matching() -> None:
     assert (dr[5:35, 5:50] == 4).mean() > 0.95
 
 
+def test_right_winner_is_the_argmin_of_the_right_volume() -> None:
+    rng = np.random.default_rng(3)
+    vol = rng.integers(0, 6, size=(7, 19, 9)).astype(np.float32)  # small integers: many equal minima
+    for md in (0, 2):
+        ref = selection.right_cost_volume(vol, min_disp=md).argmin(axis=2)
+        np.testing.assert_array_equal(selection.right_winner(vol, min_disp=md), ref)
+    vol[2, 5:, :] = np.nan  # NaN never selected; a pixel whose every entry is NaN has none
+    dr = selection.right_disparity(vol, min_disp=1)
+    ref = selection.winner_take_all(selection.right_cost_volume(vol, min_disp=1), min_disp=1)
+    np.testing.assert_array_equal(dr, ref)  # NaN in the same places
+    assert np.isnan(dr[2, 4:10]).all() and np.isnan(dr).sum() == 6  # x + 1 + k in 5..18: NaN for every k
+
+
 # ---------------------------------------------------------------------------------- whole methods
 def test_registry_lists_methods() -> None:
     names = available_matchers()
