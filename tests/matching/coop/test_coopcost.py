@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
-
-import cv2
 
 from prismstereo.matching.coop.coopcost import raw_cost, sheared_costs, sheared_row_costs_at
 from prismstereo.matching.coop.cooperative import build_segment_graph, total_energy

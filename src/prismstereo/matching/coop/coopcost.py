@@ -123,8 +123,8 @@ def _reflect(p: int, n: int) -> int:
 @njit(cache=True, parallel=True)
 def _census_row_box(ad: npt.NDArray[np.float64], cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint64],
                     min_disp: int, lam_c: float, r: int, mask: npt.NDArray[np.bool_], out: F32) -> None:
-    """``out[y, x] = `` the (2r+1)-pixel row mean of the pixel costs ``ad + census`` (:func:`_raw_cost`'s) at the pixels of ``mask``
-    (reflected borders; untouched elsewhere).
+    """``out[y, x]``: the (2r+1)-pixel row mean of the pixel costs ``ad + census`` (:func:`_raw_cost`'s) at
+    the pixels of ``mask`` (reflected borders; untouched elsewhere).
 
     The row's pixel costs are float32, as :func:`_raw_cost` stores them, and their sum is exact in float64,
     so ``float32(sum * (1 / (2r+1)))`` is OpenCV's ``boxFilter`` of them bit for bit."""
