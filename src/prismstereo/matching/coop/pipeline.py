@@ -206,11 +206,13 @@ def bpasw_volume(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, m
 
 
 def bpasw_dense_map(vol: F32, image: npt.NDArray[np.uint8], *, min_disp: int = 0,
-                    right_winner: npt.NDArray[np.int64] | None = None) -> F32:
+                    right_winner: npt.NDArray[np.int64] | None = None,
+                    where: npt.NDArray[np.bool_] | None = None) -> F32:
     """The ``bpasw`` matcher's output from its cost volume: WTA, cross-check (1 px), background fill and
     colour-weighted median (radius 9), as :class:`prismstereo.matching.local.matchers.BPASWMatcher` with defaults.
     ``right_winner``: the volume's :func:`~prismstereo.matching.local.selection.right_winner`, when already
-    known. Returns (H, W) float32, dense."""
+    known; ``where`` (H, W) bool: the pixels wanted (the final median runs there only; the others are left
+    before it). Returns (H, W) float32, dense."""
     disp = selection.winner_take_all(vol, min_disp=min_disp)
     ridx = selection.right_winner(vol, min_disp=min_disp) if right_winner is None else right_winner
     dright = np.where(ridx >= 0, (ridx + min_disp).astype(np.float32), np.float32(np.nan)).astype(np.float32)
@@ -220,7 +222,7 @@ def bpasw_dense_map(vol: F32, image: npt.NDArray[np.uint8], *, min_disp: int = 0
         return raw
     dense = selection.fill_holes(raw, valid, image=image)
     if np.isfinite(dense).all():
-        dense = selection.weighted_median_filter(dense, image, radius=9)
+        dense = selection.weighted_median_filter(dense, image, radius=9, mask=where)
     return np.asarray(dense, np.float32)
 
 
@@ -473,7 +475,7 @@ class _PairEvidence:
         if not local.any():
             return final
         return np.where(local, bpasw_dense_map(self.bvol, self.image, min_disp=self.min_disp,
-                                               right_winner=self.bright), final)
+                                               right_winner=self.bright, where=local), final)
 
 
 def _pair_agreement(reliable: npt.NDArray[np.bool_], initial: F32, brel: npt.NDArray[np.bool_], bdisp: F32,
