@@ -102,6 +102,19 @@ def test_bpasw_dense_map_is_the_bpasw_matcher_output() -> None:
     np.testing.assert_array_equal(ours, ref)
 
 
+def test_bpasw_dense_map_where_is_the_full_map_there() -> None:
+    from prismstereo.matching.coop.pipeline import bpasw_dense_map, bpasw_volume
+    from prismstereo.matching.local.selection import right_winner
+
+    left, right = _repetitive_pair(6, 8, h=32, w=64)
+    vol = bpasw_volume(left, right, max_disp=16)
+    full = bpasw_dense_map(vol, left)
+    where = np.zeros(full.shape, bool)
+    where[5:20, 10:40] = True
+    part = bpasw_dense_map(vol, left, where=where, right_winner=right_winner(vol))
+    np.testing.assert_array_equal(part[where], full[where])
+
+
 def test_large_segment_whose_plane_the_evidence_barely_covers_takes_the_local_map() -> None:
     """The fallback step's coverage rule: a large segment whose final plane is wrong (3 px off) but which the
     evidence covers on only 30 % of its pixels keeps nothing of that plane (the local map there); covered on

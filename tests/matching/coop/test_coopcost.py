@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
-from prismstereo.matching.coop.coopcost import raw_cost, sheared_costs
+from prismstereo.matching.coop.coopcost import raw_cost, sheared_costs, sheared_row_costs_at
 from prismstereo.matching.coop.cooperative import build_segment_graph, total_energy
 from prismstereo.matching.coop.pipeline import box_filter_volume
 from prismstereo.matching.segments.planes import build_segment_index
@@ -30,6 +31,27 @@ def test_slope_zero_is_the_boxed_raw_cost() -> None:
     ref = box_filter_volume(raw_cost(left, right, max_disp=30), 1)
     assert vol.shape == (1, *ref.shape)
     np.testing.assert_allclose(vol[0], ref, atol=1e-6)
+
+
+def test_row_box_is_opencvs_box_of_the_raw_cost_bit_for_bit() -> None:
+    left, right, _ = _steep_floor()
+    for r in (0, 1, 2):
+        vol = sheared_costs(left, right, max_disp=30, min_disp=2, slopes=(0.0,), radius=r, vertical=False)
+        raw = raw_cost(left, right, max_disp=30, min_disp=2)
+        ref = raw if r == 0 else cv2.boxFilter(raw, -1, (2 * r + 1, 1), borderType=cv2.BORDER_REFLECT)
+        np.testing.assert_array_equal(vol[0], ref)
+
+
+def test_row_costs_at_selected_pixels_only() -> None:
+    left, right, _ = _steep_floor()
+    slopes = (-1.0, 0.0, 0.5)
+    full = sheared_costs(left, right, max_disp=30, slopes=slopes, radius=1, vertical=False)
+    sel = np.random.default_rng(2).random(left.shape[:2]) < 0.3
+    sel[:, 0] = sel[:, -1] = True  # the reflected borders
+    out = np.full_like(full, -1.0)
+    sheared_row_costs_at(left, right, sel, out, max_disp=30, slopes=slopes, radius=1)
+    np.testing.assert_array_equal(out[:, sel], full[:, sel])
+    assert (out[:, ~sel] == -1.0).all()
 
 
 def test_sheared_volume_prefers_the_true_steep_plane() -> None:

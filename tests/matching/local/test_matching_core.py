@@ -10,7 +10,13 @@ from hypothesis import strategies as st
 from prismstereo.errors import ConfigError, ImageError, MatchingError
 from prismstereo.matching import available_matchers, get_matcher, match
 from prismstereo.matching.local import costs, selection
-from prismstereo.matching.local.aggregation import aggregate_box, aggregate_bpasw, weber_fechner_weight
+from prismstereo.matching.local.aggregation import (
+    aggregate_box,
+    aggregate_bpasw,
+    to_lab,
+    weber_fechner_weight,
+    window_offsets,
+)
 
 METHODS = ("sad", "ssd", "ncc", "shd", "bpasw", "sgbm")
 FAST = {"bpasw": {"radius": 6, "dilation": 2}}
@@ -106,6 +112,50 @@ def test_bpasw_respects_colour_edges() -> None:
     assert err_asw < 0.01
 
 
+def _bpasw_reference(cost: np.ndarray, left: np.ndarray, right: np.ndarray | None, radius: int,
+                     dilation: int) -> np.ndarray:
+    """Eq. 5.14 term by term in float64: every weight evaluated for its own pixel pair."""
+    h, w, nd = cost.shape
+    lab_l = to_lab(left).astype(np.float64)
+    lab_r = to_lab(right).astype(np.float64) if right is not None else None
+    dys, dxs, dist = window_offsets(radius, dilation)
+    prox = weber_fechner_weight(dist, s0=np.sqrt(2.0) * radius + 1.0)
+
+    def wgt(lab: np.ndarray, p: tuple[int, int], q: tuple[int, int]) -> float:
+        return float(weber_fechner_weight(np.sqrt(((lab[p] - lab[q]) ** 2).sum()), s0=28.0))
+
+    out = cost.astype(np.float64).copy()
+    for y in range(h):
+        for x in range(w):
+            for i in range(min(nd, x + 1)):
+                num = den = 0.0
+                for dy, dx, pk in zip(dys, dxs, prox, strict=True):
+                    qy, qx = y + dy, x + dx
+                    if not (0 <= qy < h and 0 <= qx < w):
+                        continue
+                    ww = wgt(lab_l, (y, x), (qy, qx)) * pk
+                    if lab_r is not None:
+                        ww *= (wgt(lab_r, (y, x - i), (qy, qx - i)) * pk) if qx - i >= 0 else 0.0
+                    num += ww * cost[qy, qx, i]
+                    den += ww
+                if den > 0:
+                    out[y, x, i] = num / den
+    return out
+
+
+@pytest.mark.parametrize("symmetric", [True, False])
+def test_bpasw_equals_the_weights_evaluated_pair_by_pair(symmetric: bool) -> None:
+    # the kernel evaluates each weight once for both pixels of a pair and runs rows in bands: 40 rows give
+    # several bands, whose first rows read weights their band computed first
+    rng = np.random.default_rng(4)
+    left = (rng.integers(0, 6, size=(40, 14, 3)) * 40).astype(np.uint8)
+    right = np.roll(left, -2, axis=1)
+    cost = rng.random((40, 14, 4)).astype(np.float32)
+    got = aggregate_bpasw(cost, left, right if symmetric else None, radius=2, dilation=1)
+    ref = _bpasw_reference(cost, left, right if symmetric else None, 2, 1)
+    np.testing.assert_allclose(got, ref, rtol=2e-5, atol=1e-6)
+
+
 # --------------------------------------------------------------------------------------- selection
 def test_wta_cross_check_subpixel_fill() -> None:
     vol = np.ones((2, 6, 4), dtype=np.float32)
@@ -132,6 +182,19 @@ def test_right_disparity_matches_flipped_matching() -> None:
     vol = costs.cost_sad_window(left, right, max_disp=10, radius=3)
     dr = selection.right_disparity(vol)
     assert (dr[5:35, 5:50] == 4).mean() > 0.95
+
+
+def test_right_winner_is_the_argmin_of_the_right_volume() -> None:
+    rng = np.random.default_rng(3)
+    vol = rng.integers(0, 6, size=(7, 19, 9)).astype(np.float32)  # small integers: many equal minima
+    for md in (0, 2):
+        ref = selection.right_cost_volume(vol, min_disp=md).argmin(axis=2)
+        np.testing.assert_array_equal(selection.right_winner(vol, min_disp=md), ref)
+    vol[2, 5:, :] = np.nan  # NaN never selected; a pixel whose every entry is NaN has none
+    dr = selection.right_disparity(vol, min_disp=1)
+    ref = selection.winner_take_all(selection.right_cost_volume(vol, min_disp=1), min_disp=1)
+    np.testing.assert_array_equal(dr, ref)  # NaN in the same places
+    assert np.isnan(dr[2, 4:10]).all() and np.isnan(dr).sum() == 6  # x + 1 + k in 5..18: NaN for every k
 
 
 # ---------------------------------------------------------------------------------- whole methods

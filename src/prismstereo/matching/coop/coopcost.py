@@ -17,7 +17,10 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit, prange
 
-__all__ = ["CostParams", "aggregated_costs", "guided_filter_volume", "raw_cost", "sheared_costs"]
+from prismstereo.errors import MatchingError
+
+__all__ = ["CostParams", "aggregated_costs", "guided_filter_volume", "raw_cost", "sheared_costs",
+           "sheared_row_costs_at"]
 
 F32 = npt.NDArray[np.float32]
 
@@ -107,21 +110,59 @@ def _ad_term(left: F32, right: F32, gl: F32, gr: F32, min_disp: int, ndisp: int,
     return out
 
 
+@njit(cache=True, inline="always")
+def _reflect(p: int, n: int) -> int:
+    """OpenCV's ``BORDER_REFLECT`` index (``fedcba|abcdef|fedcba``) of ``p`` in ``[0, n)``."""
+    if n == 1:
+        return 0
+    while p < 0 or p >= n:
+        p = -p - 1 if p < 0 else 2 * n - 1 - p
+    return p
+
+
 @njit(cache=True, parallel=True)
-def _add_census(ad: npt.NDArray[np.float64], cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint64],
-                min_disp: int, lam_c: float) -> F32:
-    """:func:`_raw_cost` from its colour + gradient part ``ad`` (:func:`_ad_term`) and the census pair."""
+def _census_row_box(ad: npt.NDArray[np.float64], cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint64],
+                    min_disp: int, lam_c: float, r: int, mask: npt.NDArray[np.bool_], out: F32) -> None:
+    """``out[y, x]``: the (2r+1)-pixel row mean of the pixel costs ``ad + census`` (:func:`_raw_cost`'s) at
+    the pixels of ``mask`` (reflected borders; untouched elsewhere).
+
+    The row's pixel costs are float32, as :func:`_raw_cost` stores them, and their sum is exact in float64,
+    so ``float32(sum * (1 / (2r+1)))`` is OpenCV's ``boxFilter`` of them bit for bit."""
     h, w, ndisp = ad.shape
     tab = _census_table(lam_c)
-    out = np.full((h, w, ndisp), 2.0, dtype=np.float32)
+    inv = 1.0 / (2 * r + 1)
     for y in prange(h):
+        need = np.zeros(w, np.bool_)
+        todo = False
         for x in range(w):
+            if mask[y, x]:
+                todo = True
+                for o in range(-r, r + 1):
+                    need[_reflect(x + o, w)] = True
+        if not todo:
+            continue
+        raw = np.empty((w, ndisp), np.float32)
+        for x in range(w):
+            if not need[x]:
+                continue
+            c = cl[y, x]
             for k in range(ndisp):
                 xr = x - (min_disp + k)
                 if xr < 0 or xr >= w:
-                    continue
-                out[y, x, k] = ad[y, x, k] + tab[_popcount(cl[y, x] ^ cr[y, xr])]
-    return out
+                    raw[x, k] = 2.0
+                else:
+                    raw[x, k] = ad[y, x, k] + tab[_popcount(c ^ cr[y, xr])]
+        acc = np.empty(ndisp)
+        for x in range(w):
+            if not mask[y, x]:
+                continue
+            acc[:] = 0.0
+            for o in range(-r, r + 1):
+                xx = _reflect(x + o, w)
+                for k in range(ndisp):
+                    acc[k] += raw[xx, k]
+            for k in range(ndisp):
+                out[y, x, k] = acc[k] * inv
 
 
 @njit(cache=True, parallel=True)
@@ -432,19 +473,43 @@ def sheared_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic],
     h, w = gray_l.shape
     out = np.empty((len(slopes), h, w, nd), np.float32)
     ad = _ad_term(lf, rf, gxl, gxr, int(min_disp), nd, p.tau_color, p.tau_grad, p.lambda_ad)
+    every = np.ones((h, w), np.bool_)
+    r = max(int(radius), 0)
+    # the pixel costs boxed along the row, per slope; sheared over the rows from there
+    hb = np.empty((h, w, nd), np.float32) if vertical and r > 0 else out[0]
     for i, b in enumerate(slopes):
         cr = _census_sheared(gray_r, p.census_ry, p.census_rx, float(b))
-        raw = _add_census(ad, cl, cr, int(min_disp), p.lambda_census)
-        if radius <= 0:
-            out[i] = raw
-            continue
-        k = 2 * radius + 1
-        hb = np.empty_like(raw)
-        for s0 in range(0, nd, 512):
-            hb[:, :, s0:s0 + 512] = cv2.boxFilter(raw[:, :, s0:s0 + 512], -1, (k, 1), borderType=cv2.BORDER_REFLECT)
-        del raw
-        if vertical:
-            _shear_box_rows(hb, float(b), int(radius), out[i])
+        if vertical and r > 0:
+            _census_row_box(ad, cl, cr, int(min_disp), p.lambda_census, r, every, hb)
+            _shear_box_rows(hb, float(b), r, out[i])
         else:
-            out[i] = hb
+            _census_row_box(ad, cl, cr, int(min_disp), p.lambda_census, r, every, out[i])
     return out
+
+
+def sheared_row_costs_at(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], selected: npt.NDArray[np.bool_],
+                         out: F32, *, max_disp: int, min_disp: int = 0, params: CostParams | None = None,
+                         slopes: tuple[float, ...] = (0.0,), radius: int = 1) -> None:
+    """Write :func:`sheared_costs` ``(..., vertical=False)`` into ``out`` at the ``selected`` pixels only.
+
+    Parameters
+    ----------
+    left, right : (H, W, 3) uint8 RGB (or (H, W) grey)
+    selected : (H, W) bool
+        The pixels to write.
+    out : (S, H, W, D) float32
+        Volume to update in place, one slice per slope; the other pixels are left as they are.
+    max_disp, min_disp, params, slopes, radius : keyword-only
+        As :func:`sheared_costs`.
+    """
+    p = params or CostParams()
+    lf, rf, gray_l, gray_r, gxl, gxr = _cost_inputs(left, right)
+    cl = census_bits(gray_l, p.census_ry, p.census_rx)
+    nd = max_disp - min_disp + 1
+    if out.shape != (len(slopes), *gray_l.shape, nd):
+        raise MatchingError(f"expected out of shape {(len(slopes), *gray_l.shape, nd)}, got {out.shape}")
+    mask = np.ascontiguousarray(selected, dtype=np.bool_)
+    ad = _ad_term(lf, rf, gxl, gxr, int(min_disp), nd, p.tau_color, p.tau_grad, p.lambda_ad)
+    for i, b in enumerate(slopes):
+        cr = _census_sheared(gray_r, p.census_ry, p.census_rx, float(b))
+        _census_row_box(ad, cl, cr, int(min_disp), p.lambda_census, max(int(radius), 0), mask, out[i])

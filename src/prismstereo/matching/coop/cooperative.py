@@ -379,6 +379,27 @@ def _cache_refresh(z1: F64, o1: I64, z2: F64, zc1: F64, oc1: I64, zc2: F64, zval
 
 
 @njit(cache=True)
+def _zbuffer_cached(a: I32, planes: F64, order: I64, starts: I64, h: int, w: int, zc1: F64, oc1: I64, zc2: F64,
+                    zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64, clab: I64, cval: F64,
+                    cn: I64) -> tuple[F64, I64, F64]:
+    """:func:`_zbuffer` of ``a`` with the remembered data terms refreshed to it (:func:`_cache_refresh`); the
+    cache's own z-buffer when it was computed for this assignment (``zfor``), which the caller must not keep
+    past the next refresh."""
+    if zvalid[0]:
+        same = True
+        for j in range(a.size):
+            if a[j] != zfor[j]:
+                same = False
+                break
+        if same:
+            return zc1, oc1, zc2
+    z1, o1, z2 = _zbuffer(a, planes, order, starts, h, w)
+    _cache_refresh(z1, o1, z2, zc1, oc1, zc2, zvalid, bbox, planes, clab, cval, cn, w)
+    zfor[:] = a
+    return z1, o1, z2
+
+
+@njit(cache=True)
 def _data_cached(j: int, lab: int, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
                  reliable: npt.NDArray[np.bool_], prm: F64, z1: F64, o1: I64, z2: F64, clab: I64, cval: F64,
                  cn: I64) -> float:
@@ -398,13 +419,13 @@ def _data_cached(j: int, lab: int, planes: F64, order: I64, starts: I64, w: int,
 @njit(cache=True)
 def _energy_cached(assign: I32, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
                    reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
-                   prm: F64, zc1: F64, oc1: I64, zc2: F64, zvalid: npt.NDArray[np.bool_], bbox: I64, clab: I64,
-                   cval: F64, cn: I64) -> float:
+                   prm: F64, zc1: F64, oc1: I64, zc2: F64, zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64,
+                   clab: I64, cval: F64, cn: I64) -> float:
     """:func:`_energy` with the data terms remembered across calls (the same value)."""
     k = starts.size - 1
     h = cost.shape[1] // w
-    z1, o1, z2 = _zbuffer(assign, planes, order, starts, h, w)
-    _cache_refresh(z1, o1, z2, zc1, oc1, zc2, zvalid, bbox, planes, clab, cval, cn, w)
+    z1, o1, z2 = _zbuffer_cached(assign, planes, order, starts, h, w, zc1, oc1, zc2, zvalid, zfor, bbox, clab,
+                                 cval, cn)
     gamma = prm[5]
     thr = prm[6]
     e = 0.0
@@ -473,7 +494,7 @@ def _candidates(j: int, a: I32, own: I64, nstart: I64, nbr: I64, prm: F64, cand:
 def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
            reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
            nstart: I64, nbr: I64, nedge: I64, prm: F64, active: npt.NDArray[np.bool_], zc1: F64, oc1: I64,
-           zc2: F64, zvalid: npt.NDArray[np.bool_], bbox: I64, clab: I64, cval: F64, cn: I64) -> int:
+           zc2: F64, zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64, clab: I64, cval: F64, cn: I64) -> int:
     """One cooperative sweep over the active segments (Eq. 6.19), in place; returns the number of changes.
     The data terms are remembered across sweeps (:func:`_data_cached`)."""
     k = starts.size - 1
@@ -482,19 +503,31 @@ def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost:
     mu = prm[1]
     gamma = prm[5]
     thr = prm[6]
-    z1, o1, z2 = _zbuffer(a, planes, order, starts, h, w)
-    _cache_refresh(z1, o1, z2, zc1, oc1, zc2, zvalid, bbox, planes, clab, cval, cn, w)
-    # the data terms of the candidates at the sweep's start, in parallel (each segment's cache row is written
-    # by one thread); the serial sweep below reads them and computes the few new candidates it meets
+    z1, o1, z2 = _zbuffer_cached(a, planes, order, starts, h, w, zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval,
+                                 cn)
+    # the data terms of the candidates at the sweep's start, and their smoothness terms towards each neighbour's
+    # plane at the start, in parallel (each segment's rows are written by one thread); the serial sweep below
+    # reads them, and computes what its own changes made new: a new candidate, a neighbour that moved
+    a0 = a.copy()
+    plab = np.full((k, 64), -1, np.int64)
+    psm = np.empty(64 * nstart[k])
     for j in prange(k):
         if not active[j]:
             continue
         cj = np.empty(64, np.int64)
         ncj = _candidates(j, a, own, nstart, nbr, prm, cj)
         if ncj > 1:
+            deg = nstart[j + 1] - nstart[j]
             for u in range(ncj):
-                _data_cached(j, cj[u], planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
+                lab = cj[u]
+                plab[j, u] = lab
+                _data_cached(j, lab, planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
                              clab, cval, cn)
+                for t in range(nstart[j], nstart[j + 1]):
+                    i = nbr[t]
+                    if a[i] != lab:
+                        psm[64 * nstart[j] + u * deg + t - nstart[j]] = gamma * _smooth(
+                            j, i, nedge[t], planes[lab], planes[a[i]], pairs, bstart, bp_lo, bp_hi, bw, w, thr)
     cand = np.empty(64, np.int64)
     changes = 0
     for j in range(k):
@@ -506,18 +539,29 @@ def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost:
         cur_e = 0.0
         best_f = 0.0
         best = a[j]
+        deg = nstart[j + 1] - nstart[j]
         for u in range(nc):
             lab = cand[u]
             dj = _data_cached(j, lab, planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
                               clab, cval, cn)
+            pu = -1
+            for v in range(64):
+                if plab[j, v] == lab:
+                    pu = v
+                    break
+                if plab[j, v] < 0:
+                    break
             sm_f = 0.0
             sm = 0.0
             for t in range(nstart[j], nstart[j + 1]):
                 i = nbr[t]
                 if a[i] == lab:
                     continue
-                s = gamma * _smooth(j, i, nedge[t], planes[lab], planes[a[i]], pairs, bstart, bp_lo, bp_hi,
-                                    bw, w, thr)
+                if pu >= 0 and a[i] == a0[i]:
+                    s = psm[64 * nstart[j] + pu * deg + t - nstart[j]]
+                else:
+                    s = gamma * _smooth(j, i, nedge[t], planes[lab], planes[a[i]], pairs, bstart, bp_lo, bp_hi,
+                                        bw, w, thr)
                 sm += s
                 sm_f += (1.0 - kappa + kappa * mu) * s
             f = (1.0 - kappa) * dj + sm_f  # Eq. 6.19 as a function of l_j
@@ -664,11 +708,12 @@ def _refine_pass(a: I32, planes: F64, n_used: int, order: I64, starts: I64, w: i
 
 
 def _new_cache(index: SegmentIndex, k: int
-               ) -> tuple[F64, I64, F64, npt.NDArray[np.bool_], I64, I64, F64, I64]:
+               ) -> tuple[F64, I64, F64, npt.NDArray[np.bool_], I32, I64, I64, F64, I64]:
     """Empty remembered data terms for :func:`_sweep` / :func:`_energy_cached` / :func:`_expand`: the z-buffer
-    they hold (z1, o1, z2, valid), the segments' boxes, and per segment up to ``_CACHE`` (plane, value)."""
+    they hold (z1, o1, z2, valid, the assignment it is of), the segments' boxes, and per segment up to
+    ``_CACHE`` (plane, value)."""
     npx = int(index.shape[0]) * int(index.shape[1])
-    return (np.empty(npx), np.empty(npx, np.int64), np.empty(npx), np.zeros(1, np.bool_),
+    return (np.empty(npx), np.empty(npx, np.int64), np.empty(npx), np.zeros(1, np.bool_), np.empty(k, np.int32),
             _segment_bbox(index.order, index.starts, index.shape[1]), np.empty((k, _CACHE), np.int64),
             np.empty((k, _CACHE)), np.zeros(k, np.int64))
 
@@ -818,7 +863,8 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
 def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: I64, starts: I64, w: int,
             cost: F32, min_disp: int, reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64,
             bp_hi: I64, bw: F64, nstart: I64, nbr: I64, nedge: I64, prm: F64, max_region: int, zc1: F64,
-            oc1: I64, zc2: F64, zvalid: npt.NDArray[np.bool_], bbox: I64, clab: I64, cval: F64, cn: I64) -> int:
+            oc1: I64, zc2: F64, zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64, clab: I64, cval: F64,
+            cn: I64) -> int:
     """Group moves, in place: for each candidate plane, the connected region of segments grown from its seeds
     through segments whose data term it does not raise moves to it at once when that lowers E (Eq. 6.18).
     Data terms are remembered (:func:`_data_cached`); the cache always holds the z-buffer ``z1, o1, z2``
@@ -833,7 +879,7 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
     dnew = np.empty(k, np.float64)
     dold = np.empty(k, np.float64)
     prev = np.empty(k, np.int32)
-    cache = (zc1, oc1, zc2, zvalid, bbox, clab, cval, cn)
+    cache = (zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval, cn)
     e_cur = _energy_cached(a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo, bp_hi, bw,
                            prm, *cache)
     z1, o1, z2 = _zbuffer(a, planes, order, starts, h, w)
@@ -907,6 +953,7 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
                     a[region[r]] = prev[r]
                 # back to the z-buffer of the kept assignment (the cache now holds the rejected one's)
                 _cache_refresh(z1, o1, z2, zc1, oc1, zc2, zvalid, bbox, planes, clab, cval, cn, w)
+                zfor[:] = a
         for r in range(n):
             in_s[region[r]] = False
         seen[:] = False  # also the segments visited but not taken

@@ -35,7 +35,13 @@ import numpy.typing as npt
 from numba import njit
 
 from prismstereo.errors import ConfigError, ImageError
-from prismstereo.matching.coop.coopcost import CostParams, aggregated_costs, raw_cost, sheared_costs
+from prismstereo.matching.coop.coopcost import (
+    CostParams,
+    aggregated_costs,
+    raw_cost,
+    sheared_costs,
+    sheared_row_costs_at,
+)
 from prismstereo.matching.coop.cooperative import (
     CoopParams,
     build_segment_graph,
@@ -53,7 +59,6 @@ from prismstereo.matching.coop.steps import (
 )
 from prismstereo.matching.local import selection
 from prismstereo.matching.local.matchers import BPASWMatcher
-from prismstereo.matching.local.selection import right_cost_volume
 from prismstereo.matching.registry import MatchResult, register_matcher
 from prismstereo.matching.segments.planes import (
     PlaneParams,
@@ -137,9 +142,14 @@ def initial_disparity(cost_left: F32, cost_right: F32, *, min_disp: int = 0,
     disparity : (H, W) float32   subpixel left disparity at every pixel.
     reliable : (H, W) bool       cross-check passed (and the match lands inside the right image).
     """
+    return _checked_subpixel(cost_left, cost_right.argmin(axis=2), min_disp=min_disp, tolerance=tolerance)
+
+
+def _checked_subpixel(cost_left: F32, dr: npt.NDArray[np.int64], *, min_disp: int,
+                      tolerance: float) -> tuple[F32, npt.NDArray[np.bool_]]:
+    """:func:`initial_disparity` from the right view's integer WTA slice index ``dr`` (H, W)."""
     h, w, nd = cost_left.shape
     dl = cost_left.argmin(axis=2)
-    dr = cost_right.argmin(axis=2)
     xr = np.arange(w)[None, :] - (dl + min_disp)
     inside = xr >= 0
     back = np.take_along_axis(dr, np.clip(xr, 0, w - 1), axis=1)
@@ -195,23 +205,30 @@ def bpasw_volume(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, m
                       dtype=np.float32)
 
 
-def bpasw_dense_map(vol: F32, image: npt.NDArray[np.uint8], *, min_disp: int = 0) -> F32:
+def bpasw_dense_map(vol: F32, image: npt.NDArray[np.uint8], *, min_disp: int = 0,
+                    right_winner: npt.NDArray[np.int64] | None = None,
+                    where: npt.NDArray[np.bool_] | None = None) -> F32:
     """The ``bpasw`` matcher's output from its cost volume: WTA, cross-check (1 px), background fill and
     colour-weighted median (radius 9), as :class:`prismstereo.matching.local.matchers.BPASWMatcher` with defaults.
-    Returns (H, W) float32, dense."""
+    ``right_winner``: the volume's :func:`~prismstereo.matching.local.selection.right_winner`, when already
+    known; ``where`` (H, W) bool: the pixels wanted (the final median runs there only; the others are left
+    before it). Returns (H, W) float32, dense."""
     disp = selection.winner_take_all(vol, min_disp=min_disp)
-    valid = selection.cross_check(disp, selection.right_disparity(vol, min_disp=min_disp), tolerance=1.0)
+    ridx = selection.right_winner(vol, min_disp=min_disp) if right_winner is None else right_winner
+    dright = np.where(ridx >= 0, (ridx + min_disp).astype(np.float32), np.float32(np.nan)).astype(np.float32)
+    valid = selection.cross_check(disp, dright, tolerance=1.0)
     raw = np.where(valid, disp, np.float32(np.nan)).astype(np.float32)
     if valid.all():
         return raw
     dense = selection.fill_holes(raw, valid, image=image)
     if np.isfinite(dense).all():
-        dense = selection.weighted_median_filter(dense, image, radius=9)
+        dense = selection.weighted_median_filter(dense, image, radius=9, mask=where)
     return np.asarray(dense, np.float32)
 
 
-def _bpasw_reliable(vol: F32, min_disp: int) -> tuple[npt.NDArray[np.bool_], F32]:
-    d, rel = initial_disparity(vol, right_cost_volume(vol, min_disp=min_disp), min_disp=min_disp)
+def _bpasw_reliable(vol: F32, dr: npt.NDArray[np.int64], min_disp: int) -> tuple[npt.NDArray[np.bool_], F32]:
+    # dr: the right view's winners (selection.right_winner; the BPASW volume is finite, so they are argmin's)
+    d, rel = _checked_subpixel(vol, dr, min_disp=min_disp, tolerance=0.0)
     return rel, d
 
 
@@ -384,8 +401,10 @@ class _PairEvidence:
                  brel: npt.NDArray[np.bool_], nonplanar: npt.NDArray[np.bool_],
                  evidence: npt.NDArray[np.bool_], coop: CoopParams,
                  segmentation: SegmentationParams, planes: PlaneParams, cost: CostParams,
-                 slopes: tuple[float, ...] | None):
+                 slopes: tuple[float, ...] | None, bright: npt.NDArray[np.int64] | None = None):
         self.image, self.right = lft, rgt
+        # the right view's winners of the BPASW volume (read by the occlusion and fallback steps)
+        self.bright = selection.right_winner(bvol, min_disp=min_disp) if bright is None else bright
         self.min_disp, self.max_disp = int(min_disp), int(max_disp)
         self.data, self.reliable, self.initial = data, reliable, initial
         self.bvol, self.bdisp, self.brel, self.nonplanar = bvol, bdisp, brel, nonplanar
@@ -421,9 +440,8 @@ class _PairEvidence:
             hb = box_filter_volume(raw_cost(self.image, self.right, **kw), p.row_box, vertical=False)  # type: ignore[arg-type]
             self.data[selected] = hb[selected]
         else:
-            hb = sheared_costs(self.image, self.right, **kw, slopes=self.slopes,  # type: ignore[arg-type]
-                               radius=p.row_box, vertical=False)
-            self.data[:, selected] = hb[:, selected]
+            sheared_row_costs_at(self.image, self.right, selected, self.data, **kw,  # type: ignore[arg-type]
+                                 slopes=self.slopes, radius=p.row_box)
 
     def fine_evidence(self, tol: float) -> tuple[npt.NDArray[np.bool_], F32]:
         return _pair_agreement(self.reliable, self.initial, self.brel, self.bdisp, tol), self.initial
@@ -434,8 +452,7 @@ class _PairEvidence:
 
     def occlusion(self, s: PlaneLabels, final: F32, p: OcclusionParams) -> F32:
         md = self.min_disp
-        rvol = right_cost_volume(self.bvol, min_disp=md)
-        dr_int = rvol.argmin(axis=2)
+        dr_int = self.bright
         dl_int = self.bvol.argmin(axis=2)
         w = final.shape[1]
         xs = np.arange(w)[None, :] + dr_int + md
@@ -457,7 +474,8 @@ class _PairEvidence:
         self.fallback_pixels = int(local.sum())
         if not local.any():
             return final
-        return np.where(local, bpasw_dense_map(self.bvol, self.image, min_disp=self.min_disp), final)
+        return np.where(local, bpasw_dense_map(self.bvol, self.image, min_disp=self.min_disp,
+                                               right_winner=self.bright, where=local), final)
 
 
 def _pair_agreement(reliable: npt.NDArray[np.bool_], initial: F32, brel: npt.NDArray[np.bool_], bdisp: F32,
@@ -512,7 +530,8 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     t = time.perf_counter()
     bvol = bpasw_volume(lft, rgt, max_disp=max_disp, min_disp=min_disp)
     # cross-checked BPASW map (integer WTA must agree exactly), parabola subpixel
-    brel0, bdisp0 = _bpasw_reliable(bvol, min_disp)
+    bright = selection.right_winner(bvol, min_disp=min_disp)
+    brel0, bdisp0 = _bpasw_reliable(bvol, bright, min_disp)
     raw: F32 | None = raw_cost(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=cp)
     agg_l, agg_r = aggregated_costs(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=cp, raw=raw)
     initial, reliable = initial_disparity(agg_l, agg_r, min_disp=min_disp, tolerance=dp.check_tolerance)
@@ -565,7 +584,8 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     ev = _PairEvidence(lft, rgt, min_disp=min_disp, max_disp=max_disp, data=dcost, reliable=reliable,
                        initial=initial, bvol=bvol, bdisp=bdisp0, brel=brel0, nonplanar=nonplanar,
                        evidence=evidence, coop=op,
-                       segmentation=sp, planes=pp, cost=dp.cost or cp, slopes=dp.slopes or None)
+                       segmentation=sp, planes=pp, cost=dp.cost or cp, slopes=dp.slopes or None,
+                       bright=bright)
     state = PlaneLabels(labels=labels, index=index, graph=graph, assign=assign0, planes=plane_set, own=own,
                         parent=np.arange(k, dtype=np.int64), pairs=pairs,
                         info={"split_pieces": float(split.size)})

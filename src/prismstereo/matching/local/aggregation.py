@@ -39,6 +39,7 @@ from __future__ import annotations
 from typing import Literal
 
 import cv2
+import numba
 import numpy as np
 from numba import njit, prange
 
@@ -120,71 +121,126 @@ def pair_weight(lab: np.ndarray, y: int, x: int, qy: int, qx: int, kernel: int, 
     return _sim(a * a + b * b + c * c, kernel, s0, s_min, log_norm)
 
 
+@njit(cache=True, inline="always")
+def _weight_row(tab: np.ndarray, slot: int, lab: np.ndarray, y: int, dys: np.ndarray, dxs: np.ndarray,
+                prox: np.ndarray, mirror: np.ndarray, nrows: int, kernel: int, s0: float, s_min: float,
+                log_norm: float, reverse: bool, forward_only: bool) -> None:  # pragma: no cover - numba
+    """Row ``y``'s support weights ``w(p, p + o_k) prox_k`` (float32; 0 outside the image) into ``tab[slot]``.
+
+    Weights are symmetric, ``w(p, q) = w(q, p)``: an offset whose mirror ``-o_k`` points forwards (``mirror[k]
+    >= 0``) is read from the row it points to, computed before (``nrows`` rows kept, ``slot = y % nrows``),
+    instead of evaluated again; the colour distance is a sum of squares, so the value is the same bit for bit.
+    ``reverse``: column ``x`` is stored at ``w - 1 - x``; ``forward_only``: the mirrored offsets are skipped."""
+    h, w = lab.shape[0], lab.shape[1]
+    nk = dys.shape[0]
+    for kk in range(2 * nk):  # the offsets computed first: the mirrored ones on the row itself read them
+        k = kk % nk
+        mk = mirror[k]
+        if (mk >= 0) != (kk >= nk) or (mk >= 0 and forward_only):
+            continue
+        qy = y + dys[k]
+        src = qy % nrows
+        for x in range(w):
+            qx = x + dxs[k]
+            v = np.float32(0.0)
+            if 0 <= qy < h and 0 <= qx < w:
+                if mk >= 0:
+                    v = tab[src, mk, w - 1 - qx if reverse else qx]
+                else:
+                    v = np.float32(pair_weight(lab, y, x, qy, qx, kernel, s0, s_min, log_norm) * prox[k])
+            tab[slot, k, w - 1 - x if reverse else x] = v
+
+
 @njit(cache=True, parallel=True, fastmath=True)
 def _bpasw_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, dys: np.ndarray,
                   dxs: np.ndarray, prox: np.ndarray, min_disp: int, kernel: int, s0: float,
                   s_min: float, prior: np.ndarray, use_prior: bool, cont_w: float,
-                  symmetric: bool) -> np.ndarray:  # pragma: no cover - numba
+                  symmetric: bool, mirror: np.ndarray, nbands: int) -> np.ndarray:  # pragma: no cover - numba
     h, w, nd = cost.shape
     nk = dys.shape[0]
     log_norm = 1.0 / np.log(s0 / s_min) if kernel == 0 else 1.0
     out = np.empty((h, w, nd), dtype=np.float32)
-    for y in prange(h):
-        # right-image similarity weights of this row between (y, xr) and (y+dy, xr+dx), stored reversed,
-        # wr[k, w-1-xr], so that the inner loop over disparities reads memory forwards (SIMD)
-        wr = np.zeros((nk, w), dtype=np.float32)
-        if symmetric:
-            for k in range(nk):
-                qy = y + dys[k]
-                if qy < 0 or qy >= h:
-                    continue
-                for xr in range(w):
-                    qx = xr + dxs[k]
-                    if qx < 0 or qx >= w:
-                        continue
-                    wr[k, w - 1 - xr] = pair_weight(lab_r, y, xr, qy, qx, kernel, s0, s_min, log_norm) * prox[k]
+    # rows run in bands, each in order, so that a row's weights towards the rows above are read from the
+    # weights those rows computed towards it (mirror); a band first computes the rows above it it reads
+    back = 0
+    for k in range(nk):
+        if mirror[k] >= 0:
+            back = max(back, -dys[k])
+    nrows = back + 1
+    band = (h + nbands - 1) // nbands
+    for bi in prange(nbands):
+        y0 = bi * band
+        y1 = min(h, y0 + band)
+        # weights of the rows kept, left and right image; the right one column-reversed, so that the inner loop
+        # over disparities reads it forwards (SIMD)
+        tl = np.zeros((nrows, nk, w), dtype=np.float32)
+        tr = np.zeros((nrows if symmetric else 1, nk, w), dtype=np.float32)
+        for y in range(max(0, y0 - back), y0):  # only their weights the band's rows read
+            _weight_row(tl, y % nrows, lab_l, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min, log_norm,
+                        False, True)
+            if symmetric:
+                _weight_row(tr, y % nrows, lab_r, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min,
+                            log_norm, True, True)
         num = np.empty(nd, dtype=np.float32)
         den = np.empty(nd, dtype=np.float32)
-        for x in range(w):
-            num[:] = 0.0
-            den[:] = 0.0
-            # candidates i with x - d >= 0: d = min_disp + i <= x
-            nvalid = min(nd, x - min_disp + 1)
-            base = w - 1 - x + min_disp  # wr column of candidate i is base + i
-            for k in range(nk):
-                qy = y + dys[k]
-                qx = x + dxs[k]
-                if qy < 0 or qy >= h or qx < 0 or qx >= w:
-                    continue
-                wl = np.float32(pair_weight(lab_l, y, x, qy, qx, kernel, s0, s_min, log_norm) * prox[k])
-                if wl == 0.0:
-                    continue
-                if use_prior:
-                    pq = prior[qy, qx]
-                    for i in range(nvalid):
-                        ww = wl
-                        if symmetric:
-                            ww = ww * wr[k, base + i]
-                        if pq >= 0 and abs(pq - i) > 1:
-                            ww = ww * np.float32(cont_w)
-                        num[i] += ww * cost[qy, qx, i]
-                        den[i] += ww
-                elif symmetric:
-                    wrk = wr[k, base:base + nvalid]
-                    cq = cost[qy, qx, :nvalid]
-                    for i in range(nvalid):
-                        ww = wl * wrk[i]
-                        num[i] += ww * cq[i]
-                        den[i] += ww
-                else:
-                    for i in range(nvalid):
-                        num[i] += wl * cost[qy, qx, i]
-                        den[i] += wl
-            for i in range(nd):
-                if i < nvalid and den[i] > 0.0:
-                    out[y, x, i] = num[i] / den[i]
-                else:
-                    out[y, x, i] = cost[y, x, i]
+        for y in range(y0, y1):
+            slot = y % nrows
+            _weight_row(tl, slot, lab_l, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min, log_norm, False,
+                        False)
+            if symmetric:
+                _weight_row(tr, slot, lab_r, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min, log_norm,
+                            True, False)
+            for x in range(w):
+                num[:] = 0.0
+                den[:] = 0.0
+                # candidates i with x - d >= 0: d = min_disp + i <= x
+                nvalid = min(nd, x - min_disp + 1)
+                base = w - 1 - x + min_disp  # right-weight column of candidate i is base + i
+                for k in range(nk):
+                    qy = y + dys[k]
+                    qx = x + dxs[k]
+                    if qy < 0 or qy >= h or qx < 0 or qx >= w:
+                        continue
+                    wl = tl[slot, k, x]
+                    if wl == 0.0:
+                        continue
+                    if use_prior:
+                        pq = prior[qy, qx]
+                        for i in range(nvalid):
+                            ww = wl
+                            if symmetric:
+                                ww = ww * tr[slot, k, base + i]
+                            if pq >= 0 and abs(pq - i) > 1:
+                                ww = ww * np.float32(cont_w)
+                            num[i] += ww * cost[qy, qx, i]
+                            den[i] += ww
+                    elif symmetric:
+                        wrk = tr[slot, k, base:base + nvalid]
+                        cq = cost[qy, qx, :nvalid]
+                        for i in range(nvalid):
+                            ww = wl * wrk[i]
+                            num[i] += ww * cq[i]
+                            den[i] += ww
+                    else:
+                        for i in range(nvalid):
+                            num[i] += wl * cost[qy, qx, i]
+                            den[i] += wl
+                for i in range(nd):
+                    if i < nvalid and den[i] > 0.0:
+                        out[y, x, i] = num[i] / den[i]
+                    else:
+                        out[y, x, i] = cost[y, x, i]
+    return out
+
+
+def _mirrors(dys: np.ndarray, dxs: np.ndarray) -> np.ndarray:
+    """For each window offset pointing backwards (up, or left on the row), the index of its opposite; -1 for
+    the others (and for an offset without an opposite in the window)."""
+    where = {(int(a), int(b)): k for k, (a, b) in enumerate(zip(dys, dxs, strict=True))}
+    out = np.full(len(dys), -1, np.int64)
+    for k, (a, b) in enumerate(zip(dys, dxs, strict=True)):
+        if a < 0 or (a == 0 and b < 0):
+            out[k] = where.get((-int(a), -int(b)), -1)
     return out
 
 
@@ -257,5 +313,8 @@ def aggregate_bpasw(cost: np.ndarray, left: np.ndarray, right: np.ndarray | None
     use_prior = prior is not None
     pr = (np.ascontiguousarray(prior, dtype=np.int64) if prior is not None
           else np.zeros((1, 1), dtype=np.int64))
+    # bands of rows in parallel, a multiple of the threads; each band first computes the rows above it reads
+    nt = numba.get_num_threads()
+    nbands = nt * max(1, min(4, vol.shape[0] // (nt * (4 * radius + 4))))
     return _bpasw_kernel(vol, lab_l, lab_r, dys, dxs, prox.astype(np.float64), int(min_disp), kid,
-                         s0, s_min, pr, use_prior, float(continuity_weight), symmetric)
+                         s0, s_min, pr, use_prior, float(continuity_weight), symmetric, _mirrors(dys, dxs), nbands)

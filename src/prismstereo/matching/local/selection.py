@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from numba import njit, prange
 
 from prismstereo.errors import MatchingError
 from prismstereo.matching.local._wmf import wmf_kernel
@@ -17,6 +18,7 @@ __all__ = [
     "fill_holes",
     "right_cost_volume",
     "right_disparity",
+    "right_winner",
     "subpixel_refine",
     "weighted_median_filter",
     "winner_take_all",
@@ -75,12 +77,49 @@ def right_cost_volume(cost: np.ndarray, *, min_disp: int = 0) -> np.ndarray:
     return _diagonal_volume(vol, int(min_disp), fill)
 
 
+@njit(cache=True, parallel=True)
+def _right_argmin(vol: np.ndarray, min_disp: int, fill: float) -> np.ndarray:  # pragma: no cover - numba
+    """argmin over k of ``C_L(y, x + min_disp + k, k)`` (``fill`` past the right edge), NaN read as +inf, the
+    first of equal minima (``np.argmin``'s); -1 where every entry is NaN."""
+    h, w, nd = vol.shape
+    out = np.empty((h, w), np.int64)
+    for y in prange(h):
+        for x in range(w):
+            best = np.inf
+            arg = 0
+            seen = False
+            for k in range(nd):
+                xl = x + min_disp + k
+                v = vol[y, xl, k] if xl < w else fill
+                if np.isnan(v):
+                    continue
+                seen = True
+                if v < best:
+                    best = v
+                    arg = k
+            out[y, x] = arg if seen else -1
+    return out
+
+
+def right_winner(cost: np.ndarray, *, min_disp: int = 0) -> np.ndarray:
+    """Integer WTA slice index of the RIGHT view from the LEFT cost volume, without building the right volume.
+
+    The argmin over ``k`` of :func:`right_cost_volume` (NaN entries never selected, the first of equal minima),
+    int64 ``(H, W)``; -1 where every entry is NaN.
+    """
+    vol = np.ascontiguousarray(_check_volume(cost), dtype=np.float32)
+    fill = float(np.nanmax(vol)) if vol.size and not np.isnan(vol).all() else np.nan
+    return _right_argmin(vol, int(min_disp), fill)
+
+
 def right_disparity(cost: np.ndarray, *, min_disp: int = 0) -> np.ndarray:
     """WTA disparity of the RIGHT view from the LEFT cost volume (see :func:`right_cost_volume`).
 
-    Returns float32 ``(H, W)``: for right pixel ``x`` the match is left pixel ``x + d``.
+    Returns float32 ``(H, W)``: for right pixel ``x`` the match is left pixel ``x + d``; NaN where every
+    entry is NaN.
     """
-    return winner_take_all(right_cost_volume(cost, min_disp=min_disp), min_disp=min_disp)
+    idx = right_winner(cost, min_disp=min_disp)
+    return np.where(idx >= 0, (idx + min_disp).astype(np.float32), np.float32(np.nan)).astype(np.float32)
 
 
 def _cross_check(dl: np.ndarray, dr: np.ndarray, tol: float) -> np.ndarray:
