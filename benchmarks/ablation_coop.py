@@ -11,7 +11,7 @@ nonocc / all); ``--quick`` runs Tsukuba and the first validation scene only (CI'
 configuration: ``full`` (the defaults), ``split`` (the plane support test off) or a step of
 :data:`~prismstereo.matching.coop.steps.STEP_NAMES` (that step off, ``StepParams().without(step)``). A step earns
 its place when switching it off raises the validation average and does not lower the v2 average by more than
-0.1.
+0.1. The last full run: docs/EXPERIMENTS.md (issue 14, item 3) and ``benchmarks/results/ablation_coop.json``.
 """
 
 from __future__ import annotations

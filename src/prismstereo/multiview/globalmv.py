@@ -548,6 +548,7 @@ class _ViewsEvidence:
                  params: GlobalMultiViewParams, occlusion: str):
         self.image, self.views, self.ratios, self.pcs = ref, views, ratios, pcs
         self.data, self.coop, self.segmentation, self.plane_params = data, coop, segmentation, planes
+        self.check_data = data
         self.max_disp, self.fb, self.fused0, self.disps, self.rels = max_disp, fb, fused0, disps, rels
         self.bpasw_term, self.row_radius, self.p, self.occ = bpasw_term, row_radius, params, occlusion
         self.reliable = np.ones(ref.shape[:2], bool)
@@ -587,7 +588,7 @@ class _ViewsEvidence:
             hb = hb + self.bpasw_term
         data = self.data.copy()
         data[selected] = hb[selected]
-        self.data = np.ascontiguousarray(data, np.float32)
+        self.check_data, self.data = self.data, np.ascontiguousarray(data, np.float32)
 
     def fine_evidence(self, tol: float) -> tuple[npt.NDArray[np.bool_], F32] | None:
         if self.fused0 is None or self.fb is None:

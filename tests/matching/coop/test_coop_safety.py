@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from prismstereo.matching.coop.coopcost import raw_cost
 from prismstereo.matching.segments.planes import (
@@ -154,3 +155,102 @@ def test_large_segment_whose_plane_the_evidence_barely_covers_takes_the_local_ma
         # a smaller segment is left to the support test
         small = ev.fallback(dataclasses.replace(state), wrong, FallbackParams(min_pixels=h * w + 1))
         np.testing.assert_array_equal(small, wrong)
+
+
+def _framed_print(seed: int, *, h: int = 60, w: int = 80, period: int = 8, d_face: int = 10, band: int = 16
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A box face printed with a pattern repeating every ``period`` columns (2112 px at ``d_face``), framed on
+    three sides by a nearer band of the same print one period closer (``d_face + period``, the face's alias):
+    the frame pulls the face onto its alias through the smoothness term, and the print barely tells the two
+    apart (a weak non-repeating part, sensor noise in each view). Returns left, right, labels (0 = the face,
+    1-3 = the frame's left, right and top)."""
+    rng = np.random.default_rng(seed)
+    d_frame = d_face + period
+    tile = rng.integers(40, 215, size=(h, period, 3)).astype(np.float64)
+    pattern = np.tile(tile, (1, (w + d_frame) // period + 2, 1))[:, : w + d_frame]
+    pattern += rng.normal(0.0, 1.0, pattern.shape)
+    yy, xx = np.mgrid[0:h, 0:w]
+    labels = np.zeros((h, w), np.int32)
+    labels[:, :band] = 1
+    labels[:, w - band:] = 2
+    labels[:band, band:w - band] = 3
+    left = pattern[:, :w]
+    right = pattern[:, d_face:d_face + w].copy()  # the face everywhere, then the nearer frame over it
+    frame = (labels > 0) & (xx >= d_frame)
+    right[yy[frame], xx[frame] - d_frame] = left[frame]
+
+    def noisy(a: np.ndarray) -> np.ndarray:
+        return np.clip(a + rng.normal(0.0, 3.0, a.shape), 0, 255).astype(np.uint8)
+
+    return noisy(left), noisy(right), labels
+
+
+def _face_plane_after(step: str, seed: int, check: bool) -> float:
+    """The face's plane after the ``sweep`` or ``group_moves`` step from the right labelling (face on d = 10,
+    frame on 18), with the step's data check on or off."""
+    import dataclasses
+
+    from prismstereo.matching.coop.coopcost import CostParams, sheared_costs
+    from prismstereo.matching.coop.cooperative import CoopParams, build_segment_graph
+    from prismstereo.matching.coop.pipeline import _bpasw_reliable, _PairEvidence, bpasw_volume
+    from prismstereo.matching.coop.steps import PlaneLabels, StepParams, step_group_moves, step_sweep
+    from prismstereo.matching.segments.segmentation import SegmentationParams
+
+    left, right, labels = _framed_print(seed)
+    max_disp, slopes = 26, (-1.0, -0.5, 0.0, 0.5, 1.0)
+    bvol = bpasw_volume(left, right, max_disp=max_disp)
+    brel, bdisp = _bpasw_reliable(bvol, 0)
+    ev = _PairEvidence(left, right, min_disp=0, max_disp=max_disp,
+                       data=sheared_costs(left, right, max_disp=max_disp, slopes=slopes, radius=1),
+                       reliable=np.ones(labels.shape, bool), initial=bdisp, bvol=bvol, bdisp=bdisp, brel=brel,
+                       nonplanar=np.zeros(labels.shape, bool), evidence=brel, coop=CoopParams(),
+                       segmentation=SegmentationParams(), planes=PlaneParams(), cost=CostParams(), slopes=slopes)
+    state = PlaneLabels(labels=labels, index=build_segment_index(labels), graph=build_segment_graph(labels, left),
+                        assign=np.array([0, 1, 1, 1], np.int32), planes=np.array([[0.0, 0.0, 10.0], [0.0, 0.0, 18.0]]),
+                        own=np.full((4, 2), -1, np.int64), parent=np.arange(4, dtype=np.int64),
+                        pairs=np.zeros((0, 2), np.int32))
+    p = StepParams()
+    if step == "sweep":  # every segment offered its sweep planes: the face's two cheapest are 10 and 18
+        out = step_sweep(state, ev, dataclasses.replace(p, sweep=dataclasses.replace(p.sweep, frac=1.0, min_px=10,
+                                                                                     data_check=check)))
+    else:
+        out = step_group_moves(state, ev, dataclasses.replace(
+            p, group_moves=dataclasses.replace(p.group_moves, data_check=check)))
+    return float(out.planes[out.assign[0], 2])
+
+
+@pytest.mark.parametrize(("step", "seeds"), [("sweep", (0, 1)), ("group_moves", (0, 4))])
+def test_a_large_repetitive_face_is_not_moved_onto_its_alias_by_its_frame(step: str, seeds: tuple[int, ...]) -> None:
+    """The data check of the sweep and group-move steps: without it, the step moves the 2112-px printed face
+    onto the alias plane of its nearer frame (the smoothness gain, and for the group move the frame hiding
+    part of the face in the right view, outweigh a data term the print barely tells apart); with it (the
+    default) the face keeps its plane, because its own data term does not support the move."""
+    from prismstereo.matching.coop.steps import StepParams
+
+    assert getattr(StepParams(), step).data_check  # the rule is on by default
+    for seed in seeds:
+        assert _face_plane_after(step, seed, check=False) == 18.0  # the unsafe move is taken without the rule
+        assert _face_plane_after(step, seed, check=True) == 10.0
+
+
+def test_unsupported_moves_need_a_lower_data_term_over_most_of_the_segment() -> None:
+    """A move is supported when the segment's mean truncated pixel cost over the pixels both planes match
+    inside the range and the view is lower under the new plane, and those pixels cover ``min_cover`` of it."""
+    from prismstereo.matching.coop.steps import unsupported_moves
+
+    h, w, nd = 10, 40, 30
+    labels = np.zeros((h, w), np.int32)
+    labels[:, 20:] = 1
+    index = build_segment_index(labels)
+    cost = np.ones((h, w, nd), np.float32)
+    cost[:, :, 5] = 0.2  # both segments match best at d = 5
+    cost[:, :, 15] = 0.1  # cheaper at d = 15, where only x >= 15 of segment 0 stays in the right view
+    before = np.array([[0.0, 0.0, 5.0], [0.0, 0.0, 5.0]])
+    to15 = np.array([[0.0, 0.0, 15.0]] * 2)
+    kw = {"min_disp": 0, "slopes": None, "trunc": 1.5, "min_cover": 0.5}
+    # segment 1 (x >= 20) keeps every pixel in the view: supported; segment 0 keeps 5 of its 20 columns
+    assert list(unsupported_moves(index, before, to15, cost, **kw)) == [0]
+    assert unsupported_moves(index, before, to15, cost, **{**kw, "min_cover": 0.2}).size == 0
+    # to a dearer plane: neither; no move: nothing to check
+    assert list(unsupported_moves(index, before, np.array([[0.0, 0.0, 9.0]] * 2), cost, **kw)) == [0, 1]
+    assert unsupported_moves(index, before, before, cost, **kw).size == 0

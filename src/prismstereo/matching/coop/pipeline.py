@@ -407,6 +407,7 @@ class _PairEvidence:
         self.bright = selection.right_winner(bvol, min_disp=min_disp) if bright is None else bright
         self.min_disp, self.max_disp = int(min_disp), int(max_disp)
         self.data, self.reliable, self.initial = data, reliable, initial
+        self.check_data = data
         self.bvol, self.bdisp, self.brel, self.nonplanar = bvol, bdisp, brel, nonplanar
         self.coop, self.segmentation, self.plane_params, self.cost = coop, segmentation, planes, cost
         self.slopes = slopes
@@ -436,12 +437,16 @@ class _PairEvidence:
 
     def row_box(self, selected: npt.NDArray[np.bool_], p: SweepParams) -> None:
         kw = {"max_disp": self.max_disp, "min_disp": self.min_disp, "params": self.cost}
+        # the row-boxed volume with the other pixels' data term becomes the optimiser's; moves are still checked
+        # against the data term itself (``check_data``)
         if self.slopes is None:
             hb = box_filter_volume(raw_cost(self.image, self.right, **kw), p.row_box, vertical=False)  # type: ignore[arg-type]
-            self.data[selected] = hb[selected]
+            hb[~selected] = self.data[~selected]
         else:
-            sheared_row_costs_at(self.image, self.right, selected, self.data, **kw,  # type: ignore[arg-type]
+            hb = self.data.copy()
+            sheared_row_costs_at(self.image, self.right, selected, hb, **kw,  # type: ignore[arg-type]
                                  slopes=self.slopes, radius=p.row_box)
+        self.check_data, self.data = self.data, hb
 
     def fine_evidence(self, tol: float) -> tuple[npt.NDArray[np.bool_], F32]:
         return _pair_agreement(self.reliable, self.initial, self.brel, self.bdisp, tol), self.initial

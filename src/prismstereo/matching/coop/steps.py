@@ -15,6 +15,10 @@ and then run one sequence of named steps (:data:`STEP_NAMES`) on it:
 ``median``        colour-weighted median that only overrides disparities it moves by more than 1 px
 ``fallback``      segments that failed the plane support test take the local matcher's map
 
+A segment keeps a move of ``sweep`` and ``group_moves`` only where its own data term is lower under the new
+plane (:func:`unsupported_moves`): the smoothness term and the neighbours' energies may propose a move, the
+segment's own pixels must support it.
+
 Each step is configured by one small frozen dataclass (:class:`StepParams` holds one of each) whose
 constructor validates it, so a bad value fails before any image is read. What differs between the two
 methods (the evidence each step reads: one pair, or all views fused on the unit grid) is behind
@@ -45,7 +49,7 @@ from prismstereo.matching.segments.segmentation import SegmentationParams
 
 __all__ = ["STEP_NAMES", "BoundaryParams", "BpaswPlanesParams", "Evidence", "FallbackParams", "FineParams",
            "GroupMovesParams", "MedianParams", "OcclusionParams", "PlaneLabels", "RefitParams", "StepParams",
-           "SweepParams", "coerce_params", "run_steps"]
+           "SweepParams", "coerce_params", "run_steps", "unsupported_moves"]
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
@@ -89,7 +93,9 @@ class SweepParams:
     slanted-window cost (sampled every ``step`` px, window every ``dilation`` px) are offered the ``keep``
     cheapest planes of a sweep over the whole range x the vertical slopes ``slopes``; with ``row_box`` >= 0 the
     data term on their pixels is the pixel cost boxed along the row only (radius ``row_box``); ``neighbours``
-    lets segments take their neighbours' candidates. ``frac`` 0 = off."""
+    lets segments take their neighbours' candidates. With ``data_check`` a segment keeps its move only where its
+    own data term supports it (:func:`unsupported_moves`, over at least ``check_cover`` of its pixels).
+    ``frac`` 0 = off."""
 
     frac: float = 0.5
     slopes: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0)
@@ -99,6 +105,8 @@ class SweepParams:
     dilation: int = 3
     row_box: int = 1
     neighbours: bool = False
+    data_check: bool = True
+    check_cover: float = 0.5
 
     def __post_init__(self) -> None:
         _need(0.0 <= float(self.frac) <= 1.0, "sweep.frac in [0, 1]", self.frac)
@@ -106,15 +114,23 @@ class SweepParams:
         _need(self.keep >= 1 and self.min_px >= 1 and self.step >= 1 and self.dilation >= 1,
               "sweep.keep, min_px, step, dilation >= 1", (self.keep, self.min_px, self.step, self.dilation))
         _need(self.row_box >= -1, "sweep.row_box >= -1 (-1 = off)", self.row_box)
+        _need(0.0 <= self.check_cover <= 1.0, "sweep.check_cover in [0, 1]", self.check_cover)
         object.__setattr__(self, "slopes", tuple(float(b) for b in self.slopes))
 
 
 @dataclass(frozen=True, kw_only=True)
 class GroupMovesParams:
     """``group_moves``: sweep candidates and planes held across a segment boundary may move a connected region
-    of segments at once (:func:`~prismstereo.matching.coop.cooperative.expand_planes`)."""
+    of segments at once (:func:`~prismstereo.matching.coop.cooperative.expand_planes`); with ``data_check`` a
+    segment keeps a move of this step only where its own data term supports it (:func:`unsupported_moves`,
+    over at least ``check_cover`` of its pixels)."""
 
     enabled: bool = True
+    data_check: bool = True
+    check_cover: float = 0.5
+
+    def __post_init__(self) -> None:
+        _need(0.0 <= self.check_cover <= 1.0, "group_moves.check_cover in [0, 1]", self.check_cover)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -306,6 +322,7 @@ class Evidence(Protocol):
 
     image: npt.NDArray[np.uint8]      # (H, W, 3) reference image
     data: F32                         # data-term volume of the optimiser (the sweep step may replace pixels)
+    check_data: F32                   # the data term moves are checked against (``data`` before the sweep's)
     reliable: B                       # data-term reliability mask of the optimiser
     coop: CoopParams
     segmentation: SegmentationParams
@@ -371,6 +388,73 @@ def step_bpasw_planes(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabel
                                info=s.info if info is None else _merge(s, info))
 
 
+def unsupported_moves(index: SegmentIndex, before: F64, after: F64, data: F32, *, min_disp: int,
+                      slopes: tuple[float, ...] | None, trunc: float, min_cover: float) -> I64:
+    """The segments whose move from plane ``before[j]`` to ``after[j]`` their own data term does not support.
+
+    The data term of a segment under a plane is the mean truncated pixel cost (Eq. 6.21) over the pixels both
+    planes send inside the search range and the right view; a move is supported when that mean is lower under
+    the new plane and such pixels are at least ``min_cover`` of the segment (a plane that leaves the view or
+    the range has no evidence for it).
+
+    Parameters
+    ----------
+    index : SegmentIndex of K segments.
+    before, after : (K, 3) float64, each segment's plane before and after the move.
+    data : (H, W, D) or (S, H, W, D) float32, the data term's pixel cost (one volume per slope of ``slopes``).
+
+    Returns
+    -------
+    (M,) int64, the moved segments the data term does not support.
+    """
+    moved = np.flatnonzero((before != after).any(axis=1))
+    if moved.size == 0:
+        return moved
+    h, w = index.shape
+    vol = data if data.ndim == 4 else data[None]
+    flat = vol.reshape(vol.shape[0], h * w, vol.shape[3])
+    nd = flat.shape[2]
+    lens = index.starts[moved + 1] - index.starts[moved]
+    seg = np.repeat(np.arange(moved.size), lens)
+    off = np.arange(int(lens.sum())) - np.repeat(np.cumsum(lens) - lens, lens)
+    pix = index.order[np.repeat(index.starts[moved], lens) + off]
+    x = (pix % w).astype(np.float64)
+    y = (pix // w).astype(np.float64)
+    lv = np.zeros(1) if slopes is None else np.asarray(slopes, np.float64)
+
+    def cost(pl: F64) -> tuple[F64, B]:
+        p = pl[moved][seg]
+        d = p[:, 0] * x + p[:, 1] * y + p[:, 2]
+        k = d - min_disp
+        ok = (k >= -0.5) & (k <= nd - 0.5) & (x - d >= -0.5)
+        lev = np.abs(lv[None, :] - p[:, 1:2]).argmin(axis=1) if lv.size > 1 else np.zeros(d.size, np.int64)
+        kc = np.clip(k, 0.0, nd - 1.0)
+        k0 = kc.astype(np.int64)
+        k1 = np.minimum(k0 + 1, nd - 1)
+        f = kc - k0
+        v = (1.0 - f) * flat[lev, pix, k0] + f * flat[lev, pix, k1]
+        return np.minimum(v, trunc), ok
+
+    c0, ok0 = cost(before)
+    c1, ok1 = cost(after)
+    both = ok0 & ok1
+    n = np.bincount(seg, weights=both, minlength=moved.size)
+    gain = np.bincount(seg, weights=np.where(both, c0 - c1, 0.0), minlength=moved.size)
+    return moved[(n < min_cover * lens) | ~(gain > 0)]
+
+
+def _checked(s: PlaneLabels, assign: I32, planes: F64, ev: Evidence, on: bool, min_cover: float
+             ) -> tuple[I32, dict[str, float]]:
+    """``assign`` with the moves from ``s`` that the segments' own data term does not support undone."""
+    if not on:
+        return assign, {}
+    undo = unsupported_moves(s.index, s.planes[s.assign], planes[assign], ev.check_data, min_disp=ev.min_disp,
+                             slopes=ev.slopes, trunc=ev.coop.data_trunc, min_cover=min_cover)
+    out = assign.copy()
+    out[undo] = s.assign[undo]
+    return out, {"undone": float(undo.size)}
+
+
 def step_sweep(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
     sp = p.sweep
     if sp.frac <= 0:
@@ -390,6 +474,8 @@ def step_sweep(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
             assign, planes, info2 = ev.optimise(s, assign, planes, own6, neighbour_own_planes=sp.neighbours)
             info = {**info, **info2, "energy_before": info.get("energy_before", 0.0)}
     info["sweep_segments"] = float((ids[:, 0] >= 0).sum())
+    assign, chk = _checked(s, assign, planes, ev, sp.data_check, sp.check_cover)
+    info.update({f"sweep_{k}": v for k, v in chk.items()})
     return dataclasses.replace(s, assign=assign, planes=planes, sweep_ids=ids, info=info)
 
 
@@ -403,7 +489,10 @@ def step_group_moves(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels
     assign, ginfo = expand_planes(s.assign, s.planes, s.index, s.graph, ev.data, ev.reliable, cands,
                                   min_disp=ev.min_disp, params=ev.coop, slopes=ev.slopes)
     assign, planes, info = ev.optimise(s, assign, s.planes, s.own)
-    return dataclasses.replace(s, assign=assign, planes=planes, info={**_merge(s, info), **ginfo})
+    gp = p.group_moves
+    assign, chk = _checked(s, assign, planes, ev, gp.data_check, gp.check_cover)
+    return dataclasses.replace(s, assign=assign, planes=planes,
+                               info={**_merge(s, info), **ginfo, **{f"group_{k}": v for k, v in chk.items()}})
 
 
 def step_fine(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
