@@ -44,9 +44,9 @@ from prismstereo.matching.local.selection import weighted_median_filter
 from prismstereo.matching.segments.planes import PlaneParams, SegmentIndex, curved_segment_surfaces, render_planes
 from prismstereo.matching.segments.segmentation import SegmentationParams
 
-__all__ = ["STEP_NAMES", "BoundaryParams", "BpaswPlanesParams", "Evidence", "FallbackParams", "FineParams",
-           "CurvedParams", "GroupMovesParams", "MedianParams", "OcclusionParams", "PlaneLabels", "RefitParams", "StepParams",
-           "SweepParams", "coerce_params", "run_steps"]
+__all__ = ["STEP_NAMES", "BoundaryParams", "BpaswPlanesParams", "CurvedParams", "Evidence", "FallbackParams",
+           "FineParams", "GroupMovesParams", "MedianParams", "OcclusionParams", "PlaneLabels", "RefitParams",
+           "StepParams", "SweepParams", "coerce_params", "run_steps"]
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]

@@ -580,7 +580,7 @@ def _segment_sums(lab: npt.NDArray[np.int64], k: int, rows: F64, target: F64,
         for j in range(i, m):
             ata[:, i, j] = ata[:, j, i] = np.bincount(lu, weights=ru[:, i] * ru[:, j], minlength=k)
     atb = np.stack([np.bincount(lu, weights=ru[:, i] * tu, minlength=k) for i in range(m)], axis=1)
-    return ata, atb
+    return ata, atb.astype(np.float64)
 
 
 def _solve(ata: F64, atb: F64) -> F64:
@@ -661,6 +661,12 @@ def curved_segment_surfaces(labels: npt.NDArray[np.integer], disparity: npt.NDAr
         inl = ev & cand[lab] & (np.abs((quad * sol[lab]).sum(1) - r) <= tol)
         sol = _solve(*_segment_sums(lab, k, quad, r, inl))
     n = np.bincount(lab, weights=inl, minlength=k)
+    # the final inliers' bounding box: where the quadric is evaluated
+    x0[:], x1[:], y0[:], y1[:] = big, -big, big, -big
+    np.minimum.at(x0, lab[inl], xs[inl])
+    np.maximum.at(x1, lab[inl], xs[inl])
+    np.minimum.at(y0, lab[inl], ys[inl])
+    np.maximum.at(y1, lab[inl], ys[inl])
     lin = _solve(*_segment_sums(lab, k, quad[:, 3:], r, inl))
     res2 = np.bincount(lab, weights=inl * ((quad * sol[lab]).sum(1) - r) ** 2, minlength=k)
     res1 = np.bincount(lab, weights=inl * ((quad[:, 3:] * lin[lab]).sum(1) - r) ** 2, minlength=k)
