@@ -14,7 +14,7 @@ from prismstereo.matching.coop.steps import STEP_NAMES, STEPS, StepParams, Sweep
 
 def test_every_named_step_has_one_function_in_the_order_of_the_sequence() -> None:
     assert tuple(STEPS) == STEP_NAMES
-    assert STEP_NAMES[0] == "optimise" and STEP_NAMES[-1] == "curved"
+    assert STEP_NAMES[0] == "optimise" and STEP_NAMES[-1] == "fallback"
 
 
 @pytest.mark.parametrize("steps", [{"sweep": {"frac": 1.5}}, {"sweep": {"keep": 0}}, {"boundary": {"agree": 3}},
@@ -91,7 +91,7 @@ def test_curved_step_follows_the_evidence_of_a_curved_segment_on_its_own_plane_p
     plane = state.render()
     assert (np.abs(plane - true) > 1.0).mean() > 0.05
     final = plane.copy()
-    final[:5, :5] = 40.0  # set by another step (boundary, occlusion, median or fallback)
+    final[:5, :5] = 40.0  # set by another step (boundary or occlusion)
     rng = np.random.default_rng(1)
     initial = (true + rng.normal(0.0, 0.2, (h, w))).astype(np.float32)
     bdisp = (true + rng.normal(0.0, 0.2, (h, w))).astype(np.float32)

@@ -12,9 +12,9 @@ and then run one sequence of named steps (:data:`STEP_NAMES`) on it:
 ``fine``          finer segments along plane boundaries may take a neighbour's plane where the evidence agrees
 ``boundary``      pixels near boundaries take a nearby segment's plane where the BPASW cost clearly prefers it
 ``occlusion``     pixels whose match reliably sees a farther surface take the background plane
+``curved``        segments whose evidence shows a curved surface take the quadric fitted to it
 ``median``        colour-weighted median that only overrides disparities it moves by more than 1 px
 ``fallback``      segments that failed the plane support test take the local matcher's map
-``curved``        segments whose evidence shows a curved surface take the quadric fitted to it
 
 Each step is configured by one small frozen dataclass (:class:`StepParams` holds one of each) whose
 constructor validates it, so a bad value fails before any image is read. What differs between the two
@@ -55,7 +55,7 @@ I64 = npt.NDArray[np.int64]
 B = npt.NDArray[np.bool_]
 
 STEP_NAMES = ("optimise", "refit", "bpasw_planes", "sweep", "group_moves", "fine", "boundary", "occlusion",
-              "median", "fallback", "curved")
+              "curved", "median", "fallback")
 
 
 def _need(ok: bool, what: str, value: object) -> None:
@@ -513,8 +513,7 @@ def step_curved(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
         return s
     agree, initial = fine
     reference = 0.5 * (initial + bnd[1])
-    # only pixels still on their segment's plane: the boundary, occlusion, median and fallback steps chose the
-    # others pixel by pixel
+    # only pixels still on their segment's plane: the boundary and occlusion steps chose the others pixel by pixel
     planar = np.abs(s.disparity - s.render()) <= 1e-3
     out, curved = curved_segment_surfaces(s.labels, s.disparity, planar, agree, reference,
                                           min_evidence=cp.min_evidence, min_coverage=cp.min_coverage, tol=cp.tol,
@@ -526,7 +525,7 @@ def step_curved(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
 STEPS: dict[str, Callable[[PlaneLabels, Evidence, StepParams], PlaneLabels]] = {
     "optimise": step_optimise, "refit": step_refit, "bpasw_planes": step_bpasw_planes, "sweep": step_sweep,
     "group_moves": step_group_moves, "fine": step_fine, "boundary": step_boundary, "occlusion": step_occlusion,
-    "median": step_median, "fallback": step_fallback, "curved": step_curved}
+    "curved": step_curved, "median": step_median, "fallback": step_fallback}
 
 
 def run_steps(state: PlaneLabels, evidence: Evidence, params: StepParams, *,
