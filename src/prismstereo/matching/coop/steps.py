@@ -208,7 +208,7 @@ class CurvedParams:
     min_evidence: int = 100
     min_coverage: float = 0.3
     tol: float = 1.0
-    max_rms_ratio: float = 0.8
+    max_rms_ratio: float = 0.6
     min_amplitude: float = 0.3
     iterations: int = 3
     max_shift: float = 1.0

@@ -593,7 +593,7 @@ def _solve(ata: F64, atb: F64) -> F64:
 def curved_segment_surfaces(labels: npt.NDArray[np.integer], disparity: npt.NDArray[np.floating],
                             planar: npt.NDArray[np.bool_], evidence: npt.NDArray[np.bool_],
                             reference: npt.NDArray[np.floating], *, min_evidence: int = 100,
-                            min_coverage: float = 0.3, tol: float = 1.0, max_rms_ratio: float = 0.8,
+                            min_coverage: float = 0.3, tol: float = 1.0, max_rms_ratio: float = 0.6,
                             min_amplitude: float = 0.3, iterations: int = 3, max_shift: float = 1.0
                             ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.bool_]]:
     """A segment whose evidence shows a curved surface takes the quadratic fitted to that evidence.
