@@ -122,7 +122,7 @@ def test_registered_and_stages_in_extras() -> None:
     assert set(res.timings) >= {"segmentation", "initial", "planes", "cooperative"}
 
 
-# measured nonocc / all / disc: Tsukuba 1.34 / 1.74 / 5.69, Teddy 3.33 / 7.50 / 9.83 (issue 14) (its steep floor and
+# measured nonocc / all / disc: Tsukuba 1.32 / 1.72 / 5.69, Teddy 3.33 / 7.50 / 9.83 (issue 14) (its steep floor and
 # repeated textures: the slope-sheared data term and the group moves); the thesis's per-scene rule is nonocc no
 # worse than its own by more than 0.5 (Tsukuba 0.89, Teddy 4.02)
 @pytest.mark.parametrize(("scene", "bounds"), [("tsukuba", (1.39, 2.1, 7.0)), ("teddy", (4.0, 7.9, 11.0))])
