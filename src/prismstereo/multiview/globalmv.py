@@ -66,6 +66,7 @@ from prismstereo.matching.coop.cooperative import (
 from prismstereo.matching.coop.steps import (
     BoundaryParams,
     BpaswPlanesParams,
+    CurvedParams,
     FallbackParams,
     FineParams,
     MedianParams,
@@ -123,6 +124,7 @@ MULTIVIEW_STEPS = StepParams(
     boundary=BoundaryParams(agree=2),
     median=MedianParams(radius=3),
     fallback=FallbackParams(enabled=False),
+    curved=CurvedParams(enabled=False),
 )
 
 
@@ -507,7 +509,7 @@ def match_multiview_global(reference: Any, views: Sequence[Any], *, ratios: Sequ
     steps = p.steps
     if p.post is None or fb is None:
         steps = steps.without("bpasw_planes", "sweep", "group_moves", "fine", "boundary", "occlusion", "median",
-                              "fallback")
+                              "fallback", "curved")
     ev = _ViewsEvidence(ref, vs, rs, pcs, data=data, coop=cp, segmentation=p.segmentation, planes=p.planes,
                         max_disp=md, fb=fb, fused0=fused0, disps=disps, rels=rels, bpasw_term=bpasw_term,
                         row_radius=row_radius, params=p, occlusion=occ)

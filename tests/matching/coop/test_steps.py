@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -38,6 +40,7 @@ def test_without_switches_each_step_off_and_refuses_unknown_names() -> None:
     assert off.refit.rounds == 0 and off.bpasw_planes.rounds == 0 and off.sweep.frac == 0
     assert not off.group_moves.enabled and off.fine.levels == () and off.boundary.radius == 0
     assert not off.occlusion.enabled and off.median.radius == 0 and not off.fallback.enabled
+    assert not off.curved.enabled
     with pytest.raises(ConfigError):
         StepParams().without("optimise")
 
@@ -66,3 +69,44 @@ def test_the_global_multiview_method_takes_the_same_steps_with_its_own_defaults(
     assert p.steps.fine == MULTIVIEW_STEPS.fine
     with pytest.raises(ConfigError):
         GlobalMultiViewParams(steps={"median": {"radius": -2}})
+
+
+def test_curved_step_follows_the_evidence_of_a_curved_segment_on_its_own_plane_pixels_only() -> None:
+    """The ``curved`` step on a fold of cloth (one segment, its plane up to 1.3 px off at the ends): with the
+    step on, the segment takes the quadric of the evidence (the mean of both cross-checked initial maps where
+    they agree) and is within 1 px everywhere; pixels another step set are kept; off, nothing changes."""
+    from prismstereo.matching.coop.pipeline import _PairEvidence
+    from prismstereo.matching.coop.steps import CurvedParams, PlaneLabels, step_curved
+    from prismstereo.matching.segments.planes import build_segment_index, fit_planes
+
+    h, w = 40, 60
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    true = 30.0 + 0.05 * yy + 0.002 * (xx - w / 2) ** 2
+    labels = np.zeros((h, w), np.int32)
+    index = build_segment_index(labels)
+    planes, _ = fit_planes(index, true, np.ones((h, w), bool))
+    state = PlaneLabels(labels=labels, index=index, graph=None,  # type: ignore[arg-type]
+                        assign=np.zeros(1, np.int32), planes=planes, own=np.full((1, 2), -1, np.int64),
+                        parent=np.zeros(1, np.int64), pairs=np.zeros((0, 2), np.int32))
+    plane = state.render()
+    assert (np.abs(plane - true) > 1.0).mean() > 0.05
+    final = plane.copy()
+    final[:5, :5] = 40.0  # set by another step (boundary or occlusion)
+    rng = np.random.default_rng(1)
+    initial = (true + rng.normal(0.0, 0.2, (h, w))).astype(np.float32)
+    bdisp = (true + rng.normal(0.0, 0.2, (h, w))).astype(np.float32)
+    ok = rng.random((h, w)) < 0.7
+    ev = _PairEvidence(np.zeros((h, w, 3), np.uint8), np.zeros((h, w, 3), np.uint8), min_disp=0, max_disp=64,
+                       data=np.zeros((1, 1, 1), np.float32), reliable=ok, initial=initial,
+                       bvol=np.zeros((1, 1, 1), np.float32), bdisp=bdisp, brel=ok, nonplanar=np.zeros((h, w), bool),
+                       evidence=ok, coop=None, segmentation=None, planes=None,  # type: ignore[arg-type]
+                       cost=None, slopes=None)  # type: ignore[arg-type]
+    s = dataclasses.replace(state, disparity=final)
+    out = step_curved(s, ev, StepParams()).disparity
+    assert out is not None
+    np.testing.assert_array_equal(out[:5, :5], final[:5, :5])
+    rest = np.ones((h, w), bool)
+    rest[:5, :5] = False
+    assert np.abs(out - true)[rest].max() < 0.5
+    off = step_curved(s, ev, StepParams(curved=CurvedParams(enabled=False))).disparity
+    np.testing.assert_array_equal(off, final)

@@ -11,7 +11,7 @@ Front end (kept in :class:`CoopResult`):
                                                               -> ``plane_map`` (thesis Table 6.1)
 
 then the steps of :mod:`prismstereo.matching.coop.steps`, shared with the global multi-view method
-(optimise, refit, bpasw_planes, sweep, group_moves, fine, boundary, occlusion, median, fallback), on the
+(optimise, refit, bpasw_planes, sweep, group_moves, fine, boundary, occlusion, curved, median, fallback), on the
 two-view evidence (:class:`_PairEvidence`: the pair's data term, the ``bpasw`` matcher's cost volume of the pair
 and its cross-checked map)                                        -> ``disparity`` (thesis Table 6.2)
 

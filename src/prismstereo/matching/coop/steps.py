@@ -12,6 +12,7 @@ and then run one sequence of named steps (:data:`STEP_NAMES`) on it:
 ``fine``          finer segments along plane boundaries may take a neighbour's plane where the evidence agrees
 ``boundary``      pixels near boundaries take a nearby segment's plane where the BPASW cost clearly prefers it
 ``occlusion``     pixels whose match reliably sees a farther surface take the background plane
+``curved``        segments whose evidence shows a curved surface take the quadric fitted to it
 ``median``        colour-weighted median that only overrides disparities it moves by more than 1 px
 ``fallback``      segments that failed the plane support test take the local matcher's map
 
@@ -44,12 +45,12 @@ from prismstereo.matching.coop.cooperative import (
 )
 from prismstereo.matching.coop.refine import boundary_pixel_planes, bpasw_candidate_rounds, refine_fine_segments
 from prismstereo.matching.local.selection import weighted_median_filter
-from prismstereo.matching.segments.planes import PlaneParams, SegmentIndex, render_planes
+from prismstereo.matching.segments.planes import PlaneParams, SegmentIndex, curved_segment_surfaces, render_planes
 from prismstereo.matching.segments.segmentation import SegmentationParams
 
-__all__ = ["STEP_NAMES", "BoundaryParams", "BpaswPlanesParams", "Evidence", "FallbackParams", "FineParams",
-           "GroupMovesParams", "MedianParams", "OcclusionParams", "PlaneLabels", "RefitParams", "StepParams",
-           "SweepParams", "coerce_params", "run_steps", "unsupported_moves"]
+__all__ = ["STEP_NAMES", "BoundaryParams", "BpaswPlanesParams", "CurvedParams", "Evidence", "FallbackParams",
+           "FineParams", "GroupMovesParams", "MedianParams", "OcclusionParams", "PlaneLabels", "RefitParams",
+           "StepParams", "SweepParams", "coerce_params", "run_steps", "unsupported_moves"]
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
@@ -58,7 +59,7 @@ I64 = npt.NDArray[np.int64]
 B = npt.NDArray[np.bool_]
 
 STEP_NAMES = ("optimise", "refit", "bpasw_planes", "sweep", "group_moves", "fine", "boundary", "occlusion",
-              "median", "fallback")
+              "curved", "median", "fallback")
 
 
 def _need(ok: bool, what: str, value: object) -> None:
@@ -211,6 +212,33 @@ class FallbackParams:
               "fallback.min_coverage in [0, 1] and min_pixels >= 1", (self.min_coverage, self.min_pixels))
 
 
+@dataclass(frozen=True, kw_only=True)
+class CurvedParams:
+    """``curved``: a segment whose evidence (both cross-checked initial maps agree within ``tol``) bends away
+    from its plane takes the quadric fitted to that evidence on its own-plane pixels
+    (:func:`~prismstereo.matching.segments.planes.curved_segment_surfaces`: at least ``min_evidence`` inliers
+    covering ``min_coverage`` of the segment, RMS at most ``max_rms_ratio`` of the plane's, a curved part of at
+    least ``min_amplitude`` px, ``iterations`` inlier rounds, a pixel moved by at most ``max_shift`` px)."""
+
+    enabled: bool = True
+    min_evidence: int = 100
+    min_coverage: float = 0.3
+    tol: float = 1.0
+    max_rms_ratio: float = 0.6
+    min_amplitude: float = 0.3
+    iterations: int = 3
+    max_shift: float = 1.0
+
+    def __post_init__(self) -> None:
+        _need(self.min_evidence >= 6 and 0.0 <= self.min_coverage <= 1.0 and self.tol > 0
+              and 0.0 < self.max_rms_ratio <= 1.0 and self.min_amplitude >= 0 and self.iterations >= 0
+              and self.max_shift >= 0,
+              "curved.min_evidence >= 6, min_coverage in [0, 1], tol > 0, max_rms_ratio in (0, 1], "
+              "min_amplitude, iterations, max_shift >= 0",
+              (self.min_evidence, self.min_coverage, self.tol, self.max_rms_ratio, self.min_amplitude,
+               self.iterations, self.max_shift))
+
+
 P = TypeVar("P")
 
 
@@ -255,6 +283,7 @@ class StepParams:
     occlusion: OcclusionParams = field(default_factory=OcclusionParams)
     median: MedianParams = field(default_factory=MedianParams)
     fallback: FallbackParams = field(default_factory=FallbackParams)
+    curved: CurvedParams = field(default_factory=CurvedParams)
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -268,7 +297,8 @@ class StepParams:
                                "group_moves": GroupMovesParams(enabled=False), "fine": FineParams(levels=()),
                                "boundary": dataclasses.replace(self.boundary, radius=0),
                                "occlusion": dataclasses.replace(self.occlusion, enabled=False),
-                               "median": MedianParams(radius=0), "fallback": FallbackParams(enabled=False)}
+                               "median": MedianParams(radius=0), "fallback": FallbackParams(enabled=False),
+                               "curved": dataclasses.replace(self.curved, enabled=False)}
         bad = sorted(set(names) - set(off))
         _need(not bad, f"steps among {', '.join(off)}", bad)
         return dataclasses.replace(self, **{n: off[n] for n in names})
@@ -277,7 +307,7 @@ class StepParams:
 _STEP_TYPES: dict[str, type] = {"refit": RefitParams, "bpasw_planes": BpaswPlanesParams, "sweep": SweepParams,
                                 "group_moves": GroupMovesParams, "fine": FineParams, "boundary": BoundaryParams,
                                 "occlusion": OcclusionParams, "median": MedianParams,
-                                "fallback": FallbackParams}
+                                "fallback": FallbackParams, "curved": CurvedParams}
 
 
 @dataclass(frozen=True)
@@ -561,10 +591,30 @@ def step_fallback(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
     return dataclasses.replace(s, disparity=np.asarray(ev.fallback(s, s.disparity, p.fallback), np.float32))
 
 
+def step_curved(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
+    cp = p.curved
+    if not cp.enabled:
+        return s
+    assert s.disparity is not None
+    fine = ev.fine_evidence(cp.tol)
+    bnd = ev.boundary_evidence(cp.tol)
+    if fine is None or bnd is None:
+        return s
+    agree, initial = fine
+    reference = 0.5 * (initial + bnd[1])
+    # only pixels still on their segment's plane: the boundary and occlusion steps chose the others pixel by pixel
+    planar = np.abs(s.disparity - s.render()) <= 1e-3
+    out, curved = curved_segment_surfaces(s.labels, s.disparity, planar, agree, reference,
+                                          min_evidence=cp.min_evidence, min_coverage=cp.min_coverage, tol=cp.tol,
+                                          max_rms_ratio=cp.max_rms_ratio, min_amplitude=cp.min_amplitude,
+                                          iterations=cp.iterations, max_shift=cp.max_shift)
+    return dataclasses.replace(s, disparity=out, info={**s.info, "curved_segments": float(curved.sum())})
+
+
 STEPS: dict[str, Callable[[PlaneLabels, Evidence, StepParams], PlaneLabels]] = {
     "optimise": step_optimise, "refit": step_refit, "bpasw_planes": step_bpasw_planes, "sweep": step_sweep,
     "group_moves": step_group_moves, "fine": step_fine, "boundary": step_boundary, "occlusion": step_occlusion,
-    "median": step_median, "fallback": step_fallback}
+    "curved": step_curved, "median": step_median, "fallback": step_fallback}
 
 
 def run_steps(state: PlaneLabels, evidence: Evidence, params: StepParams, *,

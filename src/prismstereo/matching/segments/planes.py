@@ -567,3 +567,119 @@ def group_refit_planes(
     new_ids = np.full(plane_set.shape[0], -1, np.int64)
     new_ids[used[ok]] = plane_set.shape[0] + np.arange(int(ok.sum()))
     return np.concatenate([plane_set, group_planes[used[ok]]]), new_ids[assign]
+
+
+def _segment_sums(lab: npt.NDArray[np.int64], k: int, rows: F64, target: F64,
+                  use: npt.NDArray[np.bool_]) -> tuple[F64, F64]:
+    """Normal equations of a per-segment least-squares fit: (K, m, m) ``Σ rᵢ rⱼ`` and (K, m) ``Σ rᵢ t`` over
+    the pixels in ``use``."""
+    m = rows.shape[1]
+    lu, ru, tu = lab[use], rows[use], target[use]
+    ata = np.empty((k, m, m))
+    for i in range(m):
+        for j in range(i, m):
+            ata[:, i, j] = ata[:, j, i] = np.bincount(lu, weights=ru[:, i] * ru[:, j], minlength=k)
+    atb = np.stack([np.bincount(lu, weights=ru[:, i] * tu, minlength=k) for i in range(m)], axis=1)
+    return ata, atb.astype(np.float64)
+
+
+def _solve(ata: F64, atb: F64) -> F64:
+    # a tiny ridge keeps degenerate segments (a line of pixels) solvable; they fail the tests after
+    ridge = 1e-9 * (np.trace(ata, axis1=1, axis2=2) + 1.0)
+    eye = np.eye(ata.shape[1])[None]
+    return np.asarray(np.linalg.solve(ata + ridge[:, None, None] * eye, atb[..., None])[..., 0], np.float64)
+
+
+def curved_segment_surfaces(labels: npt.NDArray[np.integer], disparity: npt.NDArray[np.floating],
+                            planar: npt.NDArray[np.bool_], evidence: npt.NDArray[np.bool_],
+                            reference: npt.NDArray[np.floating], *, min_evidence: int = 100,
+                            min_coverage: float = 0.3, tol: float = 1.0, max_rms_ratio: float = 0.6,
+                            min_amplitude: float = 0.3, iterations: int = 3, max_shift: float = 1.0
+                            ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.bool_]]:
+    """A segment whose evidence shows a curved surface takes the quadratic fitted to that evidence.
+
+    One plane per segment (Eq. 6.1) cannot follow a curved surface (cloth, a ball): the robust fit keeps the
+    evidence within ``t_outlier`` of the plane, and the plane drifts off the surface by up to that much at the
+    segment's ends, where the evidence bends away. Per segment, the residual ``reference - disparity`` of its
+    evidence pixels on its own plane (``planar``) within ``tol`` is fitted by a quadric
+    ``q(u, v) = c₀u² + c₁uv + c₂v² + c₃u + c₄v + c₅`` (coordinates centred and scaled on the evidence), the
+    inliers re-chosen within ``tol`` of it ``iterations`` times (as Eq. 6.9). The quadric replaces the plane
+    only when the evidence supports a curve, not an offset or a tilt of the plane: at least ``min_evidence``
+    inliers covering ``min_coverage`` of the segment, an RMS residual at most ``max_rms_ratio`` of the best
+    plane's through the same inliers, and a curved part (quadric less that plane) of at least
+    ``min_amplitude`` px somewhere on the segment. It is evaluated only inside the evidence's bounding box
+    (clamped outside: no extrapolation of the curvature) and shifts a pixel by at most ``max_shift`` px.
+
+    Parameters
+    ----------
+    labels : (H, W) int       segments 0..K-1.
+    disparity : (H, W) float  current map.
+    planar : (H, W) bool      pixels whose disparity is their segment's own plane (the only ones changed).
+    evidence : (H, W) bool    trusted pixels of ``reference`` (both cross-checked initial maps agree).
+    reference : (H, W) float  the evidence's disparity.
+
+    Returns
+    -------
+    disparity : (H, W) float32 with the accepted segments' quadrics; curved : (K,) bool accepted segments.
+    """
+    lab = np.asarray(labels).ravel().astype(np.int64)
+    h, w = np.asarray(labels).shape
+    k = int(lab.max()) + 1 if lab.size else 0
+    disp = np.asarray(disparity, np.float64).ravel()
+    plan = np.asarray(planar, bool).ravel()
+    ev = plan & np.asarray(evidence, bool).ravel() & np.isfinite(np.asarray(reference).ravel())
+    r = np.where(ev, np.asarray(reference, np.float64).ravel() - disp, 0.0)
+    sizes = np.bincount(lab, minlength=k)
+    curved = np.zeros(k, bool)
+    out = np.asarray(disparity, np.float32).copy()
+    if k == 0 or not ev.any():
+        return out, curved
+    xs = (np.arange(h * w) % w).astype(np.float64)
+    ys = (np.arange(h * w) // w).astype(np.float64)
+    inl = ev & (np.abs(r) <= tol)
+    n = np.bincount(lab, weights=inl, minlength=k)
+    cx = np.bincount(lab, weights=xs * inl, minlength=k) / np.maximum(n, 1)
+    cy = np.bincount(lab, weights=ys * inl, minlength=k) / np.maximum(n, 1)
+    big = np.float64(h + w)
+    x0 = np.full(k, big)
+    x1 = np.full(k, -big)
+    y0 = np.full(k, big)
+    y1 = np.full(k, -big)
+    np.minimum.at(x0, lab[inl], xs[inl])
+    np.maximum.at(x1, lab[inl], xs[inl])
+    np.minimum.at(y0, lab[inl], ys[inl])
+    np.maximum.at(y1, lab[inl], ys[inl])
+    scale = np.maximum(np.maximum(x1 - x0, y1 - y0), 1.0)
+    u = (xs - cx[lab]) / scale[lab]
+    v = (ys - cy[lab]) / scale[lab]
+    quad = np.stack([u * u, u * v, v * v, u, v, np.ones_like(u)], axis=1)
+    cand = (n >= min_evidence) & (x1 - x0 >= 2) & (y1 - y0 >= 2)
+    if not cand.any():
+        return out, curved
+    sol = _solve(*_segment_sums(lab, k, quad, r, inl & cand[lab]))
+    for _ in range(max(iterations, 0)):
+        inl = ev & cand[lab] & (np.abs((quad * sol[lab]).sum(1) - r) <= tol)
+        sol = _solve(*_segment_sums(lab, k, quad, r, inl))
+    n = np.bincount(lab, weights=inl, minlength=k)
+    # the final inliers' bounding box: where the quadric is evaluated
+    x0[:], x1[:], y0[:], y1[:] = big, -big, big, -big
+    np.minimum.at(x0, lab[inl], xs[inl])
+    np.maximum.at(x1, lab[inl], xs[inl])
+    np.minimum.at(y0, lab[inl], ys[inl])
+    np.maximum.at(y1, lab[inl], ys[inl])
+    lin = _solve(*_segment_sums(lab, k, quad[:, 3:], r, inl))
+    res2 = np.bincount(lab, weights=inl * ((quad * sol[lab]).sum(1) - r) ** 2, minlength=k)
+    res1 = np.bincount(lab, weights=inl * ((quad[:, 3:] * lin[lab]).sum(1) - r) ** 2, minlength=k)
+    # the curved part over the segment, the quadric evaluated inside the evidence's bounding box only
+    uc = (np.clip(xs, x0[lab], x1[lab]) - cx[lab]) / scale[lab]
+    vc = (np.clip(ys, y0[lab], y1[lab]) - cy[lab]) / scale[lab]
+    qc = np.stack([uc * uc, uc * vc, vc * vc, uc, vc, np.ones_like(uc)], axis=1)
+    q_all = (qc * sol[lab]).sum(1)
+    bend = np.abs(q_all - (qc[:, 3:] * lin[lab]).sum(1))
+    amp = np.zeros(k)
+    np.maximum.at(amp, lab, bend)
+    curved = (cand & (n >= min_evidence) & (n >= min_coverage * sizes) & (res2 <= max_rms_ratio ** 2 * res1)
+              & (amp >= min_amplitude))
+    change = curved[lab] & plan
+    out.ravel()[change] = (disp[change] + np.clip(q_all[change], -max_shift, max_shift)).astype(np.float32)
+    return out, curved
