@@ -194,13 +194,15 @@ def _face_plane_after(step: str, seed: int, check: bool) -> float:
     from prismstereo.matching.coop.cooperative import CoopParams, build_segment_graph
     from prismstereo.matching.coop.pipeline import _bpasw_reliable, _PairEvidence, bpasw_volume
     from prismstereo.matching.coop.steps import PlaneLabels, StepParams, step_group_moves, step_sweep
+    from prismstereo.matching.local.selection import right_winner
     from prismstereo.matching.segments.segmentation import SegmentationParams
 
     left, right, labels = _framed_print(seed)
     max_disp, slopes = 26, (-1.0, -0.5, 0.0, 0.5, 1.0)
     bvol = bpasw_volume(left, right, max_disp=max_disp)
-    brel, bdisp = _bpasw_reliable(bvol, 0)
-    ev = _PairEvidence(left, right, min_disp=0, max_disp=max_disp,
+    bright = right_winner(bvol, min_disp=0)
+    brel, bdisp = _bpasw_reliable(bvol, bright, 0)
+    ev = _PairEvidence(left, right, min_disp=0, max_disp=max_disp, bright=bright,
                        data=sheared_costs(left, right, max_disp=max_disp, slopes=slopes, radius=1),
                        reliable=np.ones(labels.shape, bool), initial=bdisp, bvol=bvol, bdisp=bdisp, brel=brel,
                        nonplanar=np.zeros(labels.shape, bool), evidence=brel, coop=CoopParams(),
