@@ -109,7 +109,8 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
         d = init
         textured = True
         cached = -1
-        S = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        S: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                                0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         for _ in range(iterations):
             xf0 = x - d
             b0 = int(np.floor(xf0))
