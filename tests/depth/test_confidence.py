@@ -178,3 +178,76 @@ def test_the_left_right_check_drops_matches_pulled_across_depth_edges(held_out_r
     (_, med0, p95_0, in0), (cov1, med1, p95_1, in1) = stats[None], stats[0.5]
     assert in1 >= in0 + 0.005 and p95_1 <= 0.95 * p95_0  # 97.4 -> 98.3 %, 0.66 -> 0.59 %
     assert med1 <= med0 and cov1 >= 0.9
+
+
+def _gauss_newton_reference(L, R, y, x, d, *, radius, iterations, max_shift, min_texture):
+    """The refinement of one pixel written plainly: each iteration resamples its window (bilinear) at the
+    current d, zero-mean SSD Gauss–Newton step, then the ZNCC at the final d (module docstring of refine)."""
+    import cv2
+
+    Rx = cv2.Sobel(R, cv2.CV_32F, 1, 0, ksize=3, scale=1.0 / 8.0).astype(np.float64)
+    Rf = R.astype(np.float64)
+    win = L[y - radius:y + radius + 1, x - radius:x + radius + 1].astype(np.float64)
+    lz = win - win.mean()
+    cols = np.arange(x - radius, x + radius + 1, dtype=np.float64)
+    rows = np.arange(y - radius, y + radius + 1)
+
+    def sample(img, xf):
+        x0 = np.floor(xf).astype(np.int64)
+        a = xf - x0
+        return (1 - a) * img[rows][:, x0] + a * img[rows][:, x0 + 1]
+
+    init = d
+    for _ in range(iterations):
+        rv, jv = sample(Rf, cols - d), sample(Rx, cols - d)
+        jz = jv - jv.mean()
+        den = float((jz * jz).sum())
+        step = float(((lz - (rv - rv.mean())) * jz).sum()) / den if den > min_texture * lz.size else 0.0
+        d = min(max(d - min(max(step, -0.5), 0.5), init - max_shift), init + max_shift)
+    rz = sample(Rf, cols - d)
+    rz = rz - rz.mean()
+    return d, float((lz * rz).sum() / np.sqrt((lz * lz).sum() * (rz * rz).sum()))
+
+
+def test_the_refinement_equals_resampling_the_window_at_every_iteration():
+    """The kernel sums each integer tap position once and interpolates the sums; per pixel, that is the
+    plain Gauss–Newton that resamples the window at every step, to float rounding."""
+    from prismstereo.depth.refine import refine_disparity
+
+    left, right = _shifted_pair(7.3, seed=3)
+    rng = np.random.default_rng(4)
+    init = (7.3 + rng.uniform(-0.9, 0.9, left.shape)).astype(np.float32)  # taps cross integers while refining
+    disp, conf = refine_disparity(left, right, init, radius=4, iterations=6, max_shift=1.0, min_texture=0.01)
+    for y, x in zip(rng.integers(6, 34, 25), rng.integers(15, 110, 25), strict=True):
+        d_ref, z_ref = _gauss_newton_reference(left, right, int(y), int(x), float(init[y, x]), radius=4,
+                                               iterations=6, max_shift=1.0, min_texture=0.01)
+        if np.isfinite(conf[y, x]):
+            assert abs(disp[y, x] - d_ref) < 1e-4 and abs(conf[y, x] - z_ref) < 1e-4
+        else:  # not kept: it hit the ±max_shift bound
+            assert abs(abs(d_ref - init[y, x]) - 1.0) < 1e-3
+
+
+def test_the_left_right_check_refines_only_what_it_reads_with_the_same_result():
+    """The right view is refined only at the pixels the check reads; the result is that of refining every
+    right pixel a match lands on."""
+    from prismstereo.depth import confidence as cm
+    from prismstereo.depth.refine import refine_disparity
+
+    left, right = _shifted_pair(7.3, seed=5)
+    rng = np.random.default_rng(6)
+    init = (7.0 + rng.uniform(-0.6, 0.6, left.shape)).astype(np.float32)
+    init[:, 70:] += 3.0  # a depth jump: windows across it disagree between the views
+    init[rng.random(left.shape) < 0.1] = np.nan
+    for min_conf in (None, 0.5):
+        disp, conf = confident_matches(left, right, init, radius=5, min_confidence=min_conf, max_lr_gap=0.5)
+        d0, z0 = refine_disparity(left, right, init, radius=5, iterations=6, max_shift=1.0, min_texture=0.01,
+                                  min_pixels=49)
+        every = cm._mirror(refine_disparity(cm._mirror(right), cm._mirror(left),
+                                            cm._mirror(cm._seen_from_right(init)), radius=5, iterations=6,
+                                            max_shift=1.0, min_texture=0.01, min_pixels=49)[0])
+        c0 = np.where(np.isfinite(z0), np.clip(z0, 0, 1), 0).astype(np.float32)
+        c0[cm._lr_gap(d0, every) > 0.5] = 0.0
+        keep = np.isfinite(d0) if min_conf is None else np.isfinite(d0) & (c0 >= min_conf)
+        assert ((c0 == 0) & (z0 > 0.9)).any() and (c0 > 0.9).any()  # the check did drop good windows
+        assert np.array_equal(np.isfinite(disp), keep)
+        assert np.array_equal(disp[keep], d0[keep]) and np.array_equal(conf[keep], c0[keep])

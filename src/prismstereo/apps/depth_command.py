@@ -81,7 +81,7 @@ def depth_command(rig_path: str | None, image_path: str | None, out_dir: str, *,
     lines.insert(0, f"depth range {zr[0]:.0f}–{zr[1]:.0f} mm ({how}; --depth-range MIN,MAX to set it)")
     lines.insert(1, f"depth: faces {res.faces[0]} (left) and {res.faces[1]} (right), "
                     f"d in [{res.disparity_range[0]}, {res.disparity_range[1]}] px, {c['points']} points "
-                    f"({100.0 * c['points'] / max(c['region_pixels'], 1):.1f} % of the view), {t['total']:.1f} s "
+                    f"({_share(res)}), {t['total']:.1f} s "
                     f"(" + ", ".join(f"{k} {v:.1f}" for k, v in t.items() if k not in ("total", "validate")) + ")")
     if res.pair is None:  # every face: a plane sweep, no left/right pair nor disparity range
         lines[1] = (f"depth (all views): reference face {res.faces[0]}, views {list(res.faces[1:])}, "
@@ -92,6 +92,14 @@ def depth_command(rig_path: str | None, image_path: str | None, out_dir: str, *,
     names = [p.name for p in outputs.values()] + ([] if refined is None else ["rig_refined.toml"])
     lines.append(f"wrote {', '.join(names)} to {out_dir}")
     return "\n".join(pre + lines)
+
+
+def _share(res: Any) -> str:
+    """The points' share of the common view, in words (:attr:`DepthResult.coverage`)."""
+    c = res.counts()
+    if res.coverage is None:
+        return f"{100.0 * c['points'] / max(c['region_pixels'], 1):.1f} % of the view"
+    return f"{100.0 * res.coverage.share:.1f} % of {res.coverage.describe(res.depth_range)}"
 
 
 def _self_calibrate(rig: Any, image: Any) -> tuple[Any, list[str], dict[str, Any]]:

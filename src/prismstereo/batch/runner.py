@@ -187,7 +187,8 @@ def process_frame(setup: DepthSetup, frame: Frame, frames_dir: str, outputs: Seq
         res = run_depth_frame(setup, img)
         t2 = time.perf_counter()
         c = res.counts()
-        row.update(status="ok", points=c["points"], coverage=c["points"] / max(c["region_pixels"], 1),
+        cov = res.coverage.share if res.coverage is not None else c["points"] / max(c["region_pixels"], 1)
+        row.update(status="ok", points=c["points"], coverage=cov,
                    t_read_s=t1 - t0, t_depth_s=t2 - t1, stages_s={k: round(v, 4) for k, v in res.timings.items()})
         info = {"inputs": {"image": frame.source, "index": frame.index}, **(extra or {})}
         row["rss_mb"] = _rss_mb()

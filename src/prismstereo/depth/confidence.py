@@ -75,8 +75,11 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
     conf = np.where(np.isfinite(zncc), np.clip(zncc, 0.0, 1.0), np.float32(0.0)).astype(np.float32)
     if max_lr_gap is not None:
         # the right view's matches: the left's moved to x − d (the nearer surface wins a pixel), refined
-        # on the mirrored pair, where the right view is the left one
-        d_r, z_r = refine_disparity(_mirror(right), _mirror(left), _mirror(_seen_from_right(disparity)),
+        # on the mirrored pair, where the right view is the left one; only at the right pixels the check
+        # reads (each pixel is refined on its own, so the others change nothing)
+        asked = conf > 0.0 if min_confidence is None else conf >= max(min_confidence, np.nextafter(0.0, 1.0))
+        seen = np.where(_read_by_check(disp, asked & matched), _seen_from_right(disparity), np.float32(np.nan))
+        d_r, _ = refine_disparity(_mirror(right), _mirror(left), _mirror(seen),
                                     radius=radius, iterations=iterations, max_shift=max_shift,
                                     min_texture=min_texture, min_pixels=min_pixels,
                                     valid_left=None if valid_right is None else _mirror(valid_right),
@@ -131,6 +134,19 @@ def _seen_from_right(disparity: np.ndarray) -> np.ndarray:
     out = np.full((h, w), -np.inf, dtype=np.float32)
     np.maximum.at(out, (ys[inside], xr[inside]), d[ys[inside], xs[inside]])
     out[np.isneginf(out)] = np.nan
+    return out
+
+
+def _read_by_check(disparity: np.ndarray, where: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the right pixels :func:`_lr_gap` reads for the left pixels ``where`` (floor(x − d) and
+    the next one)."""
+    h, w = disparity.shape
+    ys, xs = np.nonzero(where & np.isfinite(disparity))
+    x0 = np.floor(xs - disparity[ys, xs]).astype(np.int64)
+    out = np.zeros((h, w), dtype=bool)
+    for k in (0, 1):
+        inside = (x0 + k >= 0) & (x0 + k < w)
+        out[ys[inside], x0[inside] + k] = True
     return out
 
 

@@ -43,11 +43,13 @@ from prismstereo.config import DEFAULT_DEPTH_RANGE_MM, Rig
 from prismstereo.depth.confidence import confident_matches
 from prismstereo.depth.confidence import remove_speckles as drop_small_patches
 from prismstereo.depth.search_range import (
+    Coverage,
     SearchRange,
     auto_search_range,
     auto_search_range_of_capture,
     depth_warnings,
     rig_depth_range,
+    scene_coverage,
 )
 from prismstereo.depth.setup_cache import load_setup, save_setup
 from prismstereo.depth.triangulation import TRIANGULATIONS, triangulate_matches
@@ -70,6 +72,7 @@ __all__ = [
     "Disparities",
     "Points",
     "SearchRegion",
+    "coverage_of",
     "default_views",
     "diagnose",
     "match_pair",
@@ -371,6 +374,10 @@ class DepthResult:
     accuracy : dict or None
         :func:`prismstereo.evaluation.depth_metrics.evaluate_depth`'s result, when the caller measured it
         (``dataclasses.replace(result, accuracy=...)``).
+    coverage : Coverage or None
+        The share of the common view at the depths found that got a point
+        (:func:`~prismstereo.depth.search_range.scene_coverage`; pair runs), what the coverage warning and
+        ``run.json``'s ``coverage`` report.
     """
 
     config: DepthConfig
@@ -401,6 +408,7 @@ class DepthResult:
     warnings: tuple[str, ...] = ()
     sweep: dict[str, Any] = field(default_factory=dict)
     accuracy: dict[str, Any] | None = None
+    coverage: Coverage | None = None
 
     def point_cloud(self) -> tuple[np.ndarray, np.ndarray]:
         """Valid points (N, 3) mm (world frame) and their colours (N, 3) uint8 from :attr:`left`."""
@@ -458,6 +466,7 @@ class DepthResult:
             "cpu_s": {k: round(v, 4) for k, v in self.cpu_timings.items()},
             "matcher_timings_s": {k: round(v, 4) for k, v in self.match_timings.items()},
             "counts": self.counts(),
+            "coverage": None if self.coverage is None else self.coverage.to_dict(),
             "accuracy": self.accuracy,
         }
         if self.view_counts is not None:
@@ -714,13 +723,23 @@ def triangulate_disparity(rig: Rig, pair: RectifiedPair, views: Sequence[Virtual
     return Points(points=points, depth=depth, gaps=gaps, valid=valid)
 
 
+def coverage_of(result: DepthResult) -> Coverage | None:
+    """The share of the common view at the depths found that got a point
+    (:func:`~prismstereo.depth.search_range.scene_coverage`; pair runs, else None)."""
+    if result.pair is None or result.disparity is None:
+        return None
+    return scene_coverage(result.disparity, result.valid, result.depth, result.searched(),
+                          np.asarray(result.pair.valid_masks()[1], dtype=bool))
+
+
 def diagnose(result: DepthResult) -> tuple[str, ...]:
-    """One-line warnings about a finished run (:func:`~prismstereo.depth.search_range.depth_warnings`)."""
+    """One-line warnings about a finished run (:func:`~prismstereo.depth.search_range.depth_warnings`;
+    coverage of the common view at the depths found, :attr:`DepthResult.coverage`, where the run has it)."""
     c = result.counts()
     return tuple(depth_warnings(
         points=c["points"], region_pixels=c["region_pixels"], matched=c.get("matched", 0),
         confident=c.get("refined"), disparity=result.raw_disparity, valid=None,
-        disparity_range=result.disparity_range, depth_range=result.depth_range))
+        disparity_range=result.disparity_range, depth_range=result.depth_range, coverage=result.coverage))
 
 
 # --------------------------------------------------------------------------- all-view steps
@@ -784,6 +803,7 @@ _FRAME_STEPS = ("match", "refine", "speckles", "triangulate", "diagnose")
 
 def _finish(result: DepthResult, clock: _Clock, t0: float) -> DepthResult:
     with clock.step("diagnose"):
+        result = dataclasses.replace(result, coverage=coverage_of(result))
         warnings = result.warnings + diagnose(result)
     clock.close()
     timings = {**result.timings, **clock.timings, "total": time.perf_counter() - t0}

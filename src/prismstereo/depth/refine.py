@@ -34,6 +34,46 @@ def _sample(img: np.ndarray, y: int, xf: float) -> float:  # pragma: no cover - 
     return (1.0 - a) * img[y, xa] + a * img[y, xb]
 
 
+@njit(cache=True, inline="always")
+def _tap_sums(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, y: int, x: int, b0: int, lmean: float,
+              radius: int) -> tuple[float, ...]:  # pragma: no cover - numba
+    """Window sums of the two integer taps ``a = b0 + dx`` and ``b = a + 1`` of R and Rx, against the left
+    window less its mean ``lz``: Σ Ra, Σ Rb, Σ Ja, Σ Jb, Σ lz·Ja, Σ lz·Jb, Σ Ra·Ja, Σ Ra·Jb, Σ Rb·Ja, Σ Rb·Jb,
+    Σ Ja², Σ Ja·Jb, Σ Jb², Σ Ra², Σ Ra·Rb, Σ Rb², Σ lz·Ra, Σ lz·Rb (the window inside the row)."""
+    sra = srb = sja = sjb = slja = sljb = 0.0
+    sraja = srajb = srbja = srbjb = sjaja = sjajb = sjbjb = 0.0
+    srara = srarb = srbrb = slra = slrb = 0.0
+    for dy in range(-radius, radius + 1):
+        yy = y + dy
+        for dx in range(-radius, radius + 1):
+            xa = b0 + dx
+            ra = float(R[yy, xa])
+            rb = float(R[yy, xa + 1])
+            ja = float(Rx[yy, xa])
+            jb = float(Rx[yy, xa + 1])
+            lz = L[yy, x + dx] - lmean
+            sra += ra
+            srb += rb
+            sja += ja
+            sjb += jb
+            slja += lz * ja
+            sljb += lz * jb
+            sraja += ra * ja
+            srajb += ra * jb
+            srbja += rb * ja
+            srbjb += rb * jb
+            sjaja += ja * ja
+            sjajb += ja * jb
+            sjbjb += jb * jb
+            srara += ra * ra
+            srarb += ra * rb
+            srbrb += rb * rb
+            slra += lz * ra
+            slrb += lz * rb
+    return (sra, srb, sja, sjb, slja, sljb, sraja, srajb, srbja, srbjb, sjaja, sjajb, sjbjb,
+            srara, srarb, srbrb, slra, slrb)
+
+
 @njit(cache=True, parallel=True, fastmath=True)
 def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray, xs: np.ndarray, d0: np.ndarray,
                    radius: int, iterations: int, max_shift: float,
@@ -42,6 +82,10 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
 
     With zero-mean windows ``Lz``, ``Rz = R - mean R``, ``Jz = J - mean J`` over ``m`` pixels:
     ``Σ r·Jz = Σ Lz·J - (Σ R·J - m·mean R·mean J)`` and ``Σ Jz² = Σ J² - m·mean J²`` (``Σ Lz = 0``).
+    Every window pixel is shifted by the same d, so its samples are ``R = fb·Ra + fa·Rb`` (and J alike)
+    with one pair of integer taps and one fraction for the whole window: each sum is a polynomial in
+    ``fa`` whose coefficients are sums over the integer taps (:func:`_tap_sums`). These are computed once
+    per integer position ``b0`` the iterations visit (mostly one or two) instead of once per iteration.
     Returns the refined disparities, the final ZNCC and whether the pixel may keep its refinement.
     """
     n = ys.size
@@ -49,64 +93,77 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
     d_out = np.empty(n, dtype=np.float32)
     zncc = np.empty(n, dtype=np.float32)
     keep = np.zeros(n, dtype=np.bool_)
+    w = R.shape[1]
     for i in prange(n):
         y, x = ys[i], xs[i]
         init = float(d0[y, x])
-        lmean = 0.0
+        sl = 0.0
+        sl2 = 0.0
         for dy in range(-radius, radius + 1):
             for dx in range(-radius, radius + 1):
-                lmean += L[y + dy, x + dx]
-        lmean /= m
+                lv = float(L[y + dy, x + dx])
+                sl += lv
+                sl2 += lv * lv
+        lmean = sl / m
+        sll = max(sl2 - sl * lmean, 0.0)
         d = init
         textured = True
-        w = R.shape[1]
+        cached = -1
+        S: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                                0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         for _ in range(iterations):
-            sr = 0.0
-            sj = 0.0
-            slj = 0.0
-            srj = 0.0
-            sjj = 0.0
-            # every window pixel is shifted by the same d: one pair of taps for the whole window, and
-            # contiguous reads when the window stays inside the row (else the edge-replicating sampler)
             xf0 = x - d
             b0 = int(np.floor(xf0))
             fa = xf0 - b0
             fb = 1.0 - fa
-            inner = b0 - radius >= 0 and b0 + radius + 1 <= w - 1
-            for dy in range(-radius, radius + 1):
-                for dx in range(-radius, radius + 1):
-                    if inner:
-                        xa = b0 + dx
-                        rv = fb * R[y + dy, xa] + fa * R[y + dy, xa + 1]
-                        jv = fb * Rx[y + dy, xa] + fa * Rx[y + dy, xa + 1]
-                    else:
+            if b0 - radius >= 0 and b0 + radius + 1 <= w - 1:
+                if b0 != cached:
+                    S = _tap_sums(L, R, Rx, y, x, b0, lmean, radius)
+                    cached = b0
+                sr = fb * S[0] + fa * S[1]
+                sj = fb * S[2] + fa * S[3]
+                slj = fb * S[4] + fa * S[5]
+                srj = fb * fb * S[6] + fb * fa * (S[7] + S[8]) + fa * fa * S[9]
+                sjj = fb * fb * S[10] + 2.0 * fb * fa * S[11] + fa * fa * S[12]
+            else:
+                # the window leaves the row: the edge-replicating sampler, pixel by pixel
+                sr = sj = slj = srj = sjj = 0.0
+                for dy in range(-radius, radius + 1):
+                    for dx in range(-radius, radius + 1):
                         xf = x + dx - d
                         rv = _sample(R, y + dy, xf)
                         jv = _sample(Rx, y + dy, xf)
-                    lz = L[y + dy, x + dx] - lmean
-                    sr += rv
-                    sj += jv
-                    slj += lz * jv
-                    srj += rv * jv
-                    sjj += jv * jv
+                        lz = L[y + dy, x + dx] - lmean
+                        sr += rv
+                        sj += jv
+                        slj += lz * jv
+                        srj += rv * jv
+                        sjj += jv * jv
             num = slj - (srj - sr * sj / m)
             den = sjj - sj * sj / m
             textured = den > min_texture * m
             step = num / den if textured else 0.0
             step = min(max(step, -0.5), 0.5)
             d = min(max(d - step, init - max_shift), init + max_shift)
-        sr = 0.0
-        srr = 0.0
-        slr = 0.0
-        sll = 0.0
-        for dy in range(-radius, radius + 1):
-            for dx in range(-radius, radius + 1):
-                rv = _sample(R, y + dy, x + dx - d)
-                lz = L[y + dy, x + dx] - lmean
-                sr += rv
-                srr += rv * rv
-                slr += lz * rv
-                sll += lz * lz
+        xf0 = x - d
+        b0 = int(np.floor(xf0))
+        fa = xf0 - b0
+        fb = 1.0 - fa
+        if b0 - radius >= 0 and b0 + radius + 1 <= w - 1:
+            if b0 != cached:
+                S = _tap_sums(L, R, Rx, y, x, b0, lmean, radius)
+            sr = fb * S[0] + fa * S[1]
+            srr = fb * fb * S[13] + 2.0 * fb * fa * S[14] + fa * fa * S[15]
+            slr = fb * S[16] + fa * S[17]
+        else:
+            sr = srr = slr = 0.0
+            for dy in range(-radius, radius + 1):
+                for dx in range(-radius, radius + 1):
+                    rv = _sample(R, y + dy, x + dx - d)
+                    lz = L[y + dy, x + dx] - lmean
+                    sr += rv
+                    srr += rv * rv
+                    slr += lz * rv
         var_r = srr - sr * sr / m
         den = np.sqrt(sll * var_r)
         zncc[i] = slr / den if den > 0.0 else np.nan
@@ -124,72 +181,100 @@ def _window_valid(VL: np.ndarray, VR: np.ndarray, y: int, xl: int, xa: int) -> b
 
 
 @njit(cache=True)
+def _masked_tap_sums(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray, VR: np.ndarray, y: int,
+                     x: int, b0: int, radius: int) -> tuple[float, ...]:  # pragma: no cover - numba
+    """:func:`_tap_sums` over the window pixels that count (:func:`_window_valid`; with the taps at ``b0 + dx``
+    the set is the same for every fraction), on the raw left window: m, Σ L, Σ L², then Σ Ra, Σ Rb, Σ Ja,
+    Σ Jb, Σ L·Ja, Σ L·Jb, Σ Ra·Ja, Σ Ra·Jb, Σ Rb·Ja, Σ Rb·Jb, Σ Ja², Σ Ja·Jb, Σ Jb², Σ Ra², Σ Ra·Rb,
+    Σ Rb², Σ L·Ra, Σ L·Rb."""
+    m = sl = sll = 0.0
+    sra = srb = sja = sjb = slja = sljb = 0.0
+    sraja = srajb = srbja = srbjb = sjaja = sjajb = sjbjb = 0.0
+    srara = srarb = srbrb = slra = slrb = 0.0
+    for dy in range(-radius, radius + 1):
+        for dx in range(-radius, radius + 1):
+            xa = b0 + dx
+            if not _window_valid(VL, VR, y + dy, x + dx, xa):
+                continue
+            ra = float(R[y + dy, xa])
+            rb = float(R[y + dy, xa + 1])
+            ja = float(Rx[y + dy, xa])
+            jb = float(Rx[y + dy, xa + 1])
+            lv = float(L[y + dy, x + dx])
+            m += 1.0
+            sl += lv
+            sll += lv * lv
+            sra += ra
+            srb += rb
+            sja += ja
+            sjb += jb
+            slja += lv * ja
+            sljb += lv * jb
+            sraja += ra * ja
+            srajb += ra * jb
+            srbja += rb * ja
+            srbjb += rb * jb
+            sjaja += ja * ja
+            sjajb += ja * jb
+            sjbjb += jb * jb
+            srara += ra * ra
+            srarb += ra * rb
+            srbrb += rb * rb
+            slra += lv * ra
+            slrb += lv * rb
+    return (m, sl, sll, sra, srb, sja, sjb, slja, sljb, sraja, srajb, srbja, srbjb, sjaja, sjajb, sjbjb,
+            srara, srarb, srbrb, slra, slrb)
+
+
+@njit(cache=True)
 def _refine_masked(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray, VR: np.ndarray, y: int, x: int,
                    init: float, radius: int, iterations: int, max_shift: float, min_texture: float,
                    min_pixels: int) -> tuple[float, float, bool]:  # pragma: no cover - numba
     """Gauss–Newton of one pixel whose window is cut by an edge: the sums run over the window's pixels that
     lie in both views (re-selected at each step, since the right taps move with d); the means, the texture
-    test and the ZNCC are those of these pixels. Fewer than ``min_pixels`` of them: not refined."""
+    test and the ZNCC are those of these pixels. Fewer than ``min_pixels`` of them: not refined. The sums
+    come from :func:`_masked_tap_sums`, once per integer tap position visited (as in :func:`_refine_kernel`)."""
     d = init
     textured = True
+    cached = int(np.floor(x - d))
+    S = _masked_tap_sums(L, R, Rx, VL, VR, y, x, cached, radius)
     for _ in range(iterations):
-        m = 0
-        sl = 0.0
-        sr = 0.0
-        sj = 0.0
-        slj = 0.0
-        srj = 0.0
-        sjj = 0.0
-        for dy in range(-radius, radius + 1):
-            for dx in range(-radius, radius + 1):
-                xf = x + dx - d
-                xa = int(np.floor(xf))
-                if not _window_valid(VL, VR, y + dy, x + dx, xa):
-                    continue
-                fa = xf - xa
-                fb = 1.0 - fa
-                rv = fb * R[y + dy, xa] + fa * R[y + dy, xa + 1]
-                jv = fb * Rx[y + dy, xa] + fa * Rx[y + dy, xa + 1]
-                lv = L[y + dy, x + dx]
-                m += 1
-                sl += lv
-                sr += rv
-                sj += jv
-                slj += lv * jv
-                srj += rv * jv
-                sjj += jv * jv
+        xf0 = x - d
+        b0 = int(np.floor(xf0))
+        if b0 != cached:
+            S = _masked_tap_sums(L, R, Rx, VL, VR, y, x, b0, radius)
+            cached = b0
+        m = S[0]
         if m < min_pixels:
             return d, np.nan, False
+        fa = xf0 - b0
+        fb = 1.0 - fa
+        sl = S[1]
+        sr = fb * S[3] + fa * S[4]
+        sj = fb * S[5] + fa * S[6]
+        slj = fb * S[7] + fa * S[8]
+        srj = fb * fb * S[9] + fb * fa * (S[10] + S[11]) + fa * fa * S[12]
+        sjj = fb * fb * S[13] + 2.0 * fb * fa * S[14] + fa * fa * S[15]
         num = (slj - sl * sj / m) - (srj - sr * sj / m)
         den = sjj - sj * sj / m
         textured = den > min_texture * m
         step = num / den if textured else 0.0
         step = min(max(step, -0.5), 0.5)
         d = min(max(d - step, init - max_shift), init + max_shift)
-    m = 0
-    sl = 0.0
-    sll = 0.0
-    sr = 0.0
-    srr = 0.0
-    slr = 0.0
-    for dy in range(-radius, radius + 1):
-        for dx in range(-radius, radius + 1):
-            xf = x + dx - d
-            xa = int(np.floor(xf))
-            if not _window_valid(VL, VR, y + dy, x + dx, xa):
-                continue
-            fa = xf - xa
-            rv = (1.0 - fa) * R[y + dy, xa] + fa * R[y + dy, xa + 1]
-            lv = L[y + dy, x + dx]
-            m += 1
-            sl += lv
-            sll += lv * lv
-            sr += rv
-            srr += rv * rv
-            slr += lv * rv
+    xf0 = x - d
+    b0 = int(np.floor(xf0))
+    if b0 != cached:
+        S = _masked_tap_sums(L, R, Rx, VL, VR, y, x, b0, radius)
+    m = S[0]
     if m < min_pixels:
         return d, np.nan, False
-    den = np.sqrt(max(sll - sl * sl / m, 0.0) * max(srr - sr * sr / m, 0.0))
+    fa = xf0 - b0
+    fb = 1.0 - fa
+    sl = S[1]
+    sr = fb * S[3] + fa * S[4]
+    srr = fb * fb * S[16] + 2.0 * fb * fa * S[17] + fa * fa * S[18]
+    slr = fb * S[19] + fa * S[20]
+    den = np.sqrt(max(S[2] - sl * sl / m, 0.0) * max(srr - sr * sr / m, 0.0))
     zncc = (slr - sl * sr / m) / den if den > 0.0 else np.nan
     keep = textured and np.isfinite(d) and abs(d - init) < max_shift - 1e-3
     return d, zncc, keep

@@ -13,6 +13,12 @@ nearest allowed disparity and the run reports success. Instead the range is deri
 When the images give too little support (noise, a photo that is no prism capture, no texture) the rig
 range is kept and a warning says so. :func:`depth_warnings` turns coverage, match confidence and the
 share of matches at the search limits into one-line warnings (also written to ``run.json``).
+
+Coverage (:func:`scene_coverage`) is measured against the common view at the depths the run found, not the
+common view of the whole searched range: a searched range left wide (the coarse match could not narrow it)
+makes the latter several times larger than what the scene can fill, and a good result would read as a
+failure. The found depths are the 1st–99th percentiles of the points' disparities; with too few points to
+tell, the denominator is the searched common view again.
 """
 
 from __future__ import annotations
@@ -32,8 +38,8 @@ from prismstereo.rectify import RectifiedPair, common_view, rectify_pair, view_o
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SearchRange", "auto_search_range", "depth_warnings", "estimate_disparity_range", "rig_depth_range",
-           "view_overlap"]
+__all__ = ["Coverage", "SearchRange", "auto_search_range", "depth_warnings", "estimate_disparity_range",
+           "rig_depth_range", "scene_coverage", "view_overlap"]
 
 #: a depth is part of the rig's range when the views share at least this fraction of their best overlap
 OVERLAP_FRACTION = 0.25
@@ -47,6 +53,81 @@ MIN_SUPPORT = 0.05
 MIN_COVERAGE = 0.2
 #: warnings: fewer confident (refined) matches than this share of the matcher's consistent ones
 MIN_CONFIDENT = 0.4
+#: coverage: percentiles of the points' disparities taken as the scene's range (a few outliers aside)
+SCENE_PERCENTILES = (1.0, 99.0)
+#: coverage: fewer points than this do not tell the scene's range; the searched common view is used
+MIN_SCENE_POINTS = 100
+
+
+@dataclass(frozen=True)
+class Coverage:
+    """The share of a common view that got a depth (:func:`scene_coverage`).
+
+    Attributes
+    ----------
+    points : int  points inside the view.
+    pixels : int  pixels of the view.
+    of : str  ``"found"`` (the common view at the disparities the points span) or ``"searched"`` (the
+        common view of the whole searched range: too few points to tell the scene's range).
+    disparity_px : (min, max) or None  the disparities of the view (``"found"``), px.
+    depth_mm : (min, max) or None  the points' depths at the same percentiles, mm.
+    """
+
+    points: int
+    pixels: int
+    of: str
+    disparity_px: tuple[int, int] | None = None
+    depth_mm: tuple[float, float] | None = None
+
+    @property
+    def share(self) -> float:
+        return self.points / max(self.pixels, 1)
+
+    def describe(self, searched_mm: tuple[float, float]) -> str:
+        """What the share is of, in words (for messages)."""
+        if self.of == "found" and self.depth_mm is not None:
+            return f"the common view at the depths found ({self.depth_mm[0]:.0f}–{self.depth_mm[1]:.0f} mm)"
+        return f"the common view of the searched depths ({searched_mm[0]:.0f}–{searched_mm[1]:.0f} mm)"
+
+    def to_dict(self) -> dict[str, object]:
+        return {"share": round(self.share, 4), "points": self.points, "pixels": self.pixels, "of": self.of,
+                "disparity_px": None if self.disparity_px is None else list(self.disparity_px),
+                "depth_mm": None if self.depth_mm is None else [round(v, 1) for v in self.depth_mm]}
+
+
+def scene_coverage(disparity: np.ndarray, valid: np.ndarray, depth: np.ndarray, searched: np.ndarray,
+                   valid_right: np.ndarray) -> Coverage:
+    """The share of the common view at the depths found that got a point.
+
+    The view: searched pixels for which some disparity between the 1st and 99th percentile of the points'
+    (rounded outwards) lands in the right view's valid region.
+
+    Parameters
+    ----------
+    disparity : (h, w) float  the disparities triangulated, px, NaN none.
+    valid : (h, w) bool  pixels with a point.
+    depth : (h, w) float  the points' depths, mm.
+    searched : (h, w) bool  the pixels that could get a point (the searched common view).
+    valid_right : (h, w) bool  the right view's valid region.
+    """
+    ok = valid & np.isfinite(disparity)
+    n = int(ok.sum())
+    if n < MIN_SCENE_POINTS:
+        return Coverage(points=int((valid & searched).sum()), pixels=int(searched.sum()), of="searched")
+    p_lo, p_hi = SCENE_PERCENTILES
+    d_lo, d_hi = np.percentile(disparity[ok], [p_lo, p_hi])
+    z_near, z_far = np.percentile(depth[ok], [p_lo, p_hi])
+    lo, hi = int(math.floor(d_lo)), int(math.ceil(d_hi))
+    h, w = searched.shape
+    # right-view pixels in [x − hi, x − lo] per row, by a running count
+    run = np.zeros((h, w + 1), dtype=np.int32)
+    np.cumsum(np.asarray(valid_right, dtype=bool), axis=1, out=run[:, 1:])
+    x = np.arange(w)
+    a = np.clip(x - hi, 0, w)
+    b = np.clip(x - lo + 1, 0, w)
+    view = searched & (run[:, b] > run[:, a])
+    return Coverage(points=int((valid & view).sum()), pixels=int(view.sum()), of="found", disparity_px=(lo, hi),
+                    depth_mm=(float(z_near), float(z_far)))
 
 
 @dataclass(frozen=True)
@@ -174,7 +255,7 @@ def auto_search_range(pair: RectifiedPair, back_mm: float, left: np.ndarray, rig
 
 def depth_warnings(*, points: int, region_pixels: int, matched: int, confident: int | None,
                    disparity: np.ndarray | None, valid: np.ndarray | None, disparity_range: tuple[int, int],
-                   depth_range: tuple[float, float]) -> list[str]:
+                   depth_range: tuple[float, float], coverage: Coverage | None = None) -> list[str]:
     """One-line warnings about a finished depth run (empty when nothing looks wrong).
 
     Parameters
@@ -184,16 +265,18 @@ def depth_warnings(*, points: int, region_pixels: int, matched: int, confident: 
         confident ones (None when refinement was off).
     disparity, valid : the matcher's raw disparity and its consistency mask (for the limit shares).
     disparity_range, depth_range : what was searched.
+    coverage : the share of the common view at the depths found (:func:`scene_coverage`); None: points over
+        ``region_pixels``.
     """
     zr = f"{depth_range[0]:.0f}–{depth_range[1]:.0f} mm"
     if points == 0:
         return [f"no depth recovered: nothing in the searched depth range {zr} matched (wrong --depth-range, "
                 "or the image is not a capture of this prism rig)"]
     out: list[str] = []
-    coverage = points / max(region_pixels, 1)
-    if coverage < MIN_COVERAGE:
-        out.append(f"only {100 * coverage:.1f} % of the common view got a depth: the result is unreliable "
-                   f"(scene outside {zr}, too little texture, or not a capture of this prism rig)")
+    cov = coverage if coverage is not None else Coverage(points=points, pixels=region_pixels, of="searched")
+    if cov.share < MIN_COVERAGE:
+        out.append(f"only {100 * cov.share:.1f} % of {cov.describe(depth_range)} got a depth: the result is "
+                   f"unreliable (scene outside {zr}, too little texture, or not a capture of this prism rig)")
     if confident is not None and matched > 0 and confident / matched < MIN_CONFIDENT:
         out.append(f"only {100 * confident / matched:.1f} % of the matches are confident after refinement: the "
                    "images do not look like two views of one scene (not a prism capture of this rig?)")
