@@ -200,14 +200,13 @@ def _layered_views(ratios: list[float], d_bg: float, d_fg: float) -> tuple[np.nd
 def test_global_recovers_layered_scene_with_and_without_the_edge_steps(overrides: dict) -> None:
     from dataclasses import replace
 
-    from prismstereo.matching.coop.steps import FineParams
     from prismstereo.multiview.globalmv import GlobalMultiViewParams, match_multiview_global
 
     ratios = [-1.0, 1.0, 2.0]
     ref, views, gt = _layered_views(ratios, 2.0, 6.0)
     p = GlobalMultiViewParams()
     if "fine_extra" in overrides:
-        p = replace(p, steps=replace(p.steps, fine=FineParams(levels=((3.0, 10), *overrides["fine_extra"]))))
+        p = replace(p, steps=replace(p.steps, fine=replace(p.steps.fine, levels=((3.0, 10), *overrides["fine_extra"]))))
     else:
         p = replace(p, **overrides)
     res = match_multiview_global(ref, views, ratios=ratios, max_disp=8, params=p)

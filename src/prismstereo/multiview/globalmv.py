@@ -120,7 +120,7 @@ I32 = npt.NDArray[np.int32]
 MULTIVIEW_STEPS = StepParams(
     bpasw_planes=BpaswPlanesParams(rounds=2),
     sweep=SweepParams(frac=0.35, min_px=40, step=2),
-    fine=FineParams(levels=((3.0, 10), (1.5, 3), (1.0, 1))),
+    fine=FineParams(levels=((3.0, 10), (1.5, 3), (1.0, 1)), check=1),
     boundary=BoundaryParams(agree=2),
     median=MedianParams(radius=3),
     fallback=FallbackParams(enabled=False),

@@ -209,6 +209,26 @@ def test_fine_segments_keep_moves_only_with_evidence() -> None:
     assert fs.info["fine_moves"] == 0
 
 
+def test_fine_segments_without_evidence_follow_the_data_term_only_when_check_vetoes() -> None:
+    """A sliver no evidence pixel covers: the count rule (``check`` 1) cannot move it, the veto rule (``check``
+    0: undone only where the evidence is against the move) leaves the move to the optimisation."""
+    from prismstereo.matching.coop.refine import refine_fine_segments
+    from prismstereo.matching.segments.segmentation import SegmentationParams
+
+    img, labels, planes, cost, truth = _straddling_scene()
+    ok = np.ones(labels.shape, bool)
+    blind = ok & (np.abs(np.arange(labels.shape[1]) - 27.5)[None, :] > 3)  # no evidence on the straddling columns
+    seg = SegmentationParams(hr=3.0, min_region=10)
+    kw = {"segmentation": seg, "coop": CoopParams()}
+    count = refine_fine_segments(img, labels, np.array([0, 1], np.int32), planes, cost, ok, blind, truth,
+                                 check=1, **kw)
+    veto = refine_fine_segments(img, labels, np.array([0, 1], np.int32), planes, cost, ok, blind, truth,
+                                check=0, **kw)
+    assert count.info["fine_moves"] == 0
+    assert veto.info["fine_moves"] >= 1
+    np.testing.assert_allclose(veto.planes[veto.assign][veto.labels][..., 2], truth)
+
+
 def test_cooperative_optimize_leaves_inactive_segments_alone() -> None:
     img, labels, planes, cost, truth = _straddling_scene()
     labels = np.where(np.arange(60)[None, :] < 30, 0, 1).astype(np.int32) * np.ones((40, 1), np.int32)

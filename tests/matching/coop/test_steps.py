@@ -20,7 +20,7 @@ def test_every_named_step_has_one_function_in_the_order_of_the_sequence() -> Non
 @pytest.mark.parametrize("steps", [{"sweep": {"frac": 1.5}}, {"sweep": {"keep": 0}}, {"boundary": {"agree": 3}},
                                    {"fine": {"levels": [[0.0, 10]]}}, {"median": {"radius": -1}},
                                    {"refit": {"rounds": -1}}, {"bpasw_planes": {"rounds": 4}}, {"swep": {}},
-                                   {"sweep": {"fraction": 0.3}}, {"sweep": 0.3}])
+                                   {"sweep": {"fraction": 0.3}}, {"sweep": 0.3}, {"fine": {"check": -1}}])
 def test_bad_step_parameters_fail_when_the_matcher_is_built(steps: dict) -> None:
     # the registry builds the matcher (and so validates every step) before any image is read
     with pytest.raises(ConfigError):

@@ -160,7 +160,7 @@ def refine_fine_segments(image: npt.NDArray[np.uint8], labels: npt.NDArray[np.in
                          assign: npt.NDArray[np.int32], planes: npt.NDArray[np.float64], cost: F32,
                          reliable: npt.NDArray[np.bool_], evidence: npt.NDArray[np.bool_], reference: F32, *,
                          segmentation: SegmentationParams, coop: CoopParams, min_disp: int = 0,
-                         beta_scale: float = 1.0, check: int = 1,
+                         beta_scale: float = 1.0, check: int | None = 1,
                          slopes: tuple[float, ...] | None = None) -> FineSegments:
     """Finer segments along plane boundaries resume the cooperative optimisation (an addition to §6.2).
 
@@ -168,7 +168,7 @@ def refine_fine_segments(image: npt.NDArray[np.uint8], labels: npt.NDArray[np.in
     ``labels``; each fine segment starts from its segment's plane, and those touching a fine segment on
     another plane may take a neighbour's plane by the cooperative scheme (Eq. 6.19) on ``cost``. A move is
     kept only when at least ``check`` more of the fine segment's ``evidence`` pixels lie within 1 px of
-    ``reference`` under the new plane than under the old (0 = keep every move).
+    ``reference`` under the new plane than under the old (0: not fewer; None = keep every move).
 
     Parameters
     ----------
@@ -200,8 +200,8 @@ def refine_fine_segments(image: npt.NDArray[np.uint8], labels: npt.NDArray[np.in
                                                  min_disp=min_disp, active=active, slopes=slopes,
                                                  params=dataclasses.replace(coop, neighbour_own_planes=False))
     moved = np.flatnonzero(new != fa)
-    if check and moved.size:
-        # the data term of a 10-pixel segment is noisy: the trusted initial disparities must side with the move
+    if check is not None and moved.size:
+        # the data term of a 10-pixel segment is noisy: the trusted initial disparities may veto the move
         h, w = labels.shape
         yy, xx = np.mgrid[0:h, 0:w]
         fl = flab.ravel()

@@ -139,15 +139,16 @@ class FineParams:
     """``fine``: one level per ``(hr, min_region)`` of ``levels``, each a mean shift of that range radius inside
     the previous level's segments; fine segments touching another plane resume the optimisation and keep a move
     only when at least ``check`` more of their evidence pixels lie within 1 px of the new plane than of the old
-    (0 = keep every move). ``levels`` empty = off."""
+    (0: not fewer, the evidence only vetoes; None = keep every move). ``levels`` empty = off."""
 
     levels: tuple[tuple[float, int], ...] = ((3.0, 10),)
-    check: int = 1
+    check: int | None = 0
 
     def __post_init__(self) -> None:
         lv = tuple((float(h), int(m)) for h, m in self.levels)
         _need(all(h > 0 and m >= 1 for h, m in lv), "fine.levels of (hr > 0, min_region >= 1)", self.levels)
-        _need(self.check >= 0, "fine.check >= 0", self.check)
+        _need(self.check is None or (isinstance(self.check, int) and self.check >= 0), "fine.check >= 0 or None",
+              self.check)
         object.__setattr__(self, "levels", lv)
 
 
