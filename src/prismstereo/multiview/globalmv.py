@@ -592,6 +592,9 @@ class _ViewsEvidence:
         data[selected] = hb[selected]
         self.check_data, self.data = self.data, np.ascontiguousarray(data, np.float32)
 
+    def segments(self, params: SegmentationParams) -> npt.NDArray[np.int32]:
+        return mean_shift_segment(self.image, params=params)
+
     def fine_evidence(self, tol: float) -> tuple[npt.NDArray[np.bool_], F32] | None:
         if self.fused0 is None or self.fb is None:
             return None

@@ -99,6 +99,24 @@ def test_remembered_data_terms_match_fresh_ones() -> None:
     np.testing.assert_array_equal(a_one, a_step)
 
 
+def test_cached_energy_is_the_fresh_energy_to_the_bit() -> None:
+    """The remembered data terms are computed in parallel and summed in segment order: across assignments
+    whose z-buffers differ, the cached energy equals the one computed afresh exactly."""
+    from prismstereo.matching.coop import cooperative as co
+
+    idx, pset, rel, graph, cost = _optimisation_inputs(4)
+    prm = co._prm(CoopParams())
+    common = (idx.order, idx.starts, idx.shape[1], co._flat_cost(cost, None), 0, rel.ravel(), graph.pairs,
+              graph.bstart, graph.bp_lo, graph.bp_hi, graph.bw)
+    cache = co._new_cache(idx, idx.n_segments)
+    rng = np.random.default_rng(5)
+    a = rng.integers(0, len(pset), size=idx.n_segments).astype(np.int32)
+    for _ in range(6):
+        assert co._energy_cached(a, pset, *common, prm, *cache) == co._energy(a, pset, *common, prm)
+        moved = rng.choice(idx.n_segments, size=max(1, idx.n_segments // 5), replace=False)
+        a[moved] = rng.integers(0, len(pset), size=moved.size)
+
+
 def test_powell_refinement_lowers_energy_and_keeps_it_monotone() -> None:
     idx, pset, rel, graph, cost = _optimisation_inputs(3)
     a0 = np.zeros(idx.n_segments, np.int32)  # everything on one plane: a poor start
@@ -193,6 +211,20 @@ def test_fine_segments_move_the_straddling_columns_to_their_plane() -> None:
     assert np.array_equal(fs.parent[fs.labels], labels)  # fine segments nest in the coarse ones
     np.testing.assert_allclose(disp, truth)
     assert fs.info["fine_moves"] >= 1
+
+
+def test_fine_segments_given_ahead_are_the_ones_computed_inside() -> None:
+    from prismstereo.matching.coop.refine import refine_fine_segments
+    from prismstereo.matching.segments.segmentation import SegmentationParams
+
+    img, labels, planes, cost, truth = _straddling_scene()
+    ok = np.ones(labels.shape, bool)
+    seg = SegmentationParams(hr=3.0, min_region=10)
+    args = (img, labels, np.array([0, 1], np.int32), planes, cost, ok, ok, truth)
+    inside = refine_fine_segments(*args, segmentation=seg, coop=CoopParams())
+    ahead = refine_fine_segments(*args, segmentation=seg, coop=CoopParams(), fine=mean_shift_segment(img, params=seg))
+    for name in ("labels", "assign", "planes", "parent"):
+        np.testing.assert_array_equal(getattr(ahead, name), getattr(inside, name))
 
 
 def test_fine_segments_keep_moves_only_with_evidence() -> None:

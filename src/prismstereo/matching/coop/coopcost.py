@@ -93,7 +93,7 @@ def _ad_cost(left: F32, right: F32, gl: F32, gr: F32, y: int, x: int, xr: int, t
     return 1.0 - np.exp(-(ad + gd) / lam_ad)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _ad_term(left: F32, right: F32, gl: F32, gr: F32, min_disp: int, ndisp: int, tau_c: float, tau_g: float,
              lam_ad: float) -> npt.NDArray[np.float64]:
     """The colour + gradient part ``1 - exp(-(AD + ∇) / λ_ad)`` of :func:`_raw_cost` (NaN where x - d falls
@@ -120,7 +120,7 @@ def _reflect(p: int, n: int) -> int:
     return p
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _census_row_box(ad: npt.NDArray[np.float64], cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint64],
                     min_disp: int, lam_c: float, r: int, mask: npt.NDArray[np.bool_], out: F32) -> None:
     """``out[y, x]``: the (2r+1)-pixel row mean of the pixel costs ``ad + census`` (:func:`_raw_cost`'s) at
@@ -165,7 +165,7 @@ def _census_row_box(ad: npt.NDArray[np.float64], cl: npt.NDArray[np.uint64], cr:
                 out[y, x, k] = acc[k] * inv
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _raw_cost(left: F32, right: F32, gl: F32, gr: F32, cl: npt.NDArray[np.uint64],
               cr: npt.NDArray[np.uint64], min_disp: int, ndisp: int, tau_c: float, tau_g: float,
               lam_ad: float, lam_c: float) -> F32:
@@ -184,7 +184,7 @@ def _raw_cost(left: F32, right: F32, gl: F32, gr: F32, cl: npt.NDArray[np.uint64
     return out
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _left_to_right(vol: F32, min_disp: int) -> F32:
     """Right-view volume: C_R(y, x, k) = C_L(y, x + d, k), maximum 2 outside the left image."""
     h, w, nd = vol.shape
@@ -265,7 +265,7 @@ def guided_filter_volume(guide: npt.NDArray[np.generic], vol: F32, *, radius: in
     return out
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _gf_products(blk: F32, img: F32) -> F32:
     """(3, H, W, S): ``blk * img[..., c]`` per colour channel."""
     h, w, ns = blk.shape
@@ -279,7 +279,7 @@ def _gf_products(blk: F32, img: F32) -> F32:
     return out
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _gf_coefficients(mean_p: F32, b0: F32, b1: F32, b2: F32, mean_i: F32, inv: F32) -> F32:
     """(4, H, W, S): the guided filter's a (3 channels) and b from the boxed products (He et al. 2013)."""
     h, w, ns = mean_p.shape
@@ -304,7 +304,7 @@ def _gf_coefficients(mean_p: F32, b0: F32, b1: F32, b2: F32, mean_i: F32, inv: F
     return out
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _gf_output(qb: F32, qa0: F32, qa1: F32, qa2: F32, img: F32, out: F32) -> None:
     """``out = box(b) + Σ_c box(a_c) img_c`` (in that order of additions)."""
     h, w, ns = qb.shape
@@ -383,7 +383,7 @@ def aggregated_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generi
     return agg_l, agg_r
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _census_sheared(gray: F32, ry: int, rx: int, slope: float) -> npt.NDArray[np.uint64]:
     """Census of ``gray`` over a window whose row ``dy`` is shifted by ``-round(slope * dy)`` columns.
 
@@ -408,7 +408,7 @@ def _census_sheared(gray: F32, ry: int, rx: int, slope: float) -> npt.NDArray[np
     return out
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _shear_box_rows(hb: F32, slope: float, r: int, out: F32) -> None:
     """``out[y, x, k] = mean over |dy| <= r of hb[y + dy, x, k + slope * dy]`` (linear in k, rows clamped)."""
     h, w, nd = hb.shape

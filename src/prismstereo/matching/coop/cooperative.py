@@ -416,7 +416,7 @@ def _data_cached(j: int, lab: int, planes: F64, order: I64, starts: I64, w: int,
     return v
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _energy_cached(assign: I32, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
                    reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
                    prm: F64, zc1: F64, oc1: I64, zc2: F64, zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64,
@@ -428,10 +428,15 @@ def _energy_cached(assign: I32, planes: F64, order: I64, starts: I64, w: int, co
                                  cval, cn)
     gamma = prm[5]
     thr = prm[6]
+    # the data terms in parallel (each segment's cache rows are written by one thread), summed in order: the
+    # same sum as one serial loop
+    dj = np.empty(k)
+    for j in prange(k):
+        dj[j] = _data_cached(j, assign[j], planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
+                             clab, cval, cn)
     e = 0.0
     for j in range(k):
-        e += _data_cached(j, assign[j], planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
-                          clab, cval, cn)
+        e += dj[j]
     return _add_smoothness(e, assign, planes, pairs, bstart, bp_lo, bp_hi, bw, w, gamma, thr)
 
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -401,8 +402,11 @@ class _PairEvidence:
                  brel: npt.NDArray[np.bool_], nonplanar: npt.NDArray[np.bool_],
                  evidence: npt.NDArray[np.bool_], coop: CoopParams,
                  segmentation: SegmentationParams, planes: PlaneParams, cost: CostParams,
-                 slopes: tuple[float, ...] | None, bright: npt.NDArray[np.int64] | None = None):
+                 slopes: tuple[float, ...] | None, bright: npt.NDArray[np.int64] | None = None,
+                 segments: dict[SegmentationParams, Future[npt.NDArray[np.int32]]] | None = None):
         self.image, self.right = lft, rgt
+        self._segments = dict(segments or {})
+        self._data_copy: Future[F32] | None = None  # segmentations of the image computed ahead (the fine step's)
         # the right view's winners of the BPASW volume (read by the occlusion and fallback steps)
         self.bright = selection.right_winner(bvol, min_disp=min_disp) if bright is None else bright
         self.min_disp, self.max_disp = int(min_disp), int(max_disp)
@@ -430,6 +434,11 @@ class _PairEvidence:
         return self.bdisp, self.brel
 
     def sweep(self, s: PlaneLabels, p: SweepParams) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+        if self.slopes is not None and p.row_box >= 0:
+            # the row-only step that follows rewrites a copy of the data term: made while the candidates run
+            pool = ThreadPoolExecutor(max_workers=1)
+            self._data_copy = pool.submit(np.copy, self.data)
+            pool.shutdown(wait=False)
         return segment_sweep_candidates(self.image, self.right, s.labels, s.index, s.assign, s.planes,
                                         min_disp=self.min_disp, max_disp=self.max_disp, frac=p.frac,
                                         slopes=p.slopes, keep=p.keep, min_px=p.min_px, step=p.step,
@@ -443,10 +452,15 @@ class _PairEvidence:
             hb = box_filter_volume(raw_cost(self.image, self.right, **kw), p.row_box, vertical=False)  # type: ignore[arg-type]
             hb[~selected] = self.data[~selected]
         else:
-            hb = self.data.copy()
+            ahead, self._data_copy = self._data_copy, None
+            hb = self.data.copy() if ahead is None else ahead.result()
             sheared_row_costs_at(self.image, self.right, selected, hb, **kw,  # type: ignore[arg-type]
                                  slopes=self.slopes, radius=p.row_box)
         self.check_data, self.data = self.data, hb
+
+    def segments(self, params: SegmentationParams) -> npt.NDArray[np.int32]:
+        ahead = self._segments.pop(params, None)
+        return mean_shift_segment(self.image, params=params) if ahead is None else ahead.result()
 
     def fine_evidence(self, tol: float) -> tuple[npt.NDArray[np.bool_], F32]:
         return _pair_agreement(self.reliable, self.initial, self.brel, self.bdisp, tol), self.initial
@@ -481,6 +495,24 @@ class _PairEvidence:
             return final
         return np.where(local, bpasw_dense_map(self.bvol, self.image, min_disp=self.min_disp,
                                                right_winner=self.bright, where=local), final)
+
+
+def _guided_initial(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, max_disp: int, min_disp: int,
+                    params: CostParams, tolerance: float) -> tuple[F32, npt.NDArray[np.bool_]]:
+    """The cross-checked initial map of the guided-filter volumes (thesis §6.1): (H, W) float32 and bool."""
+    raw = raw_cost(left, right, max_disp=max_disp, min_disp=min_disp, params=params)
+    agg_l, agg_r = aggregated_costs(left, right, max_disp=max_disp, min_disp=min_disp, params=params, raw=raw)
+    return initial_disparity(agg_l, agg_r, min_disp=min_disp, tolerance=tolerance)
+
+
+def _data_volume(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, max_disp: int, min_disp: int,
+                 data: DataTermParams, cost: CostParams) -> F32:
+    """The data term's pixel-cost volume (Eqs. 6.21-6.22): sheared per slope, or one box-filtered volume."""
+    if data.slopes:
+        return sheared_costs(left, right, max_disp=max_disp, min_disp=min_disp, params=data.cost or cost,
+                             slopes=data.slopes, radius=data.radius)
+    raw = raw_cost(left, right, max_disp=max_disp, min_disp=min_disp, params=data.cost or cost)
+    return box_filter_volume(raw, data.radius)
 
 
 def _pair_agreement(reliable: npt.NDArray[np.bool_], initial: F32, brel: npt.NDArray[np.bool_], bdisp: F32,
@@ -533,18 +565,29 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     tol = st.boundary.tol
 
     t = time.perf_counter()
+    # Independent front-end stages run on two threads (their kernels release the GIL): the guided-filter
+    # initial map and then the data term's sheared volumes on one, the segmentation (unless it needs the initial
+    # map) and the BPASW volume on the other. Serial pieces (OpenCV box filters and mean shift, Python glue)
+    # then overlap with parallel kernels instead of leaving a core idle; every result is the same.
+    pool = ThreadPoolExecutor(max_workers=1)
+    fut_init = pool.submit(_guided_initial, lft, rgt, max_disp=max_disp, min_disp=min_disp, params=cp,
+                           tolerance=dp.check_tolerance)
+    fut_data = pool.submit(_data_volume, lft, rgt, max_disp=max_disp, min_disp=min_disp, data=dp, cost=cp)
+    # the fine step's segmentations read the image only
+    fine_seg = [dataclasses.replace(sp, hr=float(hr), min_region=int(m)) for hr, m in st.fine.levels]
+    ahead = {f: pool.submit(mean_shift_segment, lft, params=f) for f in fine_seg}
+    pool.shutdown(wait=False)  # the two tasks still run; their results are awaited below
+    labels = None if sp.depth_tau > 0 else mean_shift_segment(lft, params=sp)
     bvol = bpasw_volume(lft, rgt, max_disp=max_disp, min_disp=min_disp)
     # cross-checked BPASW map (integer WTA must agree exactly), parabola subpixel
     bright = selection.right_winner(bvol, min_disp=min_disp)
     brel0, bdisp0 = _bpasw_reliable(bvol, bright, min_disp)
-    raw: F32 | None = raw_cost(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=cp)
-    agg_l, agg_r = aggregated_costs(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=cp, raw=raw)
-    initial, reliable = initial_disparity(agg_l, agg_r, min_disp=min_disp, tolerance=dp.check_tolerance)
-    del agg_r, agg_l
+    initial, reliable = fut_init.result()
     tm["initial"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    labels = mean_shift_segment(lft, params=sp, disparity=initial if sp.depth_tau > 0 else None)
+    if labels is None:
+        labels = mean_shift_segment(lft, params=sp, disparity=initial)
     tm["segmentation"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -577,20 +620,12 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
 
     t = time.perf_counter()
     graph = build_segment_graph(labels, lft)
-    if dp.slopes:
-        raw = None  # the sheared volumes compute their own pixel costs: free the initial map's first
-        dcost = sheared_costs(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=dp.cost or cp,
-                              slopes=dp.slopes, radius=dp.radius)
-    else:
-        if dp.cost is not None or raw is None:
-            raw = raw_cost(lft, rgt, max_disp=max_disp, min_disp=min_disp, params=dp.cost or cp)
-        dcost = box_filter_volume(raw, dp.radius)
-    del raw
+    dcost = fut_data.result()
     ev = _PairEvidence(lft, rgt, min_disp=min_disp, max_disp=max_disp, data=dcost, reliable=reliable,
                        initial=initial, bvol=bvol, bdisp=bdisp0, brel=brel0, nonplanar=nonplanar,
                        evidence=evidence, coop=op,
                        segmentation=sp, planes=pp, cost=dp.cost or cp, slopes=dp.slopes or None,
-                       bright=bright)
+                       bright=bright, segments=ahead)
     state = PlaneLabels(labels=labels, index=index, graph=graph, assign=assign0, planes=plane_set, own=own,
                         parent=np.arange(k, dtype=np.int64), pairs=pairs,
                         info={"split_pieces": float(split.size)})

@@ -161,7 +161,8 @@ def refine_fine_segments(image: npt.NDArray[np.uint8], labels: npt.NDArray[np.in
                          reliable: npt.NDArray[np.bool_], evidence: npt.NDArray[np.bool_], reference: F32, *,
                          segmentation: SegmentationParams, coop: CoopParams, min_disp: int = 0,
                          beta_scale: float = 1.0, check: int | None = 1,
-                         slopes: tuple[float, ...] | None = None) -> FineSegments:
+                         slopes: tuple[float, ...] | None = None,
+                         fine: npt.NDArray[np.int32] | None = None) -> FineSegments:
     """Finer segments along plane boundaries resume the cooperative optimisation (an addition to §6.2).
 
     The image is segmented again with ``segmentation`` (a smaller range radius) and intersected with
@@ -179,8 +180,11 @@ def refine_fine_segments(image: npt.NDArray[np.uint8], labels: npt.NDArray[np.in
     reliable : (H, W) bool cross-check mask of the data term.
     evidence : (H, W) bool pixels whose ``reference`` disparity is trusted.
     reference : (H, W) float32 disparity map the moves are checked against.
+    fine : (H, W) int32, optional
+        ``mean_shift_segment(image, params=segmentation)`` when already computed.
     """
-    fine = mean_shift_segment(image, params=segmentation)
+    if fine is None:
+        fine = mean_shift_segment(image, params=segmentation)
     comb = labels.astype(np.int64) * (int(fine.max()) + 1) + fine
     _, inv = np.unique(comb, return_inverse=True)
     flab = inv.reshape(labels.shape).astype(np.int32)

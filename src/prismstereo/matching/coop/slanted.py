@@ -131,7 +131,7 @@ def _cost(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint6
     return num / den if den > 0 else 0.0
 
 
-@njit(cache=True, parallel=True, fastmath=True)
+@njit(cache=True, parallel=True, fastmath=True, nogil=True)
 def _plane_cost_map(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint64],
                     lam_cen: float, plane: npt.NDArray[np.float64], radius: int, dil: int, gamma: float,
                     alpha: float, tau_col: float, tau_grad: float) -> F32:  # pragma: no cover - numba
@@ -197,7 +197,7 @@ def _sample_pixels(seg: npt.NDArray[np.int32], cand: npt.NDArray[np.int64], step
     return nper, pix, cnt
 
 
-@njit(cache=True, parallel=True, fastmath=True)
+@njit(cache=True, parallel=True, fastmath=True, nogil=True)
 def _segment_costs(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint64], lam_cen: float,
                    seg: npt.NDArray[np.int32], cand: npt.NDArray[np.int64], planes: npt.NDArray[np.float64],
                    step: int, radius: int, dil: int, gamma: float, alpha: float, tau_col: float, tau_grad: float,

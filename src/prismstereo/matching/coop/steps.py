@@ -375,6 +375,8 @@ class Evidence(Protocol):
 
     def fine_evidence(self, tol: float) -> tuple[B, F32] | None: ...
 
+    def segments(self, params: SegmentationParams) -> I32: ...  # mean_shift_segment(image, params=params)
+
     def boundary_evidence(self, tol: float) -> tuple[F32, F32, B, B] | None: ...
 
     def occlusion(self, s: PlaneLabels, final: F32, p: OcclusionParams) -> F32: ...
@@ -535,10 +537,10 @@ def step_fine(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
 
     evidence, reference = evid
     for hr, min_region in p.fine.levels:
+        seg = dataclasses.replace(ev.segmentation, hr=float(hr), min_region=int(min_region))
         fs = refine_fine_segments(ev.image, s.labels, s.assign, s.planes, ev.data, ev.reliable, evidence,
-                                  reference, segmentation=dataclasses.replace(ev.segmentation, hr=float(hr),
-                                                                              min_region=int(min_region)),
-                                  coop=ev.coop, min_disp=ev.min_disp, check=p.fine.check, slopes=ev.slopes)
+                                  reference, segmentation=seg, coop=ev.coop, min_disp=ev.min_disp,
+                                  check=p.fine.check, slopes=ev.slopes, fine=ev.segments(seg))
         s = dataclasses.replace(s, labels=fs.labels, index=fs.index, assign=fs.assign, planes=fs.planes,
                                 own=s.own[fs.parent], parent=s.parent[fs.parent],
                                 bfit_ids=None if s.bfit_ids is None else s.bfit_ids[fs.parent],

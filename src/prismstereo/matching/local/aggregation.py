@@ -151,7 +151,7 @@ def _weight_row(tab: np.ndarray, slot: int, lab: np.ndarray, y: int, dys: np.nda
             tab[slot, k, w - 1 - x if reverse else x] = v
 
 
-@njit(cache=True, parallel=True, fastmath=True)
+@njit(cache=True, parallel=True, fastmath=True, nogil=True)
 def _bpasw_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, dys: np.ndarray,
                   dxs: np.ndarray, prox: np.ndarray, min_disp: int, kernel: int, s0: float,
                   s_min: float, prior: np.ndarray, use_prior: bool, cont_w: float,

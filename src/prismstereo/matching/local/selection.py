@@ -77,7 +77,7 @@ def right_cost_volume(cost: np.ndarray, *, min_disp: int = 0) -> np.ndarray:
     return _diagonal_volume(vol, int(min_disp), fill)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _right_argmin(vol: np.ndarray, min_disp: int, fill: float) -> np.ndarray:  # pragma: no cover - numba
     """argmin over k of ``C_L(y, x + min_disp + k, k)`` (``fill`` past the right edge), NaN read as +inf, the
     first of equal minima (``np.argmin``'s); -1 where every entry is NaN."""

@@ -96,14 +96,14 @@ def _union(parent: npt.NDArray[np.int32], a: int, b: int) -> None:
             parent[ra] = rb
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _label_modes(filt: npt.NDArray[np.float32], hr2: float) -> npt.NDArray[np.int32]:
     """Union 4-neighbours whose filtered colours (modes) are closer than hr; returns root per pixel."""
     h, w, _ = filt.shape
     return _label_modes_depth(filt, hr2, np.zeros((h, w), np.float32), np.inf)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _label_modes_depth(filt: npt.NDArray[np.float32], hr2: float, disp: npt.NDArray[np.float32],
                        tau: float) -> npt.NDArray[np.int32]:
     """As :func:`_label_modes`, but neighbours whose disparities differ by ``tau`` or more stay apart."""
@@ -132,7 +132,7 @@ def _label_modes_depth(filt: npt.NDArray[np.float32], hr2: float, disp: npt.NDAr
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _compact(roots: npt.NDArray[np.int32]) -> tuple[npt.NDArray[np.int32], int]:
     n = roots.shape[0]
     remap = np.full(n, -1, dtype=np.int32)
@@ -147,7 +147,7 @@ def _compact(roots: npt.NDArray[np.int32]) -> tuple[npt.NDArray[np.int32], int]:
     return out, k
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _merge_small(labels: npt.NDArray[np.int32], nlab: int, lab: npt.NDArray[np.float32], h: int, w: int,
                  min_region: int) -> tuple[npt.NDArray[np.int32], int]:
     """Merge regions smaller than ``min_region`` into their neighbour of closest mean colour."""
