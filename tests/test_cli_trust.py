@@ -306,7 +306,10 @@ def test_ctrl_c_leaves_nothing(tmp_path: Path) -> None:
     out = tmp_path / "sim"
     proc = subprocess.Popen([sys.executable, "-m", "prismstereo", "simulate", str(REPO / "examples" /
                              "biprism_robot.toml"), "-o", str(out), "--supersample", "8"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env())
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(),
+                            # a suite started in the background (``make test &``) ignores SIGINT, and the child
+                            # would inherit that: Python installs its Ctrl-C handler only where it is not ignored
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     time.sleep(4.0)  # past the imports, inside the render
     t = time.perf_counter()
     proc.send_signal(signal.SIGINT)
