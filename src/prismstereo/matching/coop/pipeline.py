@@ -322,6 +322,8 @@ def segment_sweep_candidates(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uin
     planes_new = np.empty((sel.size * m, 3), np.float64)
     cand = np.full((k, m), -1, np.int64)
     base = plane_set.shape[0]
+    # a segment whose current a is 0 would sweep the same planes twice: cost them once, copy the costs
+    twin = np.zeros(k, np.bool_)
     for i, s in enumerate(sel):
         sl = slice(index.starts[s], index.starts[s + 1])
         cx = float(xs_all[sl].mean())
@@ -333,9 +335,13 @@ def segment_sweep_candidates(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uin
             blk[:, 1] = g[:, 0]
             blk[:, 2] = g[:, 1] - a * cx - g[:, 0] * cy
         cand[s] = base + i * m + np.arange(m)
+        if a_cur == 0.0:
+            twin[s] = True
+            cand[s, ng:] = -1
     allp = np.concatenate([plane_set, planes_new])
     cost = segment_plane_costs(lft, rgt, labels, cand, allp, min_disp=min_disp, max_disp=max_disp, step=step,
                                dilation=dilation)
+    cost[twin, ng:] = cost[twin, :ng]
     chosen: list[npt.NDArray[np.float64]] = []
     nxt = base
     for i, s in enumerate(sel):
