@@ -464,6 +464,21 @@ def _segment_bbox(order: I64, starts: I64, w: int) -> I64:
     return out
 
 
+@njit(cache=True, inline="always")
+def _add_candidate(cand: I64, nc: int, lab: int) -> int:
+    """Append plane ``lab`` to the first ``nc`` entries of ``cand`` unless it is there already, it is -1 (none)
+    or 64 are held; returns the new count."""
+    if lab < 0:
+        return nc
+    for u in range(nc):
+        if cand[u] == lab:
+            return nc
+    if nc < 64:
+        cand[nc] = lab
+        nc += 1
+    return nc
+
+
 @njit(cache=True)
 def _candidates(j: int, a: I32, own: I64, nstart: I64, nbr: I64, prm: F64, cand: I64) -> int:
     """Candidate planes of segment j into ``cand``: current, own fitted/merged planes, neighbours' current
@@ -472,26 +487,10 @@ def _candidates(j: int, a: I32, own: I64, nstart: I64, nbr: I64, prm: F64, cand:
     cand[nc] = a[j]
     nc += 1
     for extra in (own[2 * j], own[2 * j + 1]):
-        if extra >= 0:
-            dup = False
-            for u in range(nc):
-                if cand[u] == extra:
-                    dup = True
-            if not dup and nc < 64:
-                cand[nc] = extra
-                nc += 1
+        nc = _add_candidate(cand, nc, extra)
     for t in range(nstart[j], nstart[j + 1]):
         for m in range(3 if prm[10] > 0.5 else 1):
-            lab = a[nbr[t]] if m == 0 else own[2 * nbr[t] + m - 1]
-            if lab < 0:
-                continue
-            dup = False
-            for u in range(nc):
-                if cand[u] == lab:
-                    dup = True
-            if not dup and nc < 64:
-                cand[nc] = lab
-                nc += 1
+            nc = _add_candidate(cand, nc, a[nbr[t]] if m == 0 else own[2 * nbr[t] + m - 1])
     return nc
 
 
