@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from prismstereo.optics.distortion import distort_points
+from prismstereo.optics.distortion import distort_points, undistort_points
 from prismstereo.optics.refraction import normalize
 
 
@@ -40,23 +40,6 @@ def project_points(
     u = K[0, 0] * xy[..., 0] + K[0, 1] * xy[..., 1] + K[0, 2]
     v = K[1, 1] * xy[..., 1] + K[1, 2]
     return np.stack([u, v], axis=-1)
-
-
-def undistort_normalized(xy_distorted: np.ndarray, dist: np.ndarray, *, iterations: int = 8) -> np.ndarray:
-    """Invert :func:`~prismstereo.optics.distortion.distort_points` (..., 2) with Newton's method
-    (finite-difference Jacobian)."""
-    target = np.asarray(xy_distorted, dtype=np.float64)
-    xy = target.copy()
-    h = 1e-7
-    for _ in range(iterations):
-        r = distort_points(xy, dist) - target
-        jx = (distort_points(xy + [h, 0.0], dist) - distort_points(xy - [h, 0.0], dist)) / (2 * h)
-        jy = (distort_points(xy + [0.0, h], dist) - distort_points(xy - [0.0, h], dist)) / (2 * h)
-        det = jx[..., 0] * jy[..., 1] - jy[..., 0] * jx[..., 1]
-        dx = (jy[..., 1] * r[..., 0] - jy[..., 0] * r[..., 1]) / det
-        dy = (-jx[..., 1] * r[..., 0] + jx[..., 0] * r[..., 1]) / det
-        xy = xy - np.stack([dx, dy], axis=-1)
-    return xy
 
 
 @dataclass(frozen=True)
@@ -97,8 +80,8 @@ class PinholeCamera:
     def undistort_pixels(self, pixels: np.ndarray) -> np.ndarray:
         """(..., 2) distorted pixels → normalised undistorted coordinates (..., 2).
 
-        Inverts the distortion with fixed-point iterations refined by Newton steps, to 1e-12 in
-        normalised coordinates for the mild distortions of virtual prism cameras.
+        Inverts the distortion with Newton's method (:func:`~prismstereo.optics.distortion.undistort_points`);
+        NaN where the distortion folds back on itself, far outside the calibrated field.
         """
         px = np.asarray(pixels, dtype=np.float64)
         K = self.K
@@ -107,7 +90,7 @@ class PinholeCamera:
         target = np.stack([x, y], axis=-1)
         if not len(self.dist) or not np.any(self.dist):
             return target
-        return undistort_normalized(target, self.dist)
+        return undistort_points(target, self.dist)
 
     def unproject(self, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rays of pixels: origins (..., 3) = C and unit directions (..., 3) in the world frame."""
