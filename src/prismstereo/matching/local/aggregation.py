@@ -161,9 +161,9 @@ def _log_ge1(x: float) -> float:  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _weber_row(out: np.ndarray, lab3: np.ndarray, y: int, qy: int, dx: int, lo: int, hi: int, p: float,
+def _weber_row(out: np.ndarray, lab3: np.ndarray, y: int, qy: int, dx: int, lo: int, hi: int, prox_k: float,
                s0: float, s_min: float, log_norm: float) -> None:  # pragma: no cover - numba
-    """``out[x] = float32(w(p, p + (qy - y, dx)) * p)`` for ``lo <= x < hi``: :func:`pair_weight`'s clipped
+    """``out[x] = float32(w((y, x), (qy, x + dx)) * prox_k)`` for ``lo <= x < hi``: :func:`pair_weight`'s clipped
     Weber–Fechner weight on planar Lab ``lab3`` (3, H, W), the same float32 colour distance; compiled without
     fastmath, so that the products keep their order (the weights equal :func:`pair_weight`'s bit for bit at the
     default constants; checked over every float32 distance in (S_min, S0))."""
@@ -175,7 +175,7 @@ def _weber_row(out: np.ndarray, lab3: np.ndarray, y: int, qy: int, dx: int, lo: 
         s = np.sqrt(a * a + b * b + c * c)
         v = _log_ge1(min(s0 / s, x0) if s > s_min else x0) * log_norm
         v = 1.0 if s <= s_min else (0.0 if s >= s0 else v)
-        out[x] = np.float32(v * p)
+        out[x] = np.float32(v * prox_k)
 
 
 @njit(cache=True, inline="always")
