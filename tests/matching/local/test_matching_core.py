@@ -80,6 +80,21 @@ def test_out_of_range_cost_is_worst() -> None:
     assert np.all(cen[:, 3, 4:] == 24.0)
 
 
+@pytest.mark.parametrize(("kw", "gray"), [({"tau_color": 20.0, "tau_gradient": 8.0, "census_weight": 0.5}, False),
+                                          ({"omega": 0.2, "census_weight": 1.0}, True),
+                                          ({"omega": 1.0, "tau_gradient": 4.0}, False)])
+def test_fused_s_ad_census_equals_the_composed_costs(kw: dict, gray: bool) -> None:
+    left, right = _shifted_pair(4)
+    if gray:
+        left, right = left[:, :, 1], right[:, :, 1]
+    ref = costs.cost_s_ad(left, right, max_disp=9, min_disp=1, omega=kw.get("omega", 0.5),
+                          tau_color=kw.get("tau_color"), tau_gradient=kw.get("tau_gradient"))
+    if kw.get("census_weight", 0.0) > 0:
+        ref += np.float32(kw["census_weight"]) * costs.cost_census(left, right, max_disp=9, min_disp=1)
+    got = costs.cost_s_ad_census(left, right, max_disp=9, min_disp=1, **kw)
+    assert got.dtype == np.float32 and np.array_equal(got, ref)
+
+
 def test_census_window_checked() -> None:
     with pytest.raises(MatchingError, match="expected an odd census window"):
         costs.census_transform(np.zeros((5, 5)), window=(9, 9))

@@ -122,15 +122,74 @@ def pair_weight(lab: np.ndarray, y: int, x: int, qy: int, qx: int, kernel: int, 
 
 
 @njit(cache=True, inline="always")
-def _weight_row(tab: np.ndarray, slot: int, lab: np.ndarray, y: int, dys: np.ndarray, dxs: np.ndarray,
-                prox: np.ndarray, mirror: np.ndarray, nrows: int, kernel: int, s0: float, s_min: float,
-                log_norm: float, reverse: bool, forward_only: bool) -> None:  # pragma: no cover - numba
+def _log_ge1(x: float) -> float:  # pragma: no cover - numba
+    """``ln(x)`` for ``1 <= x < 2**64`` in branch-free float64 arithmetic, so that a loop calling it vectorises
+    (the libm call does not): the exponent is taken out by comparisons, then fdlibm's ``log`` kernel
+    (``ln(1 + f) = 2 atanh(f / (2 + f))``, error below 1 ulp). Other ``x > 0`` give finite values only."""
+    m = x
+    k = 0.0
+    c = m >= 4294967296.0
+    m = m * 2.3283064365386963e-10 if c else m
+    k += 32.0 if c else 0.0
+    c = m >= 65536.0
+    m = m * 1.52587890625e-05 if c else m
+    k += 16.0 if c else 0.0
+    c = m >= 256.0
+    m = m * 0.00390625 if c else m
+    k += 8.0 if c else 0.0
+    c = m >= 16.0
+    m = m * 0.0625 if c else m
+    k += 4.0 if c else 0.0
+    c = m >= 4.0
+    m = m * 0.25 if c else m
+    k += 2.0 if c else 0.0
+    c = m >= 2.0
+    m = m * 0.5 if c else m
+    k += 1.0 if c else 0.0
+    c = m > 1.4142135623730951
+    m = m * 0.5 if c else m
+    k += 1.0 if c else 0.0
+    f = m - 1.0
+    s = f / (2.0 + f)
+    z = s * s
+    w = z * z
+    t1 = w * (3.999999999940941908e-01 + w * (2.222219843214978396e-01 + w * 1.531383769920937332e-01))
+    t2 = z * (6.666666666666735130e-01 + w * (2.857142874366239149e-01 + w * (1.818357216161805012e-01
+                                                                          + w * 1.479819860511658591e-01)))
+    hfsq = 0.5 * f * f
+    return k * 6.93147180369123816490e-01 - ((hfsq - (s * (t2 + t1 + hfsq) + k * 1.90821492927058770002e-10)) - f)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _weber_row(out: np.ndarray, lab3: np.ndarray, y: int, qy: int, dx: int, lo: int, hi: int, prox_k: float,
+               s0: float, s_min: float, log_norm: float) -> None:  # pragma: no cover - numba
+    """``out[x] = float32(w((y, x), (qy, x + dx)) * prox_k)`` for ``lo <= x < hi``: :func:`pair_weight`'s clipped
+    Weber–Fechner weight on planar Lab ``lab3`` (3, H, W), the same float32 colour distance; compiled without
+    fastmath, so that the products keep their order (the weights equal :func:`pair_weight`'s bit for bit at the
+    default constants; checked over every float32 distance in (S_min, S0))."""
+    x0 = s0 / s_min
+    for x in range(lo, hi):
+        a = lab3[0, y, x] - lab3[0, qy, x + dx]
+        b = lab3[1, y, x] - lab3[1, qy, x + dx]
+        c = lab3[2, y, x] - lab3[2, qy, x + dx]
+        s = np.sqrt(a * a + b * b + c * c)
+        v = _log_ge1(min(s0 / s, x0) if s > s_min else x0) * log_norm
+        v = 1.0 if s <= s_min else (0.0 if s >= s0 else v)
+        out[x] = np.float32(v * prox_k)
+
+
+@njit(cache=True, inline="always")
+def _weight_row(tab: np.ndarray, slot: int, lab: np.ndarray, lab3: np.ndarray, y: int, dys: np.ndarray,
+                dxs: np.ndarray, prox: np.ndarray, mirror: np.ndarray, nrows: int, kernel: int, s0: float,
+                s_min: float, log_norm: float, reverse: bool, forward_only: bool,
+                buf: np.ndarray) -> None:  # pragma: no cover - numba
     """Row ``y``'s support weights ``w(p, p + o_k) prox_k`` (float32; 0 outside the image) into ``tab[slot]``.
 
     Weights are symmetric, ``w(p, q) = w(q, p)``: an offset whose mirror ``-o_k`` points forwards (``mirror[k]
     >= 0``) is read from the row it points to, computed before (``nrows`` rows kept, ``slot = y % nrows``),
     instead of evaluated again; the colour distance is a sum of squares, so the value is the same bit for bit.
-    ``reverse``: column ``x`` is stored at ``w - 1 - x``; ``forward_only``: the mirrored offsets are skipped."""
+    ``reverse``: column ``x`` is stored at ``w - 1 - x``; ``forward_only``: the mirrored offsets are skipped.
+    ``buf``: scratch of length ``w``."""
     h, w = lab.shape[0], lab.shape[1]
     nk = dys.shape[0]
     for kk in range(2 * nk):  # the offsets computed first: the mirrored ones on the row itself read them
@@ -139,23 +198,96 @@ def _weight_row(tab: np.ndarray, slot: int, lab: np.ndarray, y: int, dys: np.nda
         if (mk >= 0) != (kk >= nk) or (mk >= 0 and forward_only):
             continue
         qy = y + dys[k]
-        src = qy % nrows
+        dx = dxs[k]
+        lo = max(0, -dx)
+        hi = min(w, w - dx)
+        if qy < 0 or qy >= h:
+            hi = lo
+        row = tab[slot, k]
+        if mk >= 0:  # a contiguous shifted copy in the stored order
+            src = tab[qy % nrows, mk]
+            sh = -dx if reverse else dx
+            a0, a1 = (w - hi, w - lo) if reverse else (lo, hi)
+            for j in range(a0, a1):
+                row[j] = src[j + sh]
+            row[:a0] = 0.0
+            row[a1:] = 0.0
+            continue
+        if kernel == 0:
+            buf[:] = 0.0
+            _weber_row(buf, lab3, y, qy, dx, lo, hi, prox[k], s0, s_min, log_norm)
+        else:
+            for x in range(w):
+                v = np.float32(0.0)
+                if lo <= x < hi:
+                    v = np.float32(pair_weight(lab, y, x, qy, x + dx, kernel, s0, s_min, log_norm) * prox[k])
+                buf[x] = v
+        if reverse:
+            for x in range(w):
+                row[w - 1 - x] = buf[x]
+        else:
+            row[:] = buf
+
+
+@njit(cache=True, fastmath=True, nogil=True)
+def _accumulate_row(num: np.ndarray, den: np.ndarray, wl: np.ndarray, wr: np.ndarray, ct: np.ndarray, y: int,
+                    dys: np.ndarray, dxs: np.ndarray, min_disp: int) -> None:  # pragma: no cover - numba
+    """Row ``y``'s sums of Eq. 5.14 with symmetric weights, disparity-major: ``num[i, x] = Σ_k wl[k, x]
+    wr[k, x - d] c(q, d)`` and ``den[i, x] = Σ_k wl[k, x] wr[k, x - d]`` (``d = min_disp + i``, ``q = (y, x) +
+    o_k``; ``ct`` the cost volume as (H, D, W)); only the terms with ``q`` and ``x - d`` inside the images.
+
+    The inner loop runs along the row (hundreds of pixels, contiguous in every array) instead of over the
+    disparities of one pixel, and each sum still adds its terms in the order of ``k``; a zero weight adds
+    ``0·c = 0``, so the sums equal those that skip it."""
+    h = ct.shape[0]
+    nd = ct.shape[1]
+    w = ct.shape[2]
+    for k in range(dys.shape[0]):
+        qy = y + dys[k]
+        if qy < 0 or qy >= h:
+            continue
+        dx = dxs[k]
+        xlo = max(0, -dx)
+        xhi = min(w, w - dx)
+        wlk = wl[k]
+        wrk = wr[k]
+        for i in range(nd):
+            d = min_disp + i
+            lo = max(xlo, d)
+            hi = min(xhi, w + d)
+            if hi <= lo:
+                continue
+            # slices aligned on x: plain unit-stride indexing, which vectorises
+            wls = wlk[lo:hi]
+            wrs = wrk[lo - d:hi - d]
+            cs = ct[qy, i, lo + dx:hi + dx]
+            ns = num[i, lo:hi]
+            ds = den[i, lo:hi]
+            for j in range(hi - lo):
+                ww = wls[j] * wrs[j]
+                ns[j] += ww * cs[j]
+                ds[j] += ww
+
+
+@njit(cache=True, parallel=True, nogil=True)
+def _disparity_major(cost: np.ndarray) -> np.ndarray:  # pragma: no cover - numba
+    """(H, W, D) -> (H, D, W) copy."""
+    h, w, nd = cost.shape
+    out = np.empty((h, nd, w), dtype=cost.dtype)
+    for y in prange(h):
         for x in range(w):
-            qx = x + dxs[k]
-            v = np.float32(0.0)
-            if 0 <= qy < h and 0 <= qx < w:
-                if mk >= 0:
-                    v = tab[src, mk, w - 1 - qx if reverse else qx]
-                else:
-                    v = np.float32(pair_weight(lab, y, x, qy, qx, kernel, s0, s_min, log_norm) * prox[k])
-            tab[slot, k, w - 1 - x if reverse else x] = v
+            for i in range(nd):
+                out[y, i, x] = cost[y, x, i]
+    return out
 
 
 @njit(cache=True, parallel=True, fastmath=True, nogil=True)
-def _bpasw_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, dys: np.ndarray,
+def _bpasw_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, lab3_l: np.ndarray,
+                  lab3_r: np.ndarray, dys: np.ndarray,
                   dxs: np.ndarray, prox: np.ndarray, min_disp: int, kernel: int, s0: float,
                   s_min: float, prior: np.ndarray, use_prior: bool, cont_w: float,
-                  symmetric: bool, mirror: np.ndarray, nbands: int) -> np.ndarray:  # pragma: no cover - numba
+                  symmetric: bool, mirror: np.ndarray, nbands: int,
+                  ct: np.ndarray) -> np.ndarray:  # pragma: no cover - numba
     h, w, nd = cost.shape
     nk = dys.shape[0]
     log_norm = 1.0 / np.log(s0 / s_min) if kernel == 0 else 1.0
@@ -173,23 +305,43 @@ def _bpasw_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, dys: n
         y1 = min(h, y0 + band)
         # weights of the rows kept, left and right image; the right one column-reversed, so that the inner loop
         # over disparities reads it forwards (SIMD)
+        # (with a disparity-major ``ct``, the symmetric sums run along rows and read the right weights forwards)
+        fast = symmetric and not use_prior and ct.shape[0] == h
         tl = np.zeros((nrows, nk, w), dtype=np.float32)
         tr = np.zeros((nrows if symmetric else 1, nk, w), dtype=np.float32)
+        wbuf = np.empty(w, dtype=np.float32)
         for y in range(max(0, y0 - back), y0):  # only their weights the band's rows read
-            _weight_row(tl, y % nrows, lab_l, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min, log_norm,
-                        False, True)
+            _weight_row(tl, y % nrows, lab_l, lab3_l, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min,
+                        log_norm, False, True, wbuf)
             if symmetric:
-                _weight_row(tr, y % nrows, lab_r, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min,
-                            log_norm, True, True)
+                _weight_row(tr, y % nrows, lab_r, lab3_r, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min,
+                            log_norm, not fast, True, wbuf)
         num = np.empty(nd, dtype=np.float32)
         den = np.empty(nd, dtype=np.float32)
+        numr = np.empty((nd if fast else 0, w), dtype=np.float32)
+        denr = np.empty((nd if fast else 0, w), dtype=np.float32)
         for y in range(y0, y1):
             slot = y % nrows
-            _weight_row(tl, slot, lab_l, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min, log_norm, False,
-                        False)
+            _weight_row(tl, slot, lab_l, lab3_l, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min, log_norm,
+                        False, False, wbuf)
             if symmetric:
-                _weight_row(tr, slot, lab_r, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min, log_norm,
-                            True, False)
+                _weight_row(tr, slot, lab_r, lab3_r, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min,
+                            log_norm, not fast, False, wbuf)
+            if fast:
+                numr[:] = 0.0
+                denr[:] = 0.0
+                _accumulate_row(numr, denr, tl[slot], tr[slot], ct, y, dys, dxs, min_disp)
+                for x in range(w):
+                    nvalid = min(nd, x - min_disp + 1)
+                    for i in range(nd):
+                        num[i] = numr[i, x]
+                        den[i] = denr[i, x]
+                    for i in range(nd):
+                        if i < nvalid and den[i] > 0.0:
+                            out[y, x, i] = num[i] / den[i]
+                        else:
+                            out[y, x, i] = cost[y, x, i]
+                continue
             for x in range(w):
                 num[:] = 0.0
                 den[:] = 0.0
@@ -316,5 +468,10 @@ def aggregate_bpasw(cost: np.ndarray, left: np.ndarray, right: np.ndarray | None
     # bands of rows in parallel, a multiple of the threads; each band first computes the rows above it reads
     nt = numba.get_num_threads()
     nbands = nt * max(1, min(4, vol.shape[0] // (nt * (4 * radius + 4))))
-    return _bpasw_kernel(vol, lab_l, lab_r, dys, dxs, prox.astype(np.float64), int(min_disp), kid,
-                         s0, s_min, pr, use_prior, float(continuity_weight), symmetric, _mirrors(dys, dxs), nbands)
+    # planar Lab for the weights' vectorised rows
+    lab3_l = np.ascontiguousarray(lab_l.transpose(2, 0, 1))
+    lab3_r = np.ascontiguousarray(lab_r.transpose(2, 0, 1)) if symmetric else lab3_l
+    ct = _disparity_major(vol) if symmetric and not use_prior else np.empty((0, 0, 0), np.float32)
+    return _bpasw_kernel(vol, lab_l, lab_r, lab3_l, lab3_r, dys, dxs, prox.astype(np.float64), int(min_disp), kid,
+                         s0, s_min, pr, use_prior, float(continuity_weight), symmetric, _mirrors(dys, dxs), nbands,
+                         ct)

@@ -180,12 +180,9 @@ class BPASWMatcher(LocalMatcher):
     def pixel_cost(self, left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int) -> np.ndarray:
         """The per-pixel cost before aggregation, float32 ``(H, W, D)``: S_AD (thesis Eq. 5.6) plus
         ``census_weight`` × the census Hamming distance."""
-        vol = costs.cost_s_ad(left, right, max_disp=max_disp, min_disp=min_disp, omega=self.omega,
-                              tau_color=self.tau_color, tau_gradient=self.tau_gradient)
-        if self.census_weight > 0:
-            cen = costs.cost_census(left, right, max_disp=max_disp, min_disp=min_disp)
-            vol += np.float32(self.census_weight) * cen
-        return vol
+        return costs.cost_s_ad_census(left, right, max_disp=max_disp, min_disp=min_disp, omega=self.omega,
+                                      tau_color=self.tau_color, tau_gradient=self.tau_gradient,
+                                      census_weight=self.census_weight)
 
     def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
                     min_disp: int) -> np.ndarray:
