@@ -403,8 +403,16 @@ def _sweep_costs(fl: F32, rv: F32, cl: npt.NDArray[np.uint64], crv: npt.NDArray[
         ww = np.empty(mw, np.float32)
         n = _window(fl, y, x, radius, dil, gamma, wy, wx, ww)
         num = np.zeros(m, np.float32)
-        tmp = np.empty(nd, np.float32)
         nas = na[s]
+        # each block's plane at i = 0: d = a x + b y + c0
+        ca = np.empty(nas * nb)
+        cb = np.empty(nas * nb)
+        c0 = np.empty(nas * nb)
+        for ia in range(nas):
+            for ib in range(nb):
+                ca[ia * nb + ib] = avals[s, ia]
+                cb[ia * nb + ib] = slopes[ib]
+                c0[ia * nb + ib] = d0 - avals[s, ia] * cx[s] - slopes[ib] * cy[s]
         den = 0.0
         for q in range(n):
             qy = wy[q]
@@ -421,61 +429,54 @@ def _sweep_costs(fl: F32, rv: F32, cl: npt.NDArray[np.uint64], crv: npt.NDArray[
                                  clq, lam_cen, alpha, tau_col, tau_grad)
             rho_r = wq * _rho_at(l0, l1, l2, l3, rv, qy, 0, crv[qy, 0] if lam_cen > 0.0 else np.uint64(0), clq,
                                  lam_cen, alpha, tau_col, tau_grad)
-            for ia in range(nas):
-                a = avals[s, ia]
-                for ib in range(nb):
-                    b = slopes[ib]
-                    xr0 = qx - (a * qx + b * qy + (d0 - a * cx[s] - b * cy[s]))
-                    base = (ia * nb + ib) * nd
-                    fx = np.floor(xr0)
-                    # interior i (0 <= xr0 - i < wr - 1): il excluded; left of the image: i >= il
-                    il = min(max(int(fx) + 1, 0), nd)
-                    ir = min(max(int(np.floor(xr0 - (wr - 1.0))) + 1, 0), il)
-                    for i in range(ir):
-                        num[base + i] += rho_r
-                    for i in range(il, nd):
-                        num[base + i] += rho_l
-                    if il <= ir:
-                        continue
-                    # interior u = i - ir: right pixels x0 = x00 - i and x0 + 1 are, in the mirrored rows,
-                    # rv[.., sx + u + 1] and rv[.., sx + u]
-                    x00 = int(fx)
-                    f = np.float32(xr0 - fx)
-                    g = np.float32(1.0) - f
-                    nin = il - ir
-                    sx = wr - 2 - x00 + ir
-                    q0 = rv[qy, 0, sx:sx + nin + 1]
-                    q1 = rv[qy, 1, sx:sx + nin + 1]
-                    q2 = rv[qy, 2, sx:sx + nin + 1]
-                    q3 = rv[qy, 3, sx:sx + nin + 1]
-                    # a scratch row the compiler knows to alias nothing, so the loop is vectorised
-                    if lam_cen > 0.0:
-                        sc = sx + (0 if f >= 0.5 else 1)
-                        cc = crv[qy, sc:sc + nin]
-                        for u in range(nin):
-                            col = (abs(l0 - (g * q0[u + 1] + f * q0[u])) + abs(l1 - (g * q1[u + 1] + f * q1[u]))
-                                   + abs(l2 - (g * q2[u + 1] + f * q2[u])))
-                            gr = abs(l3 - (g * q3[u + 1] + f * q3[u]))
-                            tmp[u] = (a1 * min(col, tc) + a2 * min(gr, tg)
-                                      + lc * np.float32(_popcount(clq ^ cc[u])))
-                    else:
-                        for u in range(nin):
-                            col = (abs(l0 - (g * q0[u + 1] + f * q0[u])) + abs(l1 - (g * q1[u + 1] + f * q1[u]))
-                                   + abs(l2 - (g * q2[u + 1] + f * q2[u])))
-                            gr = abs(l3 - (g * q3[u + 1] + f * q3[u]))
-                            tmp[u] = a1 * min(col, tc) + a2 * min(gr, tg)
+            for blk in range(nas * nb):
+                xr0 = qx - (ca[blk] * qx + cb[blk] * qy + c0[blk])
+                base = blk * nd
+                fx = np.floor(xr0)
+                # interior i (0 <= xr0 - i < wr - 1): il excluded; left of the image: i >= il
+                il = min(max(int(fx) + 1, 0), nd)
+                ir = min(max(int(np.floor(xr0 - (wr - 1.0))) + 1, 0), il)
+                for i in range(ir):
+                    num[base + i] += rho_r
+                for i in range(il, nd):
+                    num[base + i] += rho_l
+                if il <= ir:
+                    continue
+                # interior u = i - ir: right pixels x0 = x00 - i and x0 + 1 are, in the mirrored rows,
+                # rv[.., sx + u + 1] and rv[.., sx + u]
+                x00 = int(fx)
+                f = np.float32(xr0 - fx)
+                g = np.float32(1.0) - f
+                nin = il - ir
+                sx = wr - 2 - x00 + ir
+                q0 = rv[qy, 0, sx:sx + nin + 1]
+                q1 = rv[qy, 1, sx:sx + nin + 1]
+                q2 = rv[qy, 2, sx:sx + nin + 1]
+                q3 = rv[qy, 3, sx:sx + nin + 1]
+                nv = num[base + ir:base + il]
+                # ``nv`` a view of the task's own row, which the compiler knows aliases no input: vectorised
+                if lam_cen > 0.0:
+                    sc = sx + (0 if f >= 0.5 else 1)
+                    cc = crv[qy, sc:sc + nin]
                     for u in range(nin):
-                        num[base + ir + u] += wq * tmp[u]
-        for ia in range(nas):
-            a = avals[s, ia]
-            for ib in range(nb):
-                b = slopes[ib]
-                dp = a * x + b * y + (d0 - a * cx[s] - b * cy[s])
-                base = (ia * nb + ib) * nd
-                for i in range(nd):
-                    d = dp + i
-                    pen = 1e3 if (d < dmin - 0.5 or d > dmax + 0.5) else 0.0
-                    val[t, base + i] = (num[base + i] / den if den > 0 else 0.0) + pen
+                        col = (abs(l0 - (g * q0[u + 1] + f * q0[u])) + abs(l1 - (g * q1[u + 1] + f * q1[u]))
+                               + abs(l2 - (g * q2[u + 1] + f * q2[u])))
+                        gr = abs(l3 - (g * q3[u + 1] + f * q3[u]))
+                        nv[u] += wq * (a1 * min(col, tc) + a2 * min(gr, tg)
+                                       + lc * np.float32(_popcount(clq ^ cc[u])))
+                else:
+                    for u in range(nin):
+                        col = (abs(l0 - (g * q0[u + 1] + f * q0[u])) + abs(l1 - (g * q1[u + 1] + f * q1[u]))
+                               + abs(l2 - (g * q2[u + 1] + f * q2[u])))
+                        gr = abs(l3 - (g * q3[u + 1] + f * q3[u]))
+                        nv[u] += wq * (a1 * min(col, tc) + a2 * min(gr, tg))
+        for blk in range(nas * nb):
+            dp = ca[blk] * x + cb[blk] * y + c0[blk]
+            base = blk * nd
+            for i in range(nd):
+                d = dp + i
+                pen = 1e3 if (d < dmin - 0.5 or d > dmax + 0.5) else 0.0
+                val[t, base + i] = (num[base + i] / den if den > 0 else 0.0) + pen
     acc = np.zeros((k, m))
     for s in prange(k):
         row = np.zeros(m)
