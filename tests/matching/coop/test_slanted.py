@@ -35,3 +35,42 @@ def test_true_slanted_plane_beats_every_fronto_parallel_hypothesis() -> None:
     d_int = np.rint(A * xx + B * yy + C).astype(int)
     tangent = np.take_along_axis(fronto, d_int[..., None], 2)[..., 0]
     assert np.median(true[inner]) < 0.5 * np.median(tangent[inner])
+
+
+def test_sweep_costs_equal_the_plane_costs_of_the_same_planes() -> None:
+    """The sweep kernel (contiguous reads, shared border costs) gives segment_plane_costs' numbers for every
+    plane of the sweep, including matches that leave the right image on either side."""
+    from prismstereo.matching.coop.slanted import segment_plane_costs, segment_sweep_costs
+
+    left, right = _pair(40, 60)
+    labels = np.zeros((40, 60), np.int32)
+    labels[:, 20:] = 1
+    labels[20:, 40:] = 2
+    labels[:8, 52:] = 3
+    active = np.array([True, True, False, True])
+    avals = np.array([[0.0, np.nan], [0.0, 0.2], [0.0, 0.1], [0.0, -0.3]])
+    centres = np.array([[9.5, 19.5], [30.0, 15.0], [50.0, 30.0], [56.0, 3.5]])
+    slopes = (-0.5, 0.0, 0.5)
+    lo, hi = -3, 12
+    for census in (0.5, 0.0):
+        got = segment_sweep_costs(left, right, labels, active, avals, centres, slopes, min_disp=lo, max_disp=hi,
+                                  step=2, census=census)
+        dcs = np.arange(lo, hi + 1, dtype=np.float64)
+        nd = dcs.size
+        assert got.shape == (4, 2 * len(slopes) * nd)
+        planes, cand = [], np.full(got.shape, -1, np.int64)
+        for s in np.flatnonzero(active):
+            for ia in range(2):
+                if np.isnan(avals[s, ia]):
+                    continue
+                for ib, b in enumerate(slopes):
+                    a = avals[s, ia]
+                    j = (ia * len(slopes) + ib) * nd
+                    cand[s, j:j + nd] = len(planes) + np.arange(nd)
+                    planes += [(a, b, dc - a * centres[s, 0] - b * centres[s, 1]) for dc in dcs]
+        want = segment_plane_costs(left, right, labels, cand, np.asarray(planes), min_disp=lo, max_disp=hi, step=2,
+                                   census=census)
+        assert np.array_equal(np.isinf(got), np.isinf(want))
+        fin = np.isfinite(want)
+        assert fin.sum() == 5 * len(slopes) * nd
+        np.testing.assert_allclose(got[fin], want[fin], rtol=1e-5, atol=1e-4)

@@ -48,7 +48,7 @@ from prismstereo.matching.coop.cooperative import (
     build_segment_graph,
     cooperative_optimize,
 )
-from prismstereo.matching.coop.slanted import segment_plane_costs
+from prismstereo.matching.coop.slanted import segment_plane_costs, segment_sweep_costs, slanted_pair
 from prismstereo.matching.coop.steps import (
     FallbackParams,
     OcclusionParams,
@@ -299,8 +299,9 @@ def segment_sweep_candidates(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uin
     into the extended plane set (-1 = none)."""
     k = assign.shape[0]
     h, w = labels.shape
+    pair = slanted_pair(lft, rgt)
     cur = segment_plane_costs(lft, rgt, labels, assign.astype(np.int64)[:, None], plane_set,
-                              min_disp=min_disp, max_disp=max_disp, step=step, dilation=dilation)[:, 0]
+                              min_disp=min_disp, max_disp=max_disp, step=step, dilation=dilation, pair=pair)[:, 0]
     sizes = np.diff(index.starts)
     ok = np.isfinite(cur) & (sizes >= min_px)
     out_ids = np.full((k, keep), -1, np.int64)
@@ -308,56 +309,46 @@ def segment_sweep_candidates(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uin
         return plane_set, out_ids
     thr = np.quantile(cur[ok], 1.0 - frac)
     sel = np.flatnonzero(ok & (cur >= thr))
-    flat = index.order
-    xs_all = (flat % w).astype(np.float64)
-    ys_all = (flat // w).astype(np.float64)
     dcs = np.arange(int(min_disp), int(max_disp) + 1, dtype=np.float64)
-    grid = []
-    for b in slopes:
-        for dc in dcs:
-            grid.append((b, dc))
-    g = np.asarray(grid)
+    g = np.stack([np.repeat(np.asarray(slopes, np.float64), dcs.size), np.tile(dcs, len(slopes))], axis=1)
     ng = g.shape[0]
-    m = 2 * ng
-    planes_new = np.empty((sel.size * m, 3), np.float64)
-    cand = np.full((k, m), -1, np.int64)
-    base = plane_set.shape[0]
+    active = np.zeros(k, np.bool_)
+    active[sel] = True
+    # segment centres: sums of integer coordinates are exact in any order, so these equal the per-segment means
+    flat = index.order
+    lens = np.diff(index.starts).astype(np.float64)
+    nz = np.flatnonzero(lens > 0)
+    centres = np.zeros((k, 2))
+    for c, v in enumerate((flat % w, flat // w)):
+        centres[nz, c] = np.add.reduceat(v.astype(np.float64), index.starts[nz]) / lens[nz]
+    a_cur = plane_set[assign, 0]
     # a segment whose current a is 0 would sweep the same planes twice: cost them once, copy the costs
-    twin = np.zeros(k, np.bool_)
-    for i, s in enumerate(sel):
-        sl = slice(index.starts[s], index.starts[s + 1])
-        cx = float(xs_all[sl].mean())
-        cy = float(ys_all[sl].mean())
-        a_cur = float(plane_set[assign[s], 0])
-        for j, a in enumerate((0.0, a_cur)):
-            blk = planes_new[i * m + j * ng:i * m + (j + 1) * ng]
-            blk[:, 0] = a
-            blk[:, 1] = g[:, 0]
-            blk[:, 2] = g[:, 1] - a * cx - g[:, 0] * cy
-        cand[s] = base + i * m + np.arange(m)
-        if a_cur == 0.0:
-            twin[s] = True
-            cand[s, ng:] = -1
-    allp = np.concatenate([plane_set, planes_new])
-    cost = segment_plane_costs(lft, rgt, labels, cand, allp, min_disp=min_disp, max_disp=max_disp, step=step,
-                               dilation=dilation)
+    avals = np.stack([np.zeros(k), np.where(a_cur == 0.0, np.nan, a_cur)], axis=1)
+    avals[~active] = np.nan
+    cost = segment_sweep_costs(lft, rgt, labels, active, avals, centres, slopes, min_disp=min_disp,
+                               max_disp=max_disp, step=step, dilation=dilation, pair=pair)
+    twin = np.isnan(avals[:, 1]) & active
     cost[twin, ng:] = cost[twin, :ng]
+    avals[twin, 1] = 0.0
+    rows = cost[sel]
+    order = np.argsort(rows, axis=1)
     chosen: list[npt.NDArray[np.float64]] = []
-    nxt = base
+    nxt = plane_set.shape[0]
     for i, s in enumerate(sel):
-        c = cost[s]
-        if not np.isfinite(c).any():
-            continue
+        c = rows[i]
         picked: list[int] = []
-        for j in np.argsort(c):
+        for j in order[i]:
             if not np.isfinite(c[j]) or len(picked) >= keep:
                 break
             jj = j % ng
             if any(abs(g[jj, 1] - g[q % ng, 1]) < 2 and g[jj, 0] == g[q % ng, 0] for q in picked):
                 continue
             picked.append(int(j))
+        cx, cy = centres[s]
         for t, j in enumerate(picked):
-            chosen.append(planes_new[i * m + j])
+            a = avals[s, j // ng]
+            b, dc = g[j % ng]
+            chosen.append(np.array([a, b, dc - a * cx - b * cy]))
             out_ids[s, t] = nxt
             nxt += 1
     if not chosen:

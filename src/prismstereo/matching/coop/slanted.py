@@ -12,12 +12,15 @@ aggregated cost such as BPASW is interpolated at their disparity), ``w(p, q) = e
 ``ρ = (1 − α) min(‖I_q − I'_{q'}‖₁, τ_col) + α min(|∇I_q − ∇I'_{q'}|, τ_grad)`` with linear interpolation
 in the right image at the subpixel match ``q'``. The window is sampled every ``dilation`` pixels.
 
-:func:`segment_plane_costs` gives the mean cost of candidate planes over each segment (``coop``'s sweep
-candidates). The per-pixel and per-segment plane refinements built on it were measured worse than ``coop``
-without them and were removed (docs/EXPERIMENTS.md).
+:func:`segment_plane_costs` gives the mean cost of candidate planes over each segment, and
+:func:`segment_sweep_costs` the same for a sweep's planes (every integer centre disparity x a few slopes), read
+contiguously along the disparity (``coop``'s sweep candidates). The per-pixel and per-segment plane
+refinements built on it were measured worse than ``coop`` without them and were removed (docs/EXPERIMENTS.md).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -26,7 +29,8 @@ from numba import njit, prange
 
 from prismstereo.matching.coop.coopcost import census_bits
 
-__all__ = ["add_unique", "plane_cost", "segment_plane_costs", "slanted_inputs"]
+__all__ = ["SlantedPair", "add_unique", "plane_cost", "segment_plane_costs", "segment_sweep_costs", "slanted_inputs",
+           "slanted_pair"]
 
 F32 = npt.NDArray[np.float32]
 
@@ -40,6 +44,31 @@ def slanted_inputs(image: npt.NDArray[np.uint8]) -> F32:
     gray = img.mean(axis=2)
     gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=1, borderType=cv2.BORDER_REPLICATE) * np.float32(0.5)
     return np.ascontiguousarray(np.concatenate([img, gx[:, :, None]], axis=2), dtype=np.float32)
+
+
+@dataclass(frozen=True)
+class SlantedPair:
+    """The per-pixel inputs of the slanted-window cost of one pair (:func:`slanted_pair`), made once for the
+    several cost calls on it.
+
+    Attributes
+    ----------
+    left, right : (H, W, 4) float32   :func:`slanted_inputs` of each image.
+    census_left, census_right : (H, W) uint64   7×9 census bits of the grey images ((1, 1) when ``census`` is 0).
+    census : float                    weight of the census distance in the cost.
+    """
+
+    left: F32
+    right: F32
+    census_left: npt.NDArray[np.uint64]
+    census_right: npt.NDArray[np.uint64]
+    census: float
+
+
+def slanted_pair(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, census: float = 0.5) -> SlantedPair:
+    """The :class:`SlantedPair` of a rectified pair ((H, W, 3) uint8 or (H, W) grey)."""
+    cl, cr = _census_pair(left, right, census)
+    return SlantedPair(slanted_inputs(left), slanted_inputs(right), cl, cr, float(census))
 
 
 def _census_pair(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8],
@@ -168,15 +197,24 @@ def _sample_pixels(seg: npt.NDArray[np.int32], cand: npt.NDArray[np.int64], step
                               npt.NDArray[np.float64]]:  # pragma: no cover - numba
     """The ``step``-grid pixels of the segments with candidates, grouped by segment in row-major order
     (``pix[nper[s]:nper[s + 1]]``), and the sampled pixel count of every segment."""
-    h, w = seg.shape
     k = cand.shape[0]
-    cnt = np.zeros(k)
     has = np.zeros(k, np.bool_)
     for s in range(k):
         for j in range(cand.shape[1]):
             if cand[s, j] >= 0:
                 has[s] = True
                 break
+    return _sample_grid(seg, has, step)
+
+
+@njit(cache=True)
+def _sample_grid(seg: npt.NDArray[np.int32], has: npt.NDArray[np.bool_], step: int,
+                 ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64],
+                            npt.NDArray[np.float64]]:  # pragma: no cover - numba
+    """:func:`_sample_pixels` of the segments where ``has`` (K,) is set."""
+    h, w = seg.shape
+    k = has.shape[0]
+    cnt = np.zeros(k)
     nper = np.zeros(k + 1, np.int64)
     for y in range(0, h, step):
         for x in range((y // step) % step, w, step):
@@ -297,20 +335,196 @@ def segment_plane_costs(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8
                         candidates: npt.NDArray[np.int64], planes: npt.NDArray[np.float64], *, min_disp: float,
                         max_disp: float, step: int = 2, radius: int = 15, dilation: int = 2, gamma: float = 20.0,
                         alpha: float = 0.5, tau_col: float = 30.0, tau_grad: float = 6.0,
-                        census: float = 0.5) -> npt.NDArray[np.float64]:
+                        census: float = 0.5, pair: SlantedPair | None = None) -> npt.NDArray[np.float64]:
     """Mean slanted-window cost of each segment's candidate planes over its pixels (a ``step`` grid).
 
-    ``candidates`` (K, M) holds plane indices per segment (-1 = none). Returns (K, M); ``inf`` for missing
+    ``candidates`` (K, M) holds plane indices per segment (-1 = none). ``pair``: the pair's
+    :func:`slanted_pair` when already made (then ``census`` is its own). Returns (K, M); ``inf`` for missing
     candidates and for segments without a sampled pixel.
     """
-    fl = slanted_inputs(left)
-    fr = slanted_inputs(right)
-    cl, cr = _census_pair(left, right, census)
+    sp = slanted_pair(left, right, census=census) if pair is None else pair
     cand = np.ascontiguousarray(candidates, np.int64)
-    acc, cnt = _segment_costs(fl, fr, cl, cr, float(census), np.ascontiguousarray(labels, np.int32), cand,
+    acc, cnt = _segment_costs(sp.left, sp.right, sp.census_left, sp.census_right, sp.census,
+                              np.ascontiguousarray(labels, np.int32), cand,
                               np.ascontiguousarray(planes, np.float64), int(step), int(radius), int(dilation),
                               float(gamma), float(alpha), float(tau_col), float(tau_grad), float(min_disp),
                               float(max_disp))
     out = np.where(cnt[:, None] > 0, acc / np.maximum(cnt[:, None], 1.0), np.inf)
     out[cand < 0] = np.inf
+    return out
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _rho_at(l0: float, l1: float, l2: float, l3: float, rv: F32, qy: int, x: int, crq: np.uint64,
+            clq: np.uint64, lam_cen: float, alpha: float, tau_col: float,
+            tau_grad: float) -> float:  # pragma: no cover - numba
+    col = abs(l0 - rv[qy, 0, x]) + abs(l1 - rv[qy, 1, x]) + abs(l2 - rv[qy, 2, x])
+    rho = (1.0 - alpha) * min(col, tau_col) + alpha * min(abs(l3 - rv[qy, 3, x]), tau_grad)
+    if lam_cen > 0.0:
+        rho += lam_cen * _popcount(clq ^ crq)
+    return rho
+
+
+@njit(cache=True, parallel=True, fastmath=True, nogil=True)
+def _sweep_costs(fl: F32, rv: F32, cl: npt.NDArray[np.uint64], crv: npt.NDArray[np.uint64], lam_cen: float,
+                 seg: npt.NDArray[np.int32], active: npt.NDArray[np.bool_], avals: npt.NDArray[np.float64],
+                 na: npt.NDArray[np.int64], cx: npt.NDArray[np.float64], cy: npt.NDArray[np.float64],
+                 slopes: npt.NDArray[np.float64], d0: float, nd: int, step: int, radius: int, dil: int,
+                 gamma: float, alpha: float, tau_col: float, tau_grad: float, dmin: float, dmax: float,
+                 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:  # pragma: no cover - numba
+    """:func:`_segment_costs` of the sweep's planes ``d = a x + b y + (d0 + i) - a cx - b cy`` (``a`` in
+    ``avals[s, :na[s]]``, ``b`` in ``slopes``, ``i`` < ``nd``), column ``(ia * nb + ib) * nd + i``.
+
+    Along ``i`` a window sample's match moves left by exactly one pixel at a constant subpixel fraction, so the
+    right image, mirrored and channel-planar (``rv[y, ch, W - 1 - x]``, ``crv[y, W - 1 - x]`` its census), is
+    read contiguously forwards, and the samples whose match leaves the image (clamped to its border column)
+    share one cost."""
+    h, w = seg.shape
+    k = active.shape[0]
+    nb = slopes.shape[0]
+    ng = nb * nd
+    m = 2 * ng
+    nper, pix, cnt = _sample_grid(seg, active, step)
+    npx = pix.size
+    val = np.zeros((npx, m))
+    mw = (2 * radius // dil + 1) ** 2
+    wr = rv.shape[2]
+    a1 = np.float32(1.0 - alpha)
+    a2 = np.float32(alpha)
+    tc = np.float32(tau_col)
+    tg = np.float32(tau_grad)
+    lc = np.float32(lam_cen)
+    for t in prange(npx):
+        y = pix[t] // w
+        x = pix[t] % w
+        s = seg[y, x]
+        wy = np.empty(mw, np.int64)
+        wx = np.empty(mw, np.int64)
+        ww = np.empty(mw, np.float32)
+        n = _window(fl, y, x, radius, dil, gamma, wy, wx, ww)
+        num = np.zeros(m, np.float32)
+        nas = na[s]
+        # each block's plane at i = 0: d = a x + b y + c0
+        ca = np.empty(nas * nb)
+        cb = np.empty(nas * nb)
+        c0 = np.empty(nas * nb)
+        for ia in range(nas):
+            for ib in range(nb):
+                ca[ia * nb + ib] = avals[s, ia]
+                cb[ia * nb + ib] = slopes[ib]
+                c0[ia * nb + ib] = d0 - avals[s, ia] * cx[s] - slopes[ib] * cy[s]
+        den = 0.0
+        for q in range(n):
+            qy = wy[q]
+            qx = wx[q]
+            l0 = fl[qy, qx, 0]
+            l1 = fl[qy, qx, 1]
+            l2 = fl[qy, qx, 2]
+            l3 = fl[qy, qx, 3]
+            clq = cl[qy, qx] if lam_cen > 0.0 else np.uint64(0)
+            wq = ww[q]
+            den += wq
+            # the match beyond the left / right border reads the border column (the clamp of _segment_costs)
+            rho_l = wq * _rho_at(l0, l1, l2, l3, rv, qy, wr - 1, crv[qy, wr - 1] if lam_cen > 0.0 else np.uint64(0),
+                                 clq, lam_cen, alpha, tau_col, tau_grad)
+            rho_r = wq * _rho_at(l0, l1, l2, l3, rv, qy, 0, crv[qy, 0] if lam_cen > 0.0 else np.uint64(0), clq,
+                                 lam_cen, alpha, tau_col, tau_grad)
+            for blk in range(nas * nb):
+                xr0 = qx - (ca[blk] * qx + cb[blk] * qy + c0[blk])
+                base = blk * nd
+                fx = np.floor(xr0)
+                # interior i (0 <= xr0 - i < wr - 1): il excluded; left of the image: i >= il
+                il = min(max(int(fx) + 1, 0), nd)
+                ir = min(max(int(np.floor(xr0 - (wr - 1.0))) + 1, 0), il)
+                for i in range(ir):
+                    num[base + i] += rho_r
+                for i in range(il, nd):
+                    num[base + i] += rho_l
+                if il <= ir:
+                    continue
+                # interior u = i - ir: right pixels x0 = x00 - i and x0 + 1 are, in the mirrored rows,
+                # rv[.., sx + u + 1] and rv[.., sx + u]
+                x00 = int(fx)
+                f = np.float32(xr0 - fx)
+                g = np.float32(1.0) - f
+                nin = il - ir
+                sx = wr - 2 - x00 + ir
+                q0 = rv[qy, 0, sx:sx + nin + 1]
+                q1 = rv[qy, 1, sx:sx + nin + 1]
+                q2 = rv[qy, 2, sx:sx + nin + 1]
+                q3 = rv[qy, 3, sx:sx + nin + 1]
+                nv = num[base + ir:base + il]
+                # ``nv`` a view of the task's own row, which the compiler knows aliases no input: vectorised
+                if lam_cen > 0.0:
+                    sc = sx + (0 if f >= 0.5 else 1)
+                    cc = crv[qy, sc:sc + nin]
+                    for u in range(nin):
+                        col = (abs(l0 - (g * q0[u + 1] + f * q0[u])) + abs(l1 - (g * q1[u + 1] + f * q1[u]))
+                               + abs(l2 - (g * q2[u + 1] + f * q2[u])))
+                        gr = abs(l3 - (g * q3[u + 1] + f * q3[u]))
+                        nv[u] += wq * (a1 * min(col, tc) + a2 * min(gr, tg)
+                                       + lc * np.float32(_popcount(clq ^ cc[u])))
+                else:
+                    for u in range(nin):
+                        col = (abs(l0 - (g * q0[u + 1] + f * q0[u])) + abs(l1 - (g * q1[u + 1] + f * q1[u]))
+                               + abs(l2 - (g * q2[u + 1] + f * q2[u])))
+                        gr = abs(l3 - (g * q3[u + 1] + f * q3[u]))
+                        nv[u] += wq * (a1 * min(col, tc) + a2 * min(gr, tg))
+        for blk in range(nas * nb):
+            dp = ca[blk] * x + cb[blk] * y + c0[blk]
+            base = blk * nd
+            for i in range(nd):
+                d = dp + i
+                pen = 1e3 if (d < dmin - 0.5 or d > dmax + 0.5) else 0.0
+                val[t, base + i] = (num[base + i] / den if den > 0 else 0.0) + pen
+    acc = np.zeros((k, m))
+    for s in prange(k):
+        row = np.zeros(m)
+        prev_y = -1
+        for t in range(nper[s], nper[s + 1]):
+            y = pix[t] // w
+            if y != prev_y and prev_y >= 0:
+                for j in range(m):
+                    acc[s, j] += row[j]
+                    row[j] = 0.0
+            prev_y = y
+            for j in range(m):
+                row[j] += val[t, j]
+        if prev_y >= 0:
+            for j in range(m):
+                acc[s, j] += row[j]
+    return acc, cnt
+
+
+def segment_sweep_costs(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], labels: npt.NDArray[np.int32],
+                        active: npt.NDArray[np.bool_], avals: npt.NDArray[np.float64], centres: npt.NDArray[np.float64],
+                        slopes: tuple[float, ...], *, min_disp: int, max_disp: int, step: int = 2, radius: int = 15,
+                        dilation: int = 2, gamma: float = 20.0, alpha: float = 0.5, tau_col: float = 30.0,
+                        tau_grad: float = 6.0, census: float = 0.5,
+                        pair: SlantedPair | None = None) -> npt.NDArray[np.float64]:
+    """:func:`segment_plane_costs` of a sweep's planes: for each ``active`` segment, the planes through its centre
+    ``centres[s] = (cx, cy)`` at every integer centre disparity ``min_disp..max_disp`` with each slope ``a`` of
+    ``avals[s]`` (K, 2; NaN = none) and ``b`` of ``slopes``.
+
+    Returns (K, 2 x len(slopes) x D) float64, column ``(ia * len(slopes) + ib) * D + (dc - min_disp)`` for the
+    plane ``a = avals[s, ia]``, ``b = slopes[ib]``, ``c = dc - a cx - b cy``; ``inf`` for missing ``a`` and for
+    segments without a sampled pixel. ``pair`` as in :func:`segment_plane_costs`.
+    """
+    sp = slanted_pair(left, right, census=census) if pair is None else pair
+    # the right rows mirrored: a sweep's matches move left as its disparity grows, so they run forwards there
+    rv = np.ascontiguousarray(sp.right.transpose(0, 2, 1)[:, :, ::-1])
+    crv = np.ascontiguousarray(sp.census_right[:, ::-1])
+    av = np.ascontiguousarray(np.nan_to_num(avals, nan=0.0), np.float64)
+    na = np.where(np.isnan(avals[:, 1]), 1, 2).astype(np.int64)
+    nd = int(max_disp) - int(min_disp) + 1
+    sl = np.asarray(slopes, np.float64)
+    acc, cnt = _sweep_costs(sp.left, rv, sp.census_left, crv, sp.census, np.ascontiguousarray(labels, np.int32),
+                            np.ascontiguousarray(active, np.bool_), av, na,
+                            np.ascontiguousarray(centres[:, 0], np.float64),
+                            np.ascontiguousarray(centres[:, 1], np.float64), sl, float(min_disp), nd, int(step),
+                            int(radius), int(dilation), float(gamma), float(alpha), float(tau_col), float(tau_grad),
+                            float(min_disp), float(max_disp))
+    out = np.where(cnt[:, None] > 0, acc / np.maximum(cnt[:, None], 1.0), np.inf)
+    out[~np.asarray(active, bool)] = np.inf
+    out[na == 1, sl.size * nd:] = np.inf
     return out
