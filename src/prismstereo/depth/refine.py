@@ -4,14 +4,17 @@ Depth error grows as ``ΔZ / Z = Δd / d``: at the thesis rig's ~80 px disparity
 is 0.2 px of disparity, finer than integer or parabola-fitted winners give. This step refines each valid
 disparity continuously (Lucas–Kanade along the epipolar line): it minimises, over a ``(2r+1)²`` window,
 
-    E(d) = Σ ( L(x, y) − R(x − d, y) )²   (window means removed)
+    E(d) = Σ ( L(x, y) − R(x − d, y + δy) )²   (window means removed)
 
-with R sampled bilinearly, by Gauss–Newton steps ``Δd = −Σ r·J / Σ J²`` (``r = L − R(x − d)``, ``J = ∂r/∂d =
-R_x(x − d)``), the whole window of each pixel shifted by that pixel's d (a parallel numba kernel over pixels,
-accumulating window sums). Means are removed per window (zero-mean SSD), so an offset between the two faces'
-brightness does not bias d. The update is bounded to ±``max_shift`` px around the matcher's disparity; pixels
-without texture (small Σ J²) keep the matcher's value and get no confidence. The returned confidence (ZNCC of
-the final windows) lets the pipeline drop matches the refinement could not confirm.
+where δy is the row offset of the exact epipolar curve at the pixel (the views of a prism are not exact
+pinholes, so a match lies off the left pixel's row by a known amount: :mod:`prismstereo.rectify.epipolar`;
+0 without it), with R sampled bilinearly, by Gauss–Newton steps ``Δd = −Σ r·J / Σ J²`` (``r = L − R``,
+``J = ∂r/∂d = R_x``, both at (x − d, y + δy)), the whole window of each pixel shifted by that pixel's d (a
+parallel numba kernel over pixels, accumulating window sums). Means are removed per window (zero-mean SSD),
+so an offset between the two faces' brightness does not bias d. The update is bounded to ±``max_shift`` px
+around the matcher's disparity; pixels without texture (small Σ J²) keep the matcher's value and get no
+confidence. The returned confidence (ZNCC of the final windows) lets the pipeline drop matches the
+refinement could not confirm.
 """
 
 from __future__ import annotations

@@ -95,6 +95,26 @@ def _right_rectified(pair: RectifiedPair, real_px: np.ndarray, iterations: int =
     return rect
 
 
+def _resample(d: np.ndarray, dy: np.ndarray, ok: np.ndarray, layers: np.ndarray) -> np.ndarray:
+    """(n_layers, n) offsets at the disparities ``layers`` of each column's valid samples ``(d, dy)[ok]``
+    (linear between samples, the end samples' values beyond them: ``np.interp`` per column, vectorised);
+    NaN for a column without any."""
+    order = np.argsort(np.where(ok, d, np.inf), axis=0)
+    ds = np.take_along_axis(np.where(ok, d, np.inf), order, axis=0)
+    ys = np.take_along_axis(dy, order, axis=0)
+    cnt = ok.sum(axis=0)
+    last = np.maximum(cnt - 1, 0)[None, :]
+    above = (ds[None, :, :] <= layers[:, None, None]).sum(axis=1)  # valid samples at or below each layer
+    i0 = np.clip(above - 1, 0, last)
+    i1 = np.clip(above, 0, last)
+    d0, d1 = np.take_along_axis(ds, i0, axis=0), np.take_along_axis(ds, i1, axis=0)
+    y0, y1 = np.take_along_axis(ys, i0, axis=0), np.take_along_axis(ys, i1, axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = np.where(d1 > d0, (layers[:, None] - d0) / (d1 - d0), 0.0)
+    out = y0 + np.clip(t, 0.0, 1.0) * (y1 - y0)
+    return np.where(cnt[None, :] > 0, out, np.nan)
+
+
 def epipolar_table(pair: RectifiedPair, *, step: int = 16, n_depths: int = 32, n_layers: int = 48
                    ) -> EpipolarTable:
     """Tabulate the row offset of matches of a rectified pair (module docstring).
@@ -138,12 +158,7 @@ def epipolar_table(pair: RectifiedPair, *, step: int = 16, n_depths: int = 32, n
                              d_step=1.0)
     lo, hi = float(np.min(d[ok])), min(float(np.max(d[ok])), float(w))
     layers = np.linspace(lo, hi, n_layers) if hi > lo else np.array([lo])
-    table = np.full((layers.size, n), np.nan)
-    for j in np.flatnonzero(ok.any(axis=0)):
-        m = ok[:, j]
-        order = np.argsort(d[m, j])
-        table[:, j] = np.interp(layers, d[m, j][order], dy[m, j][order])
-    grid = table.reshape(layers.size, gy.size, gx.size)
+    grid = _resample(d, dy, ok, layers).reshape(layers.size, gy.size, gx.size)
     # grid pixels without a sample (outside the left view) take their nearest sampled neighbour's offsets,
     # so that the interpolation next to the view's edge is not pulled towards an arbitrary value
     missing = ~np.isfinite(grid[0])
