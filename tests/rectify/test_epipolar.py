@@ -63,3 +63,20 @@ def test_row_offset_map_and_arrays_round_trip(triprism_pair) -> None:  # type: i
     back = EpipolarTable.from_arrays(table.to_arrays())
     assert np.array_equal(back.offsets, table.offsets)
     assert (back.step, back.d_start, back.d_step) == (table.step, table.d_start, table.d_step)
+
+
+def test_resampling_is_np_interp_per_column() -> None:
+    from prismstereo.rectify.epipolar import _resample
+
+    rng = np.random.default_rng(0)
+    d = np.sort(rng.uniform(0.0, 300.0, (32, 200)), axis=0)[::-1]
+    dy = rng.normal(size=d.shape)
+    ok = rng.random(d.shape) > 0.3
+    ok[:, :3] = False  # columns without a sample
+    layers = np.linspace(-5.0, 310.0, 48)
+    got = _resample(d, dy, ok, layers)
+    assert np.all(np.isnan(got[:, :3]))
+    for j in range(3, d.shape[1]):
+        m = ok[:, j]
+        order = np.argsort(d[m, j])
+        np.testing.assert_allclose(got[:, j], np.interp(layers, d[m, j][order], dy[m, j][order]), atol=1e-12)
