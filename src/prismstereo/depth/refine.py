@@ -389,7 +389,7 @@ def refine_disparity(
         are refined the same way either way.
     row_offset : (H, W) float array, optional
         Row of the match in ``right`` less the row of the left pixel (the epipolar curve of views that are
-        not exact pinholes, :meth:`~prismstereo.rectify.EpipolarTable.row_offset`): the right window of
+        not exact pinholes, :meth:`~prismstereo.rectify.epipolar.EpipolarTable.row_offset`): the right window of
         each pixel is sampled on the rows moved by its offset, linearly between two rows. None: on the
         left pixel's rows (offset 0 everywhere, the same result).
 
