@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import pytest
 
@@ -11,16 +10,14 @@ from prismstereo.depth.refine import refine_disparity
 
 
 def _diagonal_pair(d: float, dy: float, *, h: int = 60, w: int = 140) -> tuple[np.ndarray, np.ndarray]:
-    """Diagonal stripes with a little noise, and the copy whose match of left (x, y) is (x − d, y + dy)."""
-    rng = np.random.default_rng(5)
-    yy, xx = np.mgrid[0:h + 40, 0:w + 40].astype(np.float64)
-    base = 128 + 60 * np.sin(0.7 * (xx + yy)) + 20 * np.sin(0.31 * (xx - 2.0 * yy))
-    base = cv2.GaussianBlur((base + 8 * rng.standard_normal(base.shape)).astype(np.float32), (0, 0), 0.8)
-    grid_y, grid_x = np.mgrid[0:h, 0:w].astype(np.float32)
-    left = base[20:20 + h, 20:20 + w]
-    # right(x', y') = left(x' + d, y' − dy)
-    right = cv2.remap(base, grid_x + 20 + d, grid_y + 20 - dy, cv2.INTER_CUBIC)
-    return left, right
+    """Two diagonal gratings, and the same texture whose match of left (x, y) is (x − d, y + dy) (both
+    evaluated exactly)."""
+
+    def texture(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return (128 + 60 * np.sin(0.45 * (x + y)) + 20 * np.sin(0.23 * (x - 2.0 * y))).astype(np.float32)
+
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    return texture(xx, yy), texture(xx + d, yy - dy)
 
 
 def test_row_offset_removes_the_bias_a_vertical_offset_gives_a_diagonal_texture() -> None:
@@ -109,3 +106,20 @@ def test_rendered_triprism_refines_closer_to_exact_correspondences() -> None:
         e = np.abs(disp[ys, xs] - d_true)
         errs[name] = float(np.median(e[np.isfinite(e)]))
     assert errs["curves"] < 0.75 * errs["rows"], errs
+
+
+def test_cut_windows_follow_the_curve_near_a_horizontal_edge_of_the_right_view() -> None:
+    """Next to the right view's top edge the windows are cut to the rows both views have; with the row
+    offset they are refined there as accurately as inside, and as many as without it."""
+    d, dy = 9.3, -0.3
+    left, right = _diagonal_pair(d, dy)
+    valid_r = np.ones(left.shape, dtype=bool)
+    valid_r[:15] = False
+    init = np.full(left.shape, 9.0, dtype=np.float32)
+    band = (slice(12, 22), slice(25, -25))  # windows reach above row 15
+    kw = dict(radius=5, min_pixels=49, valid_left=np.ones(left.shape, dtype=bool), valid_right=valid_r)
+    along, conf = refine_disparity(left, right, init, row_offset=np.full(left.shape, dy), **kw)
+    _, conf_rows = refine_disparity(left, right, init, **kw)
+    assert np.isfinite(conf[band]).sum() >= np.isfinite(conf_rows[band]).sum() > 0
+    refined = np.isfinite(conf[band])
+    assert np.all(np.abs(along[band][refined] - d) < 0.05)

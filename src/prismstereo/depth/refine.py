@@ -206,13 +206,17 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
 @njit(cache=True, inline="always")
 def _window_valid(VL: np.ndarray, VR: np.ndarray, y: int, xl: int, xa: int, yr: int,
                   fy: float) -> bool:  # pragma: no cover - numba
-    """Whether a window pixel counts: inside the image and the left view, both right taps inside the right view
-    (on row ``yr``, and on ``yr + 1`` too when the row fraction ``fy`` is not 0)."""
+    """Whether a window pixel counts: inside the image and the left view, both right taps inside the right
+    view. ``VR`` is 2 inside the right view, 1 on its outermost pixels, 0 outside; the right window lies
+    between rows ``yr`` and ``yr + 1`` (weight ``fy`` on ``yr + 1``): the nearer row must be inside (2),
+    the other one, weighted less than half, in the view (≥ 1)."""
     h, w = VL.shape
-    if not (0 <= y < h and 0 <= xl < w and VL[y, xl] != 0 and 0 <= xa and xa + 1 < w and 0 <= yr < h
-            and VR[yr, xa] != 0 and VR[yr, xa + 1] != 0):
+    if not (0 <= y < h and 0 <= xl < w and VL[y, xl] != 0 and 0 <= xa and xa + 1 < w):
         return False
-    return fy == 0.0 or (yr + 1 < h and VR[yr + 1, xa] != 0 and VR[yr + 1, xa + 1] != 0)
+    near, far = (yr, yr + 1) if fy < 0.5 else (yr + 1, yr)
+    if not (0 <= near < h and VR[near, xa] >= 2 and VR[near, xa + 1] >= 2):
+        return False
+    return fy == 0.0 or (0 <= far < h and VR[far, xa] >= 1 and VR[far, xa + 1] >= 1)
 
 
 @njit(cache=True)
@@ -414,8 +418,6 @@ def refine_disparity(
         offs = np.zeros((h, w), dtype=np.float64)
     else:
         offs = np.nan_to_num(np.asarray(row_offset, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
-    # rows the right windows may reach beyond the left window's
-    reach_y = int(np.ceil(np.abs(offs).max())) if offs.size else 0
     vl = np.ones((h, w), dtype=bool) if valid_left is None else np.asarray(valid_left, dtype=bool)
     vr = np.ones((h, w), dtype=bool) if valid_right is None else np.asarray(valid_right, dtype=bool)
     # window content: with cut windows, not the outermost pixel of a view's valid region either (its
@@ -433,13 +435,18 @@ def refine_disparity(
         # the whole window must stay in the right view for every disparity the update may reach (taps
         # included), else it is a cut window
         reach = radius + int(np.ceil(max_shift)) + 2
-        whole_r = cv2.erode(vr_in.astype(np.uint8), np.ones((k + 2 * reach_y, 2 * reach + 1), np.uint8),
+        whole_r = cv2.erode(vr_in.astype(np.uint8), np.ones((k, 2 * reach + 1), np.uint8),
                             borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
         ys0, xs0 = np.nonzero(ok)
         xr0 = np.rint(xs0 - d0[ys0, xs0]).astype(np.int64)
-        inside = (xr0 >= 0) & (xr0 < w)
+        # the right window's rows: those of the left one moved by the row offset, and the next ones when
+        # it has a fraction
+        oy0, fy0 = _split_rows(offs[ys0, xs0])
+        yr0 = ys0 + oy0
+        yr1 = yr0 + (fy0 > 0.0)
+        inside = (xr0 >= 0) & (xr0 < w) & (yr0 >= 0) & (yr1 < h)
         stay = np.zeros(ys0.size, dtype=bool)
-        stay[inside] = whole_r[ys0[inside], xr0[inside]]
+        stay[inside] = whole_r[yr0[inside], xr0[inside]] & whole_r[yr1[inside], xr0[inside]]
         ok[ys0[~stay], xs0[~stay]] = False
         cut = finite & vl & ~ok
     Rx = cv2.Sobel(R, cv2.CV_32F, 1, 0, ksize=3, scale=1.0 / 8.0)
@@ -460,7 +467,8 @@ def refine_disparity(
     ys, xs = np.nonzero(cut)
     if ys.size and min_pixels is not None:
         oy, fy = _split_rows(offs[ys, xs])
-        d, zncc, keep = _refine_cut_kernel(L, R, Rx, vl_in.astype(np.uint8), vr_in.astype(np.uint8),
+        vr_levels = vr_in.astype(np.uint8) + vr.astype(np.uint8)  # 2 inside, 1 outermost pixels, 0 outside
+        d, zncc, keep = _refine_cut_kernel(L, R, Rx, vl_in.astype(np.uint8), vr_levels,
                                            ys.astype(np.int64), xs.astype(np.int64), d0, oy, fy, int(radius),
                                            int(iterations), float(max_shift), float(min_texture),
                                            int(min_pixels))
