@@ -12,7 +12,8 @@ low-contrast few-octave noise, fine checkers. The captures are split in two:
   thesis bi-prism at full resolution), looked at only to report.
 
 The matcher runs once per capture (``run_depth`` without refinement and filters); every setting of the
-grid then applies the depth pipeline's own steps (:func:`prismstereo.depth.confidence.confident_matches`,
+grid then applies the depth pipeline's own steps (:func:`prismstereo.depth.confidence.confident_matches`
+along the pair's epipolar curves unless a row says ``rows``,
 :func:`~prismstereo.depth.confidence.remove_speckles`) to those matches and triangulates them
 (exact rays). Reported per setting: coverage of the common view (share with a point), median / p90
 relative depth error, share within 1 %, share of gross errors (> 5 %), against the simulator's exact
@@ -38,6 +39,7 @@ from prismstereo.config import Rig, thesis_biprism, thesis_triprism
 from prismstereo.depth import DepthConfig, run_depth, triangulate_matches
 from prismstereo.depth.confidence import confident_matches, remove_speckles
 from prismstereo.evaluation.depth_metrics import ground_truth_for_run
+from prismstereo.rectify.epipolar import epipolar_table
 from prismstereo.simulate import (
     Box,
     CheckerTexture,
@@ -163,12 +165,13 @@ class Setting:
     speckles: bool = True
     border: bool = True  # windows cut by a view's edge refined on their pixels inside (at least 7×7 worth)
     lr_gap: float | None = None  # sub-pixel left–right check, px
+    curves: bool = True  # right windows along the exact epipolar curves (False: on the left pixel's rows)
 
     def label(self) -> str:
         c = "all" if self.min_confidence is None else f"{self.min_confidence:g}"
         lr = "-" if self.lr_gap is None else f"{self.lr_gap:g}"
         return (f"r={self.radius} tex={self.min_texture:g} conf≥{c} edges={'cut' if self.border else '-'} "
-                f"lr={lr} speckles={'on' if self.speckles else 'off'}")
+                f"lr={lr} speckles={'on' if self.speckles else 'off'}" + ("" if self.curves else " rows"))
 
 
 def _metrics(err: np.ndarray, keep: np.ndarray, common: np.ndarray) -> dict[str, float]:
@@ -201,12 +204,14 @@ def measure_case(case: Case, grid: list[Setting]) -> dict[Setting, dict[str, flo
     vl, vr = res.pair.valid_masks()
     assert res.disparity is not None and res.roi_mask is not None
     speckle_size = max(20, int((DepthConfig().speckle_fraction or 0.0) * int(res.roi_mask.sum())))
+    epipolar = epipolar_table(res.pair)
     out: dict[Setting, dict[str, float]] = {}
-    for (radius, tex, border, lr), group in itertools.groupby(
-            grid, key=lambda s: (s.radius, s.min_texture, s.border, s.lr_gap)):
+    for (radius, tex, border, lr, curves), group in itertools.groupby(
+            grid, key=lambda s: (s.radius, s.min_texture, s.border, s.lr_gap, s.curves)):
         disp, conf = confident_matches(res.left, res.right, res.disparity, radius=radius, min_texture=tex,
                                        min_confidence=None, border_radius=3 if border else None,
-                                       max_lr_gap=lr, valid_left=vl, valid_right=vr)
+                                       max_lr_gap=lr, valid_left=vl, valid_right=vr,
+                                       epipolar=epipolar if curves else None)
         err = _rel_error(res, gt, disp)
         for s in group:
             kept = disp if s.min_confidence is None else np.where(conf >= s.min_confidence, disp, np.nan)
@@ -234,6 +239,7 @@ def main() -> None:
         grid += [Setting(d.refine_radius, d.refine_min_texture, 0.5, border=False)]
         grid += [Setting(d.refine_radius, d.refine_min_texture, 0.5, lr_gap=None)]
         grid += [Setting(d.refine_radius, d.refine_min_texture, c, lr_gap=lr) for c in (None, 0.5, 0.7)]
+        grid += [Setting(d.refine_radius, d.refine_min_texture, 0.5, lr_gap=lr, curves=False)]
     else:
         old = [Setting(3, 1.0, c, sp, border=False) for c in (None, 0.5, 0.8, 0.9) for sp in (True, False)]
         grid = old + [Setting(r, t, c, sp, b, g) for r, t, b, g in (
@@ -241,6 +247,7 @@ def main() -> None:
                           (5, 0.05, False, None), (5, 0.01, False, None), (5, 0.01, True, None),
                           (5, 0.01, True, 1.0), (5, 0.01, True, lr), (5, 0.01, True, 0.3), (7, 0.01, True, lr))
                       for c in (None, 0.5, 0.6, 0.7, 0.8) for sp in ((True, False) if c == 0.5 else (True,))]
+        grid += [Setting(5, 0.01, c, True, True, lr, curves=False) for c in (None, 0.5)]
     todo = cases(args.data, quick=args.quick)
     print(f"# Depth density on rendered captures with held-out textures ({len(todo)} captures; matcher "
           f"{d.method}; default: r={d.refine_radius} tex={d.refine_min_texture:g} conf≥{d.min_confidence} "

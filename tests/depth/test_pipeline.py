@@ -151,7 +151,7 @@ def test_the_steps_compose_to_run_depth(plane_capture, plane_run):
     left, right = pl.rectify_capture(pair, img)
     region = pl.search_region(rig, pair, cfg, left, right)
     matched = pl.match_pair(left, right, pair, region, cfg)
-    disp, _ = pl.refine_matches(left, right, pair, matched.disparity, cfg)
+    disp, _ = pl.refine_matches(left, right, pair, matched.disparity, cfg, epipolar=pl.epipolar_curves(pair))
     disp = pl.remove_speckles(disp, region, cfg)
     pts = pl.triangulate_disparity(rig, pair, views, disp, cfg)
     np.testing.assert_array_equal(pts.depth, plane_run.depth)

@@ -26,7 +26,8 @@ def computed():
     rig = demo_rig()
     cfg = pl.validate_config(rig, DepthConfig(method="sad"))
     views = pl.virtual_cameras(rig, cfg)
-    return rig, cfg, views, pl.rectify_geometry(rig, views, cfg)
+    pair = pl.rectify_geometry(rig, views, cfg)
+    return rig, cfg, views, pair, pl.epipolar_curves(pair)
 
 
 def _same(a, b) -> None:
@@ -42,13 +43,15 @@ def _same(a, b) -> None:
 
 
 def test_round_trip_and_run_depth_uses_it(cache: Path, computed) -> None:
-    rig, cfg, views, pair = computed
+    rig, cfg, views, pair, epi = computed
     assert load_setup(rig, cfg.views, cfg.calibration) is None
-    path = save_setup(rig, cfg.views, cfg.calibration, views, pair)
+    path = save_setup(rig, cfg.views, cfg.calibration, views, pair, epi)
     assert path is not None and path.parent == cache and not list(cache.glob(".setup-*"))
     got = load_setup(rig, cfg.views, cfg.calibration)
     assert got is not None
     _same(got[1], pair)
+    assert np.array_equal(got[2].offsets, epi.offsets)
+    assert (got[2].step, got[2].d_start, got[2].d_step) == (epi.step, epi.d_start, epi.d_step)
     # another model or pair of faces is another entry
     assert setup_key(rig, cfg.views, "thesis") != setup_key(rig, cfg.views, cfg.calibration)
     assert setup_key(rig, (0, 1), cfg.calibration) != setup_key(rig, cfg.views, cfg.calibration)
@@ -57,8 +60,8 @@ def test_round_trip_and_run_depth_uses_it(cache: Path, computed) -> None:
 
 
 def test_corrupt_entry_is_computed_again(cache: Path, computed) -> None:
-    rig, cfg, views, pair = computed
-    path = save_setup(rig, cfg.views, cfg.calibration, views, pair)
+    rig, cfg, views, pair, epi = computed
+    path = save_setup(rig, cfg.views, cfg.calibration, views, pair, epi)
     assert path is not None
     data = path.read_bytes()
     path.write_bytes(data[: len(data) // 2])  # truncated (a crash of another writer, a full disk)
@@ -70,23 +73,23 @@ def test_corrupt_entry_is_computed_again(cache: Path, computed) -> None:
 
 def test_disabled_or_unwritable_cache_costs_only_the_saving(cache: Path, computed, tmp_path: Path,
                                                           monkeypatch: pytest.MonkeyPatch) -> None:
-    rig, cfg, views, pair = computed
+    rig, cfg, views, pair, epi = computed
     monkeypatch.setenv("PRISMSTEREO_CACHE", "0")
     assert cache_folder() is None
-    assert save_setup(rig, cfg.views, cfg.calibration, views, pair) is None
+    assert save_setup(rig, cfg.views, cfg.calibration, views, pair, epi) is None
     pl.prepare_depth(rig, config=DepthConfig(method="sad"))
     assert not cache.exists()
     monkeypatch.delenv("PRISMSTEREO_CACHE")
     blocker = tmp_path / "file.txt"
     blocker.write_text("x")
     monkeypatch.setenv("PRISMSTEREO_CACHE_DIR", str(blocker / "c"))  # a folder inside a file
-    assert save_setup(rig, cfg.views, cfg.calibration, views, pair) is None
+    assert save_setup(rig, cfg.views, cfg.calibration, views, pair, epi) is None
     _same(pl.prepare_depth(rig, config=DepthConfig(method="sad")).pair, pair)
 
 
 def test_concurrent_writers_leave_one_whole_entry(cache: Path, computed) -> None:
-    rig, cfg, views, pair = computed
-    threads = [threading.Thread(target=save_setup, args=(rig, cfg.views, cfg.calibration, views, pair))
+    rig, cfg, views, pair, epi = computed
+    threads = [threading.Thread(target=save_setup, args=(rig, cfg.views, cfg.calibration, views, pair, epi))
                for _ in range(4)]
     for t in threads:
         t.start()
@@ -103,13 +106,13 @@ def test_old_entries_are_pruned(cache: Path, computed, monkeypatch: pytest.Monke
 
     from prismstereo.depth import setup_cache
 
-    rig, cfg, views, pair = computed
+    rig, cfg, views, pair, epi = computed
     monkeypatch.setattr(setup_cache, "MAX_ENTRIES", 2)
     cache.mkdir(parents=True)
     for i in range(3):  # entries of other rigs or older code, oldest first
         f = cache / f"setup-old{i}.npz"
         f.write_bytes(b"x")
         os.utime(f, (1000.0 + i, 1000.0 + i))
-    path = save_setup(rig, cfg.views, cfg.calibration, views, pair)
+    path = save_setup(rig, cfg.views, cfg.calibration, views, pair, epi)
     assert path is not None
     assert sorted(p.name for p in cache.iterdir()) == sorted([path.name, "setup-old2.npz"])

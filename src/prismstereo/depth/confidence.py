@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 from prismstereo.depth.refine import refine_disparity
+from prismstereo.rectify.epipolar import EpipolarTable
 
 __all__ = ["confident_matches", "remove_speckles"]
 
@@ -30,7 +31,8 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
                       min_confidence: float | None = None,
                       border_radius: int | None = 3, max_lr_gap: float | None = 0.5,
                       valid_left: np.ndarray | None = None,
-                      valid_right: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                      valid_right: np.ndarray | None = None,
+                      epipolar: EpipolarTable | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Refine matches, rate them and keep the confident ones.
 
     Parameters
@@ -58,6 +60,9 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
         surface with more texture differently from the two sides; the check finds those. None: no check.
     valid_left, valid_right : (H, W) bool, optional
         Valid regions of the rectified views.
+    epipolar : EpipolarTable, optional
+        The pair's epipolar curves: the right windows (and the left ones of the check) are sampled on the
+        rows the optics put the match on (δy at the matcher's disparity), not on the left pixel's row.
 
     Returns
     -------
@@ -68,9 +73,11 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
         Confidence in [0, 1] of each remaining match, NaN where ``disparity`` is NaN.
     """
     min_pixels = None if border_radius is None else (2 * border_radius + 1) ** 2
+    rows = None if epipolar is None else epipolar.row_offset_map(disparity)
     disp, zncc = refine_disparity(left, right, disparity, radius=radius, iterations=iterations,
                                   max_shift=max_shift, min_texture=min_texture,
-                                  valid_left=valid_left, valid_right=valid_right, min_pixels=min_pixels)
+                                  valid_left=valid_left, valid_right=valid_right, min_pixels=min_pixels,
+                                  row_offset=rows)
     matched = np.isfinite(disp)
     conf = np.where(np.isfinite(zncc), np.clip(zncc, 0.0, 1.0), np.float32(0.0)).astype(np.float32)
     if max_lr_gap is not None:
@@ -79,11 +86,13 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
         # reads (each pixel is refined on its own, so the others change nothing)
         asked = conf > 0.0 if min_confidence is None else conf >= max(min_confidence, np.nextafter(0.0, 1.0))
         seen = np.where(_read_by_check(disp, asked & matched), _seen_from_right(disparity), np.float32(np.nan))
+        rows_r = None if epipolar is None else _right_row_offsets(epipolar, seen)
         d_r, _ = refine_disparity(_mirror(right), _mirror(left), _mirror(seen),
                                     radius=radius, iterations=iterations, max_shift=max_shift,
                                     min_texture=min_texture, min_pixels=min_pixels,
                                     valid_left=None if valid_right is None else _mirror(valid_right),
-                                    valid_right=None if valid_left is None else _mirror(valid_left))
+                                    valid_right=None if valid_left is None else _mirror(valid_left),
+                                    row_offset=None if rows_r is None else _mirror(rows_r))
         disp_r = _mirror(d_r)
         conf[_lr_gap(disp, disp_r) > max_lr_gap] = 0.0
     keep = matched if min_confidence is None else matched & (conf >= min_confidence)
@@ -121,6 +130,17 @@ def remove_speckles(disparity: np.ndarray, *, max_size: int) -> np.ndarray:
 def _mirror(a: np.ndarray) -> np.ndarray:
     """Left–right mirror image (a right view becomes a left one, disparities keep their sign)."""
     return np.ascontiguousarray(np.asarray(a)[:, ::-1])
+
+
+def _right_row_offsets(epipolar: EpipolarTable, disparity_right: np.ndarray) -> np.ndarray:
+    """(H, W) row offsets of the right view's matches (left row − right row): the right pixel (x, y) at
+    disparity d sees the point the left pixel (x + d, y − δy) sees, δy ≈ δy(x + d, y, d) (δy changes by
+    ≪ 0.01 px over a row's fraction)."""
+    out = np.full(disparity_right.shape, np.nan, dtype=np.float32)
+    ys, xs = np.nonzero(np.isfinite(disparity_right))
+    d = disparity_right[ys, xs]
+    out[ys, xs] = -epipolar.row_offset(ys, xs + d, d)
+    return out
 
 
 def _seen_from_right(disparity: np.ndarray) -> np.ndarray:

@@ -5,13 +5,13 @@ or for every face of an N-face prism (``views="all"``). Each step is a plain fun
 values and returns a small frozen dataclass, in this order:
 
 pair of faces
-    :func:`validate_inputs` → :func:`virtual_cameras` → :func:`rectify_geometry` → (the capture warped,
-    :func:`search_region`) → :func:`match_pair` → :func:`refine_matches` → :func:`remove_speckles` →
-    :func:`triangulate_disparity` → :func:`diagnose`
+    :func:`validate_inputs` → :func:`virtual_cameras` → :func:`rectify_geometry` → :func:`epipolar_curves` →
+    (the capture warped, :func:`search_region`) → :func:`match_pair` → :func:`refine_matches` →
+    :func:`remove_speckles` → :func:`triangulate_disparity` → :func:`diagnose`
 all faces (N ≥ 3)
     :func:`validate_inputs` → :func:`search_region_all_views` → :func:`sweep_all_views` → :func:`diagnose`
 
-The per-rig part of a pair run (cameras, rectification, search region) is a :class:`DepthSetup`
+The per-rig part of a pair run (cameras, rectification, epipolar curves, search region) is a :class:`DepthSetup`
 (:func:`prepare_depth`) that a sequence computes once and shares between frames (:func:`run_depth_frame`).
 
 Everything the user can get wrong (image size, views, depth range, region of interest, method) is checked
@@ -60,6 +60,7 @@ from prismstereo.matching.registry import resolved_params
 from prismstereo.multiview.prism import SweepParams, depth_all_views
 from prismstereo.progress import progress_bar
 from prismstereo.rectify import RectifiedPair, common_view, rectify_pair
+from prismstereo.rectify.epipolar import EpipolarTable, epipolar_table
 
 log = logging.getLogger(__name__)
 
@@ -75,6 +76,7 @@ __all__ = [
     "coverage_of",
     "default_views",
     "diagnose",
+    "epipolar_curves",
     "match_pair",
     "prepare_depth",
     "rectify_capture",
@@ -287,6 +289,8 @@ class DepthSetup:
     pair : RectifiedPair
         Rectification of the chosen pair, with its remap tables.
     region : SearchRegion
+    epipolar : EpipolarTable or None
+        The pair's epipolar curves (:func:`epipolar_curves`), which the refinement samples along.
     timings : dict
         Seconds spent on the set-up steps.
     """
@@ -296,6 +300,7 @@ class DepthSetup:
     views: tuple[VirtualView, ...]
     pair: RectifiedPair
     region: SearchRegion
+    epipolar: EpipolarTable | None = None
     timings: dict[str, float] = field(default_factory=dict)
 
     @property
@@ -587,6 +592,12 @@ def rectify_geometry(rig: Rig, views: Sequence[VirtualView], config: DepthConfig
     return rectify_pair(rig, by_face[a], by_face[b])
 
 
+def epipolar_curves(pair: RectifiedPair) -> EpipolarTable:
+    """Where a match really lies in the rectified right view: the row offset of the exact epipolar curve of
+    each left pixel and disparity (:func:`~prismstereo.rectify.epipolar.epipolar_table`)."""
+    return epipolar_table(pair)
+
+
 def rectify_capture(pair: RectifiedPair, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The rectified left and right sub-images of a capture."""
     left, right = pair.rectify_images(image)
@@ -681,17 +692,19 @@ def match_pair(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, region:
 
 
 def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, disparity: np.ndarray,
-                   config: DepthConfig) -> tuple[np.ndarray, np.ndarray]:
+                   config: DepthConfig, *, epipolar: EpipolarTable | None) -> tuple[np.ndarray, np.ndarray]:
     """Sub-pixel refinement, confidence and the confidence filter
-    (:func:`~prismstereo.depth.confidence.confident_matches`); returns (disparity, confidence in [0, 1],
-    0 for every match when the refinement is off, NaN where there is no match)."""
+    (:func:`~prismstereo.depth.confidence.confident_matches`), the right windows on the epipolar curves of
+    ``epipolar`` (:func:`epipolar_curves`; None: on the left pixels' rows); returns (disparity, confidence
+    in [0, 1], 0 for every match when the refinement is off, NaN where there is no match)."""
     if not config.refine:
         return disparity, np.where(np.isfinite(disparity), np.float32(0.0), np.float32(np.nan))
     vl, vr = pair.valid_masks()
     return confident_matches(left, right, disparity, radius=config.refine_radius,
                              iterations=config.refine_iterations, max_shift=config.refine_max_shift,
                              min_texture=config.refine_min_texture, min_confidence=config.min_confidence,
-                             max_lr_gap=config.refine_max_lr_gap, valid_left=vl, valid_right=vr)
+                             max_lr_gap=config.refine_max_lr_gap, valid_left=vl, valid_right=vr,
+                             epipolar=epipolar)
 
 
 def remove_speckles(disparity: np.ndarray, region: SearchRegion, config: DepthConfig) -> np.ndarray:
@@ -819,7 +832,7 @@ def _run_frame(setup: DepthSetup, image: np.ndarray, left: np.ndarray, right: np
         matched = match_pair(left, right, pair, region, cfg)
     counts = {"matched": int(np.isfinite(matched.disparity).sum())}
     with clock.step("refine"):
-        disp, conf = refine_matches(left, right, pair, matched.disparity, cfg)
+        disp, conf = refine_matches(left, right, pair, matched.disparity, cfg, epipolar=setup.epipolar)
     if cfg.refine:
         counts["refined"] = int(np.isfinite(disp).sum())
     with clock.step("speckles"):
@@ -839,9 +852,10 @@ def _run_frame(setup: DepthSetup, image: np.ndarray, left: np.ndarray, right: np
     return _finish(result, clock, t0)
 
 
-def _geometry(rig: Rig, cfg: DepthConfig, clock: _Clock) -> tuple[tuple[VirtualView, ...], RectifiedPair]:
-    """The virtual cameras and the rectified pair, from the set-up cache when it holds them
-    (:mod:`prismstereo.depth.setup_cache`), else computed and stored there. The clock's ``rectify`` step
+def _geometry(rig: Rig, cfg: DepthConfig, clock: _Clock
+              ) -> tuple[tuple[VirtualView, ...], RectifiedPair, EpipolarTable]:
+    """The virtual cameras, the rectified pair and its epipolar curves, from the set-up cache when it holds
+    them (:mod:`prismstereo.depth.setup_cache`), else computed and stored there. The clock's ``rectify`` step
     goes on in the caller (the capture's remap, the search region)."""
     faces = _pair_faces(cfg)
     with clock.step("cameras"):
@@ -849,10 +863,11 @@ def _geometry(rig: Rig, cfg: DepthConfig, clock: _Clock) -> tuple[tuple[VirtualV
         views = cached[0] if cached is not None else virtual_cameras(rig, cfg)
     with clock.step("rectify"):
         if cached is not None:
-            return views, cached[1]
+            return views, cached[1], cached[2]
         pair = rectify_geometry(rig, views, cfg)
-        save_setup(rig, faces, cfg.calibration, views, pair)
-    return views, pair
+        epipolar = epipolar_curves(pair)
+        save_setup(rig, faces, cfg.calibration, views, pair, epipolar)
+    return views, pair, epipolar
 
 
 def run_depth(rig: Rig, image: Any, *, config: DepthConfig | None = None,
@@ -889,11 +904,11 @@ def run_depth(rig: Rig, image: Any, *, config: DepthConfig | None = None,
         result = dataclasses.replace(result, timings={"validate": validated}, match_timings=sweep_timings)
         return _finish(result, clock, t0)
     clock = _Clock(_SETUP_STEPS + _FRAME_STEPS, progress)
-    views, pair = _geometry(rig, cfg, clock)
+    views, pair, epipolar = _geometry(rig, cfg, clock)
     with clock.step("rectify"):
         left, right = rectify_capture(pair, img)
         region = search_region(rig, pair, cfg, left, right)
-    setup = DepthSetup(rig=rig, config=cfg, views=views, pair=pair, region=region,
+    setup = DepthSetup(rig=rig, config=cfg, views=views, pair=pair, region=region, epipolar=epipolar,
                        timings={"validate": validated, **clock.timings})
     return _run_frame(setup, img, left, right, clock, t0)
 
@@ -918,10 +933,11 @@ def prepare_depth(rig: Rig, *, config: DepthConfig | None = None) -> DepthSetup:
         raise ConfigError("--views: expected a pair I,J for a sequence, got 'all' (the all-view sweep is "
                           "depth-only)")
     clock = _Clock(_SETUP_STEPS, False)
-    views, pair = _geometry(rig, cfg, clock)
+    views, pair, epipolar = _geometry(rig, cfg, clock)
     with clock.step("rectify"):
         region = search_region(rig, pair, cfg)
-    return DepthSetup(rig=rig, config=cfg, views=views, pair=pair, region=region, timings=dict(clock.timings))
+    return DepthSetup(rig=rig, config=cfg, views=views, pair=pair, region=region, epipolar=epipolar,
+                      timings=dict(clock.timings))
 
 
 def run_depth_frame(setup: DepthSetup, image: Any, *, progress: bool | None = False) -> DepthResult:

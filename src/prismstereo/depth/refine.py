@@ -4,14 +4,17 @@ Depth error grows as ``ΔZ / Z = Δd / d``: at the thesis rig's ~80 px disparity
 is 0.2 px of disparity, finer than integer or parabola-fitted winners give. This step refines each valid
 disparity continuously (Lucas–Kanade along the epipolar line): it minimises, over a ``(2r+1)²`` window,
 
-    E(d) = Σ ( L(x, y) − R(x − d, y) )²   (window means removed)
+    E(d) = Σ ( L(x, y) − R(x − d, y + δy) )²   (window means removed)
 
-with R sampled bilinearly, by Gauss–Newton steps ``Δd = −Σ r·J / Σ J²`` (``r = L − R(x − d)``, ``J = ∂r/∂d =
-R_x(x − d)``), the whole window of each pixel shifted by that pixel's d (a parallel numba kernel over pixels,
-accumulating window sums). Means are removed per window (zero-mean SSD), so an offset between the two faces'
-brightness does not bias d. The update is bounded to ±``max_shift`` px around the matcher's disparity; pixels
-without texture (small Σ J²) keep the matcher's value and get no confidence. The returned confidence (ZNCC of
-the final windows) lets the pipeline drop matches the refinement could not confirm.
+where δy is the row offset of the exact epipolar curve at the pixel (the views of a prism are not exact
+pinholes, so a match lies off the left pixel's row by a known amount: :mod:`prismstereo.rectify.epipolar`;
+0 without it), with R sampled bilinearly, by Gauss–Newton steps ``Δd = −Σ r·J / Σ J²`` (``r = L − R``,
+``J = ∂r/∂d = R_x``, both at (x − d, y + δy)), the whole window of each pixel shifted by that pixel's d (a
+parallel numba kernel over pixels, accumulating window sums). Means are removed per window (zero-mean SSD),
+so an offset between the two faces' brightness does not bias d. The update is bounded to ±``max_shift`` px
+around the matcher's disparity; pixels without texture (small Σ J²) keep the matcher's value and get no
+confidence. The returned confidence (ZNCC of the final windows) lets the pipeline drop matches the
+refinement could not confirm.
 """
 
 from __future__ import annotations
@@ -24,22 +27,50 @@ __all__ = ["refine_disparity"]
 
 
 @njit(cache=True, inline="always")
-def _sample(img: np.ndarray, y: int, xf: float) -> float:  # pragma: no cover - numba
-    """Linear interpolation along row ``y`` at column ``xf``, edge-replicated (cv2 BORDER_REPLICATE)."""
-    w = img.shape[1]
+def _sample(img: np.ndarray, y: int, xf: float, fy: float) -> float:  # pragma: no cover - numba
+    """Bilinear interpolation at column ``xf`` between rows ``y`` and ``y + 1`` (weight ``fy`` on ``y + 1``),
+    edge-replicated (cv2 BORDER_REPLICATE)."""
+    h, w = img.shape
     x0 = int(np.floor(xf))
     a = xf - x0
     xa = min(max(x0, 0), w - 1)
     xb = min(max(x0 + 1, 0), w - 1)
-    return (1.0 - a) * img[y, xa] + a * img[y, xb]
+    ya = min(max(y, 0), h - 1)
+    v = (1.0 - a) * img[ya, xa] + a * img[ya, xb]
+    if fy == 0.0:
+        return v
+    yb = min(max(y + 1, 0), h - 1)
+    return (1.0 - fy) * v + fy * ((1.0 - a) * img[yb, xa] + a * img[yb, xb])
+
+
+@njit(cache=True, inline="always")
+def _taps(R: np.ndarray, Rx: np.ndarray, yr: int, fy: float, xa: int) -> tuple[float, float, float, float]:
+    # pragma: no cover - numba
+    """R and Rx at the integer columns ``xa`` and ``xa + 1`` of the (fractional) row ``yr + fy``: linear
+    between rows ``yr`` and ``yr + 1``, edge-replicated."""
+    h = R.shape[0]
+    ya = min(max(yr, 0), h - 1)
+    ra = float(R[ya, xa])
+    rb = float(R[ya, xa + 1])
+    ja = float(Rx[ya, xa])
+    jb = float(Rx[ya, xa + 1])
+    if fy != 0.0:
+        yb = min(max(yr + 1, 0), h - 1)
+        gy = 1.0 - fy
+        ra = gy * ra + fy * float(R[yb, xa])
+        rb = gy * rb + fy * float(R[yb, xa + 1])
+        ja = gy * ja + fy * float(Rx[yb, xa])
+        jb = gy * jb + fy * float(Rx[yb, xa + 1])
+    return ra, rb, ja, jb
 
 
 @njit(cache=True, inline="always")
 def _tap_sums(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, y: int, x: int, b0: int, lmean: float,
-              radius: int) -> tuple[float, ...]:  # pragma: no cover - numba
+              radius: int, oy: int, fy: float) -> tuple[float, ...]:  # pragma: no cover - numba
     """Window sums of the two integer taps ``a = b0 + dx`` and ``b = a + 1`` of R and Rx, against the left
     window less its mean ``lz``: Σ Ra, Σ Rb, Σ Ja, Σ Jb, Σ lz·Ja, Σ lz·Jb, Σ Ra·Ja, Σ Ra·Jb, Σ Rb·Ja, Σ Rb·Jb,
-    Σ Ja², Σ Ja·Jb, Σ Jb², Σ Ra², Σ Ra·Rb, Σ Rb², Σ lz·Ra, Σ lz·Rb (the window inside the row)."""
+    Σ Ja², Σ Ja·Jb, Σ Jb², Σ Ra², Σ Ra·Rb, Σ Rb², Σ lz·Ra, Σ lz·Rb (the window inside the row). The right
+    window's rows are those of the left one moved by ``oy + fy`` (the epipolar curve's row offset)."""
     sra = srb = sja = sjb = slja = sljb = 0.0
     sraja = srajb = srbja = srbjb = sjaja = sjajb = sjbjb = 0.0
     srara = srarb = srbrb = slra = slrb = 0.0
@@ -47,10 +78,7 @@ def _tap_sums(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, y: int, x: int, b0: 
         yy = y + dy
         for dx in range(-radius, radius + 1):
             xa = b0 + dx
-            ra = float(R[yy, xa])
-            rb = float(R[yy, xa + 1])
-            ja = float(Rx[yy, xa])
-            jb = float(Rx[yy, xa + 1])
+            ra, rb, ja, jb = _taps(R, Rx, yy + oy, fy, xa)
             lz = L[yy, x + dx] - lmean
             sra += ra
             srb += rb
@@ -76,7 +104,7 @@ def _tap_sums(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, y: int, x: int, b0: 
 
 @njit(cache=True, parallel=True, fastmath=True)
 def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray, xs: np.ndarray, d0: np.ndarray,
-                   radius: int, iterations: int, max_shift: float,
+                   oys: np.ndarray, fys: np.ndarray, radius: int, iterations: int, max_shift: float,
                    min_texture: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - numba
     """Gauss–Newton per pixel (module docstring); window sums instead of stored windows.
 
@@ -86,6 +114,8 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
     with one pair of integer taps and one fraction for the whole window: each sum is a polynomial in
     ``fa`` whose coefficients are sums over the integer taps (:func:`_tap_sums`). These are computed once
     per integer position ``b0`` the iterations visit (mostly one or two) instead of once per iteration.
+    The right window's rows are moved by the pixel's row offset ``oys[i] + fys[i]`` (integer part, fraction
+    in [0, 1)), sampled linearly between two rows.
     Returns the refined disparities, the final ZNCC and whether the pixel may keep its refinement.
     """
     n = ys.size
@@ -96,6 +126,7 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
     w = R.shape[1]
     for i in prange(n):
         y, x = ys[i], xs[i]
+        oy, fy = oys[i], fys[i]
         init = float(d0[y, x])
         sl = 0.0
         sl2 = 0.0
@@ -118,7 +149,7 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
             fb = 1.0 - fa
             if b0 - radius >= 0 and b0 + radius + 1 <= w - 1:
                 if b0 != cached:
-                    S = _tap_sums(L, R, Rx, y, x, b0, lmean, radius)
+                    S = _tap_sums(L, R, Rx, y, x, b0, lmean, radius, oy, fy)
                     cached = b0
                 sr = fb * S[0] + fa * S[1]
                 sj = fb * S[2] + fa * S[3]
@@ -131,8 +162,8 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
                 for dy in range(-radius, radius + 1):
                     for dx in range(-radius, radius + 1):
                         xf = x + dx - d
-                        rv = _sample(R, y + dy, xf)
-                        jv = _sample(Rx, y + dy, xf)
+                        rv = _sample(R, y + dy + oy, xf, fy)
+                        jv = _sample(Rx, y + dy + oy, xf, fy)
                         lz = L[y + dy, x + dx] - lmean
                         sr += rv
                         sj += jv
@@ -151,7 +182,7 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
         fb = 1.0 - fa
         if b0 - radius >= 0 and b0 + radius + 1 <= w - 1:
             if b0 != cached:
-                S = _tap_sums(L, R, Rx, y, x, b0, lmean, radius)
+                S = _tap_sums(L, R, Rx, y, x, b0, lmean, radius, oy, fy)
             sr = fb * S[0] + fa * S[1]
             srr = fb * fb * S[13] + 2.0 * fb * fa * S[14] + fa * fa * S[15]
             slr = fb * S[16] + fa * S[17]
@@ -159,7 +190,7 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
             sr = srr = slr = 0.0
             for dy in range(-radius, radius + 1):
                 for dx in range(-radius, radius + 1):
-                    rv = _sample(R, y + dy, x + dx - d)
+                    rv = _sample(R, y + dy + oy, x + dx - d, fy)
                     lz = L[y + dy, x + dx] - lmean
                     sr += rv
                     srr += rv * rv
@@ -173,16 +204,24 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
 
 
 @njit(cache=True, inline="always")
-def _window_valid(VL: np.ndarray, VR: np.ndarray, y: int, xl: int, xa: int) -> bool:  # pragma: no cover - numba
-    """Whether a window pixel counts: inside the image and the left view, both right taps inside the right view."""
+def _window_valid(VL: np.ndarray, VR: np.ndarray, y: int, xl: int, xa: int, yr: int,
+                  fy: float) -> bool:  # pragma: no cover - numba
+    """Whether a window pixel counts: inside the image and the left view, both right taps inside the right
+    view. ``VR`` is 2 inside the right view, 1 on its outermost pixels, 0 outside; the right window lies
+    between rows ``yr`` and ``yr + 1`` (weight ``fy`` on ``yr + 1``): the nearer row must be inside (2),
+    the other one, weighted less than half, in the view (≥ 1)."""
     h, w = VL.shape
-    return (0 <= y < h and 0 <= xl < w and VL[y, xl] != 0 and 0 <= xa and xa + 1 < w and VR[y, xa] != 0
-            and VR[y, xa + 1] != 0)
+    if not (0 <= y < h and 0 <= xl < w and VL[y, xl] != 0 and 0 <= xa and xa + 1 < w):
+        return False
+    near, far = (yr, yr + 1) if fy < 0.5 else (yr + 1, yr)
+    if not (0 <= near < h and VR[near, xa] >= 2 and VR[near, xa + 1] >= 2):
+        return False
+    return fy == 0.0 or (0 <= far < h and VR[far, xa] >= 1 and VR[far, xa + 1] >= 1)
 
 
 @njit(cache=True)
 def _masked_tap_sums(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray, VR: np.ndarray, y: int,
-                     x: int, b0: int, radius: int) -> tuple[float, ...]:  # pragma: no cover - numba
+                     x: int, b0: int, radius: int, oy: int, fy: float) -> tuple[float, ...]:  # pragma: no cover - numba
     """:func:`_tap_sums` over the window pixels that count (:func:`_window_valid`; with the taps at ``b0 + dx``
     the set is the same for every fraction), on the raw left window: m, Σ L, Σ L², then Σ Ra, Σ Rb, Σ Ja,
     Σ Jb, Σ L·Ja, Σ L·Jb, Σ Ra·Ja, Σ Ra·Jb, Σ Rb·Ja, Σ Rb·Jb, Σ Ja², Σ Ja·Jb, Σ Jb², Σ Ra², Σ Ra·Rb,
@@ -194,12 +233,9 @@ def _masked_tap_sums(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarra
     for dy in range(-radius, radius + 1):
         for dx in range(-radius, radius + 1):
             xa = b0 + dx
-            if not _window_valid(VL, VR, y + dy, x + dx, xa):
+            if not _window_valid(VL, VR, y + dy, x + dx, xa, y + dy + oy, fy):
                 continue
-            ra = float(R[y + dy, xa])
-            rb = float(R[y + dy, xa + 1])
-            ja = float(Rx[y + dy, xa])
-            jb = float(Rx[y + dy, xa + 1])
+            ra, rb, ja, jb = _taps(R, Rx, y + dy + oy, fy, xa)
             lv = float(L[y + dy, x + dx])
             m += 1.0
             sl += lv
@@ -228,7 +264,7 @@ def _masked_tap_sums(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarra
 
 @njit(cache=True)
 def _refine_masked(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray, VR: np.ndarray, y: int, x: int,
-                   init: float, radius: int, iterations: int, max_shift: float, min_texture: float,
+                   init: float, oy: int, fy: float, radius: int, iterations: int, max_shift: float, min_texture: float,
                    min_pixels: int) -> tuple[float, float, bool]:  # pragma: no cover - numba
     """Gauss–Newton of one pixel whose window is cut by an edge: the sums run over the window's pixels that
     lie in both views (re-selected at each step, since the right taps move with d); the means, the texture
@@ -237,12 +273,12 @@ def _refine_masked(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray,
     d = init
     textured = True
     cached = int(np.floor(x - d))
-    S = _masked_tap_sums(L, R, Rx, VL, VR, y, x, cached, radius)
+    S = _masked_tap_sums(L, R, Rx, VL, VR, y, x, cached, radius, oy, fy)
     for _ in range(iterations):
         xf0 = x - d
         b0 = int(np.floor(xf0))
         if b0 != cached:
-            S = _masked_tap_sums(L, R, Rx, VL, VR, y, x, b0, radius)
+            S = _masked_tap_sums(L, R, Rx, VL, VR, y, x, b0, radius, oy, fy)
             cached = b0
         m = S[0]
         if m < min_pixels:
@@ -264,7 +300,7 @@ def _refine_masked(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray,
     xf0 = x - d
     b0 = int(np.floor(xf0))
     if b0 != cached:
-        S = _masked_tap_sums(L, R, Rx, VL, VR, y, x, b0, radius)
+        S = _masked_tap_sums(L, R, Rx, VL, VR, y, x, b0, radius, oy, fy)
     m = S[0]
     if m < min_pixels:
         return d, np.nan, False
@@ -282,8 +318,8 @@ def _refine_masked(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray,
 
 @njit(cache=True, parallel=True)
 def _refine_cut_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray, VR: np.ndarray,
-                       ys: np.ndarray, xs: np.ndarray, d0: np.ndarray, radius: int, iterations: int,
-                       max_shift: float, min_texture: float,
+                       ys: np.ndarray, xs: np.ndarray, d0: np.ndarray, oys: np.ndarray, fys: np.ndarray,
+                       radius: int, iterations: int, max_shift: float, min_texture: float,
                        min_pixels: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - numba
     """:func:`_refine_masked` over the given pixels (the windows cut by an edge)."""
     n = ys.size
@@ -291,8 +327,8 @@ def _refine_cut_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndar
     zncc = np.empty(n, dtype=np.float32)
     keep = np.zeros(n, dtype=np.bool_)
     for i in prange(n):
-        d, z, k = _refine_masked(L, R, Rx, VL, VR, ys[i], xs[i], float(d0[ys[i], xs[i]]), radius, iterations,
-                                 max_shift, min_texture, min_pixels)
+        d, z, k = _refine_masked(L, R, Rx, VL, VR, ys[i], xs[i], float(d0[ys[i], xs[i]]), oys[i], fys[i], radius,
+                                 iterations, max_shift, min_texture, min_pixels)
         d_out[i] = d
         zncc[i] = z
         keep[i] = k
@@ -302,6 +338,12 @@ def _refine_cut_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndar
 def _inner(valid: np.ndarray) -> np.ndarray:
     """``valid`` without its outermost pixels (those next to an invalid one; the image's edge does not count)."""
     return cv2.erode(valid.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+
+
+def _split_rows(offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Row offsets → integer part (int64) and fraction in [0, 1) (float64)."""
+    base = np.floor(offset)
+    return base.astype(np.int64), (offset - base).astype(np.float64)
 
 
 def _gray(img: np.ndarray) -> np.ndarray:
@@ -323,6 +365,7 @@ def refine_disparity(
     valid_left: np.ndarray | None = None,
     valid_right: np.ndarray | None = None,
     min_pixels: int | None = None,
+    row_offset: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Refine a disparity map to sub-pixel precision (module docstring).
 
@@ -348,6 +391,11 @@ def refine_disparity(
         ones at the current disparity) and refined on them if there are at least ``min_pixels``; the means,
         the texture test and the confidence are then those of the cut window. Windows inside everything
         are refined the same way either way.
+    row_offset : (H, W) float array, optional
+        Row of the match in ``right`` less the row of the left pixel (the epipolar curve of views that are
+        not exact pinholes, :meth:`~prismstereo.rectify.epipolar.EpipolarTable.row_offset`): the right window of
+        each pixel is sampled on the rows moved by its offset, linearly between two rows. None: on the
+        left pixel's rows (offset 0 everywhere, the same result).
 
     Returns
     -------
@@ -366,6 +414,10 @@ def refine_disparity(
     conf = np.full(d0.shape, np.nan, dtype=np.float32)
     finite = np.isfinite(d0)
     k = 2 * radius + 1
+    if row_offset is None:
+        offs = np.zeros((h, w), dtype=np.float64)
+    else:
+        offs = np.nan_to_num(np.asarray(row_offset, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
     vl = np.ones((h, w), dtype=bool) if valid_left is None else np.asarray(valid_left, dtype=bool)
     vr = np.ones((h, w), dtype=bool) if valid_right is None else np.asarray(valid_right, dtype=bool)
     # window content: with cut windows, not the outermost pixel of a view's valid region either (its
@@ -387,16 +439,22 @@ def refine_disparity(
                             borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
         ys0, xs0 = np.nonzero(ok)
         xr0 = np.rint(xs0 - d0[ys0, xs0]).astype(np.int64)
-        inside = (xr0 >= 0) & (xr0 < w)
+        # the right window's rows: those of the left one moved by the row offset, and the next ones when
+        # it has a fraction
+        oy0, fy0 = _split_rows(offs[ys0, xs0])
+        yr0 = ys0 + oy0
+        yr1 = yr0 + (fy0 > 0.0)
+        inside = (xr0 >= 0) & (xr0 < w) & (yr0 >= 0) & (yr1 < h)
         stay = np.zeros(ys0.size, dtype=bool)
-        stay[inside] = whole_r[ys0[inside], xr0[inside]]
+        stay[inside] = whole_r[yr0[inside], xr0[inside]] & whole_r[yr1[inside], xr0[inside]]
         ok[ys0[~stay], xs0[~stay]] = False
         cut = finite & vl & ~ok
     Rx = cv2.Sobel(R, cv2.CV_32F, 1, 0, ksize=3, scale=1.0 / 8.0)
     ys, xs = np.nonzero(ok)
     if ys.size:
-        d, zncc, keep = _refine_kernel(L, R, Rx, ys.astype(np.int64), xs.astype(np.int64), d0, int(radius),
-                                       int(iterations), float(max_shift), float(min_texture))
+        oy, fy = _split_rows(offs[ys, xs])
+        d, zncc, keep = _refine_kernel(L, R, Rx, ys.astype(np.int64), xs.astype(np.int64), d0, oy, fy,
+                                       int(radius), int(iterations), float(max_shift), float(min_texture))
         if valid_right is not None and min_pixels is None:
             bad_r = cv2.dilate((~vr).astype(np.uint8), np.ones((k, k), np.uint8)) > 0
             xr = np.rint(xs - d).astype(np.int64)
@@ -408,8 +466,10 @@ def refine_disparity(
         conf[ys[keep], xs[keep]] = zncc[keep]
     ys, xs = np.nonzero(cut)
     if ys.size and min_pixels is not None:
-        d, zncc, keep = _refine_cut_kernel(L, R, Rx, vl_in.astype(np.uint8), vr_in.astype(np.uint8),
-                                           ys.astype(np.int64), xs.astype(np.int64), d0, int(radius),
+        oy, fy = _split_rows(offs[ys, xs])
+        vr_levels = vr_in.astype(np.uint8) + vr.astype(np.uint8)  # 2 inside, 1 outermost pixels, 0 outside
+        d, zncc, keep = _refine_cut_kernel(L, R, Rx, vl_in.astype(np.uint8), vr_levels,
+                                           ys.astype(np.int64), xs.astype(np.int64), d0, oy, fy, int(radius),
                                            int(iterations), float(max_shift), float(min_texture),
                                            int(min_pixels))
         # the match itself must stay inside the right view

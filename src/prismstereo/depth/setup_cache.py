@@ -4,6 +4,8 @@ Fitting the virtual cameras and building the rectification maps depend only on t
 and the camera model, yet a ``prismstereo depth`` call (a new process) would redo them for every capture.
 They are kept in one ``.npz`` file per set-up (arrays only, read without pickle):
 
+- content: the virtual cameras, the rectified pair with its remap tables and the pair's epipolar curves
+  (:class:`~prismstereo.rectify.epipolar.EpipolarTable`);
 - key: SHA-256 of the resolved rig (:meth:`~prismstereo.config.Rig.to_dict`, which holds the image size),
   the pair of faces, the camera model, the package version and the source of the modules that compute the
   set-up (``cameras``, ``optics``, ``rectify``, ``config``, this module), so that an edited library never
@@ -35,6 +37,7 @@ from prismstereo.cameras import VirtualView
 from prismstereo.cameras.pinhole import PinholeCamera
 from prismstereo.config import Rig
 from prismstereo.rectify import RectifiedPair
+from prismstereo.rectify.epipolar import EpipolarTable
 
 log = logging.getLogger(__name__)
 
@@ -42,7 +45,7 @@ __all__ = ["cache_folder", "load_setup", "save_setup", "setup_key"]
 
 _OFF = {"0", "off", "no", "false"}
 #: bump when the file layout changes
-_LAYOUT = 1
+_LAYOUT = 2
 _SOURCES = ("cameras", "optics", "rectify", "config.py", "depth/setup_cache.py")
 #: entries kept in the folder (the oldest beyond are removed when one is written)
 MAX_ENTRIES = 32
@@ -85,8 +88,9 @@ def _path(rig: Rig, faces: tuple[int, int], calibration: str) -> Path | None:
 
 
 def load_setup(rig: Rig, faces: tuple[int, int], calibration: str
-               ) -> tuple[tuple[VirtualView, ...], RectifiedPair] | None:
-    """The cached virtual cameras and rectified pair of ``faces``, or None (no entry, unreadable, disabled)."""
+               ) -> tuple[tuple[VirtualView, ...], RectifiedPair, EpipolarTable] | None:
+    """The cached virtual cameras, rectified pair and epipolar curves of ``faces``, or None (no entry,
+    unreadable, disabled)."""
     path = _path(rig, faces, calibration)
     if path is None or not path.is_file():
         return None
@@ -107,17 +111,18 @@ def load_setup(rig: Rig, faces: tuple[int, int], calibration: str
             valid_left=d["valid_left"], valid_right=d["valid_right"], method=str(d["pair_method"]),
             remap=str(d["remap"]), reference_depth_mm=float(d["reference_depth_mm"]), view_left=by_face[lf],
             view_right=by_face[rf], rig=rig, disparity_offset=float(d["disparity_offset"]))
+        epipolar = EpipolarTable.from_arrays(d)
         if {lf, rf} != set(faces) or pair.map_left.shape[:2] != (pair.size[1], pair.size[0]):
             raise ValueError("another set-up")
     except (OSError, ValueError, KeyError, TypeError, IndexError, EOFError, zipfile.BadZipFile) as exc:
         log.info("set-up cache entry %s unreadable (%s): computing it again", path, exc)
         return None
     log.debug("set-up of faces %s read from %s", faces, path)
-    return views, pair
+    return views, pair, epipolar
 
 
 def save_setup(rig: Rig, faces: tuple[int, int], calibration: str, views: Sequence[VirtualView],
-               pair: RectifiedPair) -> Path | None:
+               pair: RectifiedPair, epipolar: EpipolarTable) -> Path | None:
     """Store a set-up (best effort: returns the file, or None when disabled or it could not be written)."""
     path = _path(rig, faces, calibration)
     if path is None:
@@ -139,6 +144,7 @@ def save_setup(rig: Rig, faces: tuple[int, int], calibration: str, views: Sequen
         "valid_right": pair.valid_right, "pair_method": np.array(pair.method), "remap": np.array(pair.remap),
         "reference_depth_mm": np.array(pair.reference_depth_mm),
         "disparity_offset": np.array(pair.disparity_offset),
+        **epipolar.to_arrays(),
     }
     tmp: str | None = None
     try:
