@@ -28,9 +28,10 @@ __all__ = ["confident_matches", "remove_speckles"]
 def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, *, radius: int = 5,
                       iterations: int = 6, max_shift: float = 1.0, min_texture: float = 0.01,
                       min_confidence: float | None = None,
-                      border_radius: int | None = 3, max_lr_gap: float | None = 0.5,
+                      border_radius: int | None = 3, max_lr_gap: float | None = 0.45,
                       valid_left: np.ndarray | None = None,
-                      valid_right: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                      valid_right: np.ndarray | None = None,
+                      prefilter: float | None = 0.7) -> tuple[np.ndarray, np.ndarray]:
     """Refine matches, rate them and keep the confident ones.
 
     Parameters
@@ -58,6 +59,9 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
         surface with more texture differently from the two sides; the check finds those. None: no check.
     valid_left, valid_right : (H, W) bool, optional
         Valid regions of the rectified views.
+    prefilter : float or None
+        Gaussian low-pass (standard deviation, px) along the rows of both views before the refinement
+        (``prefilter`` of :func:`~prismstereo.depth.refine.refine_disparity`); None: none.
 
     Returns
     -------
@@ -70,7 +74,8 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
     min_pixels = None if border_radius is None else (2 * border_radius + 1) ** 2
     disp, zncc = refine_disparity(left, right, disparity, radius=radius, iterations=iterations,
                                   max_shift=max_shift, min_texture=min_texture,
-                                  valid_left=valid_left, valid_right=valid_right, min_pixels=min_pixels)
+                                  valid_left=valid_left, valid_right=valid_right, min_pixels=min_pixels,
+                                  prefilter=prefilter)
     matched = np.isfinite(disp)
     conf = np.where(np.isfinite(zncc), np.clip(zncc, 0.0, 1.0), np.float32(0.0)).astype(np.float32)
     if max_lr_gap is not None:
@@ -83,7 +88,8 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
                                     radius=radius, iterations=iterations, max_shift=max_shift,
                                     min_texture=min_texture, min_pixels=min_pixels,
                                     valid_left=None if valid_right is None else _mirror(valid_right),
-                                    valid_right=None if valid_left is None else _mirror(valid_left))
+                                    valid_right=None if valid_left is None else _mirror(valid_left),
+                                    prefilter=prefilter)
         disp_r = _mirror(d_r)
         conf[_lr_gap(disp, disp_r) > max_lr_gap] = 0.0
     keep = matched if min_confidence is None else matched & (conf >= min_confidence)
