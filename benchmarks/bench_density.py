@@ -166,12 +166,14 @@ class Setting:
     border: bool = True  # windows cut by a view's edge refined on their pixels inside (at least 7×7 worth)
     lr_gap: float | None = None  # sub-pixel left–right check, px
     curves: bool = True  # right windows along the exact epipolar curves (False: on the left pixel's rows)
+    prefilter: float | None = None  # low-pass along the rows before the refinement, σ px
 
     def label(self) -> str:
         c = "all" if self.min_confidence is None else f"{self.min_confidence:g}"
         lr = "-" if self.lr_gap is None else f"{self.lr_gap:g}"
+        pf = "-" if self.prefilter is None else f"{self.prefilter:g}"
         return (f"r={self.radius} tex={self.min_texture:g} conf≥{c} edges={'cut' if self.border else '-'} "
-                f"lr={lr} speckles={'on' if self.speckles else 'off'}" + ("" if self.curves else " rows"))
+                f"lr={lr} lowpass={pf} speckles={'on' if self.speckles else 'off'}" + ("" if self.curves else " rows"))
 
 
 def _metrics(err: np.ndarray, keep: np.ndarray, common: np.ndarray) -> dict[str, float]:
@@ -206,12 +208,12 @@ def measure_case(case: Case, grid: list[Setting]) -> dict[Setting, dict[str, flo
     speckle_size = max(20, int((DepthConfig().speckle_fraction or 0.0) * int(res.roi_mask.sum())))
     epipolar = epipolar_table(res.pair)
     out: dict[Setting, dict[str, float]] = {}
-    for (radius, tex, border, lr, curves), group in itertools.groupby(
-            grid, key=lambda s: (s.radius, s.min_texture, s.border, s.lr_gap, s.curves)):
+    for (radius, tex, border, lr, curves, pf), group in itertools.groupby(
+            grid, key=lambda s: (s.radius, s.min_texture, s.border, s.lr_gap, s.curves, s.prefilter)):
         disp, conf = confident_matches(res.left, res.right, res.disparity, radius=radius, min_texture=tex,
                                        min_confidence=None, border_radius=3 if border else None,
                                        max_lr_gap=lr, valid_left=vl, valid_right=vr,
-                                       epipolar=epipolar if curves else None)
+                                       epipolar=epipolar if curves else None, prefilter=pf)
         err = _rel_error(res, gt, disp)
         for s in group:
             kept = disp if s.min_confidence is None else np.where(conf >= s.min_confidence, disp, np.nan)
@@ -233,25 +235,29 @@ def main() -> None:
                     help="Middlebury validation scenes whose left views become photo textures")
     args = ap.parse_args()
     d = DepthConfig()
-    lr = d.refine_max_lr_gap
+    lr, pf = d.refine_max_lr_gap, d.refine_prefilter
     if args.quick:
         grid = [Setting(3, 1.0, 0.8, border=False), Setting(3, 1.0, None, border=False)]
         grid += [Setting(d.refine_radius, d.refine_min_texture, 0.5, border=False)]
         grid += [Setting(d.refine_radius, d.refine_min_texture, 0.5, lr_gap=None)]
         grid += [Setting(d.refine_radius, d.refine_min_texture, c, lr_gap=lr) for c in (None, 0.5, 0.7)]
         grid += [Setting(d.refine_radius, d.refine_min_texture, 0.5, lr_gap=lr, curves=False)]
+        grid += [Setting(d.refine_radius, d.refine_min_texture, c, lr_gap=lr, prefilter=pf) for c in (None, 0.5, 0.7)]
     else:
         old = [Setting(3, 1.0, c, sp, border=False) for c in (None, 0.5, 0.8, 0.9) for sp in (True, False)]
         grid = old + [Setting(r, t, c, sp, b, g) for r, t, b, g in (
                           (3, 0.01, False, None), (3, 0.01, True, None), (5, 1.0, False, None),
                           (5, 0.05, False, None), (5, 0.01, False, None), (5, 0.01, True, None),
-                          (5, 0.01, True, 1.0), (5, 0.01, True, lr), (5, 0.01, True, 0.3), (7, 0.01, True, lr))
+                          (5, 0.01, True, 1.0), (5, 0.01, True, 0.5), (5, 0.01, True, lr), (5, 0.01, True, 0.3),
+                          (7, 0.01, True, lr))
                       for c in (None, 0.5, 0.6, 0.7, 0.8) for sp in ((True, False) if c == 0.5 else (True,))]
         grid += [Setting(5, 0.01, c, True, True, lr, curves=False) for c in (None, 0.5)]
+        grid += [Setting(5, 0.01, c, sp, True, g, prefilter=p) for g, p in ((0.5, pf), (lr, 0.5), (lr, pf), (lr, 1.0))
+                 for c in (None, 0.5, 0.7) for sp in ((True, False) if c == 0.5 else (True,))]
     todo = cases(args.data, quick=args.quick)
     print(f"# Depth density on rendered captures with held-out textures ({len(todo)} captures; matcher "
           f"{d.method}; default: r={d.refine_radius} tex={d.refine_min_texture:g} conf≥{d.min_confidence} "
-          f"edges=cut lr={d.refine_max_lr_gap} speckles={d.speckle_fraction})\n")
+          f"edges=cut lr={d.refine_max_lr_gap} lowpass={d.refine_prefilter} speckles={d.speckle_fraction})\n")
     results: dict[str, dict[Setting, dict[str, float]]] = {}
     for case in todo:
         t, c = time.perf_counter(), time.process_time()

@@ -180,6 +180,31 @@ def test_the_left_right_check_drops_matches_pulled_across_depth_edges(held_out_r
     assert med1 <= med0 and cov1 >= 0.9
 
 
+def test_the_low_pass_before_the_refinement_lowers_the_depth_error_on_held_out_textures(held_out_run):
+    """The rendered held-out capture (gratings, sparse dots): with the views low-passed along their rows
+    before the refinement (the default), the median depth error drops (0.061 -> 0.056 % when written), the
+    coverage stays."""
+    from prismstereo.depth import triangulate_matches
+    from prismstereo.evaluation.depth_metrics import ground_truth_for_run
+
+    res = held_out_run
+    gt = ground_truth_for_run(res, scene=_held_out_scene())
+    vl, vr = res.pair.valid_masks()
+    stats = {}
+    for prefilter in (None, res.config.refine_prefilter):
+        d, _ = confident_matches(res.left, res.right, res.raw_disparity, min_confidence=0.5, valid_left=vl,
+                                 valid_right=vr, prefilter=prefilter)
+        ys, xs = np.nonzero(np.isfinite(d) & gt.common)
+        tri = triangulate_matches(res.rig, res.pair, ys, xs, d[ys, xs].astype(np.float64), method="exact",
+                                  views=res.views)
+        z = gt.depth[ys, xs][tri.valid]
+        err = np.abs(tri.points[tri.valid, 2] - z) / z
+        stats[prefilter] = (ys.size / gt.common.sum(), np.median(err))
+    (cov0, med0), (cov1, med1) = stats[None], stats[res.config.refine_prefilter]
+    assert res.config.refine_prefilter is not None
+    assert med1 <= 0.95 * med0 and cov1 >= cov0 - 0.02
+
+
 def _gauss_newton_reference(L, R, y, x, d, *, radius, iterations, max_shift, min_texture):
     """The refinement of one pixel written plainly: each iteration resamples its window (bilinear) at the
     current d, zero-mean SSD Gauss–Newton step, then the ZNCC at the final d (module docstring of refine)."""
@@ -239,12 +264,13 @@ def test_the_left_right_check_refines_only_what_it_reads_with_the_same_result():
     init[:, 70:] += 3.0  # a depth jump: windows across it disagree between the views
     init[rng.random(left.shape) < 0.1] = np.nan
     for min_conf in (None, 0.5):
-        disp, conf = confident_matches(left, right, init, radius=5, min_confidence=min_conf, max_lr_gap=0.5)
+        disp, conf = confident_matches(left, right, init, radius=5, min_confidence=min_conf, max_lr_gap=0.5,
+                                       prefilter=0.7)
         d0, z0 = refine_disparity(left, right, init, radius=5, iterations=6, max_shift=1.0, min_texture=0.01,
-                                  min_pixels=49)
+                                  min_pixels=49, prefilter=0.7)
         every = cm._mirror(refine_disparity(cm._mirror(right), cm._mirror(left),
                                             cm._mirror(cm._seen_from_right(init)), radius=5, iterations=6,
-                                            max_shift=1.0, min_texture=0.01, min_pixels=49)[0])
+                                            max_shift=1.0, min_texture=0.01, min_pixels=49, prefilter=0.7)[0])
         c0 = np.where(np.isfinite(z0), np.clip(z0, 0, 1), 0).astype(np.float32)
         c0[cm._lr_gap(d0, every) > 0.5] = 0.0
         keep = np.isfinite(d0) if min_conf is None else np.isfinite(d0) & (c0 >= min_conf)

@@ -119,6 +119,8 @@ def test_validation_errors(plane_capture):
         validate_inputs(rig, cap.image, DepthConfig(depth_range=(100.0, 5000.0)))
     with pytest.raises(ConfigError, match="--triangulation"):
         validate_inputs(rig, cap.image, DepthConfig(triangulation="magic"))
+    with pytest.raises(ConfigError, match="refine_prefilter"):
+        validate_inputs(rig, cap.image, DepthConfig(refine_prefilter=-0.5))
 
 
 def test_refinement_recovers_a_subpixel_shift():

@@ -29,10 +29,11 @@ __all__ = ["confident_matches", "remove_speckles"]
 def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, *, radius: int = 5,
                       iterations: int = 6, max_shift: float = 1.0, min_texture: float = 0.01,
                       min_confidence: float | None = None,
-                      border_radius: int | None = 3, max_lr_gap: float | None = 0.5,
+                      border_radius: int | None = 3, max_lr_gap: float | None = 0.45,
                       valid_left: np.ndarray | None = None,
                       valid_right: np.ndarray | None = None,
-                      epipolar: EpipolarTable | None = None) -> tuple[np.ndarray, np.ndarray]:
+                      epipolar: EpipolarTable | None = None,
+                      prefilter: float | None = 0.7) -> tuple[np.ndarray, np.ndarray]:
     """Refine matches, rate them and keep the confident ones.
 
     Parameters
@@ -63,6 +64,9 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
     epipolar : EpipolarTable, optional
         The pair's epipolar curves: the right windows (and the left ones of the check) are sampled on the
         rows the optics put the match on (δy at the matcher's disparity), not on the left pixel's row.
+    prefilter : float or None
+        Gaussian low-pass (standard deviation, px) along the rows of both views before the refinement
+        (``prefilter`` of :func:`~prismstereo.depth.refine.refine_disparity`); None: none.
 
     Returns
     -------
@@ -77,7 +81,7 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
     disp, zncc = refine_disparity(left, right, disparity, radius=radius, iterations=iterations,
                                   max_shift=max_shift, min_texture=min_texture,
                                   valid_left=valid_left, valid_right=valid_right, min_pixels=min_pixels,
-                                  row_offset=rows)
+                                  row_offset=rows, prefilter=prefilter)
     matched = np.isfinite(disp)
     conf = np.where(np.isfinite(zncc), np.clip(zncc, 0.0, 1.0), np.float32(0.0)).astype(np.float32)
     if max_lr_gap is not None:
@@ -92,7 +96,8 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
                                     min_texture=min_texture, min_pixels=min_pixels,
                                     valid_left=None if valid_right is None else _mirror(valid_right),
                                     valid_right=None if valid_left is None else _mirror(valid_left),
-                                    row_offset=None if rows_r is None else _mirror(rows_r))
+                                    row_offset=None if rows_r is None else _mirror(rows_r),
+                                    prefilter=prefilter)
         disp_r = _mirror(d_r)
         conf[_lr_gap(disp, disp_r) > max_lr_gap] = 0.0
     keep = matched if min_confidence is None else matched & (conf >= min_confidence)

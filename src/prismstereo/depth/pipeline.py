@@ -146,6 +146,10 @@ class DepthConfig:
         Sub-pixel left–right check of the refined matches: confidence 0 where the refined disparity and
         the right view's refined disparity differ by more than this, px
         (:func:`~prismstereo.depth.confidence.confident_matches`); None: no check.
+    refine_prefilter : float or None
+        Standard deviation (px) of a Gaussian low-pass along the rows of both rectified views before the
+        refinement (not the matching): it damps the fine texture whose sub-pixel-phase-dependent damping
+        by the linear interpolation biases the refined disparities; None: none.
     sweep : SweepParams
         The plane sweep of ``views="all"`` (:class:`~prismstereo.multiview.prism.SweepParams`).
     """
@@ -166,7 +170,8 @@ class DepthConfig:
     refine_iterations: int = 6
     refine_max_shift: float = 1.0
     refine_min_texture: float = 0.01
-    refine_max_lr_gap: float | None = 0.5
+    refine_max_lr_gap: float | None = 0.45
+    refine_prefilter: float | None = 0.7
     sweep: SweepParams = field(default_factory=SweepParams)
 
     def to_dict(self) -> dict[str, Any]:
@@ -554,6 +559,9 @@ def validate_config(rig: Rig, config: DepthConfig) -> DepthConfig:
     if config.min_confidence is not None and not 0.0 <= config.min_confidence <= 1.0:
         raise ConfigError(f"--min-confidence: expected a number in [0, 1] (0 keeps every match), "
                           f"got {config.min_confidence!r}")
+    if config.refine_prefilter is not None and not 0.0 <= config.refine_prefilter <= 5.0:
+        raise ConfigError(f"refine_prefilter: expected a standard deviation in [0, 5] px or None, "
+                          f"got {config.refine_prefilter!r}")
     if config.max_gap_mm is not None and not config.max_gap_mm > 0:
         raise ConfigError(f"max_gap_mm: expected a positive number, got {config.max_gap_mm!r}")
     method = config.method.lower()
@@ -704,7 +712,7 @@ def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, dis
                              iterations=config.refine_iterations, max_shift=config.refine_max_shift,
                              min_texture=config.refine_min_texture, min_confidence=config.min_confidence,
                              max_lr_gap=config.refine_max_lr_gap, valid_left=vl, valid_right=vr,
-                             epipolar=epipolar)
+                             epipolar=epipolar, prefilter=config.refine_prefilter)
 
 
 def remove_speckles(disparity: np.ndarray, region: SearchRegion, config: DepthConfig) -> np.ndarray:

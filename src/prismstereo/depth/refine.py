@@ -14,7 +14,9 @@ parallel numba kernel over pixels, accumulating window sums). Means are removed 
 so an offset between the two faces' brightness does not bias d. The update is bounded to ±``max_shift`` px
 around the matcher's disparity; pixels without texture (small Σ J²) keep the matcher's value and get no
 confidence. The returned confidence (ZNCC of the final windows) lets the pipeline drop matches the
-refinement could not confirm.
+refinement could not confirm. Both views may first be
+low-passed along their rows (``prefilter``): linear sampling damps fine texture by an amount that depends on
+the sub-pixel phase and so biases d on it; texture already damped leaves it less to damp.
 """
 
 from __future__ import annotations
@@ -353,6 +355,34 @@ def _gray(img: np.ndarray) -> np.ndarray:
     return a.astype(np.float32)
 
 
+def _low_pass(img: np.ndarray, valid: np.ndarray | None, sigma: float) -> np.ndarray:
+    """Gaussian low-pass of a grey view along its rows inside ``valid`` (what lies beyond it does not bleed
+    in; the pixels whose kernel it cuts are left as they are, those just outside get the blur of the inside).
+
+    Sampling R between pixels (linear interpolation) damps its fine texture by an amount that depends on
+    the sub-pixel phase, which pulls the estimate towards some phases ("pixel locking"); damping that
+    texture in both views beforehand leaves the interpolation less to damp. Along rows only: the
+    estimate is horizontal, and a vertical blur would mix rows across horizontal depth edges."""
+    r = int(np.ceil(3.0 * sigma))
+    kx = cv2.getGaussianKernel(2 * r + 1, sigma, cv2.CV_32F)
+    ky = np.ones((1, 1), dtype=np.float32)
+
+    def blur(a: np.ndarray) -> np.ndarray:
+        return np.asarray(cv2.sepFilter2D(a, cv2.CV_32F, kx, ky, borderType=cv2.BORDER_REPLICATE))
+
+    if valid is None:
+        return blur(img)
+    v = valid.astype(np.float32)
+    num = blur(img * v)
+    den = blur(v)
+    # a kernel cut by the region's edge would shift the texture (its weights are one-sided): those pixels
+    # stay as they are; the pixels just outside get the blur from the inside (the gradient at the edge
+    # reads them, and the fill or a blended rim would otherwise)
+    cut = valid & (den < 1.0 - 1e-3)
+    out = np.where(den > 1e-3, num / np.maximum(den, 1e-6), img)
+    return np.where(cut, img, out).astype(np.float32)
+
+
 def refine_disparity(
     left: np.ndarray,
     right: np.ndarray,
@@ -366,6 +396,7 @@ def refine_disparity(
     valid_right: np.ndarray | None = None,
     min_pixels: int | None = None,
     row_offset: np.ndarray | None = None,
+    prefilter: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Refine a disparity map to sub-pixel precision (module docstring).
 
@@ -396,6 +427,10 @@ def refine_disparity(
         not exact pinholes, :meth:`~prismstereo.rectify.epipolar.EpipolarTable.row_offset`): the right window of
         each pixel is sampled on the rows moved by its offset, linearly between two rows. None: on the
         left pixel's rows (offset 0 everywhere, the same result).
+    prefilter : float or None
+        Standard deviation (px) of a Gaussian low-pass along the rows of both views (each within its valid
+        region less its outermost pixels) before refining: less bias from the linear interpolation on
+        fine texture; None or 0: none.
 
     Returns
     -------
@@ -423,6 +458,10 @@ def refine_disparity(
     # window content: with cut windows, not the outermost pixel of a view's valid region either (its
     # intensity is off: the remap blends it with what lies beyond the region)
     vl_in, vr_in = (vl, vr) if min_pixels is None else (_inner(vl), _inner(vr))
+    if prefilter is not None and prefilter > 0.0:
+        # over the region without its outermost ring too, which would spread into the windows
+        L = _low_pass(L, None if valid_left is None else _inner(vl), float(prefilter))
+        R = _low_pass(R, None if valid_right is None else _inner(vr), float(prefilter))
     ok = finite.copy()
     if valid_left is not None:
         bad = cv2.dilate((~vl_in).astype(np.uint8), np.ones((k, k), np.uint8)) > 0
