@@ -101,7 +101,7 @@ def main() -> None:
     save = Path(args.save) if args.save else None
     if save:
         save.mkdir(parents=True, exist_ok=True)
-    print("| case | scene | coop | bpasw | margin px (bpasw - coop bad) | coop s |")
+    print("| case | scene | coop | bpasw | margin px (bpasw - coop bad) | coop CPU s |")
     print("|---|---|---|---|---|---|")
     rows = []
     for c in cases:
