@@ -480,12 +480,19 @@ class _PairEvidence:
         return np.asarray(out, np.float32)
 
     def fallback(self, s: PlaneLabels, final: F32, p: FallbackParams) -> F32:
-        # the segments that failed the plane support test are not planar, and a large segment that the evidence
-        # covers only in part has its plane extrapolated over the rest: the local matcher's map there
+        # the segments that failed the plane support test are not planar; a segment the evidence covers only in
+        # part has its plane extrapolated over the rest, one it barely covers has its plane from the neighbours
+        # alone, and one whose map contradicts nearly all of its evidence was moved against it: the local map there
         lab = s.labels.ravel()
         sizes = np.bincount(lab, minlength=s.assign.size)
         covered = np.bincount(lab, weights=self.evidence.ravel(), minlength=s.assign.size)
-        sparse = ((sizes >= p.min_pixels) & (covered < p.min_coverage * sizes))[s.labels]
+        agree = self.evidence & (np.abs(final - self.initial) <= p.tol)
+        agreeing = np.bincount(lab, weights=agree.ravel(), minlength=s.assign.size)
+        thin = (sizes >= p.min_share * lab.size) & (covered < p.min_coverage * sizes)
+        bare = (sizes >= p.bare_share * lab.size) & (covered < p.bare_coverage * sizes)
+        against = ((sizes >= p.against_pixels) & (covered >= p.against_coverage * sizes)
+                   & (agreeing < p.max_agreement * covered))
+        sparse = (thin | bare | against)[s.labels]
         local = self.nonplanar | sparse
         self.fallback_pixels = int(local.sum())
         if not local.any():

@@ -200,17 +200,38 @@ class MedianParams:
 
 @dataclass(frozen=True, kw_only=True)
 class FallbackParams:
-    """``fallback``: the segments that failed the plane support test take the local matcher's map, and so do
-    the segments of at least ``min_pixels`` whose evidence covers less than ``min_coverage`` of their pixels (their
-    plane is extrapolated over most of the segment: nothing supports it there)."""
+    """``fallback``: the segments that failed the plane support test take the local matcher's map, and so do the
+    segments whose final disparity nothing of their own supports:
+
+    * sparse: segments of at least ``min_share`` of the image whose evidence covers less than ``min_coverage`` of
+      their pixels (their plane is extrapolated over most of the segment);
+    * bare: segments of at least ``bare_share`` of the image whose evidence covers less than ``bare_coverage`` of
+      them (their plane comes from the neighbours and the smoothness term alone; ``bare_coverage`` 0 = off);
+    * contradicted: segments of at least ``against_pixels`` whose evidence covers at least ``against_coverage``
+      of them and agrees within ``tol`` px with less than ``max_agreement`` of it (the optimisation moved them
+      against nearly all of their evidence; ``max_agreement`` 0 = off).
+
+    Sizes are shares of the image, so the rules mean the same at any resolution."""
 
     enabled: bool = True
     min_coverage: float = 0.4
-    min_pixels: int = 5000
+    min_share: float = 0.03
+    bare_coverage: float = 0.05
+    bare_share: float = 0.005
+    max_agreement: float = 0.1
+    against_coverage: float = 0.5
+    against_pixels: int = 20
+    tol: float = 1.0
 
     def __post_init__(self) -> None:
-        _need(0.0 <= self.min_coverage <= 1.0 and self.min_pixels >= 1,
-              "fallback.min_coverage in [0, 1] and min_pixels >= 1", (self.min_coverage, self.min_pixels))
+        _need(all(0.0 <= v <= 1.0 for v in (self.min_coverage, self.bare_coverage, self.max_agreement,
+                                             self.against_coverage))
+              and 0.0 < self.min_share <= 1.0 and 0.0 < self.bare_share <= 1.0,
+              "fallback.min_coverage, bare_coverage, max_agreement, against_coverage in [0, 1] and min_share, "
+              "bare_share in (0, 1]", (self.min_coverage, self.bare_coverage, self.max_agreement,
+                                       self.against_coverage, self.min_share, self.bare_share))
+        _need(self.against_pixels >= 1 and self.tol >= 0, "fallback.against_pixels >= 1 and tol >= 0",
+              (self.against_pixels, self.tol))
 
 
 @dataclass(frozen=True, kw_only=True)
