@@ -236,6 +236,32 @@ def _sample_grid(seg: npt.NDArray[np.int32], has: npt.NDArray[np.bool_], step: i
 
 
 @njit(cache=True, parallel=True, fastmath=True, nogil=True)
+def _segment_sums(val: npt.NDArray[np.float64], pix: npt.NDArray[np.int64], nper: npt.NDArray[np.int64],
+                  w: int) -> npt.NDArray[np.float64]:  # pragma: no cover - numba
+    """(K, M) sums over each segment's sampled pixels ``pix[nper[s]:nper[s + 1]]`` of their rows of ``val``,
+    taken row by row of the image in row-major order, so the totals do not depend on the number of threads."""
+    k = nper.size - 1
+    m = val.shape[1]
+    acc = np.zeros((k, m))
+    for s in prange(k):
+        row = np.zeros(m)
+        prev_y = -1
+        for t in range(nper[s], nper[s + 1]):
+            y = pix[t] // w
+            if y != prev_y and prev_y >= 0:
+                for j in range(m):
+                    acc[s, j] += row[j]
+                    row[j] = 0.0
+            prev_y = y
+            for j in range(m):
+                row[j] += val[t, j]
+        if prev_y >= 0:
+            for j in range(m):
+                acc[s, j] += row[j]
+    return acc
+
+
+@njit(cache=True, parallel=True, fastmath=True, nogil=True)
 def _segment_costs(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint64], lam_cen: float,
                    seg: npt.NDArray[np.int32], cand: npt.NDArray[np.int64], planes: npt.NDArray[np.float64],
                    step: int, radius: int, dil: int, gamma: float, alpha: float, tau_col: float, tau_grad: float,
@@ -312,23 +338,7 @@ def _segment_costs(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray
                 pen = 1e3
             val[t, j] = (num[nc] / den if den > 0 else 0.0) + pen
             nc += 1
-    acc = np.zeros((k, m))
-    for s in prange(k):
-        row = np.zeros(m)
-        prev_y = -1
-        for t in range(nper[s], nper[s + 1]):
-            y = pix[t] // w
-            if y != prev_y and prev_y >= 0:
-                for j in range(m):
-                    acc[s, j] += row[j]
-                    row[j] = 0.0
-            prev_y = y
-            for j in range(m):
-                row[j] += val[t, j]
-        if prev_y >= 0:
-            for j in range(m):
-                acc[s, j] += row[j]
-    return acc, cnt
+    return _segment_sums(val, pix, nper, w), cnt
 
 
 def segment_plane_costs(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], labels: npt.NDArray[np.int32],
@@ -380,7 +390,6 @@ def _sweep_costs(fl: F32, rv: F32, cl: npt.NDArray[np.uint64], crv: npt.NDArray[
     read contiguously forwards, and the samples whose match leaves the image (clamped to its border column)
     share one cost."""
     h, w = seg.shape
-    k = active.shape[0]
     nb = slopes.shape[0]
     ng = nb * nd
     m = 2 * ng
@@ -477,23 +486,7 @@ def _sweep_costs(fl: F32, rv: F32, cl: npt.NDArray[np.uint64], crv: npt.NDArray[
                 d = dp + i
                 pen = 1e3 if (d < dmin - 0.5 or d > dmax + 0.5) else 0.0
                 val[t, base + i] = (num[base + i] / den if den > 0 else 0.0) + pen
-    acc = np.zeros((k, m))
-    for s in prange(k):
-        row = np.zeros(m)
-        prev_y = -1
-        for t in range(nper[s], nper[s + 1]):
-            y = pix[t] // w
-            if y != prev_y and prev_y >= 0:
-                for j in range(m):
-                    acc[s, j] += row[j]
-                    row[j] = 0.0
-            prev_y = y
-            for j in range(m):
-                row[j] += val[t, j]
-        if prev_y >= 0:
-            for j in range(m):
-                acc[s, j] += row[j]
-    return acc, cnt
+    return _segment_sums(val, pix, nper, w), cnt
 
 
 def segment_sweep_costs(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], labels: npt.NDArray[np.int32],
