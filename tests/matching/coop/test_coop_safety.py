@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -116,35 +118,57 @@ def test_bpasw_dense_map_where_is_the_full_map_there() -> None:
     np.testing.assert_array_equal(part[where], full[where])
 
 
+def _fallback_pair(seed: int, h: int, w: int, d_true: int = 6, max_disp: int = 16
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A random-texture pair at one disparity ``d_true`` (x_r = x_l − d), its BPASW volume and dense local map."""
+    from prismstereo.matching.coop.pipeline import bpasw_dense_map, bpasw_volume
+
+    tex = np.random.default_rng(seed).integers(0, 255, size=(h, w + d_true, 3)).astype(np.uint8)
+    left, right = np.ascontiguousarray(tex[:, :w]), np.ascontiguousarray(tex[:, d_true:])
+    vol = bpasw_volume(left, right, max_disp=max_disp)
+    return left, right, vol, bpasw_dense_map(vol, left)
+
+
+def _plane_state(labels: np.ndarray, plane_d: float) -> Any:
+    """Plane labels where every segment of ``labels`` holds the fronto-parallel plane d = ``plane_d``."""
+    from prismstereo.matching.coop.steps import PlaneLabels
+    from prismstereo.matching.segments.planes import build_segment_index
+
+    n = int(labels.max()) + 1
+    return PlaneLabels(labels=labels, index=build_segment_index(labels), graph=None,  # type: ignore[arg-type]
+                       assign=np.zeros(n, np.int32), planes=np.array([[0.0, 0.0, plane_d]]),
+                       own=np.full((n, 2), -1, np.int64), parent=np.zeros(n, np.int64),
+                       pairs=np.zeros((0, 2), np.int32))
+
+
+def _fallback_evidence(left: np.ndarray, right: np.ndarray, vol: np.ndarray, initial: np.ndarray,
+                       evidence: np.ndarray, max_disp: int = 16) -> Any:
+    """The pair's evidence for the fallback step alone: ``evidence`` as every cross-checked mask, ``initial``
+    as the initial and local maps."""
+    from prismstereo.matching.coop.pipeline import _PairEvidence
+
+    return _PairEvidence(left, right, min_disp=0, max_disp=max_disp, data=np.zeros((1, 1, 1), np.float32),
+                         reliable=evidence, initial=initial, bvol=vol, bdisp=initial, brel=evidence,
+                         nonplanar=np.zeros(evidence.shape, bool), evidence=evidence,
+                         coop=None, segmentation=None, planes=None, cost=None, slopes=None)  # type: ignore[arg-type]
+
+
 def test_large_segment_whose_plane_the_evidence_barely_covers_takes_the_local_map() -> None:
     """The fallback step's coverage rule: a large segment whose final plane is wrong (3 px off) but which the
     evidence covers on only 30 % of its pixels keeps nothing of that plane (the local map there); covered on
     60 %, the plane stands (the other steps decided on evidence; the contradiction rule, which would take it,
     is off here)."""
-    from prismstereo.matching.coop.pipeline import _PairEvidence, bpasw_dense_map, bpasw_volume
-    from prismstereo.matching.coop.steps import FallbackParams, PlaneLabels
-    from prismstereo.matching.segments.planes import build_segment_index
+    from prismstereo.matching.coop.steps import FallbackParams
 
     d_true, max_disp = 6, 16
-    rng = np.random.default_rng(3)
     h, w = 70, 100
-    tex = rng.integers(0, 255, size=(h, w + d_true, 3)).astype(np.uint8)
-    left, right = np.ascontiguousarray(tex[:, :w]), np.ascontiguousarray(tex[:, d_true:])  # x_r = x_l - d
-    vol = bpasw_volume(left, right, max_disp=max_disp)
-    local = bpasw_dense_map(vol, left)
-    labels = np.zeros((h, w), np.int32)
-    state = PlaneLabels(labels=labels, index=build_segment_index(labels), graph=None,  # type: ignore[arg-type]
-                        assign=np.zeros(1, np.int32), planes=np.array([[0.0, 0.0, d_true + 3.0]]),
-                        own=np.full((1, 2), -1, np.int64), parent=np.zeros(1, np.int64),
-                        pairs=np.zeros((0, 2), np.int32))
+    left, right, vol, local = _fallback_pair(3, h, w)
+    state = _plane_state(np.zeros((h, w), np.int32), d_true + 3.0)
     wrong = np.full((h, w), d_true + 3.0, np.float32)
     for cover, taken in ((0.3, True), (0.6, False)):
         evidence = np.zeros((h, w), bool)
         evidence[: int(cover * h)] = True
-        ev = _PairEvidence(left, right, min_disp=0, max_disp=max_disp, data=np.zeros((1, 1, 1), np.float32),
-                           reliable=evidence, initial=local, bvol=vol, bdisp=local, brel=evidence,
-                           nonplanar=np.zeros((h, w), bool), evidence=evidence, coop=None,  # type: ignore[arg-type]
-                           segmentation=None, planes=None, cost=None, slopes=None)  # type: ignore[arg-type]
+        ev = _fallback_evidence(left, right, vol, local, evidence)
         out = ev.fallback(state, wrong, FallbackParams(max_agreement=0.0))
         if taken:
             np.testing.assert_array_equal(out, local)
@@ -158,22 +182,12 @@ def test_segment_whose_map_contradicts_its_evidence_takes_the_local_map() -> Non
     optimisation put it: the data term preferred it, as under an exposure change between the views) although
     the evidence covers 60 % of it at the true disparity keeps nothing of that plane (the local map there). With
     the plane on the evidence, or the evidence covering only 30 % of the segment, the plane stands."""
-    from prismstereo.matching.coop.pipeline import _PairEvidence, bpasw_dense_map, bpasw_volume
-    from prismstereo.matching.coop.steps import FallbackParams, PlaneLabels
-    from prismstereo.matching.segments.planes import build_segment_index
+    from prismstereo.matching.coop.steps import FallbackParams
 
     d_true, max_disp = 6, 16
-    rng = np.random.default_rng(3)
     h, w = 70, 100
-    tex = rng.integers(0, 255, size=(h, w + d_true, 3)).astype(np.uint8)
-    left, right = np.ascontiguousarray(tex[:, :w]), np.ascontiguousarray(tex[:, d_true:])  # x_r = x_l - d
-    vol = bpasw_volume(left, right, max_disp=max_disp)
-    local = bpasw_dense_map(vol, left)
-    labels = np.zeros((h, w), np.int32)
-    state = PlaneLabels(labels=labels, index=build_segment_index(labels), graph=None,  # type: ignore[arg-type]
-                        assign=np.zeros(1, np.int32), planes=np.array([[0.0, 0.0, d_true + 3.0]]),
-                        own=np.full((1, 2), -1, np.int64), parent=np.zeros(1, np.int64),
-                        pairs=np.zeros((0, 2), np.int32))
+    left, right, vol, local = _fallback_pair(3, h, w)
+    state = _plane_state(np.zeros((h, w), np.int32), d_true + 3.0)
     wrong = np.full((h, w), d_true + 3.0, np.float32)
     right_plane = np.full((h, w), float(d_true), np.float32)
     initial = np.full((h, w), float(d_true), np.float32)  # both cross-checked maps agree on the true disparity
@@ -184,10 +198,7 @@ def test_segment_whose_map_contradicts_its_evidence_takes_the_local_map() -> Non
                                         (0.6, wrong, FallbackParams(against_pixels=h * w + 1), False)):
         evidence = np.zeros((h, w), bool)
         evidence[: int(cover * h)] = True
-        ev = _PairEvidence(left, right, min_disp=0, max_disp=max_disp, data=np.zeros((1, 1, 1), np.float32),
-                           reliable=evidence, initial=initial, bvol=vol, bdisp=initial, brel=evidence,
-                           nonplanar=np.zeros((h, w), bool), evidence=evidence, coop=None,  # type: ignore[arg-type]
-                           segmentation=None, planes=None, cost=None, slopes=None)  # type: ignore[arg-type]
+        ev = _fallback_evidence(left, right, vol, initial, evidence)
         out = ev.fallback(state, final, params)
         if taken:
             np.testing.assert_array_equal(out, local)
@@ -200,24 +211,15 @@ def test_segment_without_evidence_takes_the_local_map_at_any_scale() -> None:
     """The fallback step's bare rule: a small segment (1 % of the image) that no evidence pixel covers holds a plane
     3 px off, the one its neighbour pulled it to; nothing of its own supports it, so it takes the local map. With
     10 % of it covered, or below ``bare_share`` of the image, the plane stands."""
-    from prismstereo.matching.coop.pipeline import _PairEvidence, bpasw_dense_map, bpasw_volume
-    from prismstereo.matching.coop.steps import FallbackParams, PlaneLabels
-    from prismstereo.matching.segments.planes import build_segment_index
+    from prismstereo.matching.coop.steps import FallbackParams
 
-    d_true, max_disp = 6, 16
-    rng = np.random.default_rng(5)
+    d_true = 6
     h, w = 60, 100
-    tex = rng.integers(0, 255, size=(h, w + d_true, 3)).astype(np.uint8)
-    left, right = np.ascontiguousarray(tex[:, :w]), np.ascontiguousarray(tex[:, d_true:])  # x_r = x_l - d
-    vol = bpasw_volume(left, right, max_disp=max_disp)
-    local = bpasw_dense_map(vol, left)
+    left, right, vol, local = _fallback_pair(5, h, w)
     labels = np.zeros((h, w), np.int32)
     patch = (slice(20, 32), slice(50, 55))  # 60 px, 1 % of the image
     labels[patch] = 1
-    state = PlaneLabels(labels=labels, index=build_segment_index(labels), graph=None,  # type: ignore[arg-type]
-                        assign=np.zeros(2, np.int32), planes=np.array([[0.0, 0.0, d_true + 3.0]]),
-                        own=np.full((2, 2), -1, np.int64), parent=np.zeros(2, np.int64),
-                        pairs=np.zeros((0, 2), np.int32))
+    state = _plane_state(labels, d_true + 3.0)
     final = np.full((h, w), float(d_true), np.float32)
     final[patch] = d_true + 3.0
     for cover, params, taken in ((0.0, FallbackParams(), True), (0.1, FallbackParams(), False),
@@ -225,10 +227,7 @@ def test_segment_without_evidence_takes_the_local_map_at_any_scale() -> None:
                                  (0.0, FallbackParams(bare_coverage=0.0), False)):
         evidence = labels == 0
         evidence[20:20 + int(round(cover * 12)), 50:55] = True
-        ev = _PairEvidence(left, right, min_disp=0, max_disp=max_disp, data=np.zeros((1, 1, 1), np.float32),
-                           reliable=evidence, initial=local, bvol=vol, bdisp=local, brel=evidence,
-                           nonplanar=np.zeros((h, w), bool), evidence=evidence, coop=None,  # type: ignore[arg-type]
-                           segmentation=None, planes=None, cost=None, slopes=None)  # type: ignore[arg-type]
+        ev = _fallback_evidence(left, right, vol, local, evidence)
         out = ev.fallback(state, final, params)
         np.testing.assert_array_equal(out[labels == 0], final[labels == 0])  # the covered segment stands
         if taken:
