@@ -18,6 +18,7 @@ import numpy.typing as npt
 from numba import njit, prange
 
 from prismstereo.errors import MatchingError
+from prismstereo.matching.local.costs import popcount64
 
 __all__ = ["CostParams", "aggregated_costs", "guided_filter_volume", "raw_cost", "sheared_costs",
            "sheared_row_costs_at"]
@@ -60,15 +61,6 @@ class CostParams:
 def census_bits(gray: F32, ry: int, rx: int) -> npt.NDArray[np.uint64]:
     """Census transform over a ``(2 ry + 1) x (2 rx + 1)`` window (bit set where the neighbour is darker)."""
     return _census_sheared(gray, ry, rx, 0.0)
-
-
-@njit(cache=True, inline="always")
-def _popcount(v: np.uint64) -> int:
-    # SWAR bit count: branch-free, so the loops that call it vectorise
-    v = v - ((v >> np.uint64(1)) & np.uint64(0x5555555555555555))
-    v = (v & np.uint64(0x3333333333333333)) + ((v >> np.uint64(2)) & np.uint64(0x3333333333333333))
-    v = (v + (v >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
-    return int((v * np.uint64(0x0101010101010101)) >> np.uint64(56))
 
 
 @njit(cache=True)
@@ -151,7 +143,7 @@ def _census_row_box(ad: npt.NDArray[np.float64], cl: npt.NDArray[np.uint64], cr:
                 if xr < 0 or xr >= w:
                     raw[x, k] = 2.0
                 else:
-                    raw[x, k] = ad[y, x, k] + tab[_popcount(c ^ cr[y, xr])]
+                    raw[x, k] = ad[y, x, k] + tab[popcount64(c ^ cr[y, xr])]
         acc = np.empty(ndisp)
         for x in range(w):
             if not mask[y, x]:
@@ -180,7 +172,7 @@ def _raw_cost(left: F32, right: F32, gl: F32, gr: F32, cl: npt.NDArray[np.uint64
                 if xr < 0 or xr >= w:
                     continue
                 out[y, x, k] = (_ad_cost(left, right, gl, gr, y, x, xr, tau_c, tau_g, lam_ad)
-                                + tab[_popcount(cl[y, x] ^ cr[y, xr])])
+                                + tab[popcount64(cl[y, x] ^ cr[y, xr])])
     return out
 
 

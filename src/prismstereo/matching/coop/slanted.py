@@ -28,6 +28,7 @@ import numpy.typing as npt
 from numba import njit, prange
 
 from prismstereo.matching.coop.coopcost import census_bits
+from prismstereo.matching.local.costs import popcount64
 
 __all__ = ["SlantedPair", "add_unique", "plane_cost", "segment_plane_costs", "segment_sweep_costs", "slanted_inputs",
            "slanted_pair"]
@@ -129,14 +130,6 @@ def add_unique(cand: npt.NDArray[np.int64], nc: int, label: int) -> int:  # prag
     return nc + 1
 
 
-@njit(cache=True, inline="always")
-def _popcount(v: np.uint64) -> int:  # pragma: no cover - numba
-    v = v - ((v >> np.uint64(1)) & np.uint64(0x5555555555555555))
-    v = (v & np.uint64(0x3333333333333333)) + ((v >> np.uint64(2)) & np.uint64(0x3333333333333333))
-    v = (v + (v >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
-    return int((v * np.uint64(0x0101010101010101)) >> np.uint64(56))
-
-
 @njit(cache=True, fastmath=True)
 def _cost(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint64], lam_cen: float, n: int,
           wy: npt.NDArray[np.int64], wx: npt.NDArray[np.int64], ww: F32,
@@ -154,7 +147,7 @@ def _cost(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint6
         if lam_cen > 0.0:
             xi = int(np.floor(xr + 0.5))
             xi = min(max(xi, 0), fr.shape[1] - 1)
-            rho += lam_cen * _popcount(cl[qy, qx] ^ cr[qy, xi])
+            rho += lam_cen * popcount64(cl[qy, qx] ^ cr[qy, xi])
         num += ww[k] * rho
         den += ww[k]
     return num / den if den > 0 else 0.0
@@ -324,7 +317,7 @@ def _segment_costs(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray
                 rho = (1.0 - alpha) * min(col, tau_col) + alpha * min(gr, tau_grad)
                 if lam_cen > 0.0:
                     xi = min(max(int(np.floor(xr + 0.5)), 0), wr - 1)
-                    rho += lam_cen * _popcount(clq ^ cr[qy, xi])
+                    rho += lam_cen * popcount64(clq ^ cr[qy, xi])
                 num[j] += wq * rho
         nc = 0
         for j in range(m):
@@ -371,7 +364,7 @@ def _rho_at(l0: float, l1: float, l2: float, l3: float, rv: F32, qy: int, x: int
     col = abs(l0 - rv[qy, 0, x]) + abs(l1 - rv[qy, 1, x]) + abs(l2 - rv[qy, 2, x])
     rho = (1.0 - alpha) * min(col, tau_col) + alpha * min(abs(l3 - rv[qy, 3, x]), tau_grad)
     if lam_cen > 0.0:
-        rho += lam_cen * _popcount(clq ^ crq)
+        rho += lam_cen * popcount64(clq ^ crq)
     return rho
 
 
@@ -472,7 +465,7 @@ def _sweep_costs(fl: F32, rv: F32, cl: npt.NDArray[np.uint64], crv: npt.NDArray[
                                + abs(l2 - (g * q2[u + 1] + f * q2[u])))
                         gr = abs(l3 - (g * q3[u + 1] + f * q3[u]))
                         nv[u] += wq * (a1 * min(col, tc) + a2 * min(gr, tg)
-                                       + lc * np.float32(_popcount(clq ^ cc[u])))
+                                       + lc * np.float32(popcount64(clq ^ cc[u])))
                 else:
                     for u in range(nin):
                         col = (abs(l0 - (g * q0[u + 1] + f * q0[u])) + abs(l1 - (g * q1[u + 1] + f * q1[u]))

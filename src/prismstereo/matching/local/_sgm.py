@@ -5,25 +5,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from prismstereo.matching.local.costs import popcount64
+
 __all__ = ["census_codes", "census_kernel", "select_kernel", "sgm_kernel"]
-
-_M1 = np.uint64(0x5555555555555555)
-_M2 = np.uint64(0x3333333333333333)
-_M4 = np.uint64(0x0F0F0F0F0F0F0F0F)
-_H01 = np.uint64(0x0101010101010101)
-_S1 = np.uint64(1)
-_S2 = np.uint64(2)
-_S4 = np.uint64(4)
-_S56 = np.uint64(56)
-
-
-@njit(cache=True, inline="always")
-def _popcount(v: np.uint64) -> int:  # pragma: no cover - numba
-    v = v - ((v >> _S1) & _M1)
-    v = (v & _M2) + ((v >> _S2) & _M2)
-    v = (v + (v >> _S4)) & _M4
-    return int((v * _H01) >> _S56)
-
 
 @njit(cache=True, parallel=True)
 def census_codes(padded: np.ndarray, ry: int, rx: int) -> np.ndarray:  # pragma: no cover - numba
@@ -59,7 +43,7 @@ def census_kernel(cl: np.ndarray, cr: np.ndarray, gl: np.ndarray, gr: np.ndarray
                 if xr < 0:
                     out[y, x, i] = invalid
                 else:
-                    c = scale * _popcount(a ^ cr[y, xr])
+                    c = scale * popcount64(a ^ cr[y, xr])
                     if grad_weight > 0.0:
                         c += int(grad_weight * min(abs(g - gr[y, xr]), grad_tau) + 0.5)
                     out[y, x, i] = c

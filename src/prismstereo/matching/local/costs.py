@@ -296,7 +296,9 @@ def cost_census(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp:
 
 
 @njit(cache=True, inline="always")
-def _popcount64(v: np.uint64) -> int:  # pragma: no cover - numba
+def popcount64(v: np.uint64) -> int:  # pragma: no cover - numba
+    """Number of set bits of a uint64 (a census Hamming distance, in numba kernels): the SWAR count, branch-free
+    so that the loops calling it vectorise."""
     v = v - ((v >> np.uint64(1)) & np.uint64(0x5555555555555555))
     v = (v & np.uint64(0x3333333333333333)) + ((v >> np.uint64(2)) & np.uint64(0x3333333333333333))
     v = (v + (v >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
@@ -337,7 +339,7 @@ def _s_ad_census_kernel(lc: np.ndarray, rc: np.ndarray, lg: np.ndarray, rg: np.n
                 v = ad * w_ad
                 v = v + w_gr * g
                 if use_census:
-                    cen = np.float32(_popcount64(cl[y, x] ^ cr[y, xr])) if xr >= 0 else bad_cen
+                    cen = np.float32(popcount64(cl[y, x] ^ cr[y, xr])) if xr >= 0 else bad_cen
                     v = v + w_cen * cen
                 out[y, x, i] = v
     return out
