@@ -156,10 +156,21 @@ def test_confidence_is_aligned_with_the_depth_map(held_out_run):
     assert c.min() >= res.config.min_confidence and c.max() <= 1.0
 
 
+def _coverage_and_errors(res, gt, d):
+    """Share of the true common view with a disparity in ``d``, and the relative depth errors of those points
+    triangulated with exact rays."""
+    from prismstereo.depth import triangulate_matches
+
+    ys, xs = np.nonzero(np.isfinite(d) & gt.common)
+    tri = triangulate_matches(res.rig, res.pair, ys, xs, d[ys, xs].astype(np.float64), method="exact",
+                              views=res.views)
+    z = gt.depth[ys, xs][tri.valid]
+    return ys.size / gt.common.sum(), np.abs(tri.points[tri.valid, 2] - z) / z
+
+
 def test_the_left_right_check_drops_matches_pulled_across_depth_edges(held_out_run):
     """The sub-pixel left–right check on the rendered held-out capture: fewer points off by more than 1 %
     (windows across the panels' edges), the median and the coverage kept."""
-    from prismstereo.depth import triangulate_matches
     from prismstereo.evaluation.depth_metrics import ground_truth_for_run
 
     res = held_out_run
@@ -169,12 +180,8 @@ def test_the_left_right_check_drops_matches_pulled_across_depth_edges(held_out_r
     for gap in (None, 0.5):
         d, _ = confident_matches(res.left, res.right, res.raw_disparity, min_confidence=0.5, max_lr_gap=gap,
                                  valid_left=vl, valid_right=vr)
-        ys, xs = np.nonzero(np.isfinite(d) & gt.common)
-        tri = triangulate_matches(res.rig, res.pair, ys, xs, d[ys, xs].astype(np.float64), method="exact",
-                                  views=res.views)
-        z = gt.depth[ys, xs][tri.valid]
-        err = np.abs(tri.points[tri.valid, 2] - z) / z
-        stats[gap] = (ys.size / gt.common.sum(), np.median(err), np.percentile(err, 95), np.mean(err <= 0.01))
+        cov, err = _coverage_and_errors(res, gt, d)
+        stats[gap] = (cov, np.median(err), np.percentile(err, 95), np.mean(err <= 0.01))
     (_, med0, p95_0, in0), (cov1, med1, p95_1, in1) = stats[None], stats[0.5]
     assert in1 >= in0 + 0.005 and p95_1 <= 0.95 * p95_0  # 97.4 -> 98.3 %, 0.66 -> 0.59 %
     assert med1 <= med0 and cov1 >= 0.9
@@ -184,7 +191,6 @@ def test_the_low_pass_before_the_refinement_lowers_the_depth_error_on_held_out_t
     """The rendered held-out capture (gratings, sparse dots): with the views low-passed along their rows
     before the refinement (the default), the median depth error drops (0.061 -> 0.056 % when written), the
     coverage stays."""
-    from prismstereo.depth import triangulate_matches
     from prismstereo.evaluation.depth_metrics import ground_truth_for_run
 
     res = held_out_run
@@ -194,12 +200,8 @@ def test_the_low_pass_before_the_refinement_lowers_the_depth_error_on_held_out_t
     for prefilter in (None, res.config.refine_prefilter):
         d, _ = confident_matches(res.left, res.right, res.raw_disparity, min_confidence=0.5, valid_left=vl,
                                  valid_right=vr, prefilter=prefilter)
-        ys, xs = np.nonzero(np.isfinite(d) & gt.common)
-        tri = triangulate_matches(res.rig, res.pair, ys, xs, d[ys, xs].astype(np.float64), method="exact",
-                                  views=res.views)
-        z = gt.depth[ys, xs][tri.valid]
-        err = np.abs(tri.points[tri.valid, 2] - z) / z
-        stats[prefilter] = (ys.size / gt.common.sum(), np.median(err))
+        cov, err = _coverage_and_errors(res, gt, d)
+        stats[prefilter] = (cov, np.median(err))
     (cov0, med0), (cov1, med1) = stats[None], stats[res.config.refine_prefilter]
     assert res.config.refine_prefilter is not None
     assert med1 <= 0.95 * med0 and cov1 >= cov0 - 0.02
