@@ -14,10 +14,9 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from numba import njit
+from numba import njit, prange
 
 from prismstereo.matching.coop.cooperative import CoopParams, build_segment_graph, cooperative_optimize
-from prismstereo.matching.coop.slanted import add_unique
 from prismstereo.matching.segments.planes import (
     PlaneParams,
     SegmentIndex,
@@ -33,7 +32,7 @@ __all__ = ["FineSegments", "Optimise", "boundary_pixel_planes", "bpasw_candidate
 F32 = npt.NDArray[np.float32]
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True, nogil=True)
 def boundary_pixel_planes(seg: npt.NDArray[np.int32], assign: npt.NDArray[np.int32], planes: npt.NDArray[np.float64],
                   cost: F32, min_disp: int, radius: int, margin: float,
                   active: npt.NDArray[np.bool_], dref: F32, tol: float,
@@ -44,8 +43,14 @@ def boundary_pixel_planes(seg: npt.NDArray[np.int32], assign: npt.NDArray[np.int
     nd = cost.shape[2]
     out = np.empty((h, w), np.float32)
     nm = assign2.shape[1] + 1
-    cand = np.empty(nm * (2 * radius + 1) ** 2, np.int64)
-    for y in range(h):
+    nseg = assign.shape[0]
+    nlab = planes.shape[0]
+    for y in prange(h):  # pixels are independent: rows in parallel, same result
+        cand = np.empty(nm * (2 * radius + 1) ** 2, np.int64)
+        # the candidates in order of first appearance in the window, deduplicated in O(1) by stamping each
+        # segment and label seen with the pixel's column
+        seen_seg = np.full(nseg, -1, np.int64)
+        seen_lab = np.full(nlab, -1, np.int64)
         for x in range(w):
             own = assign[seg[y, x]]
             nc = 0
@@ -55,10 +60,16 @@ def boundary_pixel_planes(seg: npt.NDArray[np.int32], assign: npt.NDArray[np.int
                 continue
             for yy in range(max(0, y - radius), min(h, y + radius + 1)):
                 for xx in range(max(0, x - radius), min(w, x + radius + 1)):
+                    sg = seg[yy, xx]
+                    if seen_seg[sg] == x:
+                        continue
+                    seen_seg[sg] = x
                     for m in range(nm):
-                        lab = assign[seg[yy, xx]] if m == 0 else assign2[seg[yy, xx], m - 1]
-                        if lab != own and lab >= 0:
-                            nc = add_unique(cand, nc, lab)
+                        lab = assign[sg] if m == 0 else assign2[sg, m - 1]
+                        if lab != own and lab >= 0 and seen_lab[lab] != x:
+                            seen_lab[lab] = x
+                            cand[nc] = lab
+                            nc += 1
             pl = planes[own]
             best_d = pl[0] * x + pl[1] * y + pl[2]
             own_d = best_d
