@@ -121,3 +121,48 @@ def test_evidence_offset_or_tilted_from_the_plane_is_not_a_curve() -> None:
     sparse[::8, ::8] = True  # 40 px < min_evidence
     out, curved = curved_segment_surfaces(labels2, plane2, np.ones(true.shape, bool), sparse, true)
     assert not curved.any()
+
+
+def test_segment_index_lists_each_segments_pixels_in_raster_order() -> None:
+    rng = np.random.default_rng(3)
+    labels = rng.integers(0, 40, (23, 31)).astype(np.int32)
+    labels[labels == 7] = 8  # an empty segment inside the range
+    index = build_segment_index(labels)
+    order = np.argsort(labels.ravel(), kind="stable")
+    assert np.array_equal(index.order, order)
+    assert np.array_equal(np.diff(index.starts), np.bincount(labels.ravel(), minlength=40))
+    assert index.order.dtype == np.int64 and index.starts.dtype == np.int64
+
+
+def test_render_planes_is_the_float64_plane_rounded_once_and_nan_without_a_plane() -> None:
+    rng = np.random.default_rng(4)
+    labels = rng.integers(0, 6, (17, 29)).astype(np.int32)
+    planes = rng.normal(size=(4, 3)) * [0.3, 0.3, 20.0]
+    assign = np.array([0, 3, -1, 1, 2, 3])
+    yy, xx = np.mgrid[0:17, 0:29]
+    a = assign[labels]
+    pl = planes[np.clip(a, 0, None)]
+    expect = np.where(a >= 0, pl[..., 0] * xx + pl[..., 1] * yy + pl[..., 2], np.nan).astype(np.float32)
+    out = render_planes(build_segment_index(labels), planes, assign)
+    assert out.dtype == np.float32 and np.array_equal(out, expect, equal_nan=True)
+
+
+def test_plane_fits_do_not_depend_on_the_number_of_threads() -> None:
+    import numba
+
+    rng = np.random.default_rng(5)
+    labels = (np.arange(60)[None, :] // 6 + 10 * (np.arange(40)[:, None] // 8)).astype(np.int32)
+    yy, xx = np.mgrid[0:40, 0:60].astype(np.float64)
+    disp = 0.1 * xx - 0.05 * yy + 20.0 + rng.normal(0, 0.5, xx.shape) + 3.0 * (labels % 3)
+    reliable = rng.random(xx.shape) > 0.1
+    index = build_segment_index(labels)
+    prev = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = fit_planes(index, disp, reliable)
+        numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+        two = fit_planes(index, disp, reliable)
+    finally:
+        numba.set_num_threads(prev)
+    assert np.isfinite(one[0][:, 0]).sum() > 40
+    assert np.array_equal(one[0], two[0], equal_nan=True) and np.array_equal(one[1], two[1])

@@ -99,14 +99,27 @@ class SegmentIndex:
         return int(self.starts.size - 1)
 
 
+@njit(cache=True, nogil=True)
+def _counting_sort(lab: npt.NDArray[np.int64], k: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """Pixels sorted by label, in increasing pixel order within a label (a stable argsort in O(N))."""
+    starts = np.zeros(k + 1, np.int64)
+    for i in range(lab.size):
+        starts[lab[i] + 1] += 1
+    for j in range(k):
+        starts[j + 1] += starts[j]
+    fill = starts[:k].copy()
+    order = np.empty(lab.size, np.int64)
+    for i in range(lab.size):
+        j = lab[i]
+        order[fill[j]] = i
+        fill[j] += 1
+    return order, starts
+
+
 def build_segment_index(labels: npt.NDArray[np.integer]) -> SegmentIndex:
     """Index the pixels of each segment of a (H, W) label map with labels 0..K-1."""
-    lab = np.asarray(labels).ravel()
-    k = int(lab.max()) + 1
-    order = np.argsort(lab, kind="stable").astype(np.int64)
-    counts = np.bincount(lab, minlength=k)
-    starts = np.zeros(k + 1, np.int64)
-    np.cumsum(counts, out=starts[1:])
+    lab = np.ascontiguousarray(np.asarray(labels).ravel(), dtype=np.int64)
+    order, starts = _counting_sort(lab, int(lab.max()) + 1)
     return SegmentIndex(order, starts, (int(labels.shape[0]), int(labels.shape[1])))
 
 
@@ -525,14 +538,24 @@ def render_planes(index: SegmentIndex, planes: F64,
     (H, W) float32 disparity, ``a x + b y + c`` of the segment's plane at every pixel.
     """
     h, w = index.shape
-    seg = segment_label_map(index)
-    pix = np.arange(h * w)
-    xs = (pix % w).astype(np.float64)
-    ys = (pix // w).astype(np.float64)
-    a = np.asarray(assign)[seg]
-    pl = np.where(a[:, None] >= 0, planes[np.clip(a, 0, None)], np.nan)
-    out = pl[:, 0] * xs + pl[:, 1] * ys + pl[:, 2]
-    return out.reshape(h, w).astype(np.float32)
+    return _render(index.order, index.starts, w, np.ascontiguousarray(planes, dtype=np.float64),
+                   np.ascontiguousarray(assign, dtype=np.int64)).reshape(h, w)
+
+
+@njit(cache=True, nogil=True)
+def _render(order: npt.NDArray[np.int64], starts: npt.NDArray[np.int64], w: int, planes: F64,
+            assign: npt.NDArray[np.int64]) -> npt.NDArray[np.float32]:
+    out = np.empty(order.size, np.float32)
+    for j in range(starts.size - 1):
+        lab = assign[j]
+        for t in range(starts[j], starts[j + 1]):
+            p = order[t]
+            if lab < 0:
+                out[p] = np.nan
+            else:
+                # the float64 products and sums in numpy's order, then rounded once to float32
+                out[p] = np.float32(planes[lab, 0] * float(p % w) + planes[lab, 1] * float(p // w) + planes[lab, 2])
+    return out
 
 
 def group_refit_planes(
