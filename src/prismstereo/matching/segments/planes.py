@@ -384,11 +384,78 @@ def plane_similarity(pa: F64, pb: F64, ca: F64, cb: F64) -> F64:
     return np.asarray(np.exp(-theta) * np.exp(-dist), dtype=np.float64)
 
 
+@njit(cache=True, nogil=True)
 def _uf_find(parent: npt.NDArray[np.int64], i: int) -> int:
     while parent[i] != i:
         parent[i] = parent[parent[i]]
         i = int(parent[i])
     return i
+
+
+@njit(cache=True, nogil=True)
+def _greedy_roots(pr: npt.NDArray[np.int64], sim: F64, order: npt.NDArray[np.int64], delta: float,
+                  k: int) -> npt.NDArray[np.int64]:
+    """Union of the pairs ``pr`` in ``order`` while their similarity exceeds ``delta`` (Eq. 6.17); the root
+    (smallest member) of each segment's cluster."""
+    parent = np.arange(k, dtype=np.int64)
+    for e in order:
+        if sim[e] <= delta:
+            break
+        ra = _uf_find(parent, pr[e, 0])
+        rb = _uf_find(parent, pr[e, 1])
+        if ra != rb:
+            parent[max(ra, rb)] = min(ra, rb)
+    roots = np.empty(k, np.int64)
+    for i in range(k):
+        roots[i] = _uf_find(parent, i)
+    return roots
+
+
+@njit(cache=True, nogil=True)
+def _assign_clusters(order: npt.NDArray[np.int64], starts: npt.NDArray[np.int64], w: int, planes: F64,
+                     merged: F64, roots: npt.NDArray[np.int64], has: npt.NDArray[np.bool_],
+                     sizes: npt.NDArray[np.int64], d: F64, rel: npt.NDArray[np.bool_], t_out: float
+                     ) -> tuple[I32, F64]:
+    """Cluster index and plane per segment with a plane, numbered in segment order: a member of a multi-segment
+    cluster takes the merged plane unless it fits the member's reliable pixels worse by more than 0.1."""
+    k = planes.shape[0]
+    cluster = np.full(k, -1, np.int32)
+    out = np.empty((k, 3))
+    root_to_c = np.full(k, -1, np.int64)
+    n_out = 0
+    for j in range(k):
+        if not has[j]:
+            continue
+        r = roots[j]
+        use_merged = sizes[r] > 1 and np.isfinite(merged[r, 0])
+        if use_merged:
+            n = 0
+            n_own = 0
+            n_mer = 0
+            for t in range(starts[j], starts[j + 1]):
+                p = order[t]
+                if not rel[p]:
+                    continue
+                n += 1
+                x = float(p % w)
+                y = float(p // w)
+                if abs(d[p] - (planes[j, 0] * x + planes[j, 1] * y + planes[j, 2])) <= t_out:
+                    n_own += 1
+                if abs(d[p] - (merged[r, 0] * x + merged[r, 1] * y + merged[r, 2])) <= t_out:
+                    n_mer += 1
+            if n:
+                use_merged = n_mer / n >= n_own / n - 0.1
+        if use_merged:
+            if root_to_c[r] < 0:
+                root_to_c[r] = n_out
+                out[n_out] = merged[r]
+                n_out += 1
+            cluster[j] = root_to_c[r]
+        else:
+            cluster[j] = n_out
+            out[n_out] = planes[j]
+            n_out += 1
+    return cluster, out[:n_out].copy()
 
 
 def merge_planes(index: SegmentIndex, planes: F64, pairs: I32, disparity: npt.NDArray[np.floating],
@@ -428,49 +495,22 @@ def merge_planes(index: SegmentIndex, planes: F64, pairs: I32, disparity: npt.ND
     ok = has[pairs[:, 0]] & has[pairs[:, 1]]
     pr = pairs[ok]
     sim = plane_similarity(planes[pr[:, 0]], planes[pr[:, 1]], cent[pr[:, 0]], cent[pr[:, 1]])
-    parent = np.arange(k, dtype=np.int64)
     # greedy clustering in decreasing similarity (Eq. 6.17: merge while simfun > δ)
-    for e in np.argsort(-sim, kind="stable"):
-        if sim[e] <= p.delta:
-            break
-        ra = _uf_find(parent, int(pr[e, 0]))
-        rb = _uf_find(parent, int(pr[e, 1]))
-        if ra != rb:
-            parent[max(ra, rb)] = min(ra, rb)
-    roots = np.array([_uf_find(parent, i) for i in range(k)], dtype=np.int64)
+    roots = _greedy_roots(pr.astype(np.int64), sim, np.argsort(-sim, kind="stable").astype(np.int64),
+                          float(p.delta), k)
     roots[~has] = -1
     # refit every multi-segment cluster on the union of its members' reliable pixels
     relabel = np.where(has, roots, k)  # label map over clusters, k = none
     cl_lab = relabel[np.asarray(segment_label_map(index))]
     cidx = build_segment_index(cl_lab.reshape(h, w))
     merged, _ = fit_planes(cidx, disparity, reliable, params=p)
-    cluster = np.full(k, -1, np.int32)
-    out: list[npt.NDArray[np.float64]] = []
-    root_to_c: dict[int, int] = {}
-    sizes = np.bincount(roots[has], minlength=k)
-    d = np.asarray(disparity, dtype=np.float64).ravel()
+    sizes = np.bincount(roots[has], minlength=k).astype(np.int64)
+    d = np.ascontiguousarray(np.asarray(disparity, dtype=np.float64).ravel())
     rel = np.asarray(reliable, dtype=bool).ravel() & np.isfinite(d)
-    for j in np.flatnonzero(has):
-        r = int(roots[j])
-        use_merged = sizes[r] > 1 and np.isfinite(merged[r, 0])
-        if use_merged:
-            # keep the member only if the merged plane explains its reliable pixels about as well
-            px = index.order[index.starts[j]:index.starts[j + 1]]
-            px = px[rel[px]]
-            if px.size:
-                xs, ys = px % w, px // w
-                own = np.abs(d[px] - (planes[j, 0] * xs + planes[j, 1] * ys + planes[j, 2])) <= p.t_outlier
-                mer = np.abs(d[px] - (merged[r, 0] * xs + merged[r, 1] * ys + merged[r, 2])) <= p.t_outlier
-                use_merged = mer.mean() >= own.mean() - 0.1
-        if use_merged:
-            if r not in root_to_c:
-                root_to_c[r] = len(out)
-                out.append(merged[r])
-            cluster[j] = root_to_c[r]
-        else:
-            cluster[j] = len(out)
-            out.append(planes[j])
-    cplanes = np.array(out, dtype=np.float64).reshape(-1, 3)
+    # keep a member in its cluster only if the merged plane explains its reliable pixels about as well
+    cluster, cplanes = _assign_clusters(index.order, index.starts, w, np.ascontiguousarray(planes, np.float64),
+                                        np.ascontiguousarray(merged, np.float64), roots, has, sizes, d, rel,
+                                        float(p.t_outlier))
     log.debug("plane merging: %d planes -> %d clusters", int(has.sum()), cplanes.shape[0])
     return cluster, cplanes
 
