@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from numba import njit
+from numba import njit, prange
 
 from prismstereo.matching.segments.segmentation import split_segments
 
@@ -220,14 +220,29 @@ def fit_one_plane(xs: F64, ys: F64, ds: F64, t_out: float, eps: float, max_iter:
     return a, b, float(c - a * cx - b * cy), ninl
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _fit_all(order: npt.NDArray[np.int64], starts: npt.NDArray[np.int64], w: int, disp: F64,
              reliable: npt.NDArray[np.bool_], gamma: float, t_out: float, eps: float, max_iter: int,
              min_pix: int, trials: int, max_slope: float) -> tuple[F64, I32]:
     k = starts.size - 1
     planes = np.full((k, 3), np.nan)
     ninl = np.zeros(k, np.int32)
-    for j in range(k):
+    # segments are independent (each seeds its own random triples): fit them in parallel, interleaved so
+    # that each thread's share mixes large and small segments
+    nb = 64
+    for b in prange(nb):
+        _fit_stride(order, starts, w, disp, reliable, gamma, t_out, eps, max_iter, min_pix, trials, max_slope,
+                    b, nb, planes, ninl)
+    return planes, ninl
+
+
+@njit(cache=True, nogil=True)
+def _fit_stride(order: npt.NDArray[np.int64], starts: npt.NDArray[np.int64], w: int, disp: F64,
+                reliable: npt.NDArray[np.bool_], gamma: float, t_out: float, eps: float, max_iter: int,
+                min_pix: int, trials: int, max_slope: float, first: int, stride: int, planes: F64,
+                ninl: I32) -> None:
+    """The planes of segments ``first, first + stride, ...`` into ``planes`` and ``ninl``."""
+    for j in range(first, starts.size - 1, stride):
         s0 = starts[j]
         s1 = starts[j + 1]
         nseg = s1 - s0
@@ -255,7 +270,6 @@ def _fit_all(order: npt.NDArray[np.int64], starts: npt.NDArray[np.int64], w: int
             planes[j, 1] = b
             planes[j, 2] = c
             ninl[j] = n_in
-    return planes, ninl
 
 
 def fit_planes(index: SegmentIndex, disparity: npt.NDArray[np.floating], reliable: npt.NDArray[np.bool_], *,

@@ -261,7 +261,8 @@ def split_segments(labels: npt.NDArray[np.integer], image: npt.NDArray[np.generi
     cy = np.bincount(lab.ravel(), weights=yy.ravel(), minlength=k) / n
     quad = (yy >= cy[lab]).astype(np.int64) * 2 + (xx >= cx[lab])
     key = np.where(sel[lab], lab * 4 + quad, lab * 4)
-    _, inv = np.unique(key.ravel(), return_inverse=True)
+    # only equal keys are joined: the keys themselves serve while float32 holds them exactly (no sort)
+    inv = key if 4 * k < 2 ** 24 else np.unique(key.ravel(), return_inverse=True)[1]
     comp = _label_modes(inv.reshape(h, w, 1).astype(np.float32), 0.25)
     out, nlab = _compact(comp)
     if min_region > 1:
