@@ -727,36 +727,46 @@ def curved_segment_surfaces(labels: npt.NDArray[np.integer], disparity: npt.NDAr
     np.minimum.at(y0, lab[inl], ys[inl])
     np.maximum.at(y1, lab[inl], ys[inl])
     scale = np.maximum(np.maximum(x1 - x0, y1 - y0), 1.0)
-    u = (xs - cx[lab]) / scale[lab]
-    v = (ys - cy[lab]) / scale[lab]
-    quad = np.stack([u * u, u * v, v * v, u, v, np.ones_like(u)], axis=1)
     cand = (n >= min_evidence) & (x1 - x0 >= 2) & (y1 - y0 >= 2)
     if not cand.any():
         return out, curved
-    sol = _solve(*_segment_sums(lab, k, quad, r, inl & cand[lab]))
+    # only the candidates and their pixels (renumbered 0..C-1): every sum below is per segment, so the others'
+    # pixels change nothing
+    cs = np.flatnonzero(cand)
+    cid = np.zeros(k, np.int64)
+    cid[cs] = np.arange(cs.size)
+    sub = np.flatnonzero(cand[lab])
+    kc = cs.size
+    lab, xs, ys, r, ev, inl = cid[lab[sub]], xs[sub], ys[sub], r[sub], ev[sub], inl[sub]
+    cx, cy, scale = cx[cs], cy[cs], scale[cs]
+    u = (xs - cx[lab]) / scale[lab]
+    v = (ys - cy[lab]) / scale[lab]
+    quad = np.stack([u * u, u * v, v * v, u, v, np.ones_like(u)], axis=1)
+    sol = _solve(*_segment_sums(lab, kc, quad, r, inl))
     for _ in range(max(iterations, 0)):
-        inl = ev & cand[lab] & (np.abs((quad * sol[lab]).sum(1) - r) <= tol)
-        sol = _solve(*_segment_sums(lab, k, quad, r, inl))
-    n = np.bincount(lab, weights=inl, minlength=k)
+        inl = ev & (np.abs((quad * sol[lab]).sum(1) - r) <= tol)
+        sol = _solve(*_segment_sums(lab, kc, quad, r, inl))
+    n = np.bincount(lab, weights=inl, minlength=kc)
     # the final inliers' bounding box: where the quadric is evaluated
-    x0[:], x1[:], y0[:], y1[:] = big, -big, big, -big
+    x0, x1, y0, y1 = np.full(kc, big), np.full(kc, -big), np.full(kc, big), np.full(kc, -big)
     np.minimum.at(x0, lab[inl], xs[inl])
     np.maximum.at(x1, lab[inl], xs[inl])
     np.minimum.at(y0, lab[inl], ys[inl])
     np.maximum.at(y1, lab[inl], ys[inl])
-    lin = _solve(*_segment_sums(lab, k, quad[:, 3:], r, inl))
-    res2 = np.bincount(lab, weights=inl * ((quad * sol[lab]).sum(1) - r) ** 2, minlength=k)
-    res1 = np.bincount(lab, weights=inl * ((quad[:, 3:] * lin[lab]).sum(1) - r) ** 2, minlength=k)
+    lin = _solve(*_segment_sums(lab, kc, quad[:, 3:], r, inl))
+    res2 = np.bincount(lab, weights=inl * ((quad * sol[lab]).sum(1) - r) ** 2, minlength=kc)
+    res1 = np.bincount(lab, weights=inl * ((quad[:, 3:] * lin[lab]).sum(1) - r) ** 2, minlength=kc)
     # the curved part over the segment, the quadric evaluated inside the evidence's bounding box only
     uc = (np.clip(xs, x0[lab], x1[lab]) - cx[lab]) / scale[lab]
     vc = (np.clip(ys, y0[lab], y1[lab]) - cy[lab]) / scale[lab]
     qc = np.stack([uc * uc, uc * vc, vc * vc, uc, vc, np.ones_like(uc)], axis=1)
     q_all = (qc * sol[lab]).sum(1)
     bend = np.abs(q_all - (qc[:, 3:] * lin[lab]).sum(1))
-    amp = np.zeros(k)
+    amp = np.zeros(kc)
     np.maximum.at(amp, lab, bend)
-    curved = (cand & (n >= min_evidence) & (n >= min_coverage * sizes) & (res2 <= max_rms_ratio ** 2 * res1)
-              & (amp >= min_amplitude))
-    change = curved[lab] & plan
-    out.ravel()[change] = (disp[change] + np.clip(q_all[change], -max_shift, max_shift)).astype(np.float32)
+    curved[cs] = ((n >= min_evidence) & (n >= min_coverage * sizes[cs]) & (res2 <= max_rms_ratio ** 2 * res1)
+                  & (amp >= min_amplitude))
+    change = curved[cs][lab] & plan[sub]
+    px = sub[change]
+    out.ravel()[px] = (disp[px] + np.clip(q_all[change], -max_shift, max_shift)).astype(np.float32)
     return out, curved
