@@ -102,6 +102,59 @@ def boundary_pixel_planes(seg: npt.NDArray[np.int32], assign: npt.NDArray[np.int
     return out
 
 
+@njit(cache=True, nogil=True)
+def _pair_ranks(a: npt.NDArray[np.int64], b: npt.NDArray[np.int64]) -> npt.NDArray[np.int32]:
+    """Rank of each pixel's pair ``(a, b)`` among the distinct pairs in lexicographic order (labels >= 0):
+    ``np.unique`` of the pairs' inverse, by two stable counting sorts."""
+    n = a.size
+    out = np.empty(n, np.int32)
+    if n == 0:
+        return out
+    order = np.arange(n)
+    for key in (b, a):  # least significant key first
+        m = int(key.max()) + 2
+        cnt = np.zeros(m, np.int64)
+        for i in range(n):
+            cnt[key[i] + 1] += 1
+        for j in range(m - 1):
+            cnt[j + 1] += cnt[j]
+        nxt = np.empty(n, np.int64)
+        for t in range(n):
+            i = order[t]
+            nxt[cnt[key[i]]] = i
+            cnt[key[i]] += 1
+        order = nxt
+    r = -1
+    pa = -1
+    pb = -1
+    for t in range(n):
+        i = order[t]
+        if a[i] != pa or b[i] != pb:
+            r += 1
+            pa = a[i]
+            pb = b[i]
+        out[i] = r
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _plane_support(order: npt.NDArray[np.int64], starts: npt.NDArray[np.int64], w: int,
+                   planes: npt.NDArray[np.float64], assign: npt.NDArray[np.int64], evidence: npt.NDArray[np.bool_],
+                   reference: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Per segment, its ``evidence`` pixels within 1 px of ``reference`` under its plane ``assign``."""
+    k = starts.size - 1
+    out = np.zeros(k)
+    for j in range(k):
+        a, b, c = planes[assign[j], 0], planes[assign[j], 1], planes[assign[j], 2]
+        n = 0
+        for t in range(starts[j], starts[j + 1]):
+            p = order[t]
+            if evidence[p] and abs(a * float(p % w) + b * float(p // w) + c - reference[p]) <= 1.0:
+                n += 1
+        out[j] = n
+    return out
+
+
 Optimise = Callable[[npt.NDArray[np.int32], npt.NDArray[np.float64], npt.NDArray[np.int64]],
                     tuple[npt.NDArray[np.int32], npt.NDArray[np.float64], dict[str, float]]]
 
@@ -196,9 +249,8 @@ def refine_fine_segments(image: npt.NDArray[np.uint8], labels: npt.NDArray[np.in
     """
     if fine is None:
         fine = mean_shift_segment(image, params=segmentation)
-    comb = labels.astype(np.int64) * (int(fine.max()) + 1) + fine
-    _, inv = np.unique(comb, return_inverse=True)
-    flab = inv.reshape(labels.shape).astype(np.int32)
+    flab = _pair_ranks(np.ascontiguousarray(labels.ravel(), dtype=np.int64),
+                       np.ascontiguousarray(fine.ravel(), dtype=np.int64)).reshape(labels.shape)
     parent = np.zeros(int(flab.max()) + 1, np.int64)
     parent[flab.ravel()] = labels.ravel()
     findex = build_segment_index(flab)
@@ -217,19 +269,12 @@ def refine_fine_segments(image: npt.NDArray[np.uint8], labels: npt.NDArray[np.in
     moved = np.flatnonzero(new != fa)
     if check is not None and moved.size:
         # the data term of a 10-pixel segment is noisy: the trusted initial disparities may veto the move
-        h, w = labels.shape
-        yy, xx = np.mgrid[0:h, 0:w]
-        fl = flab.ravel()
-        ev = np.asarray(evidence, bool).ravel()
-        ref = np.asarray(reference, np.float64).ravel()
-
-        def support(lab: npt.NDArray[np.int32]) -> npt.NDArray[np.float64]:
-            pl = planes_out[lab][fl]
-            d = pl[:, 0] * xx.ravel() + pl[:, 1] * yy.ravel() + pl[:, 2]
-            return np.bincount(fl, weights=(ev & (np.abs(d - ref) <= 1.0)).astype(np.float64),
-                               minlength=parent.size).astype(np.float64)
-
-        sn, so = support(new), support(fa)
+        w = labels.shape[1]
+        ev = np.ascontiguousarray(evidence, dtype=bool).ravel()
+        ref = np.ascontiguousarray(reference, dtype=np.float64).ravel()
+        pl_out = np.ascontiguousarray(planes_out, dtype=np.float64)
+        sn = _plane_support(findex.order, findex.starts, w, pl_out, np.asarray(new, np.int64), ev, ref)
+        so = _plane_support(findex.order, findex.starts, w, pl_out, np.asarray(fa, np.int64), ev, ref)
         undo = moved[sn[moved] < so[moved] + check]
         new = new.copy()
         new[undo] = fa[undo]
