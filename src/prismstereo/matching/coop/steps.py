@@ -35,6 +35,7 @@ from typing import Any, Protocol, TypeVar
 
 import numpy as np
 import numpy.typing as npt
+from numba import njit
 
 from prismstereo.errors import ConfigError
 from prismstereo.matching.coop.cooperative import (
@@ -467,34 +468,65 @@ def unsupported_moves(index: SegmentIndex, before: F64, after: F64, data: F32, *
     h, w = index.shape
     vol = data if data.ndim == 4 else data[None]
     flat = vol.reshape(vol.shape[0], h * w, vol.shape[3])
-    nd = flat.shape[2]
     lens = index.starts[moved + 1] - index.starts[moved]
-    seg = np.repeat(np.arange(moved.size), lens)
-    off = np.arange(int(lens.sum())) - np.repeat(np.cumsum(lens) - lens, lens)
-    pix = index.order[np.repeat(index.starts[moved], lens) + off]
-    x = (pix % w).astype(np.float64)
-    y = (pix // w).astype(np.float64)
     lv = np.zeros(1) if slopes is None else np.asarray(slopes, np.float64)
-
-    def cost(pl: F64) -> tuple[F64, B]:
-        p = pl[moved][seg]
-        d = p[:, 0] * x + p[:, 1] * y + p[:, 2]
-        k = d - min_disp
-        ok = (k >= -0.5) & (k <= nd - 0.5) & (x - d >= -0.5)
-        lev = np.abs(lv[None, :] - p[:, 1:2]).argmin(axis=1) if lv.size > 1 else np.zeros(d.size, np.int64)
-        kc = np.clip(k, 0.0, nd - 1.0)
-        k0 = kc.astype(np.int64)
-        k1 = np.minimum(k0 + 1, nd - 1)
-        f = kc - k0
-        v = (1.0 - f) * flat[lev, pix, k0] + f * flat[lev, pix, k1]
-        return np.minimum(v, trunc), ok
-
-    c0, ok0 = cost(before)
-    c1, ok1 = cost(after)
-    both = ok0 & ok1
-    n = np.bincount(seg, weights=both, minlength=moved.size)
-    gain = np.bincount(seg, weights=np.where(both, c0 - c1, 0.0), minlength=moved.size)
+    n, gain = _move_gains(index.order, index.starts, moved, w, np.ascontiguousarray(before, np.float64),
+                          np.ascontiguousarray(after, np.float64), flat, float(min_disp), lv, float(trunc))
     return moved[(n < min_cover * lens) | ~(gain > 0)]
+
+
+@njit(cache=True, nogil=True)
+def _level(lv: F64, b: float) -> int:
+    """The slope level closest to ``b`` (the first on ties, as argmin)."""
+    if lv.size <= 1:
+        return 0
+    best = 0
+    for i in range(1, lv.size):
+        if abs(lv[i] - b) < abs(lv[best] - b):
+            best = i
+    return best
+
+
+@njit(cache=True, nogil=True)
+def _pixel_cost(flat: F32, lev: int, p: int, d: float, x: float, min_disp: float, trunc: float
+                ) -> tuple[float, bool]:
+    """Truncated, linearly interpolated pixel cost at disparity ``d`` and whether ``d`` lies in the range and
+    the right view."""
+    nd = flat.shape[2]
+    k = d - min_disp
+    ok = k >= -0.5 and k <= nd - 0.5 and x - d >= -0.5
+    kc = min(max(k, 0.0), nd - 1.0)
+    k0 = int(kc)
+    k1 = min(k0 + 1, nd - 1)
+    f = kc - k0
+    v = (1.0 - f) * flat[lev, p, k0] + f * flat[lev, p, k1]
+    return min(v, trunc), ok
+
+
+@njit(cache=True, nogil=True)
+def _move_gains(order: I64, starts: I64, moved: I64, w: int, before: F64, after: F64, flat: F32,
+                min_disp: float, lv: F64, trunc: float) -> tuple[F64, F64]:
+    """Per moved segment, its pixels both planes send in range and the summed cost drop (pixel order)."""
+    n = np.zeros(moved.size)
+    gain = np.zeros(moved.size)
+    for m in range(moved.size):
+        j = moved[m]
+        b0, b1, b2 = before[j, 0], before[j, 1], before[j, 2]
+        a0, a1, a2 = after[j, 0], after[j, 1], after[j, 2]
+        lb = _level(lv, b1)
+        la = _level(lv, a1)
+        for t in range(starts[j], starts[j + 1]):
+            p = order[t]
+            x = float(p % w)
+            y = float(p // w)
+            c0, ok0 = _pixel_cost(flat, lb, p, b0 * x + b1 * y + b2, x, min_disp, trunc)
+            c1, ok1 = _pixel_cost(flat, la, p, a0 * x + a1 * y + a2, x, min_disp, trunc)
+            if ok0 and ok1:
+                n[m] += 1.0
+                gain[m] += c0 - c1
+            else:
+                gain[m] += 0.0
+    return n, gain
 
 
 def _checked(s: PlaneLabels, assign: I32, planes: F64, ev: Evidence, on: bool, min_cover: float
