@@ -116,6 +116,14 @@ def test_bpasw_dense_map_where_is_the_full_map_there() -> None:
     where[5:20, 10:40] = True
     part = bpasw_dense_map(vol, left, where=where, right_winner=right_winner(vol))
     np.testing.assert_array_equal(part[where], full[where])
+    # a small patch of a larger image: only the holes within the median's window of it are smoothed first
+    left, right = _repetitive_pair(5, 9, h=64, w=128)  # smoothing only the holes within 4 px would fail
+    vol = bpasw_volume(left, right, max_disp=16)
+    full = bpasw_dense_map(vol, left)
+    where = np.zeros(full.shape, bool)
+    where[40:46, 90:100] = True
+    part = bpasw_dense_map(vol, left, where=where)
+    np.testing.assert_array_equal(part[where], full[where])
 
 
 def _fallback_pair(seed: int, h: int, w: int, d_true: int = 6, max_disp: int = 16

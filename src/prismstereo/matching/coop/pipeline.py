@@ -221,9 +221,12 @@ def bpasw_dense_map(vol: F32, image: npt.NDArray[np.uint8], *, min_disp: int = 0
     raw = np.where(valid, disp, np.float32(np.nan)).astype(np.float32)
     if valid.all():
         return raw
-    dense = selection.fill_holes(raw, valid, image=image)
+    radius = 9
+    # the final median at ``where`` reads the filled holes within its window only: smooth just those
+    near = None if where is None else cv2.dilate(where.astype(np.uint8), np.ones((2 * radius + 1,) * 2, np.uint8)) > 0
+    dense = selection.fill_holes(raw, valid, image=image, median_radius=radius, median_where=near)
     if np.isfinite(dense).all():
-        dense = selection.weighted_median_filter(dense, image, radius=9, mask=where)
+        dense = selection.weighted_median_filter(dense, image, radius=radius, mask=where)
     return np.asarray(dense, np.float32)
 
 

@@ -224,7 +224,7 @@ def weighted_median_filter(disp: np.ndarray, image: np.ndarray, *, mask: np.ndar
 
 
 def fill_holes(disp: np.ndarray, valid: np.ndarray | None = None, *, image: np.ndarray | None = None,
-               median_radius: int = 9) -> np.ndarray:
+               median_radius: int = 9, median_where: np.ndarray | None = None) -> np.ndarray:
     """Dense disparity from a sparse one: background scanline fill, then a weighted median.
 
     Each invalid pixel takes the *lower* (background, as occlusions belong to the farther surface) of
@@ -239,6 +239,8 @@ def fill_holes(disp: np.ndarray, valid: np.ndarray | None = None, *, image: np.n
         Defaults to ``isfinite(disp)``.
     image : ndarray, (H, W, 3) or (H, W), optional
         Guidance image of the same view.
+    median_where : ndarray, bool, (H, W), optional
+        Only the holes here are smoothed (default: every hole); the others keep the scanline fill.
 
     Returns
     -------
@@ -252,9 +254,10 @@ def fill_holes(disp: np.ndarray, valid: np.ndarray | None = None, *, image: np.n
     filled = _scanline_fill(d, np.ascontiguousarray(v))
     holes = ~v
     if median_radius > 0 and holes.any() and np.isfinite(filled).all():
+        smooth = holes if median_where is None else holes & np.asarray(median_where, dtype=bool)
         if image is not None:
-            filled = weighted_median_filter(filled, image, mask=holes, radius=median_radius)
+            filled = weighted_median_filter(filled, image, mask=smooth, radius=median_radius)
         else:
             med = cv2.medianBlur(filled, 5)
-            filled = np.where(holes, med, filled).astype(np.float32)
+            filled = np.where(smooth, med, filled).astype(np.float32)
     return filled
