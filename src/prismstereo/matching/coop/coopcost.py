@@ -160,13 +160,16 @@ def _census_row_box(ad: npt.NDArray[np.float64], cl: npt.NDArray[np.uint64], cr:
 @njit(cache=True, parallel=True, nogil=True)
 def _census_row_boxes_at(left: F32, right: F32, gl: F32, gr: F32, cl: npt.NDArray[np.uint64],
                          cr: npt.NDArray[np.uint64], min_disp: int, ndisp: int, tau_c: float, tau_g: float,
-                         lam_ad: float, lam_c: float, r: int, mask: npt.NDArray[np.bool_], out: F32) -> None:
+                         lam_ad: float, lam_c: float, r: int, mask: npt.NDArray[np.bool_], out: F32,
+                         fill: F32) -> None:
     """:func:`_census_row_box` of every sheared right census ``cr`` (S, H, W) into ``out`` (S, H, W, D), with the
     colour + gradient term (:func:`_ad_term`'s float64 values) evaluated once, at the pixels the row boxes of
-    ``mask`` read only, instead of read from a whole-image volume."""
+    ``mask`` read only, instead of read from a whole-image volume; ``out`` is ``fill`` elsewhere (when ``fill``
+    has ``out``'s shape; untouched otherwise)."""
     h, w = left.shape[:2]
     tab = _census_table(lam_c)
     inv = 1.0 / (2 * r + 1)
+    copy = fill.shape == out.shape
     for y in prange(h):
         need = np.zeros(w, np.bool_)
         todo = False
@@ -175,6 +178,9 @@ def _census_row_boxes_at(left: F32, right: F32, gl: F32, gr: F32, cl: npt.NDArra
                 todo = True
                 for o in range(-r, r + 1):
                     need[_reflect(x + o, w)] = True
+            elif copy:
+                for i in range(cr.shape[0]):
+                    out[i, y, x, :] = fill[i, y, x, :]
         if not todo:
             continue
         ad = np.empty((w, ndisp))
@@ -581,8 +587,9 @@ def sheared_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic],
 def sheared_row_costs_at(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], selected: npt.NDArray[np.bool_],
                          out: F32, *, max_disp: int, min_disp: int = 0, params: CostParams | None = None,
                          slopes: tuple[float, ...] = (0.0,), radius: int = 1,
-                         inputs: ShearedInputs | None = None) -> None:
-    """Write :func:`sheared_costs` ``(..., vertical=False)`` into ``out`` at the ``selected`` pixels only.
+                         inputs: ShearedInputs | None = None, fill: F32 | None = None) -> None:
+    """Write :func:`sheared_costs` ``(..., vertical=False)`` into ``out`` at the ``selected`` pixels only (and
+    ``fill`` at the others, when given).
 
     Parameters
     ----------
@@ -593,6 +600,8 @@ def sheared_row_costs_at(left: npt.NDArray[np.generic], right: npt.NDArray[np.ge
         Volume to update in place, one slice per slope; the other pixels are left as they are.
     max_disp, min_disp, params, slopes, radius, inputs : keyword-only
         As :func:`sheared_costs`.
+    fill : (S, H, W, D) float32, keyword-only
+        The volume whose values the other pixels of ``out`` get (None: they are left as they are).
     """
     p = params or CostParams()
     si = sheared_inputs(left, right, params=p, slopes=slopes) if inputs is None else inputs
@@ -601,7 +610,10 @@ def sheared_row_costs_at(left: npt.NDArray[np.generic], right: npt.NDArray[np.ge
     nd = max_disp - min_disp + 1
     if out.shape != (len(slopes), *shape, nd):
         raise MatchingError(f"expected out of shape {(len(slopes), *shape, nd)}, got {out.shape}")
+    if fill is not None and fill.shape != out.shape:
+        raise MatchingError(f"expected fill of shape {out.shape}, got {fill.shape}")
     mask = np.ascontiguousarray(selected, dtype=np.bool_)
     _census_row_boxes_at(si.left, si.right, si.grad_left, si.grad_right, si.census_left, si.census_right,
                          int(min_disp), nd, p.tau_color, p.tau_grad, p.lambda_ad, p.lambda_census,
-                         max(int(radius), 0), mask, out)
+                         max(int(radius), 0), mask, out,
+                         np.zeros((1, 1, 1, 1), np.float32) if fill is None else fill)

@@ -406,8 +406,7 @@ class _PairEvidence:
                  sheared: ShearedInputs | None = None):
         self.image, self.right = lft, rgt
         self._sheared = sheared  # the data term's census transforms etc., reused by the row-only volume
-        self._segments = dict(segments or {})
-        self._data_copy: Future[F32] | None = None  # segmentations of the image computed ahead (the fine step's)
+        self._segments = dict(segments or {})  # segmentations of the image computed ahead (the fine step's)
         # the right view's winners of the BPASW volume (read by the occlusion and fallback steps)
         self.bright = selection.right_winner(bvol, min_disp=min_disp) if bright is None else bright
         self.min_disp, self.max_disp = int(min_disp), int(max_disp)
@@ -435,11 +434,6 @@ class _PairEvidence:
         return self.bdisp, self.brel
 
     def sweep(self, s: PlaneLabels, p: SweepParams) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
-        if self.slopes is not None and p.row_box >= 0:
-            # the row-only step that follows rewrites a copy of the data term: made while the candidates run
-            pool = ThreadPoolExecutor(max_workers=1)
-            self._data_copy = pool.submit(np.copy, self.data)
-            pool.shutdown(wait=False)
         return segment_sweep_candidates(self.image, self.right, s.labels, s.index, s.assign, s.planes,
                                         min_disp=self.min_disp, max_disp=self.max_disp, frac=p.frac,
                                         slopes=p.slopes, keep=p.keep, min_px=p.min_px, step=p.step,
@@ -453,10 +447,10 @@ class _PairEvidence:
             hb = box_filter_volume(raw_cost(self.image, self.right, **kw), p.row_box, vertical=False)  # type: ignore[arg-type]
             hb[~selected] = self.data[~selected]
         else:
-            ahead, self._data_copy = self._data_copy, None
-            hb = self.data.copy() if ahead is None else ahead.result()
+            # the other pixels keep the data term: copied by the same kernel, not first copied whole and overwritten
+            hb = np.empty_like(self.data)
             sheared_row_costs_at(self.image, self.right, selected, hb, **kw,  # type: ignore[arg-type]
-                                 slopes=self.slopes, radius=p.row_box, inputs=self._sheared)
+                                 slopes=self.slopes, radius=p.row_box, inputs=self._sheared, fill=self.data)
         self.check_data, self.data = self.data, hb
 
     def segments(self, params: SegmentationParams) -> npt.NDArray[np.int32]:
