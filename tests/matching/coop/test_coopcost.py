@@ -6,7 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from prismstereo.matching.coop.coopcost import raw_cost, sheared_costs, sheared_row_costs_at
+from prismstereo.errors import MatchingError
+from prismstereo.matching.coop.coopcost import CostParams, raw_cost, sheared_costs, sheared_inputs, sheared_row_costs_at
 from prismstereo.matching.coop.cooperative import build_segment_graph, total_energy
 from prismstereo.matching.coop.pipeline import box_filter_volume
 from prismstereo.matching.segments.planes import build_segment_index
@@ -52,6 +53,25 @@ def test_row_costs_at_selected_pixels_only() -> None:
     sheared_row_costs_at(left, right, sel, out, max_disp=30, slopes=slopes, radius=1)
     np.testing.assert_array_equal(out[:, sel], full[:, sel])
     assert (out[:, ~sel] == -1.0).all()
+
+
+def test_row_costs_from_the_data_terms_inputs_fill_the_other_pixels() -> None:
+    left, right, _ = _steep_floor()
+    slopes = (-1.0, 0.0, 0.5)
+    si = sheared_inputs(left, right, slopes=slopes)
+    np.testing.assert_array_equal(sheared_costs(left, right, max_disp=30, slopes=slopes, radius=1, inputs=si),
+                                  sheared_costs(left, right, max_disp=30, slopes=slopes, radius=1))
+    full = sheared_costs(left, right, max_disp=30, slopes=slopes, radius=1, vertical=False)
+    sel = np.random.default_rng(3).random(left.shape[:2]) < 0.4
+    other = np.random.default_rng(4).random(full.shape).astype(np.float32)
+    out = np.full_like(full, -1.0)
+    sheared_row_costs_at(left, right, sel, out, max_disp=30, slopes=slopes, radius=1, inputs=si, fill=other)
+    np.testing.assert_array_equal(out[:, sel], full[:, sel])
+    np.testing.assert_array_equal(out[:, ~sel], other[:, ~sel])
+    with pytest.raises(MatchingError, match="same params and slopes"):
+        sheared_row_costs_at(left, right, sel, out, max_disp=30, slopes=(0.0, 0.5, 1.0), radius=1, inputs=si)
+    with pytest.raises(MatchingError, match="same params and slopes"):
+        sheared_costs(left, right, max_disp=30, slopes=slopes, params=CostParams(census_rx=3), inputs=si)
 
 
 def test_sheared_volume_prefers_the_true_steep_plane() -> None:

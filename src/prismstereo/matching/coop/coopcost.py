@@ -20,8 +20,8 @@ from numba import njit, prange
 from prismstereo.errors import MatchingError
 from prismstereo.matching.local.costs import popcount64
 
-__all__ = ["CostParams", "aggregated_costs", "guided_filter_volume", "raw_cost", "sheared_costs",
-           "sheared_row_costs_at"]
+__all__ = ["CostParams", "ShearedInputs", "aggregated_costs", "guided_filter_volume", "raw_cost", "sheared_costs",
+           "sheared_inputs", "sheared_row_costs_at"]
 
 F32 = npt.NDArray[np.float32]
 
@@ -155,6 +155,65 @@ def _census_row_box(ad: npt.NDArray[np.float64], cl: npt.NDArray[np.uint64], cr:
                     acc[k] += raw[xx, k]
             for k in range(ndisp):
                 out[y, x, k] = acc[k] * inv
+
+
+@njit(cache=True, parallel=True, nogil=True)
+def _census_row_boxes_at(left: F32, right: F32, gl: F32, gr: F32, cl: npt.NDArray[np.uint64],
+                         cr: npt.NDArray[np.uint64], min_disp: int, ndisp: int, tau_c: float, tau_g: float,
+                         lam_ad: float, lam_c: float, r: int, mask: npt.NDArray[np.bool_], out: F32,
+                         fill: F32) -> None:
+    """:func:`_census_row_box` of every sheared right census ``cr`` (S, H, W) into ``out`` (S, H, W, D), with the
+    colour + gradient term (:func:`_ad_term`'s float64 values) evaluated once, at the pixels the row boxes of
+    ``mask`` read only, instead of read from a whole-image volume; ``out`` is ``fill`` elsewhere (when ``fill``
+    has ``out``'s shape; untouched otherwise)."""
+    h, w = left.shape[:2]
+    tab = _census_table(lam_c)
+    inv = 1.0 / (2 * r + 1)
+    copy = fill.shape == out.shape
+    for y in prange(h):
+        need = np.zeros(w, np.bool_)
+        todo = False
+        for x in range(w):
+            if mask[y, x]:
+                todo = True
+                for o in range(-r, r + 1):
+                    need[_reflect(x + o, w)] = True
+            elif copy:
+                for i in range(cr.shape[0]):
+                    out[i, y, x, :] = fill[i, y, x, :]
+        if not todo:
+            continue
+        ad = np.empty((w, ndisp))
+        for x in range(w):
+            if not need[x]:
+                continue
+            for k in range(ndisp):
+                xr = x - (min_disp + k)
+                if 0 <= xr < w:
+                    ad[x, k] = _ad_cost(left, right, gl, gr, y, x, xr, tau_c, tau_g, lam_ad)
+        raw = np.empty((w, ndisp), np.float32)
+        acc = np.empty(ndisp)
+        for i in range(cr.shape[0]):
+            for x in range(w):
+                if not need[x]:
+                    continue
+                c = cl[y, x]
+                for k in range(ndisp):
+                    xr = x - (min_disp + k)
+                    if xr < 0 or xr >= w:
+                        raw[x, k] = 2.0
+                    else:
+                        raw[x, k] = ad[x, k] + tab[popcount64(c ^ cr[i, y, xr])]
+            for x in range(w):
+                if not mask[y, x]:
+                    continue
+                acc[:] = 0.0
+                for o in range(-r, r + 1):
+                    xx = _reflect(x + o, w)
+                    for k in range(ndisp):
+                        acc[k] += raw[xx, k]
+                for k in range(ndisp):
+                    out[i, y, x, k] = acc[k] * inv
 
 
 @njit(cache=True, parallel=True, nogil=True)
@@ -430,9 +489,51 @@ def _shear_box_rows(hb: F32, slope: float, r: int, out: F32) -> None:
                 out[y, x, k] = s[k] / nr
 
 
+@dataclass(frozen=True)
+class ShearedInputs:
+    """The pixel inputs of a pair's sheared volumes (:func:`sheared_inputs`), made once for the front end's
+    :func:`sheared_costs` and the sweep step's :func:`sheared_row_costs_at`.
+
+    Attributes
+    ----------
+    left, right : (H, W, 3) float32        RGB of each view (grey repeated).
+    grad_left, grad_right : (H, W) float32 x-gradients (Sobel / 4) of their grey images.
+    census_left : (H, W) uint64             census of the left grey image.
+    census_right : (S, H, W) uint64         census of the right grey image sheared by each slope.
+    slopes : tuple of float                 the slopes of ``census_right``.
+    params : CostParams                     the pixel-cost parameters they were made with.
+    """
+
+    left: F32
+    right: F32
+    grad_left: F32
+    grad_right: F32
+    census_left: npt.NDArray[np.uint64]
+    census_right: npt.NDArray[np.uint64]
+    slopes: tuple[float, ...]
+    params: CostParams
+
+
+def sheared_inputs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
+                   params: CostParams | None = None, slopes: tuple[float, ...] = (0.0,)) -> ShearedInputs:
+    """The :class:`ShearedInputs` of a rectified pair ((H, W, 3) uint8 RGB or (H, W) grey) for ``slopes``."""
+    p = params or CostParams()
+    lf, rf, gray_l, gray_r, gxl, gxr = _cost_inputs(left, right)
+    cl = census_bits(gray_l, p.census_ry, p.census_rx)
+    cr = np.empty((len(slopes), *gray_r.shape), np.uint64)
+    for i, b in enumerate(slopes):
+        cr[i] = _census_sheared(gray_r, p.census_ry, p.census_rx, float(b))
+    return ShearedInputs(lf, rf, gxl, gxr, cl, cr, tuple(float(b) for b in slopes), p)
+
+
+def _check_inputs(inputs: ShearedInputs, shape: tuple[int, ...], p: CostParams, slopes: tuple[float, ...]) -> None:
+    if inputs.left.shape[:2] != shape[:2] or inputs.params != p or inputs.slopes != tuple(float(b) for b in slopes):
+        raise MatchingError("expected inputs made by sheared_inputs of this pair with the same params and slopes")
+
+
 def sheared_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, max_disp: int,
                   min_disp: int = 0, params: CostParams | None = None, slopes: tuple[float, ...] = (0.0,),
-                  radius: int = 1, vertical: bool = True) -> F32:
+                  radius: int = 1, vertical: bool = True, inputs: ShearedInputs | None = None) -> F32:
     """Pixel cost volumes for surfaces slanted in ``y``: one per vertical disparity slope (an addition to Eq. 6.21).
 
     The census window of the right view and the ``(2 radius + 1)²`` smoothing box follow a surface of
@@ -453,24 +554,28 @@ def sheared_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic],
         Half size of the smoothing box (0: none).
     vertical : bool, keyword-only
         Box over rows as well (False: along the row only).
+    inputs : ShearedInputs, keyword-only
+        :func:`sheared_inputs` of the pair with ``params`` and ``slopes``, when already made.
 
     Returns
     -------
     (S, H, W, D) float32, slice ``[s, :, :, k]`` = cost at disparity ``min_disp + k`` under slope ``slopes[s]``.
     """
     p = params or CostParams()
-    lf, rf, gray_l, gray_r, gxl, gxr = _cost_inputs(left, right)
-    cl = census_bits(gray_l, p.census_ry, p.census_rx)
+    si = sheared_inputs(left, right, params=p, slopes=slopes) if inputs is None else inputs
+    _check_inputs(si, np.shape(left), p, slopes)
+    cl = si.census_left
     nd = max_disp - min_disp + 1
-    h, w = gray_l.shape
+    h, w = cl.shape
     out = np.empty((len(slopes), h, w, nd), np.float32)
-    ad = _ad_term(lf, rf, gxl, gxr, int(min_disp), nd, p.tau_color, p.tau_grad, p.lambda_ad)
+    ad = _ad_term(si.left, si.right, si.grad_left, si.grad_right, int(min_disp), nd, p.tau_color, p.tau_grad,
+                  p.lambda_ad)
     every = np.ones((h, w), np.bool_)
     r = max(int(radius), 0)
     # the pixel costs boxed along the row, per slope; sheared over the rows from there
     hb = np.empty((h, w, nd), np.float32) if vertical and r > 0 else out[0]
     for i, b in enumerate(slopes):
-        cr = _census_sheared(gray_r, p.census_ry, p.census_rx, float(b))
+        cr = si.census_right[i]
         if vertical and r > 0:
             _census_row_box(ad, cl, cr, int(min_disp), p.lambda_census, r, every, hb)
             _shear_box_rows(hb, float(b), r, out[i])
@@ -481,8 +586,10 @@ def sheared_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic],
 
 def sheared_row_costs_at(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], selected: npt.NDArray[np.bool_],
                          out: F32, *, max_disp: int, min_disp: int = 0, params: CostParams | None = None,
-                         slopes: tuple[float, ...] = (0.0,), radius: int = 1) -> None:
-    """Write :func:`sheared_costs` ``(..., vertical=False)`` into ``out`` at the ``selected`` pixels only.
+                         slopes: tuple[float, ...] = (0.0,), radius: int = 1,
+                         inputs: ShearedInputs | None = None, fill: F32 | None = None) -> None:
+    """Write :func:`sheared_costs` ``(..., vertical=False)`` into ``out`` at the ``selected`` pixels only (and
+    ``fill`` at the others, when given).
 
     Parameters
     ----------
@@ -491,17 +598,22 @@ def sheared_row_costs_at(left: npt.NDArray[np.generic], right: npt.NDArray[np.ge
         The pixels to write.
     out : (S, H, W, D) float32
         Volume to update in place, one slice per slope; the other pixels are left as they are.
-    max_disp, min_disp, params, slopes, radius : keyword-only
+    max_disp, min_disp, params, slopes, radius, inputs : keyword-only
         As :func:`sheared_costs`.
+    fill : (S, H, W, D) float32, keyword-only
+        The volume whose values the other pixels of ``out`` get (None: they are left as they are).
     """
     p = params or CostParams()
-    lf, rf, gray_l, gray_r, gxl, gxr = _cost_inputs(left, right)
-    cl = census_bits(gray_l, p.census_ry, p.census_rx)
+    si = sheared_inputs(left, right, params=p, slopes=slopes) if inputs is None else inputs
+    _check_inputs(si, np.shape(left), p, slopes)
+    shape = si.census_left.shape
     nd = max_disp - min_disp + 1
-    if out.shape != (len(slopes), *gray_l.shape, nd):
-        raise MatchingError(f"expected out of shape {(len(slopes), *gray_l.shape, nd)}, got {out.shape}")
+    if out.shape != (len(slopes), *shape, nd):
+        raise MatchingError(f"expected out of shape {(len(slopes), *shape, nd)}, got {out.shape}")
+    if fill is not None and fill.shape != out.shape:
+        raise MatchingError(f"expected fill of shape {out.shape}, got {fill.shape}")
     mask = np.ascontiguousarray(selected, dtype=np.bool_)
-    ad = _ad_term(lf, rf, gxl, gxr, int(min_disp), nd, p.tau_color, p.tau_grad, p.lambda_ad)
-    for i, b in enumerate(slopes):
-        cr = _census_sheared(gray_r, p.census_ry, p.census_rx, float(b))
-        _census_row_box(ad, cl, cr, int(min_disp), p.lambda_census, max(int(radius), 0), mask, out[i])
+    _census_row_boxes_at(si.left, si.right, si.grad_left, si.grad_right, si.census_left, si.census_right,
+                         int(min_disp), nd, p.tau_color, p.tau_grad, p.lambda_ad, p.lambda_census,
+                         max(int(radius), 0), mask, out,
+                         np.zeros((1, 1, 1, 1), np.float32) if fill is None else fill)

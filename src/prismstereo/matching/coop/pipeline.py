@@ -38,9 +38,11 @@ from numba import njit
 from prismstereo.errors import ConfigError, ImageError
 from prismstereo.matching.coop.coopcost import (
     CostParams,
+    ShearedInputs,
     aggregated_costs,
     raw_cost,
     sheared_costs,
+    sheared_inputs,
     sheared_row_costs_at,
 )
 from prismstereo.matching.coop.cooperative import (
@@ -403,10 +405,11 @@ class _PairEvidence:
                  evidence: npt.NDArray[np.bool_], coop: CoopParams,
                  segmentation: SegmentationParams, planes: PlaneParams, cost: CostParams,
                  slopes: tuple[float, ...] | None, bright: npt.NDArray[np.int64] | None = None,
-                 segments: dict[SegmentationParams, Future[npt.NDArray[np.int32]]] | None = None):
+                 segments: dict[SegmentationParams, Future[npt.NDArray[np.int32]]] | None = None,
+                 sheared: ShearedInputs | None = None):
         self.image, self.right = lft, rgt
-        self._segments = dict(segments or {})
-        self._data_copy: Future[F32] | None = None  # segmentations of the image computed ahead (the fine step's)
+        self._sheared = sheared  # the data term's census transforms etc., reused by the row-only volume
+        self._segments = dict(segments or {})  # segmentations of the image computed ahead (the fine step's)
         # the right view's winners of the BPASW volume (read by the occlusion and fallback steps)
         self.bright = selection.right_winner(bvol, min_disp=min_disp) if bright is None else bright
         self.min_disp, self.max_disp = int(min_disp), int(max_disp)
@@ -434,11 +437,6 @@ class _PairEvidence:
         return self.bdisp, self.brel
 
     def sweep(self, s: PlaneLabels, p: SweepParams) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
-        if self.slopes is not None and p.row_box >= 0:
-            # the row-only step that follows rewrites a copy of the data term: made while the candidates run
-            pool = ThreadPoolExecutor(max_workers=1)
-            self._data_copy = pool.submit(np.copy, self.data)
-            pool.shutdown(wait=False)
         return segment_sweep_candidates(self.image, self.right, s.labels, s.index, s.assign, s.planes,
                                         min_disp=self.min_disp, max_disp=self.max_disp, frac=p.frac,
                                         slopes=p.slopes, keep=p.keep, min_px=p.min_px, step=p.step,
@@ -452,10 +450,10 @@ class _PairEvidence:
             hb = box_filter_volume(raw_cost(self.image, self.right, **kw), p.row_box, vertical=False)  # type: ignore[arg-type]
             hb[~selected] = self.data[~selected]
         else:
-            ahead, self._data_copy = self._data_copy, None
-            hb = self.data.copy() if ahead is None else ahead.result()
+            # the other pixels keep the data term: copied by the same kernel, not first copied whole and overwritten
+            hb = np.empty_like(self.data)
             sheared_row_costs_at(self.image, self.right, selected, hb, **kw,  # type: ignore[arg-type]
-                                 slopes=self.slopes, radius=p.row_box)
+                                 slopes=self.slopes, radius=p.row_box, inputs=self._sheared, fill=self.data)
         self.check_data, self.data = self.data, hb
 
     def segments(self, params: SegmentationParams) -> npt.NDArray[np.int32]:
@@ -513,13 +511,15 @@ def _guided_initial(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *
 
 
 def _data_volume(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, max_disp: int, min_disp: int,
-                 data: DataTermParams, cost: CostParams) -> F32:
-    """The data term's pixel-cost volume (Eqs. 6.21-6.22): sheared per slope, or one box-filtered volume."""
+                 data: DataTermParams, cost: CostParams) -> tuple[F32, ShearedInputs | None]:
+    """The data term's pixel-cost volume (Eqs. 6.21-6.22): sheared per slope, or one box-filtered volume; and
+    the sheared volumes' inputs (None without slopes)."""
     if data.slopes:
+        si = sheared_inputs(left, right, params=data.cost or cost, slopes=data.slopes)
         return sheared_costs(left, right, max_disp=max_disp, min_disp=min_disp, params=data.cost or cost,
-                             slopes=data.slopes, radius=data.radius)
+                             slopes=data.slopes, radius=data.radius, inputs=si), si
     raw = raw_cost(left, right, max_disp=max_disp, min_disp=min_disp, params=data.cost or cost)
-    return box_filter_volume(raw, data.radius)
+    return box_filter_volume(raw, data.radius), None
 
 
 def _pair_agreement(reliable: npt.NDArray[np.bool_], initial: F32, brel: npt.NDArray[np.bool_], bdisp: F32,
@@ -627,12 +627,12 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
 
     t = time.perf_counter()
     graph = build_segment_graph(labels, lft)
-    dcost = fut_data.result()
+    dcost, sheared = fut_data.result()
     ev = _PairEvidence(lft, rgt, min_disp=min_disp, max_disp=max_disp, data=dcost, reliable=reliable,
                        initial=initial, bvol=bvol, bdisp=bdisp0, brel=brel0, nonplanar=nonplanar,
                        evidence=evidence, coop=op,
                        segmentation=sp, planes=pp, cost=dp.cost or cp, slopes=dp.slopes or None,
-                       bright=bright, segments=ahead)
+                       bright=bright, segments=ahead, sheared=sheared)
     state = PlaneLabels(labels=labels, index=index, graph=graph, assign=assign0, planes=plane_set, own=own,
                         parent=np.arange(k, dtype=np.int64), pairs=pairs,
                         info={"split_pieces": float(split.size)})
