@@ -202,7 +202,8 @@ def _box(a: F32, r: int) -> F32:
     return out
 
 
-def guided_filter_volume(guide: npt.NDArray[np.generic], vol: F32, *, radius: int, eps: float) -> F32:
+def guided_filter_volume(guide: npt.NDArray[np.generic], vol: F32, *, radius: int, eps: float,
+                         right_of: int | None = None) -> F32:
     """Colour guided filter of every disparity slice of a cost volume (He et al. 2013).
 
     Parameters
@@ -213,6 +214,9 @@ def guided_filter_volume(guide: npt.NDArray[np.generic], vol: F32, *, radius: in
         Cost volume.
     radius, eps : keyword-only
         Window radius and regulariser (colours scaled to 0..1).
+    right_of : int, keyword-only, optional
+        Filter the right view's volume of the left view's ``vol`` instead (``_left_to_right(vol, right_of)``:
+        slice k at right pixel x reads left pixel x + right_of + k, 2 outside the image), read in place.
 
     Returns
     -------
@@ -242,13 +246,26 @@ def guided_filter_volume(guide: npt.NDArray[np.generic], vol: F32, *, radius: in
     # slices per task (the slices are independent), with OpenCV's boxFilter arithmetic (float64 running sums
     # along the row, then down the column, BORDER_REFLECT): the result is cv2.boxFilter's bit for bit
     _gf_slices(np.ascontiguousarray(vol, dtype=np.float32), np.ascontiguousarray(img),
-               np.ascontiguousarray(mean_i), np.ascontiguousarray(inv), int(r), 8, out)
+               np.ascontiguousarray(mean_i), np.ascontiguousarray(inv), int(r), 8, out,
+               0 if right_of is None else int(right_of), right_of is not None)
     return out
+
+
+@njit(cache=True, inline="always")
+def _cost_at(vol: F32, yy: int, xx: int, kk: int, md: int, right: bool) -> np.float32:
+    """``vol[yy, xx, kk]``, or with ``right`` the right view's (:func:`_left_to_right`) read in place."""
+    if not right:
+        return vol[yy, xx, kk]
+    xl = xx + md + kk
+    if 0 <= xl < vol.shape[1]:
+        return vol[yy, xl, kk]
+    return np.float32(2.0)
 
 
 @njit(cache=True, nogil=True)
 def _box_cost_row(vol: F32, img: F32, k0: int, ng: int, yy: int, r: int, fx: npt.NDArray[np.int64],
-                  add: npt.NDArray[np.int64], sub: npt.NDArray[np.int64], row: npt.NDArray[np.float64]) -> None:
+                  add: npt.NDArray[np.int64], sub: npt.NDArray[np.int64], row: npt.NDArray[np.float64],
+                  md: int, right: bool) -> None:
     """``row[q, x, c]`` (4, W, ng): OpenCV's float64 row sum (its ``RowSum``: running for windows of 7 pixels
     and more) of row ``yy`` of slice ``k0 + c`` of the cost (q = 0) and of the cost times colour ``q - 1``
     (float32 products)."""
@@ -264,7 +281,7 @@ def _box_cost_row(vol: F32, img: F32, k0: int, ng: int, yy: int, r: int, fx: npt
                 s3 = 0.0
                 for t in range(k):
                     xx = _reflect(x + t - r, w)
-                    v = vol[yy, xx, k0 + c]
+                    v = _cost_at(vol, yy, xx, k0 + c, md, right)
                     s0 += np.float64(v)
                     s1 += np.float64(v * img[yy, xx, 0])
                     s2 += np.float64(v * img[yy, xx, 1])
@@ -283,7 +300,7 @@ def _box_cost_row(vol: F32, img: F32, k0: int, ng: int, yy: int, r: int, fx: npt
         s3 = 0.0
         for t in range(k):
             xx = fx[t]
-            v = vol[yy, xx, kk]
+            v = _cost_at(vol, yy, xx, kk, md, right)
             s0 += np.float64(v)
             s1 += np.float64(v * img[yy, xx, 0])
             s2 += np.float64(v * img[yy, xx, 1])
@@ -295,8 +312,8 @@ def _box_cost_row(vol: F32, img: F32, k0: int, ng: int, yy: int, r: int, fx: npt
         for x in range(w - 1):
             xa = add[x]
             xs = sub[x]
-            va = vol[yy, xa, kk]
-            vs = vol[yy, xs, kk]
+            va = _cost_at(vol, yy, xa, kk, md, right)
+            vs = _cost_at(vol, yy, xs, kk, md, right)
             s0 += np.float64(va) - np.float64(vs)
             s1 += np.float64(va * img[yy, xa, 0]) - np.float64(vs * img[yy, xs, 0])
             s2 += np.float64(va * img[yy, xa, 1]) - np.float64(vs * img[yy, xs, 1])
@@ -353,9 +370,11 @@ def _box_column_step(acc: npt.NDArray[np.float64], nxt: npt.NDArray[np.float64],
 
 
 @njit(cache=True, parallel=True, nogil=True)
-def _gf_slices(vol: F32, img: F32, mean_i: F32, inv: F32, r: int, group: int, out: F32) -> None:
-    """The guided filter (He et al. 2013) of every slice of ``vol`` (H, W, D) into ``out``, ``group`` slices
-    per task: a and b from the boxed cost and cost-colour products, then ``box(b) + Σ_c box(a_c) I_c``.
+def _gf_slices(vol: F32, img: F32, mean_i: F32, inv: F32, r: int, group: int, out: F32, md: int,
+               right: bool) -> None:
+    """The guided filter (He et al. 2013) of every slice of ``vol`` (H, W, D) (with ``right``: of its right
+    view's volume, :func:`_cost_at`) into ``out``, ``group`` slices per task: a and b from the boxed cost and
+    cost-colour products, then ``box(b) + Σ_c box(a_c) I_c``.
 
     Each box is OpenCV's ``boxFilter`` (normalised, BORDER_REFLECT) to the bit, streamed over the rows with a
     ring of 2r + 1 row sums; the float32 arithmetic of a, b and the output is the numpy formulation's."""
@@ -380,11 +399,11 @@ def _gf_slices(vol: F32, img: F32, mean_i: F32, inv: F32, r: int, group: int, ou
         coef = np.empty((4, h, w, ng), np.float32)
         # the window's first 2r rows; row j of the padded image is row _reflect(j - r) of the slice
         for j in range(k - 1):
-            _box_cost_row(vol, img, k0, ng, _reflect(j - r, h), r, fx, add, sub, ring[j])
+            _box_cost_row(vol, img, k0, ng, _reflect(j - r, h), r, fx, add, sub, ring[j], md, right)
             acc += ring[j].reshape(4, w * ng)
         for y in range(h):
             nxt = ring[(y + k - 1) % k]
-            _box_cost_row(vol, img, k0, ng, _reflect(y + k - 1 - r, h), r, fx, add, sub, nxt)
+            _box_cost_row(vol, img, k0, ng, _reflect(y + k - 1 - r, h), r, fx, add, sub, nxt, md, right)
             _box_column_step(acc, nxt.reshape(4, w * ng), ring[y % k].reshape(4, w * ng), meanf, scale)
             for x in range(w):
                 m0 = mean_i[y, x, 0]
@@ -487,9 +506,8 @@ def aggregated_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generi
         rf = np.repeat(rf[:, :, None], 3, axis=2)
     if raw is None:
         raw = raw_cost(left, right, max_disp=max_disp, min_disp=min_disp, params=p)
-    raw_r = _left_to_right(raw, int(min_disp))
     agg_l = guided_filter_volume(lf, raw, radius=p.radius, eps=p.eps)
-    agg_r = guided_filter_volume(rf, raw_r, radius=p.radius, eps=p.eps)
+    agg_r = guided_filter_volume(rf, raw, radius=p.radius, eps=p.eps, right_of=int(min_disp))
     return agg_l, agg_r
 
 
