@@ -120,9 +120,9 @@ def _mean_shift_filter(lab: npt.NDArray[np.uint8], sp: float, sr: float) -> npt.
                 maxx = min(int(np.rint(np.float32(x0) + spf)), w - 1)
                 maxy = min(int(np.rint(np.float32(y0) + spf)), h - 1)
                 count = 0
-                s0 = 0
-                s1 = 0
-                s2 = 0
+                s0 = np.int64(0)
+                s1 = np.int64(0)
+                s2 = np.int64(0)
                 sx = 0
                 sy = 0
                 for y in range(miny, maxy + 1):
@@ -144,9 +144,9 @@ def _mean_shift_filter(lab: npt.NDArray[np.uint8], sp: float, sr: float) -> npt.
                 ic = 1.0 / count
                 x1 = int(np.rint(sx * ic))
                 y1 = int(np.rint(sy * ic))
-                n0 = int(np.rint(s0 * ic))
-                n1 = int(np.rint(s1 * ic))
-                n2 = int(np.rint(s2 * ic))
+                n0 = np.int64(np.rint(s0 * ic))
+                n1 = np.int64(np.rint(s1 * ic))
+                n2 = np.int64(np.rint(s2 * ic))
                 stop = (x0 == x1 and y0 == y1) or (abs(x1 - x0) + abs(y1 - y0) + (n0 - c0) * (n0 - c0)
                                                     + (n1 - c1) * (n1 - c1) + (n2 - c2) * (n2 - c2) <= 1.0)
                 x0 = x1
@@ -365,6 +365,7 @@ def mean_shift_segment(image: npt.NDArray[np.generic], *, params: SegmentationPa
         lab = lab.copy()
         lab[:, :, 0] = cv2.createCLAHE(clipLimit=float(p.clahe), tileGridSize=(8, 8)).apply(
             np.ascontiguousarray(lab[:, :, 0]))
+    filt: npt.NDArray[np.generic]
     if p.max_level == 0 and lab.size:
         filt = _mean_shift_filter(np.ascontiguousarray(lab), float(p.hs), float(p.hr))
     else:
