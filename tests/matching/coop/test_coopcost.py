@@ -105,3 +105,45 @@ def test_energy_reads_the_volume_of_the_nearest_slope() -> None:
     assert e_steep == pytest.approx(border)
     with pytest.raises(ValueError, match="one cost volume per slope"):
         total_energy(np.zeros(1, np.int32), flat, index, graph, cost, rel)
+
+
+def _guided_filter_reference(guide: np.ndarray, vol: np.ndarray, r: int, eps: float) -> np.ndarray:
+    """He et al.'s colour guided filter written with cv2.boxFilter and float32 numpy, slice by slice."""
+    img = guide.astype(np.float32) / 255.0
+
+    def box(a: np.ndarray) -> np.ndarray:
+        return cv2.boxFilter(a, -1, (2 * r + 1, 2 * r + 1), borderType=cv2.BORDER_REFLECT)
+
+    mean_i = box(img)
+    sig = np.empty(img.shape[:2] + (3, 3))
+    for i in range(3):
+        for j in range(3):
+            sig[:, :, i, j] = box(img[:, :, i] * img[:, :, j]) - mean_i[:, :, i] * mean_i[:, :, j]
+    inv = np.linalg.inv(sig + eps * np.eye(3)).astype(np.float32)
+    out = np.empty_like(vol)
+    for k in range(vol.shape[2]):
+        p = np.ascontiguousarray(vol[:, :, k])
+        mp = box(p)
+        cov = [box(p * img[:, :, c]) - mean_i[:, :, c] * mp for c in range(3)]
+        a = [inv[:, :, i, 0] * cov[0] + inv[:, :, i, 1] * cov[1] + inv[:, :, i, 2] * cov[2] for i in range(3)]
+        b = mp - a[0] * mean_i[:, :, 0] - a[1] * mean_i[:, :, 1] - a[2] * mean_i[:, :, 2]
+        out[:, :, k] = box(b) + box(a[0]) * img[:, :, 0] + box(a[1]) * img[:, :, 1] + box(a[2]) * img[:, :, 2]
+    return out
+
+
+@pytest.mark.parametrize(("shape", "r"), [((23, 37, 11), 4), ((6, 5, 3), 9), ((19, 21, 9), 2), ((17, 16, 3), 1),
+                                          ((12, 14, 5), 0), ((1, 9, 2), 3)])
+def test_guided_filter_is_the_boxfilter_formulation_bit_for_bit(shape: tuple[int, int, int], r: int) -> None:
+    from prismstereo.matching.coop.coopcost import _left_to_right, guided_filter_volume
+
+    rng = np.random.default_rng(sum(shape) + r)
+    h, w, nd = shape
+    guide = rng.integers(0, 256, size=(h, w, 3)).astype(np.uint8)
+    vol = (2 * rng.random((h, w, nd)) ** 3).astype(np.float32)
+    got = guided_filter_volume(guide, vol, radius=r, eps=1e-4)
+    assert np.array_equal(got, _guided_filter_reference(guide, vol, r, 1e-4))
+    # the right view's volume read in place is the one built by _left_to_right
+    for min_disp in (0, 2, -1):
+        right = _left_to_right(vol, min_disp)
+        got = guided_filter_volume(guide, vol, radius=r, eps=1e-4, right_of=min_disp)
+        assert np.array_equal(got, _guided_filter_reference(guide, right, r, 1e-4))

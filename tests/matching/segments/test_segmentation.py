@@ -2,9 +2,15 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
-from prismstereo.matching.segments.segmentation import SegmentationParams, mean_shift_segment, segment_adjacency
+from prismstereo.matching.segments.segmentation import (
+    SegmentationParams,
+    _mean_shift_filter,
+    mean_shift_segment,
+    segment_adjacency,
+)
 
 
 def _two_regions(seed: int = 0) -> np.ndarray:
@@ -40,3 +46,20 @@ def test_adjacency_pairs_and_lengths() -> None:
     pairs, length, _ = segment_adjacency(lab)
     got = {tuple(p): n for p, n in zip(pairs.tolist(), length.tolist(), strict=True)}
     assert got == {(0, 1): 3.0, (0, 2): 3.0, (1, 2): 3.0}
+
+
+def test_mean_shift_filter_is_opencvs_to_the_bit() -> None:
+    rng = np.random.default_rng(3)
+    # smooth gradients with noise and hard edges: pixels converge after 1 to 5 iterations, some at windows
+    # clipped by the image border
+    yy, xx = np.mgrid[0:37, 0:53]
+    img = np.stack([3 * xx, 4 * yy, 2 * (xx + yy)], axis=2) + rng.normal(0, 3, (37, 53, 3))
+    img[10:25, 20:40] += 60
+    img = np.clip(img, 0, 255).astype(np.uint8)
+    for sp, sr in ((5, 4.0), (5, 3.0), (3, 7.5), (2.5, 4.5), (1, 12.0)):
+        ref = cv2.pyrMeanShiftFiltering(img, sp=float(sp), sr=float(sr), maxLevel=0)
+        assert np.array_equal(_mean_shift_filter(img, float(sp), float(sr)), ref), (sp, sr)
+    noise = rng.integers(0, 256, (9, 4, 3)).astype(np.uint8)
+    assert np.array_equal(_mean_shift_filter(noise, 5.0, 40.0), cv2.pyrMeanShiftFiltering(noise, 5.0, 40.0, maxLevel=0))
+    # the comparison tells filters apart: another range radius changes the result
+    assert not np.array_equal(_mean_shift_filter(img, 5.0, 9.0), cv2.pyrMeanShiftFiltering(img, 5.0, 4.0, maxLevel=0))

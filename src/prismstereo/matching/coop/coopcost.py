@@ -261,7 +261,8 @@ def _box(a: F32, r: int) -> F32:
     return out
 
 
-def guided_filter_volume(guide: npt.NDArray[np.generic], vol: F32, *, radius: int, eps: float) -> F32:
+def guided_filter_volume(guide: npt.NDArray[np.generic], vol: F32, *, radius: int, eps: float,
+                         right_of: int | None = None) -> F32:
     """Colour guided filter of every disparity slice of a cost volume (He et al. 2013).
 
     Parameters
@@ -272,6 +273,9 @@ def guided_filter_volume(guide: npt.NDArray[np.generic], vol: F32, *, radius: in
         Cost volume.
     radius, eps : keyword-only
         Window radius and regulariser (colours scaled to 0..1).
+    right_of : int, keyword-only, optional
+        Filter the right view's volume of the left view's ``vol`` instead (``_left_to_right(vol, right_of)``:
+        slice k at right pixel x reads left pixel x + right_of + k, 2 outside the image), read in place.
 
     Returns
     -------
@@ -297,79 +301,212 @@ def guided_filter_volume(guide: npt.NDArray[np.generic], vol: F32, *, radius: in
     sig += eps * np.eye(3)
     inv = np.linalg.inv(sig).astype(np.float32)  # H W 3 3
     out = np.empty(vol.shape, np.float32)
-    img = np.ascontiguousarray(img)
-    mean_i = np.ascontiguousarray(mean_i)
-    inv = np.ascontiguousarray(inv)
-    # disparity slices are independent: filter them in blocks to bound the temporaries' memory; the
-    # element-wise steps run fused in numba (float32, the same operations in the same order as numpy's)
-    for s0 in range(0, vol.shape[2], 16):
-        blk = np.ascontiguousarray(vol[:, :, s0:s0 + 16])
-        mean_p = _box(blk, r)
-        prod = _gf_products(blk, img)
-        boxed = [_box(np.ascontiguousarray(prod[c]), r) for c in range(3)]
-        del prod
-        ab = _gf_coefficients(mean_p, boxed[0], boxed[1], boxed[2], mean_i, inv)
-        del boxed
-        _gf_output(_box(np.ascontiguousarray(ab[3]), r), _box(np.ascontiguousarray(ab[0]), r),
-                   _box(np.ascontiguousarray(ab[1]), r), _box(np.ascontiguousarray(ab[2]), r), img,
-                   out[:, :, s0:s0 + 16])
+    # the boxes of the cost, its colour products and the coefficients run fused in numba, a few disparity
+    # slices per task (the slices are independent), with OpenCV's boxFilter arithmetic (float64 running sums
+    # along the row, then down the column, BORDER_REFLECT): the result is cv2.boxFilter's bit for bit
+    _gf_slices(np.ascontiguousarray(vol, dtype=np.float32), np.ascontiguousarray(img),
+               np.ascontiguousarray(mean_i), np.ascontiguousarray(inv), int(r), 8, out,
+               0 if right_of is None else int(right_of), right_of is not None)
     return out
 
 
-@njit(cache=True, parallel=True, nogil=True)
-def _gf_products(blk: F32, img: F32) -> F32:
-    """(3, H, W, S): ``blk * img[..., c]`` per colour channel."""
-    h, w, ns = blk.shape
-    out = np.empty((3, h, w, ns), np.float32)
-    for y in prange(h):
+@njit(cache=True, inline="always")
+def _cost_at(vol: F32, yy: int, xx: int, kk: int, md: int, right: bool) -> np.float32:
+    """``vol[yy, xx, kk]``, or with ``right`` the right view's (:func:`_left_to_right`) read in place."""
+    if not right:
+        return vol[yy, xx, kk]
+    xl = xx + md + kk
+    if 0 <= xl < vol.shape[1]:
+        return vol[yy, xl, kk]
+    return np.float32(2.0)
+
+
+@njit(cache=True, nogil=True)
+def _box_cost_row(vol: F32, img: F32, k0: int, ng: int, yy: int, r: int, fx: npt.NDArray[np.int64],
+                  add: npt.NDArray[np.int64], sub: npt.NDArray[np.int64], row: npt.NDArray[np.float64],
+                  md: int, right: bool) -> None:
+    """``row[q, x, c]`` (4, W, ng): OpenCV's float64 row sum (its ``RowSum``: running for windows of 7 pixels
+    and more) of row ``yy`` of slice ``k0 + c`` of the cost (q = 0) and of the cost times colour ``q - 1``
+    (float32 products)."""
+    w = row.shape[1]
+    k = 2 * r + 1
+    if k <= 5:
+        # OpenCV sums windows of 1, 3 and 5 pixels directly, left to right
         for x in range(w):
-            for c in range(3):
-                g = img[y, x, c]
-                for k in range(ns):
-                    out[c, y, x, k] = blk[y, x, k] * g
-    return out
+            for c in range(ng):
+                s0 = 0.0
+                s1 = 0.0
+                s2 = 0.0
+                s3 = 0.0
+                for t in range(k):
+                    xx = _reflect(x + t - r, w)
+                    v = _cost_at(vol, yy, xx, k0 + c, md, right)
+                    s0 += np.float64(v)
+                    s1 += np.float64(v * img[yy, xx, 0])
+                    s2 += np.float64(v * img[yy, xx, 1])
+                    s3 += np.float64(v * img[yy, xx, 2])
+                row[0, x, c] = s0
+                row[1, x, c] = s1
+                row[2, x, c] = s2
+                row[3, x, c] = s3
+        return
+    # one slice at a time: the four running sums stay in registers
+    for c in range(ng):
+        kk = k0 + c
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        s3 = 0.0
+        for t in range(k):
+            xx = fx[t]
+            v = _cost_at(vol, yy, xx, kk, md, right)
+            s0 += np.float64(v)
+            s1 += np.float64(v * img[yy, xx, 0])
+            s2 += np.float64(v * img[yy, xx, 1])
+            s3 += np.float64(v * img[yy, xx, 2])
+        row[0, 0, c] = s0
+        row[1, 0, c] = s1
+        row[2, 0, c] = s2
+        row[3, 0, c] = s3
+        for x in range(w - 1):
+            xa = add[x]
+            xs = sub[x]
+            va = _cost_at(vol, yy, xa, kk, md, right)
+            vs = _cost_at(vol, yy, xs, kk, md, right)
+            s0 += np.float64(va) - np.float64(vs)
+            s1 += np.float64(va * img[yy, xa, 0]) - np.float64(vs * img[yy, xs, 0])
+            s2 += np.float64(va * img[yy, xa, 1]) - np.float64(vs * img[yy, xs, 1])
+            s3 += np.float64(va * img[yy, xa, 2]) - np.float64(vs * img[yy, xs, 2])
+            row[0, x + 1, c] = s0
+            row[1, x + 1, c] = s1
+            row[2, x + 1, c] = s2
+            row[3, x + 1, c] = s3
+
+
+@njit(cache=True, nogil=True)
+def _box_row(src: F32, yy: int, r: int, fx: npt.NDArray[np.int64], add: npt.NDArray[np.int64],
+             sub: npt.NDArray[np.int64], row: npt.NDArray[np.float64]) -> None:
+    """``row[q, x, c]``: OpenCV's float64 row sum (as :func:`_box_cost_row`) of row ``yy`` of ``src``
+    (Q, H, W, ng)."""
+    w = row.shape[1]
+    nq, _, _, ng = src.shape
+    k = 2 * r + 1
+    if k <= 5:
+        # OpenCV sums windows of 1, 3 and 5 pixels directly, left to right
+        for q in range(nq):
+            for x in range(w):
+                for c in range(ng):
+                    s = 0.0
+                    for t in range(k):
+                        s += np.float64(src[q, yy, _reflect(x + t - r, w), c])
+                    row[q, x, c] = s
+        return
+    for q in range(nq):
+        for c in range(ng):
+            s = 0.0
+            for t in range(k):
+                s += np.float64(src[q, yy, fx[t], c])
+            row[q, 0, c] = s
+            for x in range(w - 1):
+                s += np.float64(src[q, yy, add[x], c]) - np.float64(src[q, yy, sub[x], c])
+                row[q, x + 1, c] = s
+
+
+@njit(cache=True, nogil=True)
+def _box_column_step(acc: npt.NDArray[np.float64], nxt: npt.NDArray[np.float64], old: npt.NDArray[np.float64],
+                     mean: F32, scale: float) -> None:
+    """One output row of OpenCV's column pass (its ``ColumnSum``): ``mean = float32((acc + nxt) * scale)``,
+    then ``acc = acc + nxt - old`` (all (Q, N); ``nxt`` the row sums entering the window, ``old`` leaving)."""
+    for q in range(acc.shape[0]):
+        aq = acc[q]
+        nq = nxt[q]
+        oq = old[q]
+        mq = mean[q]
+        for i in range(aq.shape[0]):
+            s = aq[i] + nq[i]
+            mq[i] = np.float32(s * scale)
+            aq[i] = s - oq[i]
 
 
 @njit(cache=True, parallel=True, nogil=True)
-def _gf_coefficients(mean_p: F32, b0: F32, b1: F32, b2: F32, mean_i: F32, inv: F32) -> F32:
-    """(4, H, W, S): the guided filter's a (3 channels) and b from the boxed products (He et al. 2013)."""
-    h, w, ns = mean_p.shape
-    out = np.empty((4, h, w, ns), np.float32)
-    for y in prange(h):
-        for x in range(w):
-            m0 = mean_i[y, x, 0]
-            m1 = mean_i[y, x, 1]
-            m2 = mean_i[y, x, 2]
-            for k in range(ns):
-                mp = mean_p[y, x, k]
-                c0 = b0[y, x, k] - m0 * mp
-                c1 = b1[y, x, k] - m1 * mp
-                c2 = b2[y, x, k] - m2 * mp
-                a0 = inv[y, x, 0, 0] * c0 + inv[y, x, 0, 1] * c1 + inv[y, x, 0, 2] * c2
-                a1 = inv[y, x, 1, 0] * c0 + inv[y, x, 1, 1] * c1 + inv[y, x, 1, 2] * c2
-                a2 = inv[y, x, 2, 0] * c0 + inv[y, x, 2, 1] * c1 + inv[y, x, 2, 2] * c2
-                out[0, y, x, k] = a0
-                out[1, y, x, k] = a1
-                out[2, y, x, k] = a2
-                out[3, y, x, k] = mp - a0 * m0 - a1 * m1 - a2 * m2
-    return out
+def _gf_slices(vol: F32, img: F32, mean_i: F32, inv: F32, r: int, group: int, out: F32, md: int,
+               right: bool) -> None:
+    """The guided filter (He et al. 2013) of every slice of ``vol`` (H, W, D) (with ``right``: of its right
+    view's volume, :func:`_cost_at`) into ``out``, ``group`` slices per task: a and b from the boxed cost and
+    cost-colour products, then ``box(b) + Σ_c box(a_c) I_c``.
 
-
-@njit(cache=True, parallel=True, nogil=True)
-def _gf_output(qb: F32, qa0: F32, qa1: F32, qa2: F32, img: F32, out: F32) -> None:
-    """``out = box(b) + Σ_c box(a_c) img_c`` (in that order of additions)."""
-    h, w, ns = qb.shape
-    for y in prange(h):
-        for x in range(w):
-            g0 = img[y, x, 0]
-            g1 = img[y, x, 1]
-            g2 = img[y, x, 2]
-            for k in range(ns):
-                q = qb[y, x, k]
-                q = q + qa0[y, x, k] * g0
-                q = q + qa1[y, x, k] * g1
-                q = q + qa2[y, x, k] * g2
-                out[y, x, k] = q
+    Each box is OpenCV's ``boxFilter`` (normalised, BORDER_REFLECT) to the bit, streamed over the rows with a
+    ring of 2r + 1 row sums; the float32 arithmetic of a, b and the output is the numpy formulation's."""
+    h, w, nd = vol.shape
+    k = 2 * r + 1
+    scale = 1.0 / (k * k)
+    fx = np.empty(k, np.int64)
+    for t in range(k):
+        fx[t] = _reflect(t - r, w)
+    add = np.empty(max(w - 1, 0), np.int64)
+    sub = np.empty(max(w - 1, 0), np.int64)
+    for x in range(w - 1):
+        add[x] = _reflect(x + k - r, w)
+        sub[x] = _reflect(x - r, w)
+    for task in prange((nd + group - 1) // group):
+        k0 = task * group
+        ng = min(group, nd - k0)
+        ring = np.empty((k, 4, w, ng))
+        acc = np.zeros((4, w * ng))
+        mean = np.empty((4, w, ng), np.float32)
+        meanf = mean.reshape(4, w * ng)
+        coef = np.empty((4, h, w, ng), np.float32)
+        # the window's first 2r rows; row j of the padded image is row _reflect(j - r) of the slice
+        for j in range(k - 1):
+            _box_cost_row(vol, img, k0, ng, _reflect(j - r, h), r, fx, add, sub, ring[j], md, right)
+            acc += ring[j].reshape(4, w * ng)
+        for y in range(h):
+            nxt = ring[(y + k - 1) % k]
+            _box_cost_row(vol, img, k0, ng, _reflect(y + k - 1 - r, h), r, fx, add, sub, nxt, md, right)
+            _box_column_step(acc, nxt.reshape(4, w * ng), ring[y % k].reshape(4, w * ng), meanf, scale)
+            for x in range(w):
+                m0 = mean_i[y, x, 0]
+                m1 = mean_i[y, x, 1]
+                m2 = mean_i[y, x, 2]
+                v00 = inv[y, x, 0, 0]
+                v01 = inv[y, x, 0, 1]
+                v02 = inv[y, x, 0, 2]
+                v10 = inv[y, x, 1, 0]
+                v11 = inv[y, x, 1, 1]
+                v12 = inv[y, x, 1, 2]
+                v20 = inv[y, x, 2, 0]
+                v21 = inv[y, x, 2, 1]
+                v22 = inv[y, x, 2, 2]
+                for c in range(ng):
+                    mp = mean[0, x, c]
+                    c0 = mean[1, x, c] - m0 * mp
+                    c1 = mean[2, x, c] - m1 * mp
+                    c2 = mean[3, x, c] - m2 * mp
+                    a0 = v00 * c0 + v01 * c1 + v02 * c2
+                    a1 = v10 * c0 + v11 * c1 + v12 * c2
+                    a2 = v20 * c0 + v21 * c1 + v22 * c2
+                    coef[0, y, x, c] = a0
+                    coef[1, y, x, c] = a1
+                    coef[2, y, x, c] = a2
+                    coef[3, y, x, c] = mp - a0 * m0 - a1 * m1 - a2 * m2
+        acc[:] = 0.0
+        for j in range(k - 1):
+            _box_row(coef, _reflect(j - r, h), r, fx, add, sub, ring[j])
+            acc += ring[j].reshape(4, w * ng)
+        for y in range(h):
+            nxt = ring[(y + k - 1) % k]
+            _box_row(coef, _reflect(y + k - 1 - r, h), r, fx, add, sub, nxt)
+            _box_column_step(acc, nxt.reshape(4, w * ng), ring[y % k].reshape(4, w * ng), meanf, scale)
+            for x in range(w):
+                g0 = img[y, x, 0]
+                g1 = img[y, x, 1]
+                g2 = img[y, x, 2]
+                for c in range(ng):
+                    q = mean[3, x, c]
+                    q = q + mean[0, x, c] * g0
+                    q = q + mean[1, x, c] * g1
+                    q = q + mean[2, x, c] * g2
+                    out[y, x, k0 + c] = q
 
 
 def _cost_inputs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic]) -> tuple[F32, ...]:
@@ -428,9 +565,8 @@ def aggregated_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generi
         rf = np.repeat(rf[:, :, None], 3, axis=2)
     if raw is None:
         raw = raw_cost(left, right, max_disp=max_disp, min_disp=min_disp, params=p)
-    raw_r = _left_to_right(raw, int(min_disp))
     agg_l = guided_filter_volume(lf, raw, radius=p.radius, eps=p.eps)
-    agg_r = guided_filter_volume(rf, raw_r, radius=p.radius, eps=p.eps)
+    agg_r = guided_filter_volume(rf, raw, radius=p.radius, eps=p.eps, right_of=int(min_disp))
     return agg_l, agg_r
 
 

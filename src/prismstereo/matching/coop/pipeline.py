@@ -149,10 +149,13 @@ def initial_disparity(cost_left: F32, cost_right: F32, *, min_disp: int = 0,
 
 
 def _checked_subpixel(cost_left: F32, dr: npt.NDArray[np.int64], *, min_disp: int,
-                      tolerance: float) -> tuple[F32, npt.NDArray[np.bool_]]:
-    """:func:`initial_disparity` from the right view's integer WTA slice index ``dr`` (H, W)."""
+                      tolerance: float, dl: npt.NDArray[np.int64] | None = None
+                      ) -> tuple[F32, npt.NDArray[np.bool_]]:
+    """:func:`initial_disparity` from the right view's integer WTA slice index ``dr`` (H, W) (and the left
+    view's, ``cost_left.argmin(axis=2)``, when already known)."""
     h, w, nd = cost_left.shape
-    dl = cost_left.argmin(axis=2)
+    if dl is None:
+        dl = cost_left.argmin(axis=2)
     xr = np.arange(w)[None, :] - (dl + min_disp)
     inside = xr >= 0
     back = np.take_along_axis(dr, np.clip(xr, 0, w - 1), axis=1)
@@ -210,13 +213,18 @@ def bpasw_volume(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, m
 
 def bpasw_dense_map(vol: F32, image: npt.NDArray[np.uint8], *, min_disp: int = 0,
                     right_winner: npt.NDArray[np.int64] | None = None,
-                    where: npt.NDArray[np.bool_] | None = None) -> F32:
+                    where: npt.NDArray[np.bool_] | None = None,
+                    left_winner: npt.NDArray[np.int64] | None = None) -> F32:
     """The ``bpasw`` matcher's output from its cost volume: WTA, cross-check (1 px), background fill and
     colour-weighted median (radius 9), as :class:`prismstereo.matching.local.matchers.BPASWMatcher` with defaults.
     ``right_winner``: the volume's :func:`~prismstereo.matching.local.selection.right_winner`, when already
     known; ``where`` (H, W) bool: the pixels wanted (the final median runs there only; the others are left
-    before it). Returns (H, W) float32, dense."""
-    disp = selection.winner_take_all(vol, min_disp=min_disp)
+    before it); ``left_winner``: ``vol.argmin(axis=2)`` of a finite volume, when already known. Returns
+    (H, W) float32, dense."""
+    if left_winner is None:
+        disp = selection.winner_take_all(vol, min_disp=min_disp)
+    else:
+        disp = (left_winner + min_disp).astype(np.float32)
     ridx = selection.right_winner(vol, min_disp=min_disp) if right_winner is None else right_winner
     dright = np.where(ridx >= 0, (ridx + min_disp).astype(np.float32), np.float32(np.nan)).astype(np.float32)
     valid = selection.cross_check(disp, dright, tolerance=1.0)
@@ -232,9 +240,11 @@ def bpasw_dense_map(vol: F32, image: npt.NDArray[np.uint8], *, min_disp: int = 0
     return np.asarray(dense, np.float32)
 
 
-def _bpasw_reliable(vol: F32, dr: npt.NDArray[np.int64], min_disp: int) -> tuple[npt.NDArray[np.bool_], F32]:
-    # dr: the right view's winners (selection.right_winner; the BPASW volume is finite, so they are argmin's)
-    d, rel = _checked_subpixel(vol, dr, min_disp=min_disp, tolerance=0.0)
+def _bpasw_reliable(vol: F32, dr: npt.NDArray[np.int64], min_disp: int,
+                    dl: npt.NDArray[np.int64] | None = None) -> tuple[npt.NDArray[np.bool_], F32]:
+    # dr: the right view's winners (selection.right_winner; the BPASW volume is finite, so they are argmin's);
+    # dl: the left view's (vol.argmin(axis=2)) when already known
+    d, rel = _checked_subpixel(vol, dr, min_disp=min_disp, tolerance=0.0, dl=dl)
     return rel, d
 
 
@@ -406,12 +416,13 @@ class _PairEvidence:
                  segmentation: SegmentationParams, planes: PlaneParams, cost: CostParams,
                  slopes: tuple[float, ...] | None, bright: npt.NDArray[np.int64] | None = None,
                  segments: dict[SegmentationParams, Future[npt.NDArray[np.int32]]] | None = None,
-                 sheared: ShearedInputs | None = None):
+                 sheared: ShearedInputs | None = None, bleft: npt.NDArray[np.int64] | None = None):
         self.image, self.right = lft, rgt
         self._sheared = sheared  # the data term's census transforms etc., reused by the row-only volume
         self._segments = dict(segments or {})  # segmentations of the image computed ahead (the fine step's)
         # the right view's winners of the BPASW volume (read by the occlusion and fallback steps)
         self.bright = selection.right_winner(bvol, min_disp=min_disp) if bright is None else bright
+        self.bleft = bvol.argmin(axis=2) if bleft is None else bleft  # the left view's (the volume is finite)
         self.min_disp, self.max_disp = int(min_disp), int(max_disp)
         self.data, self.reliable, self.initial = data, reliable, initial
         self.check_data = data
@@ -470,7 +481,7 @@ class _PairEvidence:
     def occlusion(self, s: PlaneLabels, final: F32, p: OcclusionParams) -> F32:
         md = self.min_disp
         dr_int = self.bright
-        dl_int = self.bvol.argmin(axis=2)
+        dl_int = self.bleft
         w = final.shape[1]
         xs = np.arange(w)[None, :] + dr_int + md
         rrel = (xs < w) & (np.take_along_axis(dl_int, np.clip(xs, 0, w - 1), axis=1) == dr_int)
@@ -499,7 +510,8 @@ class _PairEvidence:
         if not local.any():
             return final
         return np.where(local, bpasw_dense_map(self.bvol, self.image, min_disp=self.min_disp,
-                                               right_winner=self.bright, where=local), final)
+                                               right_winner=self.bright, where=local,
+                                               left_winner=self.bleft), final)
 
 
 def _guided_initial(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, max_disp: int, min_disp: int,
@@ -588,7 +600,8 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     bvol = bpasw_volume(lft, rgt, max_disp=max_disp, min_disp=min_disp)
     # cross-checked BPASW map (integer WTA must agree exactly), parabola subpixel
     bright = selection.right_winner(bvol, min_disp=min_disp)
-    brel0, bdisp0 = _bpasw_reliable(bvol, bright, min_disp)
+    bleft = bvol.argmin(axis=2)  # computed once: the reliability test, the occlusion and fallback steps read it
+    brel0, bdisp0 = _bpasw_reliable(bvol, bright, min_disp, bleft)
     initial, reliable = fut_init.result()
     tm["initial"] = time.perf_counter() - t
 
@@ -632,7 +645,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
                        initial=initial, bvol=bvol, bdisp=bdisp0, brel=brel0, nonplanar=nonplanar,
                        evidence=evidence, coop=op,
                        segmentation=sp, planes=pp, cost=dp.cost or cp, slopes=dp.slopes or None,
-                       bright=bright, segments=ahead, sheared=sheared)
+                       bright=bright, segments=ahead, sheared=sheared, bleft=bleft)
     state = PlaneLabels(labels=labels, index=index, graph=graph, assign=assign0, planes=plane_set, own=own,
                         parent=np.arange(k, dtype=np.int64), pairs=pairs,
                         info={"split_pieces": float(split.size)})

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import numpy.typing as npt
-from numba import njit
+from numba import njit, prange
 
 from prismstereo.errors import ImageError
 
@@ -94,6 +94,72 @@ def _union(parent: npt.NDArray[np.int32], a: int, b: int) -> None:
             parent[rb] = ra
         else:
             parent[ra] = rb
+
+
+@njit(cache=True, parallel=True, nogil=True)
+def _mean_shift_filter(lab: npt.NDArray[np.uint8], sp: float, sr: float) -> npt.NDArray[np.uint8]:
+    """OpenCV's ``pyrMeanShiftFiltering`` at ``maxLevel=0`` and its default stop (5 iterations, ε = 1), to the
+    bit, on parallel rows (OpenCV's runs on one core): each pixel's joint spatial-range mean shift (Comaniciu
+    and Meer 2002) from its own position and colour, over the (2 sp + 1)² window of the source image, the
+    colours within ``sr`` (squared distance <= round(sr²)); returns (H, W, 3) uint8, the colours reached."""
+    h, w, _ = lab.shape
+    out = np.empty_like(lab)
+    spf = np.float32(max(np.float32(sp), np.float32(1.0)))
+    isr2 = int(np.rint(sr * sr))
+    for i in prange(h):
+        for j in range(w):
+            x0 = j
+            y0 = i
+            c0 = np.int64(lab[i, j, 0])
+            c1 = np.int64(lab[i, j, 1])
+            c2 = np.int64(lab[i, j, 2])
+            for _ in range(5):
+                # the window bounds round in float32, as OpenCV's
+                minx = max(int(np.rint(np.float32(x0) - spf)), 0)
+                miny = max(int(np.rint(np.float32(y0) - spf)), 0)
+                maxx = min(int(np.rint(np.float32(x0) + spf)), w - 1)
+                maxy = min(int(np.rint(np.float32(y0) + spf)), h - 1)
+                count = 0
+                s0 = np.int64(0)
+                s1 = np.int64(0)
+                s2 = np.int64(0)
+                sx = 0
+                sy = 0
+                for y in range(miny, maxy + 1):
+                    rc = 0
+                    for x in range(minx, maxx + 1):
+                        t0 = np.int64(lab[y, x, 0])
+                        t1 = np.int64(lab[y, x, 1])
+                        t2 = np.int64(lab[y, x, 2])
+                        if (t0 - c0) * (t0 - c0) + (t1 - c1) * (t1 - c1) + (t2 - c2) * (t2 - c2) <= isr2:
+                            s0 += t0
+                            s1 += t1
+                            s2 += t2
+                            sx += x
+                            rc += 1
+                    count += rc
+                    sy += y * rc
+                if count == 0:
+                    break
+                ic = 1.0 / count
+                x1 = int(np.rint(sx * ic))
+                y1 = int(np.rint(sy * ic))
+                n0 = np.int64(np.rint(s0 * ic))
+                n1 = np.int64(np.rint(s1 * ic))
+                n2 = np.int64(np.rint(s2 * ic))
+                stop = (x0 == x1 and y0 == y1) or (abs(x1 - x0) + abs(y1 - y0) + (n0 - c0) * (n0 - c0)
+                                                    + (n1 - c1) * (n1 - c1) + (n2 - c2) * (n2 - c2) <= 1.0)
+                x0 = x1
+                y0 = y1
+                c0 = n0
+                c1 = n1
+                c2 = n2
+                if stop:
+                    break
+            out[i, j, 0] = c0
+            out[i, j, 1] = c1
+            out[i, j, 2] = c2
+    return out
 
 
 @njit(cache=True, nogil=True)
@@ -300,7 +366,11 @@ def mean_shift_segment(image: npt.NDArray[np.generic], *, params: SegmentationPa
         lab = lab.copy()
         lab[:, :, 0] = cv2.createCLAHE(clipLimit=float(p.clahe), tileGridSize=(8, 8)).apply(
             np.ascontiguousarray(lab[:, :, 0]))
-    filt = cv2.pyrMeanShiftFiltering(lab, sp=float(p.hs), sr=float(p.hr), maxLevel=int(p.max_level))
+    filt: npt.NDArray[np.generic]
+    if p.max_level == 0 and lab.size:
+        filt = _mean_shift_filter(np.ascontiguousarray(lab), float(p.hs), float(p.hr))
+    else:
+        filt = cv2.pyrMeanShiftFiltering(lab, sp=float(p.hs), sr=float(p.hr), maxLevel=int(p.max_level))
     labf = lab.reshape(-1, 3).astype(np.float32)
     if disparity is not None and p.depth_tau > 0:
         dm = np.asarray(disparity, dtype=np.float32)
