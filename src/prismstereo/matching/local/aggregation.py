@@ -168,14 +168,19 @@ def _weber_row(out: np.ndarray, lab3: np.ndarray, y: int, qy: int, dx: int, lo: 
     fastmath, so that the products keep their order (the weights equal :func:`pair_weight`'s bit for bit at the
     default constants; checked over every float32 distance in (S_min, S0))."""
     x0 = s0 / s_min
-    for x in range(lo, hi):
-        a = lab3[0, y, x] - lab3[0, qy, x + dx]
-        b = lab3[1, y, x] - lab3[1, qy, x + dx]
-        c = lab3[2, y, x] - lab3[2, qy, x + dx]
+    # slices aligned on x: unit-stride loads and stores (an index x + dx that might be negative makes numba
+    # wrap it, and the vectorised loop then gathers and scatters)
+    p0, p1, p2 = lab3[0, y, lo:hi], lab3[1, y, lo:hi], lab3[2, y, lo:hi]
+    q0, q1, q2 = lab3[0, qy, lo + dx:hi + dx], lab3[1, qy, lo + dx:hi + dx], lab3[2, qy, lo + dx:hi + dx]
+    o = out[lo:hi]
+    for j in range(hi - lo):
+        a = p0[j] - q0[j]
+        b = p1[j] - q1[j]
+        c = p2[j] - q2[j]
         s = np.sqrt(a * a + b * b + c * c)
         v = _log_ge1(min(s0 / s, x0) if s > s_min else x0) * log_norm
         v = 1.0 if s <= s_min else (0.0 if s >= s0 else v)
-        out[x] = np.float32(v * prox_k)
+        o[j] = np.float32(v * prox_k)
 
 
 @njit(cache=True, inline="always")
@@ -208,8 +213,7 @@ def _weight_row(tab: np.ndarray, slot: int, lab: np.ndarray, lab3: np.ndarray, y
             src = tab[qy % nrows, mk]
             sh = -dx if reverse else dx
             a0, a1 = (w - hi, w - lo) if reverse else (lo, hi)
-            for j in range(a0, a1):
-                row[j] = src[j + sh]
+            row[a0:a1] = src[a0 + sh:a1 + sh]
             row[:a0] = 0.0
             row[a1:] = 0.0
             continue
