@@ -168,14 +168,19 @@ def _weber_row(out: np.ndarray, lab3: np.ndarray, y: int, qy: int, dx: int, lo: 
     fastmath, so that the products keep their order (the weights equal :func:`pair_weight`'s bit for bit at the
     default constants; checked over every float32 distance in (S_min, S0))."""
     x0 = s0 / s_min
-    for x in range(lo, hi):
-        a = lab3[0, y, x] - lab3[0, qy, x + dx]
-        b = lab3[1, y, x] - lab3[1, qy, x + dx]
-        c = lab3[2, y, x] - lab3[2, qy, x + dx]
+    # slices aligned on x: unit-stride loads and stores (an index x + dx that might be negative makes numba
+    # wrap it, and the vectorised loop then gathers and scatters)
+    p0, p1, p2 = lab3[0, y, lo:hi], lab3[1, y, lo:hi], lab3[2, y, lo:hi]
+    q0, q1, q2 = lab3[0, qy, lo + dx:hi + dx], lab3[1, qy, lo + dx:hi + dx], lab3[2, qy, lo + dx:hi + dx]
+    o = out[lo:hi]
+    for j in range(hi - lo):
+        a = p0[j] - q0[j]
+        b = p1[j] - q1[j]
+        c = p2[j] - q2[j]
         s = np.sqrt(a * a + b * b + c * c)
         v = _log_ge1(min(s0 / s, x0) if s > s_min else x0) * log_norm
         v = 1.0 if s <= s_min else (0.0 if s >= s0 else v)
-        out[x] = np.float32(v * prox_k)
+        o[j] = np.float32(v * prox_k)
 
 
 @njit(cache=True, inline="always")
@@ -208,8 +213,7 @@ def _weight_row(tab: np.ndarray, slot: int, lab: np.ndarray, lab3: np.ndarray, y
             src = tab[qy % nrows, mk]
             sh = -dx if reverse else dx
             a0, a1 = (w - hi, w - lo) if reverse else (lo, hi)
-            for j in range(a0, a1):
-                row[j] = src[j + sh]
+            row[a0:a1] = src[a0 + sh:a1 + sh]
             row[:a0] = 0.0
             row[a1:] = 0.0
             continue
@@ -229,55 +233,99 @@ def _weight_row(tab: np.ndarray, slot: int, lab: np.ndarray, lab3: np.ndarray, y
             row[:] = buf
 
 
-@njit(cache=True, fastmath=True, nogil=True)
+# fused multiply-adds as with fastmath=True, but no reassociation: the fused loop adds four terms to a sum per
+# step, which must stay in the order of k
+@njit(cache=True, fastmath={"contract", "nnan", "ninf", "nsz", "arcp", "afn"}, nogil=True)
 def _accumulate_row(num: np.ndarray, den: np.ndarray, wl: np.ndarray, wr: np.ndarray, ct: np.ndarray, y: int,
-                    dys: np.ndarray, dxs: np.ndarray, min_disp: int) -> None:  # pragma: no cover - numba
+                    dys: np.ndarray, dxs: np.ndarray, min_disp: int, pad: int) -> None:  # pragma: no cover - numba
     """Row ``y``'s sums of Eq. 5.14 with symmetric weights, disparity-major: ``num[i, x] = Σ_k wl[k, x]
     wr[k, x - d] c(q, d)`` and ``den[i, x] = Σ_k wl[k, x] wr[k, x - d]`` (``d = min_disp + i``, ``q = (y, x) +
-    o_k``; ``ct`` the cost volume as (H, D, W)); only the terms with ``q`` and ``x - d`` inside the images.
+    o_k``; ``ct`` the cost volume as (H, D, W + 2 pad), columns shifted by ``pad >= max |dx|``, zero outside);
+    only the terms with ``q`` and ``x - d`` inside the images.
 
     The inner loop runs along the row (hundreds of pixels, contiguous in every array) instead of over the
     disparities of one pixel, and each sum still adds its terms in the order of ``k``; a zero weight adds
-    ``0·c = 0``, so the sums equal those that skip it."""
+    ``0·c = 0``, so the sums equal those that skip it. Up to four consecutive offsets on one window row (the same
+    ``q`` row) are added in one pass over the row, so that ``num`` and ``den`` are read and written once per
+    four terms: the pass runs over every ``x`` with ``x - d`` inside the image, and a term whose ``q`` lies
+    outside adds ``0·0`` (its left weight is 0 there, the padded cost too), which leaves the sum unchanged bit
+    for bit (it starts at +0, so it is never -0)."""
     h = ct.shape[0]
     nd = ct.shape[1]
-    w = ct.shape[2]
-    for k in range(dys.shape[0]):
+    w = ct.shape[2] - 2 * pad
+    nk = dys.shape[0]
+    k = 0
+    while k < nk:
         qy = y + dys[k]
+        n = 1
+        while n < 4 and k + n < nk and dys[k + n] == dys[k]:
+            n += 1
         if qy < 0 or qy >= h:
+            k += n
             continue
-        dx = dxs[k]
-        xlo = max(0, -dx)
-        xhi = min(w, w - dx)
-        wlk = wl[k]
-        wrk = wr[k]
         for i in range(nd):
             d = min_disp + i
-            lo = max(xlo, d)
-            hi = min(xhi, w + d)
-            if hi <= lo:
+            if n == 4:
+                lo = max(0, d)
+                hi = min(w, w + d)
+                if hi <= lo:
+                    continue
+                # slices aligned on x: plain unit-stride indexing, which vectorises
+                ns = num[i, lo:hi]
+                ds = den[i, lo:hi]
+                cr = ct[qy, i]
+                o = lo + pad
+                a0, b0, c0 = wl[k, lo:hi], wr[k, lo - d:hi - d], cr[o + dxs[k]:o + dxs[k] + hi - lo]
+                a1, b1, c1 = wl[k + 1, lo:hi], wr[k + 1, lo - d:hi - d], cr[o + dxs[k + 1]:o + dxs[k + 1] + hi - lo]
+                a2, b2, c2 = wl[k + 2, lo:hi], wr[k + 2, lo - d:hi - d], cr[o + dxs[k + 2]:o + dxs[k + 2] + hi - lo]
+                a3, b3, c3 = wl[k + 3, lo:hi], wr[k + 3, lo - d:hi - d], cr[o + dxs[k + 3]:o + dxs[k + 3] + hi - lo]
+                for j in range(hi - lo):
+                    nn = ns[j]
+                    dd = ds[j]
+                    ww = a0[j] * b0[j]
+                    nn += ww * c0[j]
+                    dd += ww
+                    ww = a1[j] * b1[j]
+                    nn += ww * c1[j]
+                    dd += ww
+                    ww = a2[j] * b2[j]
+                    nn += ww * c2[j]
+                    dd += ww
+                    ww = a3[j] * b3[j]
+                    nn += ww * c3[j]
+                    dd += ww
+                    ns[j] = nn
+                    ds[j] = dd
                 continue
-            # slices aligned on x: plain unit-stride indexing, which vectorises
-            wls = wlk[lo:hi]
-            wrs = wrk[lo - d:hi - d]
-            cs = ct[qy, i, lo + dx:hi + dx]
-            ns = num[i, lo:hi]
-            ds = den[i, lo:hi]
-            for j in range(hi - lo):
-                ww = wls[j] * wrs[j]
-                ns[j] += ww * cs[j]
-                ds[j] += ww
+            for kk in range(k, k + n):
+                dx = dxs[kk]
+                lo = max(max(0, -dx), d)
+                hi = min(min(w, w - dx), w + d)
+                if hi <= lo:
+                    continue
+                wls = wl[kk, lo:hi]
+                wrs = wr[kk, lo - d:hi - d]
+                cs = ct[qy, i, lo + dx + pad:hi + dx + pad]
+                ns = num[i, lo:hi]
+                ds = den[i, lo:hi]
+                for j in range(hi - lo):
+                    ww = wls[j] * wrs[j]
+                    ns[j] += ww * cs[j]
+                    ds[j] += ww
+        k += n
 
 
 @njit(cache=True, parallel=True, nogil=True)
-def _disparity_major(cost: np.ndarray) -> np.ndarray:  # pragma: no cover - numba
-    """(H, W, D) -> (H, D, W) copy."""
+def _disparity_major(cost: np.ndarray, pad: int) -> np.ndarray:  # pragma: no cover - numba
+    """(H, W, D) -> (H, D, W + 2 pad) copy, columns shifted by ``pad``, zero in the margins."""
     h, w, nd = cost.shape
-    out = np.empty((h, nd, w), dtype=cost.dtype)
+    out = np.empty((h, nd, w + 2 * pad), dtype=cost.dtype)
     for y in prange(h):
+        out[y, :, :pad] = 0.0
+        out[y, :, w + pad:] = 0.0
         for x in range(w):
             for i in range(nd):
-                out[y, i, x] = cost[y, x, i]
+                out[y, i, x + pad] = cost[y, x, i]
     return out
 
 
@@ -287,7 +335,7 @@ def _bpasw_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, lab3_l
                   dxs: np.ndarray, prox: np.ndarray, min_disp: int, kernel: int, s0: float,
                   s_min: float, prior: np.ndarray, use_prior: bool, cont_w: float,
                   symmetric: bool, mirror: np.ndarray, nbands: int,
-                  ct: np.ndarray) -> np.ndarray:  # pragma: no cover - numba
+                  ct: np.ndarray, pad: int) -> np.ndarray:  # pragma: no cover - numba
     h, w, nd = cost.shape
     nk = dys.shape[0]
     log_norm = 1.0 / np.log(s0 / s_min) if kernel == 0 else 1.0
@@ -330,7 +378,7 @@ def _bpasw_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, lab3_l
             if fast:
                 numr[:] = 0.0
                 denr[:] = 0.0
-                _accumulate_row(numr, denr, tl[slot], tr[slot], ct, y, dys, dxs, min_disp)
+                _accumulate_row(numr, denr, tl[slot], tr[slot], ct, y, dys, dxs, min_disp, pad)
                 for x in range(w):
                     nvalid = min(nd, x - min_disp + 1)
                     for i in range(nd):
@@ -471,7 +519,8 @@ def aggregate_bpasw(cost: np.ndarray, left: np.ndarray, right: np.ndarray | None
     # planar Lab for the weights' vectorised rows
     lab3_l = np.ascontiguousarray(lab_l.transpose(2, 0, 1))
     lab3_r = np.ascontiguousarray(lab_r.transpose(2, 0, 1)) if symmetric else lab3_l
-    ct = _disparity_major(vol) if symmetric and not use_prior else np.empty((0, 0, 0), np.float32)
+    pad = int(np.abs(dxs).max())
+    ct = _disparity_major(vol, pad) if symmetric and not use_prior else np.empty((0, 0, 0), np.float32)
     return _bpasw_kernel(vol, lab_l, lab_r, lab3_l, lab3_r, dys, dxs, prox.astype(np.float64), int(min_disp), kid,
                          s0, s_min, pr, use_prior, float(continuity_weight), symmetric, _mirrors(dys, dxs), nbands,
-                         ct)
+                         ct, pad)
