@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -341,80 +342,174 @@ _CACHE = 64  # data terms remembered per segment (its candidates of the last swe
 
 
 @njit(cache=True)
-def _cache_refresh(z1: F64, o1: I64, z2: F64, zc1: F64, oc1: I64, zc2: F64, zvalid: npt.NDArray[np.bool_],
-                   bbox: I64, planes: F64, clab: I64, cval: F64, cn: I64, w: int) -> None:
-    """Drops the remembered data terms (Eqs. 6.21-6.22) that the new right-view z-buffer may change.
+def _vis_flips(j: int, pl: F64, order: I64, sstart: I64, srun: I64, w: int, nd: int, min_disp: int, margin: float,
+               chg: npt.NDArray[np.bool_], pre: I64, rcnt: I64, z1: F64, o1: I64, z2: F64, zc1: F64, oc1: I64,
+               zc2: F64) -> bool:
+    """Whether the visibility test of :func:`_data` (segment ``j``, plane ``pl``) gives another answer for some
+    pixel under the new z-buffer ``z1, o1, z2`` than under the old ``zc1, oc1, zc2``. ``chg`` flags the
+    right-view pixels where they differ, ``pre[y]`` counts them along row ``y`` and ``rcnt`` over the rows
+    above (:func:`_cache_refresh`); the segment's pixels are the runs ``order[srun[r, 1]:srun[r + 1, 1]]``
+    for ``r`` in ``sstart[j]:sstart[j + 1]``, each in row ``srun[r, 0]`` and columns ``srun[r, 2]..srun[r, 3]``.
+    The same arithmetic as :func:`_data`, so that no answer means the same sum."""
+    a, b, c = pl[0], pl[1], pl[2]
+    for r in range(sstart[j], sstart[j + 1]):
+        y = srun[r, 0]
+        if rcnt[y + 1] == rcnt[y]:
+            continue
+        t0 = srun[r, 1]
+        t1 = srun[r + 1, 1]
+        # the right-view columns the row's pixels map to, with one pixel of slack for the rounding of the
+        # per-pixel evaluation (x - d is linear in x): no changed pixel there, no changed answer
+        xa = srun[r, 2]
+        xb = srun[r, 3]
+        va = xa - (a * xa + b * y + c)
+        vb = xb - (a * xb + b * y + c)
+        if np.isfinite(va) and np.isfinite(vb):
+            c0 = max(int(np.floor(min(va, vb) + 0.5)) - 1, 0)
+            c1 = min(int(np.floor(max(va, vb) + 0.5)) + 1, w - 1)
+            if c0 > c1 or pre[y, c1 + 1] == pre[y, c0]:
+                continue
+        for t in range(t0, t1):
+            x = order[t] - y * w
+            d = a * x + b * y + c
+            k = d - min_disp
+            if k < -0.5 or k > nd - 0.5:
+                continue
+            if x - d < -0.5:
+                continue
+            xr = int(np.floor(x - d + 0.5))
+            if 0 <= xr < w:
+                q = y * w + xr
+                if chg[q]:
+                    zn = z1[q] if o1[q] != j else z2[q]
+                    zo = zc1[q] if oc1[q] != j else zc2[q]
+                    if (zn > d + margin) != (zo > d + margin):
+                        return True
+    return False
 
-    An entry of segment ``j`` under plane ``l`` reads the z-buffer only on the right-view pixels its
-    bounding box maps to under ``l``; it is kept when none of them changed, so a remembered value is always
-    the one :func:`_data` would return now."""
+
+@njit(cache=True, parallel=True)
+def _zbuffer_rows(a: I32, planes: F64, rstart: I64, rp: I64, rseg: I64, w: int, rows: npt.NDArray[np.bool_],
+                  z1: F64, o1: I64, z2: F64) -> None:
+    """:func:`_zbuffer` of ``a`` on the right-view rows flagged in ``rows``, written into ``z1, o1, z2`` (other
+    rows untouched). A right-view pixel is reached only from its own row, and each row's pixels are taken in
+    the order :func:`_zbuffer` takes them (``rstart, rp, rseg``: the pixels of row ``y`` and their segments are
+    ``rp[rstart[y]:rstart[y + 1]]``, ``rseg[...]``), so the rows are the same as :func:`_zbuffer`'s."""
+    for y in prange(rows.size):
+        if not rows[y]:
+            continue
+        for q in range(y * w, (y + 1) * w):
+            z1[q] = -1e9
+            z2[q] = -1e9
+            o1[q] = -1
+        for t in range(rstart[y], rstart[y + 1]):
+            j = rseg[t]
+            x = rp[t] - y * w
+            pl = planes[a[j]]
+            d = pl[0] * x + pl[1] * y + pl[2]
+            xr = int(np.floor(x - d + 0.5))
+            if xr < 0 or xr >= w:
+                continue
+            q = y * w + xr
+            if o1[q] == j:
+                if d > z1[q]:
+                    z1[q] = d
+            elif d > z1[q]:
+                z2[q] = z1[q]
+                z1[q] = d
+                o1[q] = j
+            elif d > z2[q]:
+                z2[q] = d
+
+
+@njit(cache=True, parallel=True)
+def _cache_refresh(z1: F64, o1: I64, z2: F64, rows: npt.NDArray[np.bool_], zc1: F64, oc1: I64, zc2: F64,
+                   zvalid: npt.NDArray[np.bool_], bbox: I64, planes: F64, clab: I64, cval: F64, cn: I64,
+                   clean: npt.NDArray[np.bool_], w: int, order: I64, sstart: I64, srun: I64, nd: int,
+                   min_disp: int, prm: F64) -> None:
+    """Moves the cache to the right-view z-buffer ``z1, o1, z2`` (which differs from the cache's at most on the
+    flagged ``rows``, and is read only there) and drops the remembered data terms (Eqs. 6.21-6.22) it changes.
+
+    An entry of segment ``j`` under plane ``l`` is dropped when the visibility test of one of its pixels gives
+    another answer under the new z-buffer (:func:`_vis_flips`); otherwise every pixel contributes what it did,
+    in the same order, so a remembered value is always the one :func:`_data` would return now. A segment that
+    loses an entry is no longer ``clean`` (:func:`_sweep`)."""
     n = z1.size
     h = n // w
     k = cn.size
     if not zvalid[0]:
         cn[:] = 0
-    else:
-        ii = np.zeros((h + 1, w + 1), np.int64)  # integral image of the changed right-view pixels
-        anyc = False
-        for y in range(h):
+        clean[:] = False
+    elif prm[8] > 0.5:  # without the visibility test no data term reads the z-buffer
+        margin = prm[7]
+        chg = np.zeros(n, np.bool_)
+        # per row, the running count of the changed right-view pixels (rows with none are not filled)
+        pre = np.empty((h, w + 1), np.int64)
+        rcnt = np.zeros(h + 1, np.int64)  # changed pixels in the rows above y
+        for y in prange(h):
+            if not rows[y]:
+                continue
             run = 0
+            pre[y, 0] = 0
             for x in range(w):
                 q = y * w + x
                 if z1[q] != zc1[q] or o1[q] != oc1[q] or z2[q] != zc2[q]:
                     run += 1
-                    anyc = True
-                ii[y + 1, x + 1] = ii[y, x + 1] + run
-        if anyc:
-            for j in range(k):
-                y0 = bbox[j, 2]
-                y1 = bbox[j, 3]
+                    chg[q] = True
+                pre[y, x + 1] = run
+            rcnt[y + 1] = run
+        for y in range(h):
+            rcnt[y + 1] += rcnt[y]
+        if rcnt[h] > 0:
+            for j in prange(k):
+                if rcnt[bbox[j, 3] + 1] == rcnt[bbox[j, 2]]:
+                    continue
                 t = 0
                 while t < cn[j]:
-                    pl = planes[clab[j, t]]
-                    lo = 1e300
-                    hi = -1e300
-                    for xx in (bbox[j, 0], bbox[j, 1]):
-                        for yy in (y0, y1):
-                            v = xx - (pl[0] * xx + pl[1] * yy + pl[2])
-                            lo = min(lo, v)
-                            hi = max(hi, v)
-                    # one pixel of slack for the rounding of the per-pixel evaluation
-                    c0 = max(int(np.floor(lo + 0.5)) - 1, 0) if lo > -1e18 else 0
-                    c1 = min(int(np.floor(hi + 0.5)) + 1, w - 1) if hi < 1e18 else w - 1
-                    hit = False
-                    if c0 <= c1:
-                        hit = (ii[y1 + 1, c1 + 1] - ii[y0, c1 + 1] - ii[y1 + 1, c0] + ii[y0, c0]) > 0
-                    if hit or not (np.isfinite(lo) and np.isfinite(hi)):
+                    if _vis_flips(j, planes[clab[j, t]], order, sstart, srun, w, nd, min_disp, margin, chg, pre,
+                                  rcnt, z1, o1, z2, zc1, oc1, zc2):
                         cn[j] -= 1
                         clab[j, t] = clab[j, cn[j]]
                         cval[j, t] = cval[j, cn[j]]
+                        clean[j] = False
                     else:
                         t += 1
-    zc1[:] = z1
-    oc1[:] = o1
-    zc2[:] = z2
+    for y in prange(h):
+        if rows[y] or not zvalid[0]:
+            for q in range(y * w, (y + 1) * w):
+                zc1[q] = z1[q]
+                oc1[q] = o1[q]
+                zc2[q] = z2[q]
     zvalid[0] = True
 
 
 @njit(cache=True)
-def _zbuffer_cached(a: I32, planes: F64, order: I64, starts: I64, h: int, w: int, zc1: F64, oc1: I64, zc2: F64,
-                    zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64, clab: I64, cval: F64,
-                    cn: I64) -> tuple[F64, I64, F64]:
-    """:func:`_zbuffer` of ``a`` with the remembered data terms refreshed to it (:func:`_cache_refresh`); the
-    cache's own z-buffer when it was computed for this assignment (``zfor``), which the caller must not keep
-    past the next refresh."""
+def _zbuffer_cached(a: I32, planes: F64, h: int, w: int, zc1: F64, oc1: I64, zc2: F64,
+                    zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64, clab: I64, cval: F64, cn: I64,
+                    clean: npt.NDArray[np.bool_], rstart: I64, rp: I64, rseg: I64, sstart: I64, srun: I64,
+                    order: I64, nd: int, min_disp: int, prm: F64) -> tuple[F64, I64, F64]:
+    """:func:`_zbuffer` of ``a``, the cache's own, with the remembered data terms refreshed to it
+    (:func:`_cache_refresh`): only the rows of the segments whose plane changed since it was computed for
+    ``zfor`` are computed again. The caller must not keep it past the next refresh."""
+    rows = np.zeros(h, np.bool_)
     if zvalid[0]:
         same = True
         for j in range(a.size):
             if a[j] != zfor[j]:
                 same = False
-                break
+                rows[bbox[j, 2]:bbox[j, 3] + 1] = True
         if same:
             return zc1, oc1, zc2
-    z1, o1, z2 = _zbuffer(a, planes, order, starts, h, w)
-    _cache_refresh(z1, o1, z2, zc1, oc1, zc2, zvalid, bbox, planes, clab, cval, cn, w)
+    else:
+        rows[:] = True
+    z1 = np.empty(h * w)
+    o1 = np.empty(h * w, np.int64)
+    z2 = np.empty(h * w)
+    _zbuffer_rows(a, planes, rstart, rp, rseg, w, rows, z1, o1, z2)
+    _cache_refresh(z1, o1, z2, rows, zc1, oc1, zc2, zvalid, bbox, planes, clab, cval, cn, clean, w, order, sstart,
+                   srun, nd, min_disp, prm)
     zfor[:] = a
-    return z1, o1, z2
+    return zc1, oc1, zc2
 
 
 @njit(cache=True)
@@ -438,12 +533,13 @@ def _data_cached(j: int, lab: int, planes: F64, order: I64, starts: I64, w: int,
 def _energy_cached(assign: I32, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
                    reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
                    prm: F64, zc1: F64, oc1: I64, zc2: F64, zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64,
-                   clab: I64, cval: F64, cn: I64) -> float:
+                   clab: I64, cval: F64, cn: I64, clean: npt.NDArray[np.bool_], afor: I32, rstart: I64, rp: I64,
+                   rseg: I64, sstart: I64, srun: I64) -> float:
     """:func:`_energy` with the data terms remembered across calls (the same value)."""
     k = starts.size - 1
     h = cost.shape[1] // w
-    z1, o1, z2 = _zbuffer_cached(assign, planes, order, starts, h, w, zc1, oc1, zc2, zvalid, zfor, bbox, clab,
-                                 cval, cn)
+    z1, o1, z2 = _zbuffer_cached(assign, planes, h, w, zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval, cn, clean,
+                                 rstart, rp, rseg, sstart, srun, order, cost.shape[2], min_disp, prm)
     gamma = prm[5]
     thr = prm[6]
     # the data terms in parallel (each segment's cache rows are written by one thread), summed in order: the
@@ -516,17 +612,29 @@ def _candidates(j: int, a: I32, own: I64, nstart: I64, nbr: I64, prm: F64, cand:
 def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
            reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
            nstart: I64, nbr: I64, nedge: I64, prm: F64, active: npt.NDArray[np.bool_], zc1: F64, oc1: I64,
-           zc2: F64, zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64, clab: I64, cval: F64, cn: I64) -> int:
+           zc2: F64, zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64, clab: I64, cval: F64, cn: I64,
+           clean: npt.NDArray[np.bool_], afor: I32, rstart: I64, rp: I64, rseg: I64, sstart: I64,
+           srun: I64) -> int:
     """One cooperative sweep over the active segments (Eq. 6.19), in place; returns the number of changes.
-    The data terms are remembered across sweeps (:func:`_data_cached`)."""
+    The data terms are remembered across sweeps (:func:`_data_cached`).
+
+    A segment's decision depends only on its plane, its neighbours' planes at its turn and its candidates' data
+    terms; a segment that kept its plane at its last turn is ``clean`` until one of them changes (a neighbour
+    moves, a remembered data term is dropped), and its turn is skipped: it would keep its plane again."""
     k = starts.size - 1
     h = cost.shape[1] // w
     kappa = prm[0]
     mu = prm[1]
     gamma = prm[5]
     thr = prm[6]
-    z1, o1, z2 = _zbuffer_cached(a, planes, order, starts, h, w, zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval,
-                                 cn)
+    z1, o1, z2 = _zbuffer_cached(a, planes, h, w, zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval, cn, clean, rstart,
+                                 rp, rseg, sstart, srun, order, cost.shape[2], min_disp, prm)
+    # a segment or a neighbour moved outside the sweeps (an undone sweep, a group move): decide again
+    for j in range(k):
+        if a[j] != afor[j]:
+            clean[j] = False
+            for t in range(nstart[j], nstart[j + 1]):
+                clean[nbr[t]] = False
     # the data terms of the candidates at the sweep's start, and their smoothness terms towards each neighbour's
     # plane at the start, in parallel (each segment's rows are written by one thread); the serial sweep below
     # reads them, and computes what its own changes made new: a new candidate, a neighbour that moved
@@ -534,7 +642,7 @@ def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost:
     plab = np.full((k, 64), -1, np.int64)
     psm = np.empty(64 * nstart[k])
     for j in prange(k):
-        if not active[j]:
+        if not active[j] or clean[j]:
             continue
         cj = np.empty(64, np.int64)
         ncj = _candidates(j, a, own, nstart, nbr, prm, cj)
@@ -553,10 +661,11 @@ def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost:
     cand = np.empty(64, np.int64)
     changes = 0
     for j in range(k):
-        if not active[j]:
+        if not active[j] or clean[j]:
             continue
         nc = _candidates(j, a, own, nstart, nbr, prm, cand)
         if nc == 1:
+            clean[j] = True
             continue
         cur_e = 0.0
         best_f = 0.0
@@ -596,6 +705,11 @@ def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost:
         if best != a[j]:
             a[j] = best
             changes += 1
+            for t in range(nstart[j], nstart[j + 1]):
+                clean[nbr[t]] = False
+        else:
+            clean[j] = True
+    afor[:] = a
     return changes
 
 
@@ -729,15 +843,35 @@ def _refine_pass(a: I32, planes: F64, n_used: int, order: I64, starts: I64, w: i
     return n_used, changed
 
 
-def _new_cache(index: SegmentIndex, k: int
-               ) -> tuple[F64, I64, F64, npt.NDArray[np.bool_], I32, I64, I64, F64, I64]:
+def _new_cache(index: SegmentIndex, k: int) -> tuple[Any, ...]:
     """Empty remembered data terms for :func:`_sweep` / :func:`_energy_cached` / :func:`_expand`: the z-buffer
-    they hold (z1, o1, z2, valid, the assignment it is of), the segments' boxes, and per segment up to
-    ``_CACHE`` (plane, value)."""
-    npx = int(index.shape[0]) * int(index.shape[1])
+    they hold (z1, o1, z2, valid, the assignment it is of), the segments' boxes, per segment up to ``_CACHE``
+    (plane, value), the segments whose last sweep decision still holds (clean, the assignment it is of), and
+    the image's pixels by row (:func:`_zbuffer_rows`) and each segment's by row (:func:`_vis_flips`)."""
+    h, w = int(index.shape[0]), int(index.shape[1])
+    npx = h * w
+    order = np.asarray(index.order, np.int64)
+    seg = np.repeat(np.arange(k, dtype=np.int64), np.diff(index.starts))
+    by_row = np.argsort(order // w, kind="stable")  # within a row, in the order of ``order``
+    rstart = np.zeros(h + 1, np.int64)
+    np.cumsum(np.bincount(order // w, minlength=h), out=rstart[1:])
+    # each segment's runs of pixels of one row (one run per row when its pixels are in raster order)
+    y = order // w
+    new = np.ones(order.size, bool)
+    new[1:] = (y[1:] != y[:-1]) | (seg[1:] != seg[:-1])
+    first = np.flatnonzero(new)
+    srun = np.zeros((first.size + 1, 4), np.int64)
+    srun[:-1, 0] = y[first]
+    srun[:-1, 1] = first
+    if first.size:
+        srun[:-1, 2] = np.minimum.reduceat(order - y * w, first)
+        srun[:-1, 3] = np.maximum.reduceat(order - y * w, first)
+    srun[-1, 1] = order.size
+    sstart = np.searchsorted(first, np.asarray(index.starts, np.int64)).astype(np.int64)
     return (np.empty(npx), np.empty(npx, np.int64), np.empty(npx), np.zeros(1, np.bool_), np.empty(k, np.int32),
             _segment_bbox(index.order, index.starts, index.shape[1]), np.empty((k, _CACHE), np.int64),
-            np.empty((k, _CACHE)), np.zeros(k, np.int64))
+            np.empty((k, _CACHE)), np.zeros(k, np.int64), np.zeros(k, np.bool_), np.empty(k, np.int32), rstart,
+            order[by_row], seg[by_row], sstart, srun)
 
 
 def _flat_cost(cost: F32, slopes: tuple[float, ...] | None) -> F32:
@@ -886,7 +1020,8 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
             cost: F32, min_disp: int, reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64,
             bp_hi: I64, bw: F64, nstart: I64, nbr: I64, nedge: I64, prm: F64, max_region: int, zc1: F64,
             oc1: I64, zc2: F64, zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64, clab: I64, cval: F64,
-            cn: I64) -> int:
+            cn: I64, clean: npt.NDArray[np.bool_], afor: I32, rstart: I64, rp: I64, rseg: I64, sstart: I64,
+            srun: I64) -> int:
     """Group moves, in place: for each candidate plane, the connected region of segments grown from its seeds
     through segments whose data term it does not raise moves to it at once when that lowers E (Eq. 6.18).
     Data terms are remembered (:func:`_data_cached`); the cache always holds the z-buffer ``z1, o1, z2``
@@ -901,10 +1036,12 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
     dnew = np.empty(k, np.float64)
     dold = np.empty(k, np.float64)
     prev = np.empty(k, np.int32)
-    cache = (zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval, cn)
+    cache = (zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval, cn, clean, afor, rstart, rp, rseg, sstart, srun)
     e_cur = _energy_cached(a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo, bp_hi, bw,
                            prm, *cache)
-    z1, o1, z2 = _zbuffer(a, planes, order, starts, h, w)
+    # the z-buffer of the kept assignment: the cache's (it holds the last one computed)
+    z1, o1, z2 = zc1.copy(), oc1.copy(), zc2.copy()
+    rows = np.zeros(h, np.bool_)
     accepted = 0
     for m in range(cand.size):
         lab = cand[m]
@@ -961,20 +1098,28 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
                         after = _smooth(j, i, nedge[t], pl, planes[a[i]], pairs, bstart, bp_lo, bp_hi, bw, w, thr)
                     de += 2.0 * gamma * (after - before)
         if n > 0 and de < -1e-9:
+            rows[:] = False
             for r in range(n):
                 prev[r] = a[region[r]]
                 a[region[r]] = lab
+                rows[bbox[region[r], 2]:bbox[region[r], 3] + 1] = True
             e_new = _energy_cached(a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo,
                                    bp_hi, bw, prm, *cache)
             if e_new < e_cur - 1e-9:
                 e_cur = e_new
                 accepted += 1
-                z1, o1, z2 = _zbuffer(a, planes, order, starts, h, w)
+                # the cache's z-buffer is the new assignment's; it differs from the old on the region's rows
+                for y in range(h):
+                    if rows[y]:
+                        z1[y * w:(y + 1) * w] = zc1[y * w:(y + 1) * w]
+                        o1[y * w:(y + 1) * w] = oc1[y * w:(y + 1) * w]
+                        z2[y * w:(y + 1) * w] = zc2[y * w:(y + 1) * w]
             else:
                 for r in range(n):
                     a[region[r]] = prev[r]
                 # back to the z-buffer of the kept assignment (the cache now holds the rejected one's)
-                _cache_refresh(z1, o1, z2, zc1, oc1, zc2, zvalid, bbox, planes, clab, cval, cn, w)
+                _cache_refresh(z1, o1, z2, rows, zc1, oc1, zc2, zvalid, bbox, planes, clab, cval, cn, clean, w,
+                               order, sstart, srun, cost.shape[2], min_disp, prm)
                 zfor[:] = a
         for r in range(n):
             in_s[region[r]] = False
