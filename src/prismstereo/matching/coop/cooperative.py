@@ -35,7 +35,7 @@ from prismstereo.matching.segments.planes import SegmentIndex
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CoopParams", "SegmentGraph", "build_segment_graph", "cooperative_optimize", "expand_planes",
+__all__ = ["CoopMemo", "CoopParams", "SegmentGraph", "build_segment_graph", "cooperative_optimize", "expand_planes",
            "neighbour_plane_candidates", "total_energy"]
 
 F32 = npt.NDArray[np.float32]
@@ -874,6 +874,72 @@ def _new_cache(index: SegmentIndex, k: int) -> tuple[Any, ...]:
             order[by_row], seg[by_row], sstart, srun)
 
 
+@njit(cache=True)
+def _cache_keep(clab: I64, cval: F64, cn: I64, same: npt.NDArray[np.bool_]) -> None:
+    """Drops the remembered data terms of the planes not flagged in ``same``."""
+    for j in range(cn.size):
+        t = 0
+        while t < cn[j]:
+            if clab[j, t] < same.size and same[clab[j, t]]:
+                t += 1
+            else:
+                cn[j] -= 1
+                clab[j, t] = clab[j, cn[j]]
+                cval[j, t] = cval[j, cn[j]]
+
+
+class CoopMemo:
+    """Data terms (Eqs. 6.21-6.22) remembered from one call of :func:`cooperative_optimize` or
+    :func:`expand_planes` to the next, for a caller that runs several on the same segments and data term.
+
+    They are used again when the next call gets the same ``index``, ``cost`` and ``reliable`` objects (and the
+    same data-term parameters), for the planes whose ``(a, b, c)`` did not change; the caller must not write
+    into those arrays between the calls (pass a new array instead). The results are the same as without it.
+    """
+
+    def __init__(self) -> None:
+        self._key: tuple[Any, ...] | None = None
+        self._cache: tuple[Any, ...] | None = None
+        self._planes: F64 | None = None
+
+    def take(self, index: SegmentIndex, cost: F32, reliable: npt.NDArray[np.bool_], prm: F64, min_disp: int,
+             planes: F64) -> tuple[Any, ...]:
+        """The remembered cache if it applies to this call (with the entries of changed planes dropped), else
+        a new one; the next call's cache either way (:meth:`keep`)."""
+        key = (index, cost, reliable, prm[_DATA_PRM].tobytes(), prm[12:].tobytes(), int(min_disp))
+        old, cache, opl = self._key, self._cache, self._planes
+        self._key = self._cache = self._planes = None
+        if (old is None or cache is None or opl is None or old[0] is not index or old[1] is not cost
+                or old[2] is not reliable or old[3:] != key[3:]):
+            return _new_cache(index, int(index.starts.size - 1))
+        m = min(opl.shape[0], planes.shape[0])
+        same = np.zeros(opl.shape[0], np.bool_)
+        same[:m] = (opl[:m] == planes[:m]).all(axis=1)
+        zvalid, zfor, clean = cache[3], cache[4], cache[9]
+        if zvalid[0] and not same[zfor].all():
+            zvalid[0] = False  # the z-buffer is of planes that changed
+        _cache_keep(cache[6], cache[7], cache[8], same)
+        clean[:] = False  # the candidates are the new call's
+        return cache
+
+    def keep(self, index: SegmentIndex, cost: F32, reliable: npt.NDArray[np.bool_], prm: F64, min_disp: int,
+             planes: F64, cache: tuple[Any, ...]) -> None:
+        """Remember ``cache`` (computed with ``planes``) for the next call."""
+        self._key = (index, cost, reliable, prm[_DATA_PRM].tobytes(), prm[12:].tobytes(), int(min_disp))
+        self._cache = cache
+        self._planes = planes.copy()
+
+
+_DATA_PRM = np.array([2, 3, 4, 7, 8, 9, 11])  # the entries of _prm that the data term reads (and the slopes)
+
+
+def _take_cache(memo: CoopMemo | None, index: SegmentIndex, cost: F32, reliable: npt.NDArray[np.bool_],
+                prm: F64, min_disp: int, planes: F64) -> tuple[Any, ...]:
+    if memo is None:
+        return _new_cache(index, int(index.starts.size - 1))
+    return memo.take(index, cost, reliable, prm, min_disp, planes)
+
+
 def _flat_cost(cost: F32, slopes: tuple[float, ...] | None) -> F32:
     """(S, H*W, D) view of an (H, W, D) volume or of (S, H, W, D) volumes, one per vertical slope."""
     c = np.asarray(cost)
@@ -921,7 +987,8 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
                          own: npt.NDArray[np.integer] | None = None, min_disp: int = 0,
                          params: CoopParams | None = None,
                          active: npt.NDArray[np.bool_] | None = None,
-                         slopes: tuple[float, ...] | None = None) -> tuple[I32, F64, dict[str, float]]:
+                         slopes: tuple[float, ...] | None = None,
+                         memo: CoopMemo | None = None) -> tuple[I32, F64, dict[str, float]]:
     """Cooperative optimisation of the plane labels (thesis §6.2, Eqs. 6.18-6.25).
 
     Parameters
@@ -945,6 +1012,8 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
         Segments allowed to change their plane (default: all).
     slopes : tuple of float, optional
         Vertical slopes of the volumes of a 4-D ``cost``.
+    memo : CoopMemo, optional
+        Data terms remembered across the caller's calls (the same result, less work).
 
     Returns
     -------
@@ -976,7 +1045,7 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
     common = (index.order, index.starts, index.shape[1], fc, int(min_disp), rel, graph.pairs, graph.bstart,
               graph.bp_lo, graph.bp_hi, graph.bw)
     # remembered data terms of (segment, plane) and the z-buffer they were computed under
-    cache = _new_cache(index, k)
+    cache = _take_cache(memo, index, cost, reliable, prm, int(min_disp), pl)
     e0 = _energy_cached(a, pl, *common, prm, *cache)
     e_cur = e0
     sweeps = 0
@@ -1010,6 +1079,8 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
         e_cur = e_new
         refined += n
     planes_out = pl[:n_used]
+    if memo is not None:
+        memo.keep(index, cost, reliable, prm, int(min_disp), pl, cache)
     log.debug("cooperative optimisation: E %.1f -> %.1f in %d sweeps (%d changes)", e0, e_cur, sweeps, changes)
     return a, planes_out, {"energy_before": float(e0), "energy_after": float(e_cur), "sweeps": float(sweeps),
                            "changes": float(changes), "refined": float(refined)}
@@ -1130,7 +1201,7 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
 def expand_planes(assign: npt.NDArray[np.integer], planes: F64, index: SegmentIndex, graph: SegmentGraph,
                   cost: F32, reliable: npt.NDArray[np.bool_], candidates: npt.NDArray[np.integer], *,
                   min_disp: int = 0, params: CoopParams | None = None, slopes: tuple[float, ...] | None = None,
-                  max_region: int = 400) -> tuple[I32, dict[str, float]]:
+                  max_region: int = 400, memo: CoopMemo | None = None) -> tuple[I32, dict[str, float]]:
     """Group moves of candidate planes over connected regions of segments (an addition to §6.2).
 
     The cooperative scheme moves one segment at a time, so a surface split into many segments that all sit
@@ -1147,6 +1218,8 @@ def expand_planes(assign: npt.NDArray[np.integer], planes: F64, index: SegmentIn
         Candidate plane indices per segment (-1 = none).
     max_region : int, keyword-only
         Largest region (segments) of one move.
+    memo : CoopMemo, optional
+        As :func:`cooperative_optimize`.
 
     Returns
     -------
@@ -1163,11 +1236,15 @@ def expand_planes(assign: npt.NDArray[np.integer], planes: F64, index: SegmentIn
     labs, segs = labs[order], segs[order]
     uniq, first = np.unique(labs, return_index=True)
     seed_start = np.append(first, labs.size).astype(np.int64)
-    n = _expand(a, np.asarray(planes, np.float64), uniq.astype(np.int64), seed_start, segs.astype(np.int64),
-                index.order, index.starts, index.shape[1], _flat_cost(cost, slopes), int(min_disp),
-                np.asarray(reliable, np.bool_).ravel(), graph.pairs, graph.bstart, graph.bp_lo, graph.bp_hi,
-                graph.bw, graph.nstart, graph.nbr, graph.nedge, _prm(p, slopes), int(max_region),
-                *_new_cache(index, a.size))
+    pl = np.asarray(planes, np.float64)
+    prm = _prm(p, slopes)
+    cache = _take_cache(memo, index, cost, reliable, prm, int(min_disp), pl)
+    n = _expand(a, pl, uniq.astype(np.int64), seed_start, segs.astype(np.int64), index.order, index.starts,
+                index.shape[1], _flat_cost(cost, slopes), int(min_disp), np.asarray(reliable, np.bool_).ravel(),
+                graph.pairs, graph.bstart, graph.bp_lo, graph.bp_hi, graph.bw, graph.nstart, graph.nbr,
+                graph.nedge, prm, int(max_region), *cache)
+    if memo is not None:
+        memo.keep(index, cost, reliable, prm, int(min_disp), pl, cache)
     return a, {"group_moves": float(n)}
 
 
