@@ -324,6 +324,27 @@ def _add_smoothness(e: float, assign: I32, planes: F64, pairs: I32, bstart: I64,
 
 
 @njit(cache=True)
+def _add_smoothness_cached(e: float, assign: I32, planes: F64, pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64,
+                           bw: F64, w: int, gamma: float, thr: float, elab: I64, es: F64) -> float:
+    """:func:`_add_smoothness` with each boundary's term remembered for the planes it was last computed for
+    (``elab[e]``, ``es[e]``): the same terms, added in the same order."""
+    for ed in range(pairs.shape[0]):
+        lo = pairs[ed, 0]
+        hi = pairs[ed, 1]
+        if assign[lo] != assign[hi]:
+            if elab[ed, 0] == assign[lo] and elab[ed, 1] == assign[hi]:
+                sm = es[ed]
+            else:
+                sm = _smooth(lo, hi, ed, planes[assign[lo]], planes[assign[hi]], pairs, bstart, bp_lo, bp_hi, bw,
+                             w, thr)
+                elab[ed, 0] = assign[lo]
+                elab[ed, 1] = assign[hi]
+                es[ed] = sm
+            e += 2.0 * gamma * sm
+    return e
+
+
+@njit(cache=True)
 def _energy(assign: I32, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
             reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
             prm: F64) -> float:
@@ -534,8 +555,9 @@ def _energy_cached(assign: I32, planes: F64, order: I64, starts: I64, w: int, co
                    reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
                    prm: F64, zc1: F64, oc1: I64, zc2: F64, zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64,
                    clab: I64, cval: F64, cn: I64, clean: npt.NDArray[np.bool_], afor: I32, rstart: I64, rp: I64,
-                   rseg: I64, sstart: I64, srun: I64) -> float:
-    """:func:`_energy` with the data terms remembered across calls (the same value)."""
+                   rseg: I64, sstart: I64, srun: I64, elab: I64, es: F64) -> float:
+    """:func:`_energy` with the data terms (and, with ``es`` of one entry per boundary, the smoothness terms)
+    remembered across calls (the same value)."""
     k = starts.size - 1
     h = cost.shape[1] // w
     z1, o1, z2 = _zbuffer_cached(assign, planes, h, w, zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval, cn, clean,
@@ -551,6 +573,8 @@ def _energy_cached(assign: I32, planes: F64, order: I64, starts: I64, w: int, co
     e = 0.0
     for j in range(k):
         e += dj[j]
+    if es.size == pairs.shape[0]:
+        return _add_smoothness_cached(e, assign, planes, pairs, bstart, bp_lo, bp_hi, bw, w, gamma, thr, elab, es)
     return _add_smoothness(e, assign, planes, pairs, bstart, bp_lo, bp_hi, bw, w, gamma, thr)
 
 
@@ -614,7 +638,7 @@ def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost:
            nstart: I64, nbr: I64, nedge: I64, prm: F64, active: npt.NDArray[np.bool_], zc1: F64, oc1: I64,
            zc2: F64, zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64, clab: I64, cval: F64, cn: I64,
            clean: npt.NDArray[np.bool_], afor: I32, rstart: I64, rp: I64, rseg: I64, sstart: I64,
-           srun: I64) -> int:
+           srun: I64, elab: I64, es: F64) -> int:
     """One cooperative sweep over the active segments (Eq. 6.19), in place; returns the number of changes.
     The data terms are remembered across sweeps (:func:`_data_cached`).
 
@@ -847,7 +871,8 @@ def _new_cache(index: SegmentIndex, k: int) -> tuple[Any, ...]:
     """Empty remembered data terms for :func:`_sweep` / :func:`_energy_cached` / :func:`_expand`: the z-buffer
     they hold (z1, o1, z2, valid, the assignment it is of), the segments' boxes, per segment up to ``_CACHE``
     (plane, value), the segments whose last sweep decision still holds (clean, the assignment it is of), and
-    the image's pixels by row (:func:`_zbuffer_rows`) and each segment's by row (:func:`_vis_flips`)."""
+    the image's pixels by row (:func:`_zbuffer_rows`) and each segment's by row (:func:`_vis_flips`); no
+    remembered smoothness terms (:func:`_take_cache` adds them for a graph)."""
     h, w = int(index.shape[0]), int(index.shape[1])
     npx = h * w
     order = np.asarray(index.order, np.int64)
@@ -871,7 +896,7 @@ def _new_cache(index: SegmentIndex, k: int) -> tuple[Any, ...]:
     return (np.empty(npx), np.empty(npx, np.int64), np.empty(npx), np.zeros(1, np.bool_), np.empty(k, np.int32),
             _segment_bbox(index.order, index.starts, index.shape[1]), np.empty((k, _CACHE), np.int64),
             np.empty((k, _CACHE)), np.zeros(k, np.int64), np.zeros(k, np.bool_), np.empty(k, np.int32), rstart,
-            order[by_row], seg[by_row], sstart, srun)
+            order[by_row], seg[by_row], sstart, srun, np.zeros((0, 2), np.int64), np.zeros(0))
 
 
 @njit(cache=True)
@@ -933,11 +958,16 @@ class CoopMemo:
 _DATA_PRM = np.array([2, 3, 4, 7, 8, 9, 11])  # the entries of _prm that the data term reads (and the slopes)
 
 
-def _take_cache(memo: CoopMemo | None, index: SegmentIndex, cost: F32, reliable: npt.NDArray[np.bool_],
-                prm: F64, min_disp: int, planes: F64) -> tuple[Any, ...]:
+def _take_cache(memo: CoopMemo | None, index: SegmentIndex, graph: SegmentGraph, cost: F32,
+                reliable: npt.NDArray[np.bool_], prm: F64, min_disp: int, planes: F64) -> tuple[Any, ...]:
+    """The memo's cache or a new one, with an empty store of the smoothness terms of ``graph``'s boundaries
+    (kept for one call only)."""
     if memo is None:
-        return _new_cache(index, int(index.starts.size - 1))
-    return memo.take(index, cost, reliable, prm, min_disp, planes)
+        cache = _new_cache(index, int(index.starts.size - 1))
+    else:
+        cache = memo.take(index, cost, reliable, prm, min_disp, planes)
+    npairs = int(graph.pairs.shape[0])
+    return (*cache[:-2], np.full((npairs, 2), -1, np.int64), np.empty(npairs))
 
 
 def _flat_cost(cost: F32, slopes: tuple[float, ...] | None) -> F32:
@@ -1045,7 +1075,7 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
     common = (index.order, index.starts, index.shape[1], fc, int(min_disp), rel, graph.pairs, graph.bstart,
               graph.bp_lo, graph.bp_hi, graph.bw)
     # remembered data terms of (segment, plane) and the z-buffer they were computed under
-    cache = _take_cache(memo, index, cost, reliable, prm, int(min_disp), pl)
+    cache = _take_cache(memo, index, graph, cost, reliable, prm, int(min_disp), pl)
     e0 = _energy_cached(a, pl, *common, prm, *cache)
     e_cur = e0
     sweeps = 0
@@ -1071,6 +1101,7 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
         n_used, n = _refine_pass(a, pl, n_used, *common, graph.nstart, graph.nbr, graph.nedge, prm,
                                  int(p.powell_cycles), int(p.refine_min_size))
         cache[3][0] = False  # the refined planes were appended where rejected ones may have been
+        cache[-2][:] = -1
         e_new = _energy(a, pl, *common, prm)
         if n == 0 or e_new > e_cur:
             a = prev
@@ -1092,7 +1123,7 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
             bp_hi: I64, bw: F64, nstart: I64, nbr: I64, nedge: I64, prm: F64, max_region: int, zc1: F64,
             oc1: I64, zc2: F64, zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64, clab: I64, cval: F64,
             cn: I64, clean: npt.NDArray[np.bool_], afor: I32, rstart: I64, rp: I64, rseg: I64, sstart: I64,
-            srun: I64) -> int:
+            srun: I64, elab: I64, es: F64) -> int:
     """Group moves, in place: for each candidate plane, the connected region of segments grown from its seeds
     through segments whose data term it does not raise moves to it at once when that lowers E (Eq. 6.18).
     Data terms are remembered (:func:`_data_cached`); the cache always holds the z-buffer ``z1, o1, z2``
@@ -1107,7 +1138,8 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
     dnew = np.empty(k, np.float64)
     dold = np.empty(k, np.float64)
     prev = np.empty(k, np.int32)
-    cache = (zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval, cn, clean, afor, rstart, rp, rseg, sstart, srun)
+    cache = (zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval, cn, clean, afor, rstart, rp, rseg, sstart, srun, elab,
+             es)
     e_cur = _energy_cached(a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo, bp_hi, bw,
                            prm, *cache)
     # the z-buffer of the kept assignment: the cache's (it holds the last one computed)
@@ -1238,7 +1270,7 @@ def expand_planes(assign: npt.NDArray[np.integer], planes: F64, index: SegmentIn
     seed_start = np.append(first, labs.size).astype(np.int64)
     pl = np.asarray(planes, np.float64)
     prm = _prm(p, slopes)
-    cache = _take_cache(memo, index, cost, reliable, prm, int(min_disp), pl)
+    cache = _take_cache(memo, index, graph, cost, reliable, prm, int(min_disp), pl)
     n = _expand(a, pl, uniq.astype(np.int64), seed_start, segs.astype(np.int64), index.order, index.starts,
                 index.shape[1], _flat_cost(cost, slopes), int(min_disp), np.asarray(reliable, np.bool_).ravel(),
                 graph.pairs, graph.bstart, graph.bp_lo, graph.bp_hi, graph.bw, graph.nstart, graph.nbr,
