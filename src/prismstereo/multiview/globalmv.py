@@ -59,6 +59,7 @@ from numba import njit
 
 from prismstereo.errors import ConfigError
 from prismstereo.matching.coop.cooperative import (
+    CoopMemo,
     CoopParams,
     build_segment_graph,
     cooperative_optimize,
@@ -554,12 +555,13 @@ class _ViewsEvidence:
         self.max_disp, self.fb, self.fused0, self.disps, self.rels = max_disp, fb, fused0, disps, rels
         self.bpasw_term, self.row_radius, self.p, self.occ = bpasw_term, row_radius, params, occlusion
         self.reliable = np.ones(ref.shape[:2], bool)
+        self.memo = CoopMemo()
 
     def optimise(self, s: PlaneLabels, assign: I32, planes: F64, own: npt.NDArray[np.int64], *,
                  neighbour_own_planes: bool = False) -> tuple[I32, F64, dict[str, float]]:
         prm = replace(self.coop, neighbour_own_planes=True) if neighbour_own_planes else self.coop
         out = cooperative_optimize(assign, planes, s.index, s.graph, self.data, self.reliable, own=own,
-                                   min_disp=0, params=prm)
+                                   min_disp=0, params=prm, memo=self.memo)
         # (assign, info), or (assign, extended planes, info) when the optimiser refines planes continuously
         if len(out) == 3:
             return out[0], out[1], out[2]

@@ -323,3 +323,59 @@ def test_neighbour_plane_candidates_lists_the_planes_across_boundaries() -> None
     cands = neighbour_plane_candidates(graph, np.array([0, 0, 1, 2, 2]))
     got = [sorted(int(c) for c in row if c >= 0) for row in cands]
     assert got == [[], [1], [0, 2], [1], []]
+
+
+def test_memo_across_calls_gives_the_results_of_fresh_calls() -> None:
+    """A memo carries data terms from call to call: with planes appended, a plane changed in place, a group
+    move, a new cost volume and a new mask in between, every call returns what it returns without one."""
+    from prismstereo.matching.coop.cooperative import CoopMemo, expand_planes, neighbour_plane_candidates
+
+    idx, pset, rel, graph, cost = _optimisation_inputs(6)
+    rng = np.random.default_rng(7)
+    k = idx.n_segments
+    a0 = rng.integers(0, len(pset), size=k).astype(np.int32)
+    own = np.stack([rng.integers(0, len(pset), size=k), np.full(k, -1)], axis=1).astype(np.int64)
+    more = np.vstack([pset, pset[rng.integers(0, len(pset), size=8)] + [0.0, 0.0, 1.0]])
+    cost2 = cost.copy()
+    cost2[:, : cost.shape[1] // 2] *= 1.5  # a new volume (another object) with other costs
+    rel2 = rel.copy()
+    rel2[::3] = ~rel2[::3]
+
+    def check_remembered(memo: CoopMemo, a: np.ndarray, planes: np.ndarray, c: np.ndarray, r: np.ndarray) -> int:
+        # every data term the memo holds is the one computed afresh now (the z-buffer of ``a``)
+        from prismstereo.matching.coop import cooperative as co
+
+        cache = memo.take(idx, c, r, co._prm(CoopParams()), 0, planes)
+        clab, cval, cn = cache[6], cache[7], cache[8]
+        z = co._zbuffer(a, planes, idx.order, idx.starts, *idx.shape)
+        for j in range(k):
+            for t in range(cn[j]):
+                fresh = co._data(j, planes[clab[j, t]], idx.order, idx.starts, idx.shape[1], co._flat_cost(c, None),
+                                 0, r.ravel(), co._prm(CoopParams()), *z)
+                assert cval[j, t] == fresh
+        memo.keep(idx, c, r, co._prm(CoopParams()), 0, planes, cache)
+        return int(cn.sum())
+
+    def run(memo: CoopMemo | None) -> list[np.ndarray]:
+        out = []
+        a = a0
+        for planes, c, r in ((pset, cost, rel), (more, cost, rel), (None, cost, rel), (None, cost2, rel),
+                             (None, cost2, rel2)):
+            if planes is None:
+                # the same indices, other planes: candidates (remembered) that no segment holds
+                planes = more.copy()
+                planes[np.setdiff1d(own[:, 0], a)[:10], 2] += 2.0
+            if memo is not None:
+                checked.append(check_remembered(memo, a, planes, c, r))
+            a, _, info = cooperative_optimize(a, planes, idx, graph, c, r, own=own, memo=memo)
+            out += [a, np.array([info["energy_after"], info["sweeps"]])]
+            a, ginfo = expand_planes(a, planes, idx, graph, c, r, neighbour_plane_candidates(graph, a), memo=memo)
+            out += [a, np.array([ginfo["group_moves"]])]
+        return out
+
+    checked: list[int] = []
+    fresh, remembered = run(None), run(CoopMemo())
+    assert min(checked[1:3]) > 0  # data terms were carried over to the calls with the same volume
+    assert len(fresh) == len(remembered)
+    for x, y in zip(fresh, remembered, strict=True):
+        np.testing.assert_array_equal(x, y)

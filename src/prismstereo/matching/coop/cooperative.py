@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -34,7 +35,7 @@ from prismstereo.matching.segments.planes import SegmentIndex
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CoopParams", "SegmentGraph", "build_segment_graph", "cooperative_optimize", "expand_planes",
+__all__ = ["CoopMemo", "CoopParams", "SegmentGraph", "build_segment_graph", "cooperative_optimize", "expand_planes",
            "neighbour_plane_candidates", "total_energy"]
 
 F32 = npt.NDArray[np.float32]
@@ -323,6 +324,27 @@ def _add_smoothness(e: float, assign: I32, planes: F64, pairs: I32, bstart: I64,
 
 
 @njit(cache=True)
+def _add_smoothness_cached(e: float, assign: I32, planes: F64, pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64,
+                           bw: F64, w: int, gamma: float, thr: float, elab: I64, es: F64) -> float:
+    """:func:`_add_smoothness` with each boundary's term remembered for the planes it was last computed for
+    (``elab[e]``, ``es[e]``): the same terms, added in the same order."""
+    for ed in range(pairs.shape[0]):
+        lo = pairs[ed, 0]
+        hi = pairs[ed, 1]
+        if assign[lo] != assign[hi]:
+            if elab[ed, 0] == assign[lo] and elab[ed, 1] == assign[hi]:
+                sm = es[ed]
+            else:
+                sm = _smooth(lo, hi, ed, planes[assign[lo]], planes[assign[hi]], pairs, bstart, bp_lo, bp_hi, bw,
+                             w, thr)
+                elab[ed, 0] = assign[lo]
+                elab[ed, 1] = assign[hi]
+                es[ed] = sm
+            e += 2.0 * gamma * sm
+    return e
+
+
+@njit(cache=True)
 def _energy(assign: I32, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
             reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
             prm: F64) -> float:
@@ -341,80 +363,174 @@ _CACHE = 64  # data terms remembered per segment (its candidates of the last swe
 
 
 @njit(cache=True)
-def _cache_refresh(z1: F64, o1: I64, z2: F64, zc1: F64, oc1: I64, zc2: F64, zvalid: npt.NDArray[np.bool_],
-                   bbox: I64, planes: F64, clab: I64, cval: F64, cn: I64, w: int) -> None:
-    """Drops the remembered data terms (Eqs. 6.21-6.22) that the new right-view z-buffer may change.
+def _vis_flips(j: int, pl: F64, order: I64, sstart: I64, srun: I64, w: int, nd: int, min_disp: int, margin: float,
+               chg: npt.NDArray[np.bool_], pre: I64, rcnt: I64, z1: F64, o1: I64, z2: F64, zc1: F64, oc1: I64,
+               zc2: F64) -> bool:
+    """Whether the visibility test of :func:`_data` (segment ``j``, plane ``pl``) gives another answer for some
+    pixel under the new z-buffer ``z1, o1, z2`` than under the old ``zc1, oc1, zc2``. ``chg`` flags the
+    right-view pixels where they differ, ``pre[y]`` counts them along row ``y`` and ``rcnt`` over the rows
+    above (:func:`_cache_refresh`); the segment's pixels are the runs ``order[srun[r, 1]:srun[r + 1, 1]]``
+    for ``r`` in ``sstart[j]:sstart[j + 1]``, each in row ``srun[r, 0]`` and columns ``srun[r, 2]..srun[r, 3]``.
+    The same arithmetic as :func:`_data`, so that no answer means the same sum."""
+    a, b, c = pl[0], pl[1], pl[2]
+    for r in range(sstart[j], sstart[j + 1]):
+        y = srun[r, 0]
+        if rcnt[y + 1] == rcnt[y]:
+            continue
+        t0 = srun[r, 1]
+        t1 = srun[r + 1, 1]
+        # the right-view columns the row's pixels map to, with one pixel of slack for the rounding of the
+        # per-pixel evaluation (x - d is linear in x): no changed pixel there, no changed answer
+        xa = srun[r, 2]
+        xb = srun[r, 3]
+        va = xa - (a * xa + b * y + c)
+        vb = xb - (a * xb + b * y + c)
+        if np.isfinite(va) and np.isfinite(vb):
+            c0 = max(int(np.floor(min(va, vb) + 0.5)) - 1, 0)
+            c1 = min(int(np.floor(max(va, vb) + 0.5)) + 1, w - 1)
+            if c0 > c1 or pre[y, c1 + 1] == pre[y, c0]:
+                continue
+        for t in range(t0, t1):
+            x = order[t] - y * w
+            d = a * x + b * y + c
+            k = d - min_disp
+            if k < -0.5 or k > nd - 0.5:
+                continue
+            if x - d < -0.5:
+                continue
+            xr = int(np.floor(x - d + 0.5))
+            if 0 <= xr < w:
+                q = y * w + xr
+                if chg[q]:
+                    zn = z1[q] if o1[q] != j else z2[q]
+                    zo = zc1[q] if oc1[q] != j else zc2[q]
+                    if (zn > d + margin) != (zo > d + margin):
+                        return True
+    return False
 
-    An entry of segment ``j`` under plane ``l`` reads the z-buffer only on the right-view pixels its
-    bounding box maps to under ``l``; it is kept when none of them changed, so a remembered value is always
-    the one :func:`_data` would return now."""
+
+@njit(cache=True, parallel=True)
+def _zbuffer_rows(a: I32, planes: F64, rstart: I64, rp: I64, rseg: I64, w: int, rows: npt.NDArray[np.bool_],
+                  z1: F64, o1: I64, z2: F64) -> None:
+    """:func:`_zbuffer` of ``a`` on the right-view rows flagged in ``rows``, written into ``z1, o1, z2`` (other
+    rows untouched). A right-view pixel is reached only from its own row, and each row's pixels are taken in
+    the order :func:`_zbuffer` takes them (``rstart, rp, rseg``: the pixels of row ``y`` and their segments are
+    ``rp[rstart[y]:rstart[y + 1]]``, ``rseg[...]``), so the rows are the same as :func:`_zbuffer`'s."""
+    for y in prange(rows.size):
+        if not rows[y]:
+            continue
+        for q in range(y * w, (y + 1) * w):
+            z1[q] = -1e9
+            z2[q] = -1e9
+            o1[q] = -1
+        for t in range(rstart[y], rstart[y + 1]):
+            j = rseg[t]
+            x = rp[t] - y * w
+            pl = planes[a[j]]
+            d = pl[0] * x + pl[1] * y + pl[2]
+            xr = int(np.floor(x - d + 0.5))
+            if xr < 0 or xr >= w:
+                continue
+            q = y * w + xr
+            if o1[q] == j:
+                if d > z1[q]:
+                    z1[q] = d
+            elif d > z1[q]:
+                z2[q] = z1[q]
+                z1[q] = d
+                o1[q] = j
+            elif d > z2[q]:
+                z2[q] = d
+
+
+@njit(cache=True, parallel=True)
+def _cache_refresh(z1: F64, o1: I64, z2: F64, rows: npt.NDArray[np.bool_], zc1: F64, oc1: I64, zc2: F64,
+                   zvalid: npt.NDArray[np.bool_], bbox: I64, planes: F64, clab: I64, cval: F64, cn: I64,
+                   clean: npt.NDArray[np.bool_], w: int, order: I64, sstart: I64, srun: I64, nd: int,
+                   min_disp: int, prm: F64) -> None:
+    """Moves the cache to the right-view z-buffer ``z1, o1, z2`` (which differs from the cache's at most on the
+    flagged ``rows``, and is read only there) and drops the remembered data terms (Eqs. 6.21-6.22) it changes.
+
+    An entry of segment ``j`` under plane ``l`` is dropped when the visibility test of one of its pixels gives
+    another answer under the new z-buffer (:func:`_vis_flips`); otherwise every pixel contributes what it did,
+    in the same order, so a remembered value is always the one :func:`_data` would return now. A segment that
+    loses an entry is no longer ``clean`` (:func:`_sweep`)."""
     n = z1.size
     h = n // w
     k = cn.size
     if not zvalid[0]:
         cn[:] = 0
-    else:
-        ii = np.zeros((h + 1, w + 1), np.int64)  # integral image of the changed right-view pixels
-        anyc = False
-        for y in range(h):
+        clean[:] = False
+    elif prm[8] > 0.5:  # without the visibility test no data term reads the z-buffer
+        margin = prm[7]
+        chg = np.zeros(n, np.bool_)
+        # per row, the running count of the changed right-view pixels (rows with none are not filled)
+        pre = np.empty((h, w + 1), np.int64)
+        rcnt = np.zeros(h + 1, np.int64)  # changed pixels in the rows above y
+        for y in prange(h):
+            if not rows[y]:
+                continue
             run = 0
+            pre[y, 0] = 0
             for x in range(w):
                 q = y * w + x
                 if z1[q] != zc1[q] or o1[q] != oc1[q] or z2[q] != zc2[q]:
                     run += 1
-                    anyc = True
-                ii[y + 1, x + 1] = ii[y, x + 1] + run
-        if anyc:
-            for j in range(k):
-                y0 = bbox[j, 2]
-                y1 = bbox[j, 3]
+                    chg[q] = True
+                pre[y, x + 1] = run
+            rcnt[y + 1] = run
+        for y in range(h):
+            rcnt[y + 1] += rcnt[y]
+        if rcnt[h] > 0:
+            for j in prange(k):
+                if rcnt[bbox[j, 3] + 1] == rcnt[bbox[j, 2]]:
+                    continue
                 t = 0
                 while t < cn[j]:
-                    pl = planes[clab[j, t]]
-                    lo = 1e300
-                    hi = -1e300
-                    for xx in (bbox[j, 0], bbox[j, 1]):
-                        for yy in (y0, y1):
-                            v = xx - (pl[0] * xx + pl[1] * yy + pl[2])
-                            lo = min(lo, v)
-                            hi = max(hi, v)
-                    # one pixel of slack for the rounding of the per-pixel evaluation
-                    c0 = max(int(np.floor(lo + 0.5)) - 1, 0) if lo > -1e18 else 0
-                    c1 = min(int(np.floor(hi + 0.5)) + 1, w - 1) if hi < 1e18 else w - 1
-                    hit = False
-                    if c0 <= c1:
-                        hit = (ii[y1 + 1, c1 + 1] - ii[y0, c1 + 1] - ii[y1 + 1, c0] + ii[y0, c0]) > 0
-                    if hit or not (np.isfinite(lo) and np.isfinite(hi)):
+                    if _vis_flips(j, planes[clab[j, t]], order, sstart, srun, w, nd, min_disp, margin, chg, pre,
+                                  rcnt, z1, o1, z2, zc1, oc1, zc2):
                         cn[j] -= 1
                         clab[j, t] = clab[j, cn[j]]
                         cval[j, t] = cval[j, cn[j]]
+                        clean[j] = False
                     else:
                         t += 1
-    zc1[:] = z1
-    oc1[:] = o1
-    zc2[:] = z2
+    for y in prange(h):
+        if rows[y] or not zvalid[0]:
+            for q in range(y * w, (y + 1) * w):
+                zc1[q] = z1[q]
+                oc1[q] = o1[q]
+                zc2[q] = z2[q]
     zvalid[0] = True
 
 
 @njit(cache=True)
-def _zbuffer_cached(a: I32, planes: F64, order: I64, starts: I64, h: int, w: int, zc1: F64, oc1: I64, zc2: F64,
-                    zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64, clab: I64, cval: F64,
-                    cn: I64) -> tuple[F64, I64, F64]:
-    """:func:`_zbuffer` of ``a`` with the remembered data terms refreshed to it (:func:`_cache_refresh`); the
-    cache's own z-buffer when it was computed for this assignment (``zfor``), which the caller must not keep
-    past the next refresh."""
+def _zbuffer_cached(a: I32, planes: F64, h: int, w: int, zc1: F64, oc1: I64, zc2: F64,
+                    zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64, clab: I64, cval: F64, cn: I64,
+                    clean: npt.NDArray[np.bool_], rstart: I64, rp: I64, rseg: I64, sstart: I64, srun: I64,
+                    order: I64, nd: int, min_disp: int, prm: F64) -> tuple[F64, I64, F64]:
+    """:func:`_zbuffer` of ``a``, the cache's own, with the remembered data terms refreshed to it
+    (:func:`_cache_refresh`): only the rows of the segments whose plane changed since it was computed for
+    ``zfor`` are computed again. The caller must not keep it past the next refresh."""
+    rows = np.zeros(h, np.bool_)
     if zvalid[0]:
         same = True
         for j in range(a.size):
             if a[j] != zfor[j]:
                 same = False
-                break
+                rows[bbox[j, 2]:bbox[j, 3] + 1] = True
         if same:
             return zc1, oc1, zc2
-    z1, o1, z2 = _zbuffer(a, planes, order, starts, h, w)
-    _cache_refresh(z1, o1, z2, zc1, oc1, zc2, zvalid, bbox, planes, clab, cval, cn, w)
+    else:
+        rows[:] = True
+    z1 = np.empty(h * w)
+    o1 = np.empty(h * w, np.int64)
+    z2 = np.empty(h * w)
+    _zbuffer_rows(a, planes, rstart, rp, rseg, w, rows, z1, o1, z2)
+    _cache_refresh(z1, o1, z2, rows, zc1, oc1, zc2, zvalid, bbox, planes, clab, cval, cn, clean, w, order, sstart,
+                   srun, nd, min_disp, prm)
     zfor[:] = a
-    return z1, o1, z2
+    return zc1, oc1, zc2
 
 
 @njit(cache=True)
@@ -438,12 +554,14 @@ def _data_cached(j: int, lab: int, planes: F64, order: I64, starts: I64, w: int,
 def _energy_cached(assign: I32, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
                    reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
                    prm: F64, zc1: F64, oc1: I64, zc2: F64, zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64,
-                   clab: I64, cval: F64, cn: I64) -> float:
-    """:func:`_energy` with the data terms remembered across calls (the same value)."""
+                   clab: I64, cval: F64, cn: I64, clean: npt.NDArray[np.bool_], afor: I32, rstart: I64, rp: I64,
+                   rseg: I64, sstart: I64, srun: I64, elab: I64, es: F64) -> float:
+    """:func:`_energy` with the data terms (and, with ``es`` of one entry per boundary, the smoothness terms)
+    remembered across calls (the same value)."""
     k = starts.size - 1
     h = cost.shape[1] // w
-    z1, o1, z2 = _zbuffer_cached(assign, planes, order, starts, h, w, zc1, oc1, zc2, zvalid, zfor, bbox, clab,
-                                 cval, cn)
+    z1, o1, z2 = _zbuffer_cached(assign, planes, h, w, zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval, cn, clean,
+                                 rstart, rp, rseg, sstart, srun, order, cost.shape[2], min_disp, prm)
     gamma = prm[5]
     thr = prm[6]
     # the data terms in parallel (each segment's cache rows are written by one thread), summed in order: the
@@ -455,6 +573,8 @@ def _energy_cached(assign: I32, planes: F64, order: I64, starts: I64, w: int, co
     e = 0.0
     for j in range(k):
         e += dj[j]
+    if es.size == pairs.shape[0]:
+        return _add_smoothness_cached(e, assign, planes, pairs, bstart, bp_lo, bp_hi, bw, w, gamma, thr, elab, es)
     return _add_smoothness(e, assign, planes, pairs, bstart, bp_lo, bp_hi, bw, w, gamma, thr)
 
 
@@ -516,17 +636,29 @@ def _candidates(j: int, a: I32, own: I64, nstart: I64, nbr: I64, prm: F64, cand:
 def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
            reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
            nstart: I64, nbr: I64, nedge: I64, prm: F64, active: npt.NDArray[np.bool_], zc1: F64, oc1: I64,
-           zc2: F64, zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64, clab: I64, cval: F64, cn: I64) -> int:
+           zc2: F64, zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64, clab: I64, cval: F64, cn: I64,
+           clean: npt.NDArray[np.bool_], afor: I32, rstart: I64, rp: I64, rseg: I64, sstart: I64,
+           srun: I64, elab: I64, es: F64) -> int:
     """One cooperative sweep over the active segments (Eq. 6.19), in place; returns the number of changes.
-    The data terms are remembered across sweeps (:func:`_data_cached`)."""
+    The data terms are remembered across sweeps (:func:`_data_cached`).
+
+    A segment's decision depends only on its plane, its neighbours' planes at its turn and its candidates' data
+    terms; a segment that kept its plane at its last turn is ``clean`` until one of them changes (a neighbour
+    moves, a remembered data term is dropped), and its turn is skipped: it would keep its plane again."""
     k = starts.size - 1
     h = cost.shape[1] // w
     kappa = prm[0]
     mu = prm[1]
     gamma = prm[5]
     thr = prm[6]
-    z1, o1, z2 = _zbuffer_cached(a, planes, order, starts, h, w, zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval,
-                                 cn)
+    z1, o1, z2 = _zbuffer_cached(a, planes, h, w, zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval, cn, clean, rstart,
+                                 rp, rseg, sstart, srun, order, cost.shape[2], min_disp, prm)
+    # a segment or a neighbour moved outside the sweeps (an undone sweep, a group move): decide again
+    for j in range(k):
+        if a[j] != afor[j]:
+            clean[j] = False
+            for t in range(nstart[j], nstart[j + 1]):
+                clean[nbr[t]] = False
     # the data terms of the candidates at the sweep's start, and their smoothness terms towards each neighbour's
     # plane at the start, in parallel (each segment's rows are written by one thread); the serial sweep below
     # reads them, and computes what its own changes made new: a new candidate, a neighbour that moved
@@ -534,7 +666,7 @@ def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost:
     plab = np.full((k, 64), -1, np.int64)
     psm = np.empty(64 * nstart[k])
     for j in prange(k):
-        if not active[j]:
+        if not active[j] or clean[j]:
             continue
         cj = np.empty(64, np.int64)
         ncj = _candidates(j, a, own, nstart, nbr, prm, cj)
@@ -553,10 +685,11 @@ def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost:
     cand = np.empty(64, np.int64)
     changes = 0
     for j in range(k):
-        if not active[j]:
+        if not active[j] or clean[j]:
             continue
         nc = _candidates(j, a, own, nstart, nbr, prm, cand)
         if nc == 1:
+            clean[j] = True
             continue
         cur_e = 0.0
         best_f = 0.0
@@ -596,6 +729,11 @@ def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost:
         if best != a[j]:
             a[j] = best
             changes += 1
+            for t in range(nstart[j], nstart[j + 1]):
+                clean[nbr[t]] = False
+        else:
+            clean[j] = True
+    afor[:] = a
     return changes
 
 
@@ -729,15 +867,107 @@ def _refine_pass(a: I32, planes: F64, n_used: int, order: I64, starts: I64, w: i
     return n_used, changed
 
 
-def _new_cache(index: SegmentIndex, k: int
-               ) -> tuple[F64, I64, F64, npt.NDArray[np.bool_], I32, I64, I64, F64, I64]:
+def _new_cache(index: SegmentIndex, k: int) -> tuple[Any, ...]:
     """Empty remembered data terms for :func:`_sweep` / :func:`_energy_cached` / :func:`_expand`: the z-buffer
-    they hold (z1, o1, z2, valid, the assignment it is of), the segments' boxes, and per segment up to
-    ``_CACHE`` (plane, value)."""
-    npx = int(index.shape[0]) * int(index.shape[1])
+    they hold (z1, o1, z2, valid, the assignment it is of), the segments' boxes, per segment up to ``_CACHE``
+    (plane, value), the segments whose last sweep decision still holds (clean, the assignment it is of), and
+    the image's pixels by row (:func:`_zbuffer_rows`) and each segment's by row (:func:`_vis_flips`); no
+    remembered smoothness terms (:func:`_take_cache` adds them for a graph)."""
+    h, w = int(index.shape[0]), int(index.shape[1])
+    npx = h * w
+    order = np.asarray(index.order, np.int64)
+    seg = np.repeat(np.arange(k, dtype=np.int64), np.diff(index.starts))
+    by_row = np.argsort(order // w, kind="stable")  # within a row, in the order of ``order``
+    rstart = np.zeros(h + 1, np.int64)
+    np.cumsum(np.bincount(order // w, minlength=h), out=rstart[1:])
+    # each segment's runs of pixels of one row (one run per row when its pixels are in raster order)
+    y = order // w
+    new = np.ones(order.size, bool)
+    new[1:] = (y[1:] != y[:-1]) | (seg[1:] != seg[:-1])
+    first = np.flatnonzero(new)
+    srun = np.zeros((first.size + 1, 4), np.int64)
+    srun[:-1, 0] = y[first]
+    srun[:-1, 1] = first
+    if first.size:
+        srun[:-1, 2] = np.minimum.reduceat(order - y * w, first)
+        srun[:-1, 3] = np.maximum.reduceat(order - y * w, first)
+    srun[-1, 1] = order.size
+    sstart = np.searchsorted(first, np.asarray(index.starts, np.int64)).astype(np.int64)
     return (np.empty(npx), np.empty(npx, np.int64), np.empty(npx), np.zeros(1, np.bool_), np.empty(k, np.int32),
             _segment_bbox(index.order, index.starts, index.shape[1]), np.empty((k, _CACHE), np.int64),
-            np.empty((k, _CACHE)), np.zeros(k, np.int64))
+            np.empty((k, _CACHE)), np.zeros(k, np.int64), np.zeros(k, np.bool_), np.empty(k, np.int32), rstart,
+            order[by_row], seg[by_row], sstart, srun, np.zeros((0, 2), np.int64), np.zeros(0))
+
+
+@njit(cache=True)
+def _cache_keep(clab: I64, cval: F64, cn: I64, same: npt.NDArray[np.bool_]) -> None:
+    """Drops the remembered data terms of the planes not flagged in ``same``."""
+    for j in range(cn.size):
+        t = 0
+        while t < cn[j]:
+            if clab[j, t] < same.size and same[clab[j, t]]:
+                t += 1
+            else:
+                cn[j] -= 1
+                clab[j, t] = clab[j, cn[j]]
+                cval[j, t] = cval[j, cn[j]]
+
+
+class CoopMemo:
+    """Data terms (Eqs. 6.21-6.22) remembered from one call of :func:`cooperative_optimize` or
+    :func:`expand_planes` to the next, for a caller that runs several on the same segments and data term.
+
+    They are used again when the next call gets the same ``index``, ``cost`` and ``reliable`` objects (and the
+    same data-term parameters), for the planes whose ``(a, b, c)`` did not change; the caller must not write
+    into those arrays between the calls (pass a new array instead). The results are the same as without it.
+    """
+
+    def __init__(self) -> None:
+        self._key: tuple[Any, ...] | None = None
+        self._cache: tuple[Any, ...] | None = None
+        self._planes: F64 | None = None
+
+    def take(self, index: SegmentIndex, cost: F32, reliable: npt.NDArray[np.bool_], prm: F64, min_disp: int,
+             planes: F64) -> tuple[Any, ...]:
+        """The remembered cache if it applies to this call (with the entries of changed planes dropped), else
+        a new one; the next call's cache either way (:meth:`keep`)."""
+        key = (index, cost, reliable, prm[_DATA_PRM].tobytes(), prm[12:].tobytes(), int(min_disp))
+        old, cache, opl = self._key, self._cache, self._planes
+        self._key = self._cache = self._planes = None
+        if (old is None or cache is None or opl is None or old[0] is not index or old[1] is not cost
+                or old[2] is not reliable or old[3:] != key[3:]):
+            return _new_cache(index, int(index.starts.size - 1))
+        m = min(opl.shape[0], planes.shape[0])
+        same = np.zeros(opl.shape[0], np.bool_)
+        same[:m] = (opl[:m] == planes[:m]).all(axis=1)
+        zvalid, zfor, clean = cache[3], cache[4], cache[9]
+        if zvalid[0] and not same[zfor].all():
+            zvalid[0] = False  # the z-buffer is of planes that changed
+        _cache_keep(cache[6], cache[7], cache[8], same)
+        clean[:] = False  # the candidates are the new call's
+        return cache
+
+    def keep(self, index: SegmentIndex, cost: F32, reliable: npt.NDArray[np.bool_], prm: F64, min_disp: int,
+             planes: F64, cache: tuple[Any, ...]) -> None:
+        """Remember ``cache`` (computed with ``planes``) for the next call."""
+        self._key = (index, cost, reliable, prm[_DATA_PRM].tobytes(), prm[12:].tobytes(), int(min_disp))
+        self._cache = cache
+        self._planes = planes.copy()
+
+
+_DATA_PRM = np.array([2, 3, 4, 7, 8, 9, 11])  # the entries of _prm that the data term reads (and the slopes)
+
+
+def _take_cache(memo: CoopMemo | None, index: SegmentIndex, graph: SegmentGraph, cost: F32,
+                reliable: npt.NDArray[np.bool_], prm: F64, min_disp: int, planes: F64) -> tuple[Any, ...]:
+    """The memo's cache or a new one, with an empty store of the smoothness terms of ``graph``'s boundaries
+    (kept for one call only)."""
+    if memo is None:
+        cache = _new_cache(index, int(index.starts.size - 1))
+    else:
+        cache = memo.take(index, cost, reliable, prm, min_disp, planes)
+    npairs = int(graph.pairs.shape[0])
+    return (*cache[:-2], np.full((npairs, 2), -1, np.int64), np.empty(npairs))
 
 
 def _flat_cost(cost: F32, slopes: tuple[float, ...] | None) -> F32:
@@ -787,7 +1017,8 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
                          own: npt.NDArray[np.integer] | None = None, min_disp: int = 0,
                          params: CoopParams | None = None,
                          active: npt.NDArray[np.bool_] | None = None,
-                         slopes: tuple[float, ...] | None = None) -> tuple[I32, F64, dict[str, float]]:
+                         slopes: tuple[float, ...] | None = None,
+                         memo: CoopMemo | None = None) -> tuple[I32, F64, dict[str, float]]:
     """Cooperative optimisation of the plane labels (thesis §6.2, Eqs. 6.18-6.25).
 
     Parameters
@@ -811,6 +1042,8 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
         Segments allowed to change their plane (default: all).
     slopes : tuple of float, optional
         Vertical slopes of the volumes of a 4-D ``cost``.
+    memo : CoopMemo, optional
+        Data terms remembered across the caller's calls (the same result, less work).
 
     Returns
     -------
@@ -842,7 +1075,7 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
     common = (index.order, index.starts, index.shape[1], fc, int(min_disp), rel, graph.pairs, graph.bstart,
               graph.bp_lo, graph.bp_hi, graph.bw)
     # remembered data terms of (segment, plane) and the z-buffer they were computed under
-    cache = _new_cache(index, k)
+    cache = _take_cache(memo, index, graph, cost, reliable, prm, int(min_disp), pl)
     e0 = _energy_cached(a, pl, *common, prm, *cache)
     e_cur = e0
     sweeps = 0
@@ -868,6 +1101,7 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
         n_used, n = _refine_pass(a, pl, n_used, *common, graph.nstart, graph.nbr, graph.nedge, prm,
                                  int(p.powell_cycles), int(p.refine_min_size))
         cache[3][0] = False  # the refined planes were appended where rejected ones may have been
+        cache[-2][:] = -1
         e_new = _energy(a, pl, *common, prm)
         if n == 0 or e_new > e_cur:
             a = prev
@@ -876,6 +1110,8 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
         e_cur = e_new
         refined += n
     planes_out = pl[:n_used]
+    if memo is not None:
+        memo.keep(index, cost, reliable, prm, int(min_disp), pl, cache)
     log.debug("cooperative optimisation: E %.1f -> %.1f in %d sweeps (%d changes)", e0, e_cur, sweeps, changes)
     return a, planes_out, {"energy_before": float(e0), "energy_after": float(e_cur), "sweeps": float(sweeps),
                            "changes": float(changes), "refined": float(refined)}
@@ -886,7 +1122,8 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
             cost: F32, min_disp: int, reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64,
             bp_hi: I64, bw: F64, nstart: I64, nbr: I64, nedge: I64, prm: F64, max_region: int, zc1: F64,
             oc1: I64, zc2: F64, zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64, clab: I64, cval: F64,
-            cn: I64) -> int:
+            cn: I64, clean: npt.NDArray[np.bool_], afor: I32, rstart: I64, rp: I64, rseg: I64, sstart: I64,
+            srun: I64, elab: I64, es: F64) -> int:
     """Group moves, in place: for each candidate plane, the connected region of segments grown from its seeds
     through segments whose data term it does not raise moves to it at once when that lowers E (Eq. 6.18).
     Data terms are remembered (:func:`_data_cached`); the cache always holds the z-buffer ``z1, o1, z2``
@@ -901,10 +1138,13 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
     dnew = np.empty(k, np.float64)
     dold = np.empty(k, np.float64)
     prev = np.empty(k, np.int32)
-    cache = (zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval, cn)
+    cache = (zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval, cn, clean, afor, rstart, rp, rseg, sstart, srun, elab,
+             es)
     e_cur = _energy_cached(a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo, bp_hi, bw,
                            prm, *cache)
-    z1, o1, z2 = _zbuffer(a, planes, order, starts, h, w)
+    # the z-buffer of the kept assignment: the cache's (it holds the last one computed)
+    z1, o1, z2 = zc1.copy(), oc1.copy(), zc2.copy()
+    rows = np.zeros(h, np.bool_)
     accepted = 0
     for m in range(cand.size):
         lab = cand[m]
@@ -961,20 +1201,28 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
                         after = _smooth(j, i, nedge[t], pl, planes[a[i]], pairs, bstart, bp_lo, bp_hi, bw, w, thr)
                     de += 2.0 * gamma * (after - before)
         if n > 0 and de < -1e-9:
+            rows[:] = False
             for r in range(n):
                 prev[r] = a[region[r]]
                 a[region[r]] = lab
+                rows[bbox[region[r], 2]:bbox[region[r], 3] + 1] = True
             e_new = _energy_cached(a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo,
                                    bp_hi, bw, prm, *cache)
             if e_new < e_cur - 1e-9:
                 e_cur = e_new
                 accepted += 1
-                z1, o1, z2 = _zbuffer(a, planes, order, starts, h, w)
+                # the cache's z-buffer is the new assignment's; it differs from the old on the region's rows
+                for y in range(h):
+                    if rows[y]:
+                        z1[y * w:(y + 1) * w] = zc1[y * w:(y + 1) * w]
+                        o1[y * w:(y + 1) * w] = oc1[y * w:(y + 1) * w]
+                        z2[y * w:(y + 1) * w] = zc2[y * w:(y + 1) * w]
             else:
                 for r in range(n):
                     a[region[r]] = prev[r]
                 # back to the z-buffer of the kept assignment (the cache now holds the rejected one's)
-                _cache_refresh(z1, o1, z2, zc1, oc1, zc2, zvalid, bbox, planes, clab, cval, cn, w)
+                _cache_refresh(z1, o1, z2, rows, zc1, oc1, zc2, zvalid, bbox, planes, clab, cval, cn, clean, w,
+                               order, sstart, srun, cost.shape[2], min_disp, prm)
                 zfor[:] = a
         for r in range(n):
             in_s[region[r]] = False
@@ -985,7 +1233,7 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
 def expand_planes(assign: npt.NDArray[np.integer], planes: F64, index: SegmentIndex, graph: SegmentGraph,
                   cost: F32, reliable: npt.NDArray[np.bool_], candidates: npt.NDArray[np.integer], *,
                   min_disp: int = 0, params: CoopParams | None = None, slopes: tuple[float, ...] | None = None,
-                  max_region: int = 400) -> tuple[I32, dict[str, float]]:
+                  max_region: int = 400, memo: CoopMemo | None = None) -> tuple[I32, dict[str, float]]:
     """Group moves of candidate planes over connected regions of segments (an addition to §6.2).
 
     The cooperative scheme moves one segment at a time, so a surface split into many segments that all sit
@@ -1002,6 +1250,8 @@ def expand_planes(assign: npt.NDArray[np.integer], planes: F64, index: SegmentIn
         Candidate plane indices per segment (-1 = none).
     max_region : int, keyword-only
         Largest region (segments) of one move.
+    memo : CoopMemo, optional
+        As :func:`cooperative_optimize`.
 
     Returns
     -------
@@ -1018,11 +1268,15 @@ def expand_planes(assign: npt.NDArray[np.integer], planes: F64, index: SegmentIn
     labs, segs = labs[order], segs[order]
     uniq, first = np.unique(labs, return_index=True)
     seed_start = np.append(first, labs.size).astype(np.int64)
-    n = _expand(a, np.asarray(planes, np.float64), uniq.astype(np.int64), seed_start, segs.astype(np.int64),
-                index.order, index.starts, index.shape[1], _flat_cost(cost, slopes), int(min_disp),
-                np.asarray(reliable, np.bool_).ravel(), graph.pairs, graph.bstart, graph.bp_lo, graph.bp_hi,
-                graph.bw, graph.nstart, graph.nbr, graph.nedge, _prm(p, slopes), int(max_region),
-                *_new_cache(index, a.size))
+    pl = np.asarray(planes, np.float64)
+    prm = _prm(p, slopes)
+    cache = _take_cache(memo, index, graph, cost, reliable, prm, int(min_disp), pl)
+    n = _expand(a, pl, uniq.astype(np.int64), seed_start, segs.astype(np.int64), index.order, index.starts,
+                index.shape[1], _flat_cost(cost, slopes), int(min_disp), np.asarray(reliable, np.bool_).ravel(),
+                graph.pairs, graph.bstart, graph.bp_lo, graph.bp_hi, graph.bw, graph.nstart, graph.nbr,
+                graph.nedge, prm, int(max_region), *cache)
+    if memo is not None:
+        memo.keep(index, cost, reliable, prm, int(min_disp), pl, cache)
     return a, {"group_moves": float(n)}
 
 

@@ -46,6 +46,7 @@ from prismstereo.matching.coop.coopcost import (
     sheared_row_costs_at,
 )
 from prismstereo.matching.coop.cooperative import (
+    CoopMemo,
     CoopParams,
     build_segment_graph,
     cooperative_optimize,
@@ -431,6 +432,7 @@ class _PairEvidence:
         self.slopes = slopes
         self.evidence = evidence
         self.fallback_pixels = 0
+        self.memo = CoopMemo()
 
     def optimise(self, s: PlaneLabels, assign: npt.NDArray[np.int32], planes: npt.NDArray[np.float64],
                  own: npt.NDArray[np.int64], *, neighbour_own_planes: bool = False
@@ -438,7 +440,7 @@ class _PairEvidence:
         # the cooperative optimisation (Eqs. 6.18-6.25) on the segments and the data term
         prm = dataclasses.replace(self.coop, neighbour_own_planes=True) if neighbour_own_planes else self.coop
         return cooperative_optimize(assign, planes, s.index, s.graph, self.data, self.reliable, own=own,
-                                    min_disp=self.min_disp, params=prm, slopes=self.slopes)
+                                    min_disp=self.min_disp, params=prm, slopes=self.slopes, memo=self.memo)
 
     def refit(self, s: PlaneLabels, assign: npt.NDArray[np.int32], planes: npt.NDArray[np.float64]
               ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]] | None:

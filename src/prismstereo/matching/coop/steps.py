@@ -39,6 +39,7 @@ from numba import njit
 
 from prismstereo.errors import ConfigError
 from prismstereo.matching.coop.cooperative import (
+    CoopMemo,
     CoopParams,
     SegmentGraph,
     expand_planes,
@@ -383,6 +384,7 @@ class Evidence(Protocol):
     min_disp: int
     max_disp: int
     slopes: tuple[float, ...] | None  # the data volume's vertical slopes (None: one unsheared volume)
+    memo: CoopMemo                    # the optimiser's data terms, remembered from one call to the next
 
     def optimise(self, s: PlaneLabels, assign: I32, planes: F64, own: I64, *,
                  neighbour_own_planes: bool = False) -> tuple[I32, F64, dict[str, float]]: ...
@@ -573,7 +575,7 @@ def step_group_moves(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels
     # sweep candidates and the planes across each segment's boundary, moved over whole regions
     cands = np.concatenate([sw, neighbour_plane_candidates(s.graph, s.assign)], axis=1)
     assign, ginfo = expand_planes(s.assign, s.planes, s.index, s.graph, ev.data, ev.reliable, cands,
-                                  min_disp=ev.min_disp, params=ev.coop, slopes=ev.slopes)
+                                  min_disp=ev.min_disp, params=ev.coop, slopes=ev.slopes, memo=ev.memo)
     assign, planes, info = ev.optimise(s, assign, s.planes, s.own)
     gp = p.group_moves
     assign, chk = _checked(s, assign, planes, ev, gp.data_check, gp.check_cover)
