@@ -112,6 +112,38 @@ def _reflect(p: int, n: int) -> int:
     return p
 
 
+@njit(cache=True, nogil=True)
+def _row_needs(mask_row: npt.NDArray[np.bool_], r: int, need: npt.NDArray[np.bool_]) -> bool:
+    """Flag in ``need`` (W,) the columns the (2r+1)-pixel row boxes of ``mask_row`` read (reflected borders);
+    whether the row has any box at all."""
+    w = mask_row.size
+    todo = False
+    for x in range(w):
+        if mask_row[x]:
+            todo = True
+            for o in range(-r, r + 1):
+                need[_reflect(x + o, w)] = True
+    return todo
+
+
+@njit(cache=True, nogil=True)
+def _row_box_mean(raw: F32, mask_row: npt.NDArray[np.bool_], r: int, inv: float, acc: npt.NDArray[np.float64],
+             out_row: F32) -> None:
+    """``out_row[x]`` (W, D): the (2r+1)-pixel mean of ``raw`` (W, D) around ``x`` at the columns of
+    ``mask_row``, summed in float64 (``acc`` (D,) is scratch) in the window's order, as OpenCV's ``boxFilter``."""
+    w, ndisp = raw.shape
+    for x in range(w):
+        if not mask_row[x]:
+            continue
+        acc[:] = 0.0
+        for o in range(-r, r + 1):
+            xx = _reflect(x + o, w)
+            for k in range(ndisp):
+                acc[k] += raw[xx, k]
+        for k in range(ndisp):
+            out_row[x, k] = acc[k] * inv
+
+
 @njit(cache=True, parallel=True, nogil=True)
 def _census_row_box(ad: npt.NDArray[np.float64], cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint64],
                     min_disp: int, lam_c: float, r: int, mask: npt.NDArray[np.bool_], out: F32) -> None:
@@ -125,13 +157,7 @@ def _census_row_box(ad: npt.NDArray[np.float64], cl: npt.NDArray[np.uint64], cr:
     inv = 1.0 / (2 * r + 1)
     for y in prange(h):
         need = np.zeros(w, np.bool_)
-        todo = False
-        for x in range(w):
-            if mask[y, x]:
-                todo = True
-                for o in range(-r, r + 1):
-                    need[_reflect(x + o, w)] = True
-        if not todo:
+        if not _row_needs(mask[y], r, need):
             continue
         raw = np.empty((w, ndisp), np.float32)
         for x in range(w):
@@ -144,17 +170,7 @@ def _census_row_box(ad: npt.NDArray[np.float64], cl: npt.NDArray[np.uint64], cr:
                     raw[x, k] = 2.0
                 else:
                     raw[x, k] = ad[y, x, k] + tab[popcount64(c ^ cr[y, xr])]
-        acc = np.empty(ndisp)
-        for x in range(w):
-            if not mask[y, x]:
-                continue
-            acc[:] = 0.0
-            for o in range(-r, r + 1):
-                xx = _reflect(x + o, w)
-                for k in range(ndisp):
-                    acc[k] += raw[xx, k]
-            for k in range(ndisp):
-                out[y, x, k] = acc[k] * inv
+        _row_box_mean(raw, mask[y], r, inv, np.empty(ndisp), out[y])
 
 
 @njit(cache=True, parallel=True, nogil=True)
@@ -171,17 +187,13 @@ def _census_row_boxes_at(left: F32, right: F32, gl: F32, gr: F32, cl: npt.NDArra
     inv = 1.0 / (2 * r + 1)
     copy = fill.shape == out.shape
     for y in prange(h):
+        if copy:
+            for x in range(w):
+                if not mask[y, x]:
+                    for i in range(cr.shape[0]):
+                        out[i, y, x, :] = fill[i, y, x, :]
         need = np.zeros(w, np.bool_)
-        todo = False
-        for x in range(w):
-            if mask[y, x]:
-                todo = True
-                for o in range(-r, r + 1):
-                    need[_reflect(x + o, w)] = True
-            elif copy:
-                for i in range(cr.shape[0]):
-                    out[i, y, x, :] = fill[i, y, x, :]
-        if not todo:
+        if not _row_needs(mask[y], r, need):
             continue
         ad = np.empty((w, ndisp))
         for x in range(w):
@@ -204,16 +216,7 @@ def _census_row_boxes_at(left: F32, right: F32, gl: F32, gr: F32, cl: npt.NDArra
                         raw[x, k] = 2.0
                     else:
                         raw[x, k] = ad[x, k] + tab[popcount64(c ^ cr[i, y, xr])]
-            for x in range(w):
-                if not mask[y, x]:
-                    continue
-                acc[:] = 0.0
-                for o in range(-r, r + 1):
-                    xx = _reflect(x + o, w)
-                    for k in range(ndisp):
-                        acc[k] += raw[xx, k]
-                for k in range(ndisp):
-                    out[i, y, x, k] = acc[k] * inv
+            _row_box_mean(raw, mask[y], r, inv, acc, out[i, y])
 
 
 @njit(cache=True, parallel=True, nogil=True)

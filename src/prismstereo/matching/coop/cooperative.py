@@ -199,6 +199,20 @@ def _xy(p: int, w: int, inv_w: float) -> tuple[int, int]:
 
 
 @njit(cache=True)
+def _zinsert(z1: F64, o1: I64, z2: F64, q: int, j: int, d: float) -> None:
+    """Enter disparity ``d`` of segment ``j`` at right-view pixel ``q`` of the z-buffer ``z1, o1, z2``."""
+    if o1[q] == j:
+        if d > z1[q]:
+            z1[q] = d
+    elif d > z1[q]:
+        z2[q] = z1[q]
+        z1[q] = d
+        o1[q] = j
+    elif d > z2[q]:
+        z2[q] = d
+
+
+@njit(cache=True)
 def _zbuffer(assign: I32, planes: F64, order: I64, starts: I64, h: int, w: int,
              ) -> tuple[F64, I64, F64]:
     """Right-view z-buffer of a plane assignment: largest disparity landing on each right pixel (z1, owner
@@ -217,16 +231,7 @@ def _zbuffer(assign: I32, planes: F64, order: I64, starts: I64, h: int, w: int,
             xr = int(np.floor(x - d + 0.5))
             if xr < 0 or xr >= w:
                 continue
-            q = y * w + xr
-            if o1[q] == j:
-                if d > z1[q]:
-                    z1[q] = d
-            elif d > z1[q]:
-                z2[q] = z1[q]
-                z1[q] = d
-                o1[q] = j
-            elif d > z2[q]:
-                z2[q] = d
+            _zinsert(z1, o1, z2, y * w + xr, j, d)
     return z1, o1, z2
 
 
@@ -431,16 +436,7 @@ def _zbuffer_rows(a: I32, planes: F64, rstart: I64, rp: I64, rseg: I64, w: int, 
             xr = int(np.floor(x - d + 0.5))
             if xr < 0 or xr >= w:
                 continue
-            q = y * w + xr
-            if o1[q] == j:
-                if d > z1[q]:
-                    z1[q] = d
-            elif d > z1[q]:
-                z2[q] = z1[q]
-                z1[q] = d
-                o1[q] = j
-            elif d > z2[q]:
-                z2[q] = d
+            _zinsert(z1, o1, z2, y * w + xr, j, d)
 
 
 @njit(cache=True, parallel=True)
