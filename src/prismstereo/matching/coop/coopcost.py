@@ -113,6 +113,25 @@ def _reflect(p: int, n: int) -> int:
 
 
 @njit(cache=True, nogil=True)
+def _census_raw_row(ad_row: npt.NDArray[np.float64], cl_row: npt.NDArray[np.uint64],
+                    cr_row: npt.NDArray[np.uint64], need: npt.NDArray[np.bool_], min_disp: int,
+                    tab: npt.NDArray[np.float64], raw: F32) -> None:
+    """``raw[x, k]`` (W, D): the pixel cost ``ad + census`` (:func:`_raw_cost`'s) of one row at the columns of
+    ``need``, 2 where the right pixel ``x - (min_disp + k)`` leaves the image."""
+    w, ndisp = raw.shape
+    for x in range(w):
+        if not need[x]:
+            continue
+        c = cl_row[x]
+        for k in range(ndisp):
+            xr = x - (min_disp + k)
+            if xr < 0 or xr >= w:
+                raw[x, k] = 2.0
+            else:
+                raw[x, k] = ad_row[x, k] + tab[popcount64(c ^ cr_row[xr])]
+
+
+@njit(cache=True, nogil=True)
 def _row_needs(mask_row: npt.NDArray[np.bool_], r: int, need: npt.NDArray[np.bool_]) -> bool:
     """Flag in ``need`` (W,) the columns the (2r+1)-pixel row boxes of ``mask_row`` read (reflected borders);
     whether the row has any box at all."""
@@ -160,16 +179,7 @@ def _census_row_box(ad: npt.NDArray[np.float64], cl: npt.NDArray[np.uint64], cr:
         if not _row_needs(mask[y], r, need):
             continue
         raw = np.empty((w, ndisp), np.float32)
-        for x in range(w):
-            if not need[x]:
-                continue
-            c = cl[y, x]
-            for k in range(ndisp):
-                xr = x - (min_disp + k)
-                if xr < 0 or xr >= w:
-                    raw[x, k] = 2.0
-                else:
-                    raw[x, k] = ad[y, x, k] + tab[popcount64(c ^ cr[y, xr])]
+        _census_raw_row(ad[y], cl[y], cr[y], need, min_disp, tab, raw)
         _row_box_mean(raw, mask[y], r, inv, np.empty(ndisp), out[y])
 
 
@@ -206,16 +216,7 @@ def _census_row_boxes_at(left: F32, right: F32, gl: F32, gr: F32, cl: npt.NDArra
         raw = np.empty((w, ndisp), np.float32)
         acc = np.empty(ndisp)
         for i in range(cr.shape[0]):
-            for x in range(w):
-                if not need[x]:
-                    continue
-                c = cl[y, x]
-                for k in range(ndisp):
-                    xr = x - (min_disp + k)
-                    if xr < 0 or xr >= w:
-                        raw[x, k] = 2.0
-                    else:
-                        raw[x, k] = ad[x, k] + tab[popcount64(c ^ cr[i, y, xr])]
+            _census_raw_row(ad, cl[y], cr[i, y], need, min_disp, tab, raw)
             _row_box_mean(raw, mask[y], r, inv, acc, out[i, y])
 
 
