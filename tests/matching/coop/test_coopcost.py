@@ -134,7 +134,7 @@ def _guided_filter_reference(guide: np.ndarray, vol: np.ndarray, r: int, eps: fl
 @pytest.mark.parametrize(("shape", "r"), [((23, 37, 11), 4), ((6, 5, 3), 9), ((19, 21, 9), 2), ((17, 16, 3), 1),
                                           ((12, 14, 5), 0), ((1, 9, 2), 3)])
 def test_guided_filter_is_the_boxfilter_formulation_bit_for_bit(shape: tuple[int, int, int], r: int) -> None:
-    from prismstereo.matching.coop.coopcost import _left_to_right, guided_filter_volume
+    from prismstereo.matching.coop.coopcost import guided_filter_volume
 
     rng = np.random.default_rng(sum(shape) + r)
     h, w, nd = shape
@@ -142,8 +142,10 @@ def test_guided_filter_is_the_boxfilter_formulation_bit_for_bit(shape: tuple[int
     vol = (2 * rng.random((h, w, nd)) ** 3).astype(np.float32)
     got = guided_filter_volume(guide, vol, radius=r, eps=1e-4)
     assert np.array_equal(got, _guided_filter_reference(guide, vol, r, 1e-4))
-    # the right view's volume read in place is the one built by _left_to_right
+    # the right view's volume read in place: C_R(y, x, k) = C_L(y, x + min_disp + k, k), 2 outside the image
     for min_disp in (0, 2, -1):
-        right = _left_to_right(vol, min_disp)
+        xl = np.arange(w)[:, None] + min_disp + np.arange(nd)[None, :]
+        inside = (xl >= 0) & (xl < w)
+        right = np.where(inside[None], vol[:, np.clip(xl, 0, w - 1), np.arange(nd)[None, :]], np.float32(2.0))
         got = guided_filter_volume(guide, vol, radius=r, eps=1e-4, right_of=min_disp)
         assert np.array_equal(got, _guided_filter_reference(guide, right, r, 1e-4))

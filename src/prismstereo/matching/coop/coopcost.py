@@ -239,20 +239,6 @@ def _raw_cost(left: F32, right: F32, gl: F32, gr: F32, cl: npt.NDArray[np.uint64
     return out
 
 
-@njit(cache=True, parallel=True, nogil=True)
-def _left_to_right(vol: F32, min_disp: int) -> F32:
-    """Right-view volume: C_R(y, x, k) = C_L(y, x + d, k), maximum 2 outside the left image."""
-    h, w, nd = vol.shape
-    out = np.full((h, w, nd), 2.0, dtype=np.float32)
-    for y in prange(h):
-        for x in range(w):
-            for k in range(nd):
-                xl = x + min_disp + k
-                if 0 <= xl < w:
-                    out[y, x, k] = vol[y, xl, k]
-    return out
-
-
 def _box(a: F32, r: int) -> F32:
     """Mean over a (2r+1)² window of each channel of an (H, W, C) or (H, W) float32 array."""
     k = 2 * r + 1
@@ -278,8 +264,8 @@ def guided_filter_volume(guide: npt.NDArray[np.generic], vol: F32, *, radius: in
     radius, eps : keyword-only
         Window radius and regulariser (colours scaled to 0..1).
     right_of : int, keyword-only, optional
-        Filter the right view's volume of the left view's ``vol`` instead (``_left_to_right(vol, right_of)``:
-        slice k at right pixel x reads left pixel x + right_of + k, 2 outside the image), read in place.
+        Filter the right view's volume of the left view's ``vol`` instead, read in place: slice k at right
+        pixel x is ``vol`` at left pixel x + right_of + k, 2 outside the image.
 
     Returns
     -------
@@ -316,7 +302,7 @@ def guided_filter_volume(guide: npt.NDArray[np.generic], vol: F32, *, radius: in
 
 @njit(cache=True, inline="always")
 def _cost_at(vol: F32, yy: int, xx: int, kk: int, md: int, right: bool) -> np.float32:
-    """``vol[yy, xx, kk]``, or with ``right`` the right view's (:func:`_left_to_right`) read in place."""
+    """``vol[yy, xx, kk]``, or with ``right`` the right view's cost ``vol[yy, xx + md + kk, kk]`` (2 outside)."""
     if not right:
         return vol[yy, xx, kk]
     xl = xx + md + kk
