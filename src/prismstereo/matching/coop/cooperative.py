@@ -236,6 +236,34 @@ def _zbuffer(assign: I32, planes: F64, order: I64, starts: I64, h: int, w: int,
 
 
 @njit(cache=True)
+def slope_level(levels: F64, b: float) -> int:
+    """Index of the vertical slope in ``levels`` (S,) nearest a plane's slope ``b``: the volume of a sheared
+    data term the plane reads (the first on ties; 0 for a single level)."""
+    lev = 0
+    if levels.size > 1:
+        dmin = np.inf
+        for i in range(levels.size):
+            dd = abs(levels[i] - b)
+            if dd < dmin:
+                dmin = dd
+                lev = i
+    return lev
+
+
+@njit(cache=True)
+def interpolated_cost(cost: F32, lev: int, p: int, k: float, trunc: float) -> float:
+    """Pixel ``p``'s cost in volume ``lev`` of ``cost`` (S, H*W, D) at the fractional slice ``k`` (clamped to the
+    volume), linearly interpolated, truncated at ``trunc`` (the data term of Eq. 6.21)."""
+    nd = cost.shape[2]
+    k = min(max(k, 0.0), nd - 1.0)
+    k0 = int(k)
+    k1 = min(k0 + 1, nd - 1)
+    f = k - k0
+    v = (1.0 - f) * cost[lev, p, k0] + f * cost[lev, p, k1]
+    return min(v, trunc)
+
+
+@njit(cache=True)
 def _data(j: int, pl: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
           reliable: npt.NDArray[np.bool_], prm: F64, z1: F64, o1: I64, z2: F64) -> float:
     """E_data + E_occ of segment j under plane pl (Eqs. 6.21-6.22).
@@ -252,15 +280,7 @@ def _data(j: int, pl: F64, order: I64, starts: I64, w: int, cost: F32, min_disp:
     nd = cost.shape[2]
     e = 0.0
     a, b, c = pl[0], pl[1], pl[2]
-    lev = 0  # the cost volume of the vertical slope nearest the plane's
-    nlev = int(prm[11])
-    if nlev > 1:
-        dmin = np.inf
-        for i in range(nlev):
-            dd = abs(prm[12 + i] - b)
-            if dd < dmin:
-                dmin = dd
-                lev = i
+    lev = slope_level(prm[12:12 + int(prm[11])], b)  # the cost volume of the slope nearest the plane's
     inv_w = 1.0 / w
     for t in range(starts[j], starts[j + 1]):
         p = order[t]
@@ -281,12 +301,7 @@ def _data(j: int, pl: F64, order: I64, starts: I64, w: int, cost: F32, min_disp:
                 if zo > d + margin:
                     e += omega_occ
                     continue
-        k = min(max(k, 0.0), nd - 1.0)
-        k0 = int(k)
-        k1 = min(k0 + 1, nd - 1)
-        f = k - k0
-        v = (1.0 - f) * cost[lev, p, k0] + f * cost[lev, p, k1]
-        v = min(v, trunc)
+        v = interpolated_cost(cost, lev, p, k, trunc)
         e += v if reliable[p] else wu * v
     return e
 

@@ -43,7 +43,9 @@ from prismstereo.matching.coop.cooperative import (
     CoopParams,
     SegmentGraph,
     expand_planes,
+    interpolated_cost,
     neighbour_plane_candidates,
+    slope_level,
 )
 from prismstereo.matching.coop.refine import boundary_pixel_planes, bpasw_candidate_rounds, refine_fine_segments
 from prismstereo.matching.local.selection import weighted_median_filter
@@ -478,31 +480,13 @@ def unsupported_moves(index: SegmentIndex, before: F64, after: F64, data: F32, *
 
 
 @njit(cache=True, nogil=True)
-def _level(lv: F64, b: float) -> int:
-    """The slope level closest to ``b`` (the first on ties, as argmin)."""
-    if lv.size <= 1:
-        return 0
-    best = 0
-    for i in range(1, lv.size):
-        if abs(lv[i] - b) < abs(lv[best] - b):
-            best = i
-    return best
-
-
-@njit(cache=True, nogil=True)
 def _pixel_cost(flat: F32, lev: int, p: int, d: float, x: float, min_disp: float, trunc: float
                 ) -> tuple[float, bool]:
     """Truncated, linearly interpolated pixel cost at disparity ``d`` and whether ``d`` lies in the range and
     the right view."""
-    nd = flat.shape[2]
     k = d - min_disp
-    ok = k >= -0.5 and k <= nd - 0.5 and x - d >= -0.5
-    kc = min(max(k, 0.0), nd - 1.0)
-    k0 = int(kc)
-    k1 = min(k0 + 1, nd - 1)
-    f = kc - k0
-    v = (1.0 - f) * flat[lev, p, k0] + f * flat[lev, p, k1]
-    return min(v, trunc), ok
+    ok = k >= -0.5 and k <= flat.shape[2] - 0.5 and x - d >= -0.5
+    return interpolated_cost(flat, lev, p, k, trunc), ok
 
 
 @njit(cache=True, nogil=True)
@@ -515,8 +499,8 @@ def _move_gains(order: I64, starts: I64, moved: I64, w: int, before: F64, after:
         j = moved[m]
         b0, b1, b2 = before[j, 0], before[j, 1], before[j, 2]
         a0, a1, a2 = after[j, 0], after[j, 1], after[j, 2]
-        lb = _level(lv, b1)
-        la = _level(lv, a1)
+        lb = slope_level(lv, b1)
+        la = slope_level(lv, a1)
         for t in range(starts[j], starts[j + 1]):
             p = order[t]
             x = float(p % w)
