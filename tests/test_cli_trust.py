@@ -212,6 +212,9 @@ def test_evaluate_all_or_nothing(tmp_path: Path) -> None:
     _one_error(_run("evaluate", "middlebury", "--data", str(data), "--method", "sad", "-o", str(blocker)),
                "evaluate", "an existing file")
     _one_error(_run("reproduce", "table5.1", "-o", str(blocker)), "reproduce", "an existing file")
+    # an unknown baseline is refused before any scene is read or any file written
+    _one_error(_run("evaluate", "middlebury", "--data", str(data), "--method", "sad", "--baseline", "nosuch",
+                    "-o", str(work / "mb")), "evaluate", "nosuch")
     assert _files(work) == {"file"}
 
 

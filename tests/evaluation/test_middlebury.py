@@ -132,3 +132,38 @@ def test_load_middlebury2014_layout(tmp_path: Path) -> None:
     (scene / "calib.txt").write_text("width=40\n")
     with pytest.raises(ConfigError, match="ndisp"):
         load_scene_folder(scene)
+
+
+def _write_2014_scene(folder: Path) -> None:
+    from prismstereo.io import write_image, write_pfm
+
+    left, right, gt = _synthetic_pair(h=32, w=64)
+    folder.mkdir(parents=True)
+    write_image(folder / "im0.png", left)
+    write_image(folder / "im1.png", right)
+    write_pfm(folder / "disp0GT.pfm", np.where(np.isfinite(gt), gt, np.inf).astype(np.float32))
+    write_image(folder / "mask0nocc.png", np.where(np.isfinite(gt), 255, 0).astype(np.uint8))
+    (folder / "calib.txt").write_text("width=64\nheight=32\nndisp=16\n")
+
+
+def test_evaluate_2014_with_sgbm_baseline(tmp_path: Path) -> None:
+    from prismstereo.evaluation.middlebury import format_results_table
+
+    _write_2014_scene(tmp_path / "data" / "Synth")
+    res = evaluate_method("bpasw", data_dir=tmp_path / "data", baseline="sgbm")
+    assert res["layout"] == "2014" and res["baseline"]["method"] == "sgbm"
+    b = res["baseline"]["scenes"]["Synth"]
+    assert 0.0 <= b["bad"]["2.0"]["nonocc"] <= 100.0 and b["seconds"] > 0
+    assert res["baseline"]["average"]["bad2.0_nonocc"] == pytest.approx(b["bad"]["2.0"]["nonocc"])
+    table = format_results_table(res)
+    head = table.splitlines()[0].split("|")
+    assert head[2].strip() == "bad2 nonocc" and head[-2].strip() == "sgbm s"  # bad 2.0 first for the 2014 set
+    row = table.splitlines()[2].split("|")
+    assert float(row[2]) == pytest.approx(res["scenes"]["Synth"]["bad"]["2.0"]["nonocc"], abs=0.01)
+    assert float(row[-4]) == pytest.approx(b["bad"]["2.0"]["nonocc"], abs=0.01)
+    assert "ratio" in table.splitlines()[-1]
+    # without a baseline, and for the shared layout, bad 1.0 stays first
+    plain = evaluate_method("bpasw", data_dir=tmp_path / "data")
+    assert "baseline" not in plain and "sgbm" not in format_results_table(plain)
+    with pytest.raises(ConfigError):
+        evaluate_method("bpasw", data_dir=tmp_path / "data", baseline="no-such-matcher")

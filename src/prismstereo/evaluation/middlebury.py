@@ -277,27 +277,70 @@ def evaluate_disparity(disp: np.ndarray, scene: MiddleburyScene, *,
     return out
 
 
+def _is_2014(results: dict[str, Any]) -> bool:
+    return results.get("layout") == "2014"
+
+
 def format_results_table(results: dict[str, Any], *, title: str = "") -> str:
-    """Markdown table of bad 1.0 (nonocc/all/disc), bad 0.5 and 2.0 (nonocc), MAE and seconds."""
+    """Markdown table of bad 1.0 (nonocc/all/disc), bad 0.5 and 2.0 (nonocc), MAE and seconds.
+
+    For the Middlebury 2014 layout (``results["layout"] == "2014"``) bad 2.0 nonocc is the first column (the
+    number MiddEval3 reports at quarter resolution). With a baseline in ``results["baseline"]``
+    (:func:`evaluate_method`'s ``baseline``) its bad 2.0 and 1.0 nonocc and seconds follow, side by side.
+    """
     lines = [title] if title else []
-    lines += ["| scene | bad1 nonocc | bad1 all | bad1 disc | bad0.5 nonocc | bad2 nonocc | MAE nonocc | s |",
-              "|---|---|---|---|---|---|---|---|"]
-    scenes = results["scenes"]
-    for name, r in scenes.items():
+    first = _is_2014(results)
+    base = results.get("baseline")
+    bname = base["method"] if base else ""
+    head = ["scene"] + (["bad2 nonocc"] if first else []) + ["bad1 nonocc", "bad1 all", "bad1 disc",
+                                                              "bad0.5 nonocc"]
+    head += ([] if first else ["bad2 nonocc"]) + ["MAE nonocc", "s"]
+    if base:
+        head += [f"{bname} bad2 nonocc", f"{bname} bad1 nonocc", f"{bname} s"]
+    lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+
+    def row(label: str, b2: float, b1: float, b1a: float, b1d: float, b05: float, mae: float, sec: float,
+            extra: list[float]) -> str:
+        cells = [label] + ([f"{b2:.2f}"] if first else []) + [f"{b1:.2f}", f"{b1a:.2f}", f"{b1d:.2f}",
+                                                              f"{b05:.2f}"]
+        cells += ([] if first else [f"{b2:.2f}"]) + [f"{mae:.3f}", f"{sec:.2f}"]
+        cells += [f"{extra[0]:.2f}", f"{extra[1]:.2f}", f"{extra[2]:.2f}"] if extra else []
+        return "| " + " | ".join(cells) + " |"
+
+    for name, r in results["scenes"].items():
         b = r["bad"]
-        lines.append(f"| {name} | {b['1.0']['nonocc']:.2f} | {b['1.0']['all']:.2f} | {b['1.0']['disc']:.2f} | "
-                     f"{b['0.5']['nonocc']:.2f} | {b['2.0']['nonocc']:.2f} | {r['mae']['nonocc']:.3f} | "
-                     f"{r['seconds']:.2f} |")
+        extra: list[float] = []
+        if base:
+            rb = base["scenes"][name]
+            extra = [rb["bad"]["2.0"]["nonocc"], rb["bad"]["1.0"]["nonocc"], rb["seconds"]]
+        lines.append(row(name, b["2.0"]["nonocc"], b["1.0"]["nonocc"], b["1.0"]["all"], b["1.0"]["disc"],
+                         b["0.5"]["nonocc"], r["mae"]["nonocc"], r["seconds"], extra))
     a = results["average"]
-    lines.append(f"| **average** | {a['nonocc']:.2f} | {a['all']:.2f} | {a['disc']:.2f} | "
-                 f"{a['bad0.5_nonocc']:.2f} | {a['bad2.0_nonocc']:.2f} | {a['mae_nonocc']:.3f} | "
-                 f"{a['seconds']:.2f} |")
+    extra = []
+    if base:
+        ab = base["average"]
+        extra = [ab["bad2.0_nonocc"], ab["nonocc"], ab["seconds"]]
+    lines.append(row("**average**", a["bad2.0_nonocc"], a["nonocc"], a["all"], a["disc"], a["bad0.5_nonocc"],
+                     a["mae_nonocc"], a["seconds"], extra))
+    if base:
+        lines.append(f"bad2 nonocc average: {results['method']} {a['bad2.0_nonocc']:.2f}, {bname} "
+                     f"{ab['bad2.0_nonocc']:.2f} (ratio {a['bad2.0_nonocc'] / max(ab['bad2.0_nonocc'], 1e-9):.3f}); "
+                     f"seconds ratio {a['seconds'] / max(ab['seconds'], 1e-9):.2f}")
     return "\n".join(lines)
+
+
+def _average(per: dict[str, Any]) -> dict[str, float]:
+    avg: dict[str, float] = {m: float(np.mean([per[s]["bad"]["1.0"][m] for s in per])) for m in MASKS}
+    avg["bad0.5_nonocc"] = float(np.mean([per[s]["bad"]["0.5"]["nonocc"] for s in per]))
+    avg["bad2.0_nonocc"] = float(np.mean([per[s]["bad"]["2.0"]["nonocc"] for s in per]))
+    avg["mae_nonocc"] = float(np.mean([per[s]["mae"]["nonocc"] for s in per]))
+    avg["seconds"] = float(np.mean([per[s]["seconds"] for s in per]))
+    return avg
 
 
 def evaluate_method(method: str, *, data_dir: str | os.PathLike[str] | None = None,
                     out_dir: str | os.PathLike[str] | None = None, scenes: tuple[str, ...] | None = None,
-                    **params: Any) -> dict[str, Any]:
+                    baseline: str | None = None, **params: Any) -> dict[str, Any]:
     """Run a registered matcher on the scenes; write ``<scene>.pfm``, ``<scene>.png``, ``results.json``.
 
     Parameters
@@ -310,17 +353,24 @@ def evaluate_method(method: str, *, data_dir: str | os.PathLike[str] | None = No
         Scene folder names (default: every scene of ``data_dir``, :func:`list_scenes`).
     out_dir : path, optional
         Output folder; nothing is written when None.
+    baseline : str, optional
+        A second registered matcher (e.g. ``"sgbm"``, OpenCV StereoSGBM), run with its defaults on the same
+        scenes in the same process and scored the same way: ``results["baseline"]`` holds its ``method``,
+        ``scenes`` and ``average`` (its maps are not written).
     **params
         The matcher's tuning parameters.
 
     Returns
     -------
     dict
-        ``{"method", "params", "scenes": {name: {bad, mae, seconds, ...}}, "average": {...}}``; ``params``
-        holds every parameter of the matcher, the defaults included.
+        ``{"method", "params", "layout", "scenes": {name: {bad, mae, seconds, ...}}, "average": {...}}``;
+        ``params`` holds every parameter of the matcher, the defaults included; ``layout`` is ``"2014"`` when
+        every scene is in the Middlebury 2014 layout, else ``"shared"``.
     """
 
     get_matcher(method, **params)  # validates name and parameters first
+    if baseline is not None:
+        get_matcher(baseline)
     root = resolve_data_dir(data_dir)
     found = list_scenes(root)
     if scenes is None:
@@ -337,7 +387,10 @@ def evaluate_method(method: str, *, data_dir: str | os.PathLike[str] | None = No
     if out is not None:
         check_output_dir(out)  # before any work; nothing is created until every scene is done
     per: dict[str, Any] = {}
+    base: dict[str, Any] = {}
     maps: dict[str, tuple[np.ndarray, int]] = {}
+    folders = [root] if _layout(root) is not None else [root / s for s in scenes]
+    layout = "2014" if all(_layout(f) == "2014" for f in folders) else "shared"
     bar = progress_bar(scenes, desc=f"evaluate {method}", unit="scene", leave=False)
     for s in bar:
         bar.set_postfix_str(s)
@@ -352,17 +405,22 @@ def evaluate_method(method: str, *, data_dir: str | os.PathLike[str] | None = No
             ev["raw"] = evaluate_disparity(res.disparity_raw, scene, thresholds=(1.0,))
         per[scene.name] = ev
         log.info("%s %s: bad1 nonocc %.2f %% (%.2f s)", method, s, ev["bad"]["1.0"]["nonocc"], seconds)
+        if baseline is not None:
+            t = time.perf_counter()
+            bres = match(scene.left, scene.right, max_disp=scene.max_disp, method=baseline)
+            bev = evaluate_disparity(bres.disparity, scene)
+            bev["seconds"] = time.perf_counter() - t
+            base[scene.name] = bev
         if out is not None:
             maps[scene.name] = (res.disparity, scene.max_disp)
-    avg: dict[str, float] = {m: float(np.mean([per[s]["bad"]["1.0"][m] for s in per])) for m in MASKS}
-    avg["bad0.5_nonocc"] = float(np.mean([per[s]["bad"]["0.5"]["nonocc"] for s in per]))
-    avg["bad2.0_nonocc"] = float(np.mean([per[s]["bad"]["2.0"]["nonocc"] for s in per]))
-    avg["mae_nonocc"] = float(np.mean([per[s]["mae"]["nonocc"] for s in per]))
-    avg["seconds"] = float(np.mean([per[s]["seconds"] for s in per]))
+    avg = _average(per)
     # every tuning parameter with its default, so that the numbers can be reproduced after a default changes
     results = {"method": method, "params": resolved_params(method, **params),
                "protocol": "Middlebury v2, bad if |d-gt|>t over the mask, NaN estimates bad", "data": str(root),
-               "scenes": per, "average": avg}
+               "layout": layout, "scenes": per, "average": avg}
+    if baseline is not None:
+        results["baseline"] = {"method": baseline, "params": resolved_params(baseline), "scenes": base,
+                               "average": _average(base)}
     if out is not None:  # all scenes' files appear together, or none (a broken scene, Ctrl-C)
         with output_dir(out) as stage:
             for name, (disp, max_disp) in maps.items():
