@@ -344,3 +344,31 @@ def test_unsupported_moves_need_a_lower_data_term_over_most_of_the_segment() -> 
     # to a dearer plane: neither; no move: nothing to check
     assert list(unsupported_moves(index, before, np.array([[0.0, 0.0, 9.0]] * 2), cost, **kw)) == [0, 1]
     assert unsupported_moves(index, before, before, cost, **kw).size == 0
+
+
+def test_fallback_candidates_are_chosen_per_segment_by_census_distance() -> None:
+    """With several candidate maps a fallback segment takes the one whose census distance between the views is
+    lowest over the segment: on a textured pair at disparity 6, the map at 6 wins over one at 9, in each segment
+    on its own."""
+    from prismstereo.errors import ConfigError
+    from prismstereo.matching.coop.pipeline import census_distance_at, segment_census_choice
+    from prismstereo.matching.coop.steps import FallbackParams
+    from prismstereo.matching.local.costs import census_transform
+
+    rng = np.random.default_rng(4)
+    tex = rng.integers(0, 256, (40, 70, 3), dtype=np.uint8)
+    left, right = np.ascontiguousarray(tex[:, :64]), np.ascontiguousarray(tex[:, 6:70])
+    labels = np.zeros((40, 64), np.int32)
+    labels[:, 32:] = 1
+    good = np.full((40, 64), 6.0, np.float32)
+    bad = np.full((40, 64), 9.0, np.float32)
+    a = np.where(labels == 0, good, bad)  # right on segment 0 only
+    b = np.where(labels == 0, bad, good)  # right on segment 1 only
+    pick = segment_census_choice(left, right, labels, np.ones((40, 64), bool), [a, b])
+    assert (pick[labels == 0] == 0).all() and (pick[labels == 1] == 1).all()
+    cl, cr = census_transform(left, window=(7, 9)), census_transform(right, window=(7, 9))
+    d = census_distance_at(cl, cr, np.where(np.arange(64)[None, :] < 3, np.nan, good).astype(np.float32))
+    assert (d[:, :3] == 63).all() and d[5:-5, 10:-5].max() == 0  # NaN or outside: every bit; the truth: none
+    for bad_names in ((), ("plane", "plane"), ("median",)):
+        with pytest.raises(ConfigError, match="fallback.candidates"):
+            FallbackParams(candidates=bad_names)

@@ -51,6 +51,7 @@ from prismstereo.matching.coop.cooperative import (
     build_segment_graph,
     cooperative_optimize,
 )
+from prismstereo.matching.coop.radiometry import RadiometryParams, compensate_right
 from prismstereo.matching.coop.slanted import segment_plane_costs, segment_sweep_costs, slanted_pair
 from prismstereo.matching.coop.steps import (
     FallbackParams,
@@ -62,6 +63,7 @@ from prismstereo.matching.coop.steps import (
     run_steps,
 )
 from prismstereo.matching.local import selection
+from prismstereo.matching.local.costs import census_transform
 from prismstereo.matching.local.matchers import BPASWMatcher
 from prismstereo.matching.registry import MatchResult, register_matcher
 from prismstereo.matching.segments.planes import (
@@ -392,14 +394,20 @@ class DataTermParams:
         read the volume of the slope nearest its ``b``, whose census window and smoothing box follow the slant.
         Square windows charge a steep floor more at its true plane than at an aliased fronto-parallel one.
         Empty = one unsheared volume.
+    radiometry : RadiometryParams
+        The right view's colours mapped to the left's before every cost of the pair when census matches show
+        a radiometric difference (:func:`prismstereo.matching.coop.radiometry.compensate_right`); a mapping of
+        its fields is accepted.
     """
 
     check_tolerance: float = 0.0
     radius: int = 1
     cost: CostParams | None = None
     slopes: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0)
+    radiometry: RadiometryParams = field(default_factory=RadiometryParams)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "radiometry", coerce_params(RadiometryParams, self.radiometry, "data.radiometry"))
         if self.check_tolerance < 0 or self.radius < 0:
             raise ConfigError(f"expected data.check_tolerance and data.radius >= 0, got "
                               f"{self.check_tolerance!r}, {self.radius!r}")
@@ -511,9 +519,63 @@ class _PairEvidence:
         self.fallback_pixels = int(local.sum())
         if not local.any():
             return final
-        return np.where(local, bpasw_dense_map(self.bvol, self.image, min_disp=self.min_disp,
-                                               right_winner=self.bright, where=local,
-                                               left_winner=self.bleft), final)
+        maps: list[F32] = []
+        for name in p.candidates:
+            if name == "plane":
+                maps.append(final)
+            elif name == "bpasw":
+                maps.append(bpasw_dense_map(self.bvol, self.image, min_disp=self.min_disp, right_winner=self.bright,
+                                            where=local, left_winner=self.bleft))
+            else:
+                maps.append(self._sgm_map())
+        if len(maps) == 1:
+            return np.where(local, maps[0], final)
+        pick = segment_census_choice(self.image, self.right, s.labels, local, maps)
+        out = final.copy()
+        for i, m in enumerate(maps):
+            sel = local & (pick == i)
+            out[sel] = m[sel]
+        return out
+
+    def _sgm_map(self) -> F32:
+        from prismstereo.matching.local.sgm import SGMMatcher
+
+        res = SGMMatcher().compute(self.image, self.right, max_disp=self.max_disp, min_disp=self.min_disp)
+        return np.asarray(res.disparity, np.float32)
+
+
+def census_distance_at(cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint64], disp: F32) -> F32:
+    """Census Hamming distance between each left pixel and its match ``x - round(d)`` in the right view.
+
+    Parameters
+    ----------
+    cl, cr : (H, W) uint64  census codes of the left and right views (7 x 9 windows).
+    disp : (H, W) float32  left disparity (NaN or a match outside the right image: 63, every bit).
+
+    Returns
+    -------
+    (H, W) float32 bit counts.
+    """
+    h, w = disp.shape
+    fin = np.isfinite(disp)
+    xr = np.arange(w)[None, :] - np.rint(np.where(fin, disp, 0.0)).astype(np.int64)
+    inside = fin & (xr >= 0) & (xr < w)
+    ys = np.broadcast_to(np.arange(h)[:, None], (h, w))
+    c = np.bitwise_count(cl ^ cr[ys, np.clip(xr, 0, w - 1)]).astype(np.float32)
+    c[~inside] = 63.0
+    return c
+
+
+def segment_census_choice(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], labels: npt.NDArray[np.int32],
+                          where: npt.NDArray[np.bool_], maps: list[F32]) -> npt.NDArray[np.int64]:
+    """Per pixel, the index into ``maps`` of the map whose census distance (:func:`census_distance_at`) summed
+    over the pixel's segment (``labels``) at the ``where`` pixels is lowest (ties: the first); (H, W) int64."""
+    cl = census_transform(left, window=(7, 9))
+    cr = census_transform(right, window=(7, 9))
+    lab = labels[where]
+    n = int(labels.max()) + 1
+    sums = np.stack([np.bincount(lab, weights=census_distance_at(cl, cr, m)[where], minlength=n) for m in maps])
+    return np.asarray(sums.argmin(axis=0)[labels], np.int64)
 
 
 def _guided_initial(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, max_disp: int, min_disp: int,
@@ -584,6 +646,17 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     st = steps or StepParams()
     tm: dict[str, float] = {}
     tol = st.boundary.tol
+    t = time.perf_counter()
+    # every colour cost of the pair below reads the right view in the left view's radiometry
+    rgt, radio = compensate_right(lft, rgt, max_disp=int(max_disp), params=dp.radiometry)
+    if radio["radiometry_census_only"]:
+        # colours that no intensity mapping reconciles: the pixel costs keep their census term only
+        cp = dataclasses.replace(cp, tau_color=0.0, tau_grad=0.0)
+        if dp.cost is not None:
+            dp = dataclasses.replace(dp, cost=dataclasses.replace(dp.cost, tau_color=0.0, tau_grad=0.0))
+        log.warning("coop: the views' colours disagree beyond an intensity mapping (matched median AD %.1f); "
+                    "matching on census alone", radio["radiometry_ad_after"])
+    tm["radiometry"] = time.perf_counter() - t
 
     t = time.perf_counter()
     # Independent front-end stages run on two threads (their kernels release the GIL): the guided-filter
@@ -671,7 +744,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     state = run_steps(state, ev, st, snapshot=snapshot)
     tm["boundary"] = time.perf_counter() - t
     assert state.disparity is not None
-    info = {**state.info, "segments": float(state.assign.shape[0]), "planes_fitted": float(fin.size),
+    info = {**state.info, **radio, "segments": float(state.assign.shape[0]), "planes_fitted": float(fin.size),
             "planes": float(len(state.planes)), "reliable_fraction": float(reliable.mean())}
     if st.fallback.enabled:
         info["split_evidence_pixels"] = float(nonplanar.sum())
