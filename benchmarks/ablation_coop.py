@@ -12,6 +12,15 @@ configuration: ``full`` (the defaults), ``split`` (the plane support test off) o
 :data:`~prismstereo.matching.coop.steps.STEP_NAMES` (that step off, ``StepParams().without(step)``). A step earns
 its place when switching it off raises the validation average and does not lower the v2 average by more than
 0.1. The last full run: docs/EXPERIMENTS.md (issue 14, item 3) and ``benchmarks/results/ablation_coop.json``.
+
+Per-step maps (where a scene is lost)::
+
+    ... benchmarks/ablation_coop.py --stages OUTDIR --data ../shared/data/middlebury-2014 [--scenes a,b]
+
+runs ``coop`` once per scene with ``keep_stages`` and prints, per scene, the bad-pixel rate (non-occluded; 2.0 px
+for the Middlebury 2014 layout, else 1.0) of the map after each step, beside the BPASW and ``sgm`` maps and the
+radiometry decision; ``OUTDIR/<scene>.npz`` keeps every map (``labels``, ``reliable``, the stage maps, ``sgm``)
+for offline analysis.
 """
 
 from __future__ import annotations
@@ -25,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from prismstereo.evaluation.middlebury import evaluate_disparity, list_scenes, load_scene
+from prismstereo.matching import match
 from prismstereo.matching.coop.pipeline import coop_match
 from prismstereo.matching.coop.steps import STEP_NAMES, StepParams
 from prismstereo.matching.segments.planes import PlaneParams
@@ -49,14 +59,41 @@ def _run(scenes: list[tuple[str, Path]], kw: dict[str, Any]) -> dict[str, dict[s
     return out
 
 
+def _stages(out: Path, data: Path, names: list[str]) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    for name in names:
+        sc = load_scene(name, data)
+        t = 2.0 if (data / name / "calib.txt").is_file() or (data / "calib.txt").is_file() else 1.0
+        t0 = time.perf_counter()
+        res = coop_match(sc.left, sc.right, max_disp=sc.max_disp, keep_stages=True)
+        sec = time.perf_counter() - t0
+        maps = {**res.stages, "final": res.disparity,
+                "sgm": match(sc.left, sc.right, max_disp=sc.max_disp, method="sgm").disparity}
+        np.savez_compressed(out / f"{name}.npz", labels=res.labels, reliable=res.reliable, **maps)
+        bad = {k: evaluate_disparity(v, sc, thresholds=(t,))["bad"][f"{t:.1f}"]["nonocc"]
+               for k, v in maps.items() if k not in ("evidence", "split")}
+        radio = {k: round(v, 2) for k, v in res.info.items() if k.startswith("radiometry")}
+        print(f"{name} (bad {t:.1f} nonocc, coop {sec:.1f} s): " + ", ".join(f"{k} {v:.2f}" for k, v in bad.items())
+              + f"; fallback px {res.info.get('fallback_pixels', 0):.0f}; {radio}", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--stages", default="", help="save and score each step's map per scene into this folder")
+    ap.add_argument("--data", default="", help="with --stages: the data folder")
+    ap.add_argument("--scenes", default="", help="with --stages: comma-separated scenes (default: all)")
     ap.add_argument("--steps", default=",".join(STEPS), help="configurations: full and/or step names")
     ap.add_argument("--v2", default=str(ROOT.parent / "shared" / "data" / "middlebury"))
     ap.add_argument("--validation", default=str(ROOT.parent / "shared" / "data" / "middlebury-extra"))
     ap.add_argument("--quick", action="store_true", help="Tsukuba and the first validation scene only")
     ap.add_argument("--json", default="")
     args = ap.parse_args()
+    if args.stages:
+        if not args.data:
+            raise SystemExit("expected --data DIR with --stages")
+        names = [s.strip() for s in args.scenes.split(",") if s.strip()] or list(list_scenes(args.data))
+        _stages(Path(args.stages), Path(args.data), names)
+        return
     v2 = [(s, Path(args.v2)) for s in ("tsukuba", "venus", "teddy", "cones")]
     val = [(s, Path(args.validation)) for s in list_scenes(args.validation)]
     if args.quick:

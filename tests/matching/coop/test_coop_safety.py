@@ -346,29 +346,47 @@ def test_unsupported_moves_need_a_lower_data_term_over_most_of_the_segment() -> 
     assert unsupported_moves(index, before, before, cost, **kw).size == 0
 
 
-def test_fallback_candidates_are_chosen_per_segment_by_census_distance() -> None:
-    """With several candidate maps a fallback segment takes the one whose census distance between the views is
-    lowest over the segment: on a textured pair at disparity 6, the map at 6 wins over one at 9, in each segment
-    on its own."""
+def test_fallback_candidates_are_chosen_per_segment_by_their_evidence() -> None:
+    """With several candidate maps a fallback segment keeps the first unless another's checked pixels cover a
+    larger share of it by more than the margin; each segment on its own."""
     from prismstereo.errors import ConfigError
-    from prismstereo.matching.coop.pipeline import census_distance_at, segment_census_choice
+    from prismstereo.matching.coop.pipeline import segment_support_choice
     from prismstereo.matching.coop.steps import FallbackParams
-    from prismstereo.matching.local.costs import census_transform
 
-    rng = np.random.default_rng(4)
-    tex = rng.integers(0, 256, (40, 70, 3), dtype=np.uint8)
-    left, right = np.ascontiguousarray(tex[:, :64]), np.ascontiguousarray(tex[:, 6:70])
-    labels = np.zeros((40, 64), np.int32)
-    labels[:, 32:] = 1
-    good = np.full((40, 64), 6.0, np.float32)
-    bad = np.full((40, 64), 9.0, np.float32)
-    a = np.where(labels == 0, good, bad)  # right on segment 0 only
-    b = np.where(labels == 0, bad, good)  # right on segment 1 only
-    pick = segment_census_choice(left, right, labels, np.ones((40, 64), bool), [a, b])
-    assert (pick[labels == 0] == 0).all() and (pick[labels == 1] == 1).all()
-    cl, cr = census_transform(left, window=(7, 9)), census_transform(right, window=(7, 9))
-    d = census_distance_at(cl, cr, np.where(np.arange(64)[None, :] < 3, np.nan, good).astype(np.float32))
-    assert (d[:, :3] == 63).all() and d[5:-5, 10:-5].max() == 0  # NaN or outside: every bit; the truth: none
-    for bad_names in ((), ("plane", "plane"), ("median",)):
-        with pytest.raises(ConfigError, match="fallback.candidates"):
-            FallbackParams(candidates=bad_names)
+    labels = np.zeros((10, 20), np.int32)
+    labels[:, 10:] = 1
+    labels[:, 15:] = 2
+    first = np.zeros((10, 20), bool)
+    first[:5] = True  # half of every segment
+    other = np.zeros((10, 20), bool)
+    other[:, 10:15] = True  # all of segment 1
+    other[:6, 15:] = True  # 60 % of segment 2: within the margin of the first's 50 %
+    where = np.ones((10, 20), bool)
+    where[:, :2] = False
+    pick = segment_support_choice(labels, where, [first, other], margin=0.2)
+    assert (pick[labels == 0] == 0).all() and (pick[labels == 1] == 1).all() and (pick[labels == 2] == 0).all()
+    pick = segment_support_choice(labels, where, [first, other], margin=0.05)
+    assert (pick[labels == 2] == 1).all()
+    for bad in ({"candidates": ()}, {"candidates": ("plane", "plane")}, {"candidates": ("median",)},
+                {"margin": 1.5}):
+        with pytest.raises(ConfigError, match="fallback"):
+            FallbackParams(**bad)  # type: ignore[arg-type]
+
+
+def test_fallback_can_take_the_sgm_map() -> None:
+    """The ``sgm`` candidate: a segment whose BPASW map has no checked pixel takes the ``sgm`` matcher's map."""
+    from prismstereo.matching.coop.steps import FallbackParams
+    from prismstereo.matching.local.sgm import SGMMatcher
+
+    d_true = 6
+    h, w = 70, 100
+    left, right, vol, local = _fallback_pair(3, h, w)
+    state = _plane_state(np.zeros((h, w), np.int32), d_true + 3.0)
+    wrong = np.full((h, w), d_true + 3.0, np.float32)
+    evidence = np.zeros((h, w), bool)
+    evidence[:20] = True
+    ev = _fallback_evidence(left, right, vol, local, evidence)
+    ev.bright = np.full((h, w), 15, np.int64)  # the BPASW check fails everywhere
+    out = ev.fallback(state, wrong, FallbackParams(max_agreement=0.0, candidates=("bpasw", "sgm")))
+    sgm = SGMMatcher().compute(left, right, max_disp=16).disparity
+    np.testing.assert_array_equal(out, sgm)

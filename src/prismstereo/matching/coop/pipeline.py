@@ -63,7 +63,6 @@ from prismstereo.matching.coop.steps import (
     run_steps,
 )
 from prismstereo.matching.local import selection
-from prismstereo.matching.local.costs import census_transform
 from prismstereo.matching.local.matchers import BPASWMatcher
 from prismstereo.matching.registry import MatchResult, register_matcher
 from prismstereo.matching.segments.planes import (
@@ -520,62 +519,67 @@ class _PairEvidence:
         if not local.any():
             return final
         maps: list[F32] = []
+        support: list[npt.NDArray[np.bool_]] = []
         for name in p.candidates:
             if name == "plane":
                 maps.append(final)
+                support.append(self.evidence & (np.abs(final - self.initial) <= p.tol))
             elif name == "bpasw":
                 maps.append(bpasw_dense_map(self.bvol, self.image, min_disp=self.min_disp, right_winner=self.bright,
                                             where=local, left_winner=self.bleft))
+                support.append(self._bpasw_checked())
             else:
-                maps.append(self._sgm_map())
+                sgm_map, sgm_valid = self._sgm_map()
+                maps.append(sgm_map)
+                support.append(sgm_valid)
         if len(maps) == 1:
             return np.where(local, maps[0], final)
-        pick = segment_census_choice(self.image, self.right, s.labels, local, maps)
+        pick = segment_support_choice(s.labels, local, support, margin=p.margin)
         out = final.copy()
         for i, m in enumerate(maps):
             sel = local & (pick == i)
             out[sel] = m[sel]
         return out
 
-    def _sgm_map(self) -> F32:
+    def _bpasw_checked(self) -> npt.NDArray[np.bool_]:
+        # the BPASW matcher's own left-right check (1 px), the pixels its dense map keeps before filling
+        md = self.min_disp
+        dright = (self.bright + md).astype(np.float32)
+        return np.asarray(selection.cross_check((self.bleft + md).astype(np.float32), dright, tolerance=1.0), bool)
+
+    def _sgm_map(self) -> tuple[F32, npt.NDArray[np.bool_]]:
+        # the ``sgm`` matcher (census cost, 8 paths) with its defaults: its dense map and its checked pixels
         from prismstereo.matching.local.sgm import SGMMatcher
 
         res = SGMMatcher().compute(self.image, self.right, max_disp=self.max_disp, min_disp=self.min_disp)
-        return np.asarray(res.disparity, np.float32)
+        return np.asarray(res.disparity, np.float32), np.asarray(res.valid, bool)
 
 
-def census_distance_at(cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint64], disp: F32) -> F32:
-    """Census Hamming distance between each left pixel and its match ``x - round(d)`` in the right view.
+def segment_support_choice(labels: npt.NDArray[np.int32], where: npt.NDArray[np.bool_],
+                           support: list[npt.NDArray[np.bool_]], *, margin: float) -> npt.NDArray[np.int64]:
+    """Per pixel, the index of the candidate map its segment takes in the fallback step.
 
     Parameters
     ----------
-    cl, cr : (H, W) uint64  census codes of the left and right views (7 x 9 windows).
-    disp : (H, W) float32  left disparity (NaN or a match outside the right image: 63, every bit).
+    labels : (H, W) int32  segments.
+    where : (H, W) bool  the pixels being replaced.
+    support : list of (H, W) bool  per candidate, the pixels where its own matcher's evidence holds (its
+        left-right check passed).
+    margin : float, keyword-only
+        A segment keeps the first candidate unless another's supported share of the segment's ``where`` pixels
+        exceeds the first's by more than ``margin``; then the best-supported one.
 
     Returns
     -------
-    (H, W) float32 bit counts.
+    (H, W) int64 candidate index.
     """
-    h, w = disp.shape
-    fin = np.isfinite(disp)
-    xr = np.arange(w)[None, :] - np.rint(np.where(fin, disp, 0.0)).astype(np.int64)
-    inside = fin & (xr >= 0) & (xr < w)
-    ys = np.broadcast_to(np.arange(h)[:, None], (h, w))
-    c = np.bitwise_count(cl ^ cr[ys, np.clip(xr, 0, w - 1)]).astype(np.float32)
-    c[~inside] = 63.0
-    return c
-
-
-def segment_census_choice(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], labels: npt.NDArray[np.int32],
-                          where: npt.NDArray[np.bool_], maps: list[F32]) -> npt.NDArray[np.int64]:
-    """Per pixel, the index into ``maps`` of the map whose census distance (:func:`census_distance_at`) summed
-    over the pixel's segment (``labels``) at the ``where`` pixels is lowest (ties: the first); (H, W) int64."""
-    cl = census_transform(left, window=(7, 9))
-    cr = census_transform(right, window=(7, 9))
     lab = labels[where]
     n = int(labels.max()) + 1
-    sums = np.stack([np.bincount(lab, weights=census_distance_at(cl, cr, m)[where], minlength=n) for m in maps])
-    return np.asarray(sums.argmin(axis=0)[labels], np.int64)
+    cnt = np.maximum(np.bincount(lab, minlength=n), 1).astype(np.float64)
+    share = np.stack([np.bincount(lab, weights=m[where].astype(np.float64), minlength=n) / cnt for m in support])
+    best = share.argmax(axis=0)
+    take = share[best, np.arange(n)] > share[0] + margin
+    return np.asarray(np.where(take, best, 0)[labels], np.int64)
 
 
 def _guided_initial(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, max_disp: int, min_disp: int,

@@ -216,10 +216,10 @@ class FallbackParams:
       against nearly all of their evidence; ``max_agreement`` 0 = off).
 
     Sizes are shares of the image, so the rules mean the same at any resolution. ``candidates`` are the maps such a
-    segment may take (``"plane"``: its own final map, ``"bpasw"``: the local matcher's, ``"sgm"``: the ``sgm``
-    matcher's): each segment takes the one whose census distance between the views, summed over the segment's
-    taken pixels, is lowest (a rank cost, unaffected by a radiometric difference between the views); a single
-    candidate is taken as it is."""
+    segment may take (``"bpasw"``: the local matcher's, ``"sgm"``: the ``sgm`` matcher's, ``"plane"``: its own final
+    map): it takes the first unless another's evidence (the pixels its matcher's left-right check keeps; for
+    ``plane`` the evidence pixels within ``tol`` of it) covers a larger share of the segment's replaced pixels by
+    more than ``margin``; then the best-covered one."""
 
     enabled: bool = True
     min_coverage: float = 0.4
@@ -230,13 +230,15 @@ class FallbackParams:
     against_coverage: float = 0.5
     against_pixels: int = 20
     tol: float = 1.0
-    candidates: tuple[str, ...] = ("bpasw",)
+    candidates: tuple[str, ...] = ("bpasw", "sgm")
+    margin: float = 0.2
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "candidates", tuple(str(c) for c in self.candidates))
         _need(len(self.candidates) > 0 and set(self.candidates) <= {"plane", "bpasw", "sgm"}
               and len(set(self.candidates)) == len(self.candidates),
               "fallback.candidates distinct names among plane, bpasw, sgm", self.candidates)
+        _need(0.0 <= self.margin <= 1.0, "fallback.margin in [0, 1]", self.margin)
         _need(all(0.0 <= v <= 1.0 for v in (self.min_coverage, self.bare_coverage, self.max_agreement,
                                              self.against_coverage))
               and 0.0 < self.min_share <= 1.0 and 0.0 < self.bare_share <= 1.0,
