@@ -109,6 +109,12 @@ def test_a_tiny_budget_tiles_and_gives_the_untiled_map(scene: tuple) -> None:
     assert same.mean() > 0.98  # the seams differ a little (paths cut at the strips' far ends)
     assert abs(tiled.valid.mean() - untiled.valid.mean()) < 0.01
     assert _bad(tiled.disparity, gt) <= _bad(untiled.disparity, gt) + 0.5
+    # auto: over the budget with a wide enough range, coarse-to-fine rather than full-range strips
+    auto = match(left, right, max_disp=63, min_disp=4, method="sgm",
+                 scale=ScaleParams(max_memory=p.max_memory, tile=64, overlap=16))
+    assert auto.extras["scale"]["coarse_to_fine"]
+    assert auto.extras["scale"]["estimate_bytes"] <= p.max_memory
+    assert _bad(auto.disparity, gt) <= _bad(untiled.disparity, gt) + 1.0
 
 
 def test_no_tile_fits_is_refused(scene: tuple) -> None:

@@ -148,7 +148,7 @@ def _add_match(sub: argparse._SubParsersAction) -> None:
 def _add_scale_flags(p: argparse.ArgumentParser, *, default: str | None) -> None:
     p.add_argument("--coarse-to-fine", default=default, choices=["auto", "on", "off"],
                    help="match a half-size pair over the whole range, then the full size in a band around it "
-                        "(auto: above 1.5 megapixels and 48 disparities; docs/cli.md)")
+                        "(auto: from 4 megapixels, or where the full search would exceed --max-memory; docs/cli.md)")
     p.add_argument("--max-memory", default=None, metavar="SIZE",
                    help="peak-memory budget of the match, e.g. 6G (default: 80%% of the available memory); "
                         "over it the match is tiled, refused only when no tile fits")

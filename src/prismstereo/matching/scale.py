@@ -75,8 +75,9 @@ class ScaleParams:
     Attributes
     ----------
     coarse_to_fine : {"auto", "on", "off"}
-        ``auto``: coarse-to-fine when the image has at least ``auto_pixels`` pixels and the range at least
-        ``auto_range`` disparities; ``on`` / ``off`` force it.
+        ``auto``: coarse-to-fine when the range has at least ``auto_range`` disparities and either the image
+        has at least ``auto_pixels`` pixels or the full search would exceed the memory budget (else the
+        full search, in strips when over budget); ``on`` / ``off`` force it.
     auto_pixels, auto_range : int
         The automatic size (pixels, disparities).
     factor : int
@@ -95,7 +96,7 @@ class ScaleParams:
     """
 
     coarse_to_fine: str = "auto"
-    auto_pixels: int = 1_500_000
+    auto_pixels: int = 4_000_000
     auto_range: int = 48
     factor: int = 2
     margin: int = 4
@@ -185,13 +186,13 @@ class _Tile:
     full: bool  # the band fell back to the whole range
 
 
-def _use_c2f(p: ScaleParams, h: int, w: int, nd: int) -> bool:
+def _use_c2f(p: ScaleParams, h: int, w: int, nd: int, over_budget: bool) -> bool:
     if p.coarse_to_fine == "off":
         return False
     small = min(h, w) < 4 * p.factor or nd < 4 * p.factor
     if p.coarse_to_fine == "on":
         return not small
-    return not small and h * w >= p.auto_pixels and nd >= p.auto_range
+    return not small and nd >= p.auto_range and (h * w >= p.auto_pixels or over_budget)
 
 
 def _grid(n: int, size: int) -> list[tuple[int, int]]:
@@ -349,7 +350,7 @@ def match_scaled(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp
     lo, hi = int(min_disp), int(max_disp)
     nd = hi - lo + 1
     est_full = estimate_memory(method, h, w, nd)
-    c2f = _use_c2f(p, h, w, nd)
+    c2f = _use_c2f(p, h, w, nd, est_full > budget)
     info: dict[str, Any] = {"coarse_to_fine": c2f, "mode": p.coarse_to_fine, "levels": _level + 1,
                             "estimate_bytes": est_full, "budget_bytes": int(budget), "tiles": 1,
                             "band_mean": float(nd), "full_range_tiles": 0}
