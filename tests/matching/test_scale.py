@@ -157,9 +157,10 @@ import numpy as np
 sys.path.insert(0, {tests!r})
 from matching.test_scale import _scene
 from prismstereo.matching import match
-left, right, _ = _scene(60, 120)
-match(left, right, max_disp=30, method={method!r})  # warm-up: numba's kernels loaded
 left, right, _ = _scene({h}, {w})
+# warm-up on the same pair with a quarter of the range: numba's kernels loaded (or compiled) before the
+# measured match, whose volumes are four times larger
+match(left, right, max_disp={d} // 4, method={method!r})
 with open("/proc/self/statm") as fh:  # resident now (the warm-up's peak may lie above it)
     r0 = int(fh.read().split()[1]) * resource.getpagesize()
 match(left, right, max_disp={d}, method={method!r})
