@@ -161,3 +161,28 @@ def test_the_steps_compose_to_run_depth(plane_capture, plane_run):
     assert region.disparity_range == plane_run.disparity_range and cfg == plane_run.config
     with pytest.raises(dataclasses.FrozenInstanceError):
         plane_run.depth = pts.depth  # type: ignore[misc]
+
+
+def test_coarse_to_fine_depth_matches_the_full_search(plane_capture):
+    """Issue 30: the depth run with coarse-to-fine forced on keeps the full search's accuracy and coverage,
+    and run.json records what ran; a memory budget too small for any tile is refused."""
+    import pytest
+
+    from prismstereo.depth import DepthConfig, run_depth
+    from prismstereo.errors import ConfigError, MatchingError
+    from prismstereo.evaluation.depth_metrics import evaluate_depth, ground_truth_for_run
+
+    rig, scene, cap = plane_capture
+    out = {}
+    for mode in ("off", "on"):
+        res = run_depth(rig, cap.image, config=DepthConfig(method="sgm", coarse_to_fine=mode))
+        out[mode] = evaluate_depth(res, gt=ground_truth_for_run(res, scene=scene))
+        info = res.summary()["matching"]
+        assert info["coarse_to_fine"] is (mode == "on")
+        assert res.summary()["config"]["coarse_to_fine"] == mode
+    assert abs(out["on"]["median_rel"] - out["off"]["median_rel"]) * 100 < 0.02
+    assert abs(out["on"]["coverage"] - out["off"]["coverage"]) * 100 < 2.0
+    with pytest.raises(MatchingError, match="max_memory"):
+        run_depth(rig, cap.image, config=DepthConfig(method="sgm", max_memory=2**20))
+    with pytest.raises(ConfigError, match="coarse_to_fine"):
+        run_depth(rig, cap.image, config=DepthConfig(coarse_to_fine="maybe"))

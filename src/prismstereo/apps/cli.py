@@ -141,7 +141,17 @@ def _add_match(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--min-disp", type=int, default=0, help="smallest disparity searched (px)")
     p.add_argument("--method", default="bpasw", help="matcher name (sad, ssd, ncc, shd, bpasw, sgbm, ...)")
     p.add_argument("-p", "--param", action="append", metavar="KEY=VALUE", help="matcher tuning parameter")
+    _add_scale_flags(p, default="auto")
     p.set_defaults(handler=_cmd_match)
+
+
+def _add_scale_flags(p: argparse.ArgumentParser, *, default: str | None) -> None:
+    p.add_argument("--coarse-to-fine", default=default, choices=["auto", "on", "off"],
+                   help="match a half-size pair over the whole range, then the full size in a band around it "
+                        "(auto: from 4 megapixels, or where the full search would exceed --max-memory; docs/cli.md)")
+    p.add_argument("--max-memory", default=None, metavar="SIZE",
+                   help="peak-memory budget of the match, e.g. 6G (default: 80%% of the available memory); "
+                        "over it the match is tiled, refused only when no tile fits")
 
 
 def _cmd_match(args: argparse.Namespace) -> int:
@@ -154,6 +164,7 @@ def _cmd_match(args: argparse.Namespace) -> int:
     from prismstereo.io.memory import check_fits_in_memory
     from prismstereo.matching import get_matcher, match
     from prismstereo.matching.diagnostics import limit_warnings
+    from prismstereo.matching.scale import ScaleParams, default_memory_budget, estimate_memory, parse_memory
     from prismstereo.viz.colorize import colorize_disparity
 
     params = _parse_params(args.param)
@@ -166,14 +177,19 @@ def _cmd_match(args: argparse.Namespace) -> int:
     png = out.with_suffix(".png")
     check_output_file(out)  # before any work
     check_output_file(png)
-    size = image_size(args.left)  # header only: refuse a cost volume that cannot fit before decoding
+    scale = ScaleParams(coarse_to_fine=args.coarse_to_fine, max_memory=parse_memory(args.max_memory))
+    size = image_size(args.left)  # header only: refuse a match that cannot fit even tiled, before decoding
     if size is not None:
-        check_fits_in_memory(size[0] * size[1] * (args.max_disp - args.min_disp + 1) * 4 * 3,
-                             what=f"the cost volume of a {size[0]}×{size[1]} pair over "
-                                  f"{args.max_disp - args.min_disp + 1} disparities",
-                             hint="use smaller images or a narrower --min-disp/--max-disp", error=ConfigError)
+        nd = args.max_disp - args.min_disp + 1
+        budget = scale.max_memory if scale.max_memory is not None else default_memory_budget()
+        log.info("match %s %d×%d, %d disparities: untiled peak memory estimate %.2f GiB (budget %.2f GiB)",
+                 args.method, size[0], size[1], nd, estimate_memory(args.method, size[1], size[0], nd) / 2**30,
+                 budget / 2**30)
+        check_fits_in_memory(size[0] * size[1] * 64, what=f"a {size[0]}×{size[1]} pair and its maps",
+                             hint="use smaller images", error=ConfigError)
     left, right = read_image(args.left), read_image(args.right)
-    res = match(left, right, max_disp=args.max_disp, min_disp=args.min_disp, method=args.method, **params)
+    res = match(left, right, max_disp=args.max_disp, min_disp=args.min_disp, method=args.method, scale=scale,
+                **params)
     d = res.disparity
     region = np.asarray((left.reshape(left.shape[0], left.shape[1], -1) > 0).any(axis=2))  # not a black border
     for line in limit_warnings(d, res.valid, min_disp=args.min_disp, max_disp=args.max_disp, region=region):
@@ -295,7 +311,14 @@ def _add_depth(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--min-confidence", type=float, default=None, metavar="C",
                    help="keep points whose confidence (0..1, in confidence.pfm and points.ply) is at least C; "
                         "0 keeps every match (default: DepthConfig's, docs/formats.md)")
+    _add_scale_flags(p, default=None)
     p.set_defaults(handler=_cmd_depth)
+
+
+def _parse_memory(text: str | None) -> int | None:
+    from prismstereo.matching.scale import parse_memory
+
+    return parse_memory(text)
 
 
 def _cmd_depth(args: argparse.Namespace) -> int:
@@ -311,7 +334,8 @@ def _cmd_depth(args: argparse.Namespace) -> int:
                         depth_range=depth_range, roi=_parse_roi(args.roi), views=views,
                         triangulation=args.triangulation, calibration=args.calibration, gt=args.gt,
                         refine=False if args.no_refine else None, config_path=args.config,
-                        self_calibrate=args.self_calibrate, min_confidence=args.min_confidence))
+                        self_calibrate=args.self_calibrate, min_confidence=args.min_confidence,
+                        coarse_to_fine=args.coarse_to_fine, max_memory=_parse_memory(args.max_memory)))
     return 0
 
 

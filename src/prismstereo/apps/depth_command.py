@@ -40,13 +40,15 @@ def depth_command(rig_path: str | None, image_path: str | None, out_dir: str, *,
                   roi: tuple[int, int, int, int] | None = None, views: Any = None,
                   triangulation: str | None = None, calibration: str | None = None, gt: str | None = None,
                   refine: bool | None = None, preset: str | None = None, config_path: str | None = None,
-                  self_calibrate: bool = False, min_confidence: float | None = None) -> str:
+                  self_calibrate: bool = False, min_confidence: float | None = None,
+                  coarse_to_fine: str | None = None, max_memory: int | None = None) -> str:
     """Run ``prismstereo depth`` and return the lines to print (``preset``: its name, for the report;
     ``self_calibrate``: refine the prism's pose from the capture's own feature matches first; the refined
     rig is the one recorded in run.json, so a replay does not calibrate again)."""
     opts = replay_options(config_path, rig_path, image_path, method=method, params=params, depth_range=depth_range,
                           roi=roi, views=_resolve_views(views), triangulation=triangulation, calibration=calibration,
-                          gt=gt, refine=refine, preset=preset, min_confidence=min_confidence)
+                          gt=gt, refine=refine, preset=preset, min_confidence=min_confidence,
+                          coarse_to_fine=coarse_to_fine, max_memory=max_memory)
     rig, gt, preset = opts.rig, opts.gt, opts.preset
     if self_calibrate and opts.config.views == "all" and rig.prism.faces >= 3:
         raise ConfigError("--self-calibrate: expected a face pair (--views I,J), got --views all")

@@ -73,7 +73,8 @@ def replay_options(config_path: str | None, rig_path: str | None, image_path: st
                    depth_range: tuple[float, float] | None = None, roi: tuple[int, int, int, int] | None = None,
                    views: tuple[int, int] | str | None = None, triangulation: str | None = None,
                    calibration: str | None = None, gt: str | None = None, refine: bool | None = None,
-                   preset: str | None = None, min_confidence: float | None = None) -> DepthOptions:
+                   preset: str | None = None, min_confidence: float | None = None,
+                   coarse_to_fine: str | None = None, max_memory: int | None = None) -> DepthOptions:
     """The options of a depth run: those given (not None) over the recorded run's (``config_path``), over the
     defaults of :class:`~prismstereo.depth.pipeline.DepthConfig`.
 
@@ -114,7 +115,8 @@ def replay_options(config_path: str | None, rig_path: str | None, image_path: st
     if params:
         changes["matcher_params"] = {**changes.get("matcher_params", base.matcher_params), **params}
     for key, value in (("depth_range", depth_range), ("roi", roi), ("triangulation", triangulation),
-                       ("calibration", calibration), ("refine", refine), ("min_confidence", min_confidence)):
+                       ("calibration", calibration), ("refine", refine), ("min_confidence", min_confidence),
+                       ("coarse_to_fine", coarse_to_fine), ("max_memory", max_memory)):
         if value is not None:
             changes[key] = value
     if views is not None:

@@ -57,6 +57,7 @@ from prismstereo.errors import ConfigError, GeometryError, ImageError
 from prismstereo.io.jsonio import library_versions
 from prismstereo.matching import available_matchers, match
 from prismstereo.matching.registry import resolved_params
+from prismstereo.matching.scale import ScaleParams
 from prismstereo.multiview.prism import SweepParams, depth_all_views
 from prismstereo.progress import progress_bar
 from prismstereo.rectify import RectifiedPair, common_view, rectify_pair
@@ -152,6 +153,12 @@ class DepthConfig:
         by the linear interpolation biases the refined disparities; None: none.
     sweep : SweepParams
         The plane sweep of ``views="all"`` (:class:`~prismstereo.multiview.prism.SweepParams`).
+    coarse_to_fine : {"auto", "on", "off"}
+        Match a downsampled pair over the whole range, then the full resolution in tiles within a band
+        around it (:mod:`prismstereo.matching.scale`); ``auto``: above ``ScaleParams.auto_pixels``.
+    max_memory : int or None
+        Peak-memory budget of the match, bytes (over it, the match is tiled; refused when no tile fits);
+        None: 80 % of the machine's available memory.
     """
 
     method: str = "bpasw"
@@ -173,6 +180,8 @@ class DepthConfig:
     refine_max_lr_gap: float | None = 0.45
     refine_prefilter: float | None = 0.7
     sweep: SweepParams = field(default_factory=SweepParams)
+    coarse_to_fine: str = "auto"
+    max_memory: int | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON types (tuples as lists); :meth:`from_dict` reads it back."""
@@ -251,12 +260,15 @@ class Disparities:
         The matcher's cross-checked output before the right-view check.
     timings : dict
         The matcher's own seconds per stage.
+    info : dict
+        How the match ran (:func:`~prismstereo.matching.scale.match_scaled`'s ``extras["scale"]``).
     """
 
     disparity: np.ndarray
     filled: np.ndarray
     raw: np.ndarray
     timings: dict[str, float]
+    info: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True, eq=False)
@@ -414,6 +426,7 @@ class DepthResult:
     stage_counts: dict[str, int] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
     match_timings: dict[str, float] = field(default_factory=dict)
+    match_info: dict[str, Any] = field(default_factory=dict)
     cpu_timings: dict[str, float] = field(default_factory=dict)
     warnings: tuple[str, ...] = ()
     sweep: dict[str, Any] = field(default_factory=dict)
@@ -475,6 +488,7 @@ class DepthResult:
             "timings_s": {k: round(v, 4) for k, v in self.timings.items()},
             "cpu_s": {k: round(v, 4) for k, v in self.cpu_timings.items()},
             "matcher_timings_s": {k: round(v, 4) for k, v in self.match_timings.items()},
+            "matching": dict(self.match_info) or None,
             "counts": self.counts(),
             "coverage": None if self.coverage is None else self.coverage.to_dict(),
             "accuracy": self.accuracy,
@@ -564,6 +578,7 @@ def validate_config(rig: Rig, config: DepthConfig) -> DepthConfig:
                           f"got {config.refine_prefilter!r}")
     if config.max_gap_mm is not None and not config.max_gap_mm > 0:
         raise ConfigError(f"max_gap_mm: expected a positive number, got {config.max_gap_mm!r}")
+    ScaleParams(coarse_to_fine=config.coarse_to_fine, max_memory=config.max_memory)  # coarse_to_fine, max_memory
     method = config.method.lower()
     params = resolved_params(method, **config.matcher_params)
     return dataclasses.replace(config, views=views, method=method, depth_range=depth_range, matcher_params=params)
@@ -675,7 +690,9 @@ def match_pair(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, region:
     sub_r = right[r0:r1, ca:c1]
     hi_eff = min(hi, sub_l.shape[1] - 1)
     lo_eff = min(lo, hi_eff)
-    res = match(sub_l, sub_r, max_disp=hi_eff, min_disp=lo_eff, method=config.method, **config.matcher_params)
+    res = match(sub_l, sub_r, max_disp=hi_eff, min_disp=lo_eff, method=config.method,
+                scale=ScaleParams(coarse_to_fine=config.coarse_to_fine, max_memory=config.max_memory),
+                **config.matcher_params)
     raw_sub = res.disparity_raw if res.disparity_raw is not None else np.where(res.valid, res.disparity, np.nan)
     h, w = left.shape[:2]
     raw = np.full((h, w), np.nan, dtype=np.float32)
@@ -696,7 +713,8 @@ def match_pair(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, region:
     bad[ys[~inside], xs[~inside]] = True
     src = src.copy()
     src[bad] = np.nan
-    return Disparities(disparity=src, filled=dense, raw=raw, timings=dict(res.timings))
+    return Disparities(disparity=src, filled=dense, raw=raw, timings=dict(res.timings),
+                       info=dict(res.extras.get("scale", {})))
 
 
 def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, disparity: np.ndarray,
@@ -856,7 +874,8 @@ def _run_frame(setup: DepthSetup, image: np.ndarray, left: np.ndarray, right: np
         disparity_range=region.disparity_range, depth_range=region.depth_range, depth_range_source=region.source,
         faces=(int(pair.left_face), int(pair.right_face)),
         confidence=np.where(pts.valid, conf, np.float32(np.nan)).astype(np.float32), stage_counts=counts,
-        timings=dict(setup.timings), match_timings=matched.timings, warnings=region.warnings)
+        timings=dict(setup.timings), match_timings=matched.timings, match_info=matched.info,
+        warnings=region.warnings)
     return _finish(result, clock, t0)
 
 

@@ -9,6 +9,7 @@ import numpy as np
 
 from prismstereo.errors import ImageError, MatchingError
 from prismstereo.matching.registry import MatchResult, get_matcher
+from prismstereo.matching.scale import match_scaled
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +71,7 @@ def validate_range(width: int, *, max_disp: Any, min_disp: Any = 0) -> tuple[int
 
 
 def match(left: Any, right: Any, *, max_disp: int, min_disp: int = 0, method: str = "bpasw",
-          **params: Any) -> MatchResult:
+          scale: Any = None, **params: Any) -> MatchResult:
     """Disparity of ``left`` against ``right`` with a registered method.
 
     Inputs are validated before any work.
@@ -86,6 +87,9 @@ def match(left: Any, right: Any, *, max_disp: int, min_disp: int = 0, method: st
         1-pixel-wide image is matched with ``max_disp=0``).
     method : str
         A name from :func:`~prismstereo.matching.registry.available_matchers`.
+    scale : ScaleParams or None (typed Any: a matcher parameter in ``**params`` may be a bool)
+        Coarse-to-fine and memory-bounded tiling (:func:`~prismstereo.matching.scale.match_scaled`); None
+        runs the matcher once on the whole pair.
     **params
         The method's keyword tuning parameters.
 
@@ -102,4 +106,6 @@ def match(left: Any, right: Any, *, max_disp: int, min_disp: int = 0, method: st
     lo, hi = validate_range(lt.shape[1], max_disp=max_disp, min_disp=min_disp)
     matcher = get_matcher(method, **params)
     log.debug("match %s: %dx%d, d in [%d, %d]", method, lt.shape[1], lt.shape[0], lo, hi)
+    if scale is not None:
+        return match_scaled(lt, rt, max_disp=hi, min_disp=lo, method=method, params=params, scale=scale)
     return matcher.compute(lt, rt, max_disp=hi, min_disp=lo)

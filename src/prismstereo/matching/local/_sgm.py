@@ -65,31 +65,31 @@ def _path_update(c: np.ndarray, prev: np.ndarray, pmin: int, p1: int, p2: int, d
         acc[0] += v
         return int(v)
     # the ends of the range apart, so that the loop over the inner disparities has no branches (SIMD)
+    # the minimum is taken in the same pass (a vectorised min reduction; the same value as a second pass)
     v = min(min(prev[0], prev[1] + q1), jump) - m + np.int32(c[0])
     dst[0] = v
     acc[0] += v
+    best = np.int32(v)
     for d in range(1, nd - 1):
         v = min(min(prev[d], prev[d - 1] + q1), min(prev[d + 1] + q1, jump)) - m + np.int32(c[d])
         dst[d] = v
         acc[d] += v
+        best = min(best, np.int32(v))
     v = min(min(prev[nd - 1], prev[nd - 2] + q1), jump) - m + np.int32(c[nd - 1])
     dst[nd - 1] = v
     acc[nd - 1] += v
-    best = dst[0]
-    for d in range(1, nd):
-        best = min(best, dst[d])
+    best = min(best, np.int32(v))
     return int(best)
 
 
 @njit(cache=True, inline="always")
 def _path_start(c: np.ndarray, dst: np.ndarray, acc: np.ndarray) -> int:  # pragma: no cover - numba
+    best = np.int32(c[0])
     for d in range(c.shape[0]):
         v = np.int32(c[d])
         dst[d] = v
         acc[d] += v
-    best = dst[0]
-    for d in range(1, c.shape[0]):
-        best = min(best, dst[d])
+        best = min(best, v)
     return int(best)
 
 

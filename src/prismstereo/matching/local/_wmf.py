@@ -30,7 +30,8 @@ def wmf_kernel(disp: np.ndarray, mask: np.ndarray, lab: np.ndarray, radius: int,
         for x in range(w):
             if not mask[y, x]:
                 continue
-            hist[:] = 0.0
+            # only the bins this window touches are reset and scanned: the same sums (the bins below hold 0)
+            blo, bhi = nbins, -1
             total = np.float32(0.0)
             l0, l1, l2 = lab[y, x, 0], lab[y, x, 1], lab[y, x, 2]
             for yy in range(max(0, y - radius), min(h, y + radius + 1)):
@@ -47,12 +48,24 @@ def wmf_kernel(disp: np.ndarray, mask: np.ndarray, lab: np.ndarray, radius: int,
                     wt = lut[k] * spatial[yy - y + radius, xx - x + radius]
                     bi = int(np.floor(v - dmin + 0.5))
                     bi = min(max(bi, 0), nbins - 1)
+                    if bhi < 0:
+                        hist[bi] = 0.0
+                        blo = bi
+                        bhi = bi
+                    elif bi < blo:
+                        for k2 in range(bi, blo):
+                            hist[k2] = 0.0
+                        blo = bi
+                    elif bi > bhi:
+                        for k2 in range(bhi + 1, bi + 1):
+                            hist[k2] = 0.0
+                        bhi = bi
                     hist[bi] += wt
                     total += wt
             if total <= 0.0:
                 continue
             acc = np.float32(0.0)
-            for bi in range(nbins):
+            for bi in range(blo, bhi + 1):
                 acc += hist[bi]
                 if acc >= 0.5 * total:
                     out[y, x] = dmin + bi

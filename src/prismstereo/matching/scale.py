@@ -1,0 +1,392 @@
+"""Coarse-to-fine and memory-bounded matching around any registered matcher (issue 30).
+
+Every matcher builds an ``H × W × D`` cost volume, so its time and memory grow with pixels × disparities.
+:func:`match_scaled` wraps a matcher without touching its internals:
+
+1. **coarse level** — the pair downsampled by ``factor`` (area average) is matched with the whole range
+   (``[⌊min/f⌋, ⌈max/f⌉]``), itself coarse-to-fine again while it is still above the automatic size;
+2. **tiles with a band** — the full-resolution left image is split into core tiles; each tile gets the
+   disparity sub-range ``[lo, hi]`` of the coarse map (dense, × ``factor``) over the core dilated by the
+   context ``overlap``, ± ``margin``. Where the coarse map is unreliable (fewer than ``min_valid`` of the
+   region's coarse pixels passed the coarse left–right check — occlusions, thin structures, no texture)
+   the tile falls back to the full range. The matcher then runs on the tile plus its context with the
+   right image shifted by ``lo`` (``min_disp = 0``, ``max_disp = hi - lo``), so a tile costs
+   ``(tile + context) × band`` instead of ``tile × range``;
+3. **stitching** — each output pixel comes from the one tile whose core holds it; the core's context (the
+   ``overlap`` on every side, plus ``hi - lo`` columns to the left for the right view) is matched but
+   dropped, so aggregation windows, SGM paths and segments see the same neighbourhood on both sides of a
+   seam.
+
+The same tiling bounds memory: :func:`estimate_memory` predicts a match's peak resident memory from the
+image size, the disparity count and the matcher (``bytes = base + a·H·W + b·H·W·D``, coefficients
+measured with ``ru_maxrss``, ``benchmarks/bench_memory.py``); a match over ``max_memory`` runs in
+horizontal strips (full-range search, row overlap) or smaller tiles, and raises :class:`MatchingError`
+only when no tile fits.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import os
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+from prismstereo.errors import ConfigError, MatchingError
+from prismstereo.matching.registry import Matcher, MatchResult, get_matcher
+
+log = logging.getLogger(__name__)
+
+__all__ = ["C2F_MODES", "ScaleParams", "default_memory_budget", "estimate_memory", "match_scaled",
+           "parse_memory"]
+
+#: values of ``ScaleParams.coarse_to_fine``
+C2F_MODES = ("auto", "on", "off")
+
+#: peak-memory model per matcher: (bytes per pixel, bytes per pixel and disparity) of one match, on top of
+#: the process base; measured with ``ru_maxrss`` after a warm-up (``benchmarks/bench_memory.py``)
+_MEMORY_MODEL: dict[str, tuple[float, float]] = {
+    "sgm": (220.0, 6.5),
+    "sgbm": (60.0, 4.5),
+    "bpasw": (400.0, 13.5),
+    "sad": (120.0, 9.0),
+    "ssd": (120.0, 9.0),
+    "ncc": (160.0, 9.0),
+    "shd": (160.0, 9.0),
+    "coop": (1500.0, 42.0),
+}
+#: a matcher without a measured model is assumed to be as heavy as the heaviest one
+_UNKNOWN_MODEL = (2500.0, 40.0)
+#: resident memory of the process before the match (interpreter, numpy, numba, OpenCV), bytes
+PROCESS_BASE = 300 * 2**20
+#: per full-resolution pixel held by the tiled run (the float32 pair, the stitched maps)
+_STITCH_PER_PIXEL = 48.0
+
+
+@dataclass(frozen=True, kw_only=True)
+class ScaleParams:
+    """Coarse-to-fine and tiling parameters of :func:`match_scaled`.
+
+    Attributes
+    ----------
+    coarse_to_fine : {"auto", "on", "off"}
+        ``auto``: coarse-to-fine when the range has at least ``auto_range`` disparities and either the image
+        has at least ``auto_pixels`` pixels or the full search would exceed the memory budget (else the
+        full search, in strips when over budget); ``on`` / ``off`` force it.
+    auto_pixels, auto_range : int
+        The automatic size (pixels, disparities).
+    factor : int
+        Downsampling factor of the coarse level (≥ 2).
+    margin : int
+        Full-resolution pixels added on both sides of a tile's coarse min/max.
+    tile : int
+        Side of a core tile (pixels) at full resolution.
+    overlap : int
+        Context matched on each side of a core tile and dropped (pixels).
+    min_valid : float
+        Fraction of the region's coarse pixels that must have passed the coarse left–right check; below
+        it the tile searches the whole range (the coarse map is not trusted there).
+    max_memory : int or None
+        Peak-memory budget of a match in bytes; None: :func:`default_memory_budget`.
+    """
+
+    coarse_to_fine: str = "auto"
+    auto_pixels: int = 4_000_000
+    auto_range: int = 48
+    factor: int = 2
+    margin: int = 4
+    tile: int = 256
+    overlap: int = 32
+    min_valid: float = 0.25
+    max_memory: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.coarse_to_fine not in C2F_MODES:
+            raise ConfigError(f"expected coarse_to_fine among {', '.join(C2F_MODES)}, got {self.coarse_to_fine!r}")
+        if self.factor < 2 or self.margin < 0 or self.tile < 16 or self.overlap < 0:
+            raise ConfigError(f"expected factor >= 2, margin >= 0, tile >= 16 and overlap >= 0, got factor="
+                              f"{self.factor}, margin={self.margin}, tile={self.tile}, overlap={self.overlap}")
+        if self.auto_pixels < 0 or self.auto_range < 0 or not 0.0 <= self.min_valid <= 1.0:
+            raise ConfigError(f"expected auto_pixels >= 0, auto_range >= 0 and 0 <= min_valid <= 1, got "
+                              f"{self.auto_pixels}, {self.auto_range}, {self.min_valid}")
+        if self.max_memory is not None and self.max_memory <= 0:
+            raise ConfigError(f"expected max_memory > 0 bytes (or None for the machine's), got {self.max_memory}")
+
+
+def parse_memory(text: str | int | None) -> int | None:
+    """Bytes of a memory size: an integer, or a number with K, M, G or T (powers of 1024, e.g. ``"6G"``).
+
+    Raises
+    ------
+    ConfigError
+        Not a positive size.
+    """
+    if text is None or isinstance(text, int) and not isinstance(text, bool):
+        if text is not None and text <= 0:
+            raise ConfigError(f"expected max_memory > 0, got {text}")
+        return text
+    s = str(text).strip().upper().removesuffix("B").removesuffix("I")
+    mult = 1
+    if s and s[-1] in "KMGT":
+        mult = 1024 ** ("KMGT".index(s[-1]) + 1)
+        s = s[:-1]
+    try:
+        value = float(s)
+    except ValueError:
+        value = float("nan")
+    if not math.isfinite(value) or value <= 0:
+        raise ConfigError(f"expected max_memory as a positive size such as 6G or 512M, got {text!r}")
+    return int(value * mult)
+
+
+def default_memory_budget() -> int:
+    """What a match may use on this machine: 80 % of the available memory (``/proc/meminfo``'s
+    MemAvailable, else the physical memory from ``os.sysconf``), bytes."""
+    avail = None
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    avail = int(line.split()[1]) * 1024
+                    break
+    except OSError:
+        avail = None
+    if avail is None:
+        try:
+            avail = int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
+        except (ValueError, OSError, AttributeError):
+            avail = 8 * 2**30
+    return int(0.8 * avail)
+
+
+def estimate_memory(method: str, height: int, width: int, ndisp: int, *, base: bool = True) -> int:
+    """Predicted peak resident memory (bytes) of one untiled match of an ``height × width`` pair over
+    ``ndisp`` disparities: ``base + a·H·W + b·H·W·D`` with the matcher's measured ``(a, b)``.
+
+    Within a factor 1.5 of the measured ``ru_maxrss`` (tested; ``benchmarks/bench_memory.py``).
+    """
+    a, b = _MEMORY_MODEL.get(str(method).lower(), _UNKNOWN_MODEL)
+    n = float(height) * float(width)
+    return int((PROCESS_BASE if base else 0) + a * n + b * n * float(ndisp))
+
+
+@dataclass(frozen=True)
+class _Tile:
+    y0: int
+    y1: int
+    x0: int
+    x1: int
+    lo: int
+    hi: int
+    full: bool  # the band fell back to the whole range
+
+
+def _use_c2f(p: ScaleParams, h: int, w: int, nd: int, over_budget: bool) -> bool:
+    if p.coarse_to_fine == "off":
+        return False
+    small = min(h, w) < 4 * p.factor or nd < 4 * p.factor
+    if p.coarse_to_fine == "on":
+        return not small
+    return not small and nd >= p.auto_range and (h * w >= p.auto_pixels or over_budget)
+
+
+def _grid(n: int, size: int) -> list[tuple[int, int]]:
+    k = max(1, int(round(n / size)))
+    edges = np.linspace(0, n, k + 1).round().astype(int)
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
+
+
+def _downsample(img: np.ndarray, f: int) -> np.ndarray:
+    h, w = img.shape[:2]
+    out = cv2.resize(img, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA)
+    return np.asarray(out, dtype=img.dtype)
+
+
+def _crop_cols(t: _Tile, w: int, overlap: int) -> tuple[int, int]:
+    """Left-image columns [a, b) matched for tile ``t`` (the right image's are ``[a - lo, b - lo)``)."""
+    a = max(t.x0 - overlap - (t.hi - t.lo), t.lo)
+    b = min(t.x1 + overlap, w)
+    return a, b
+
+
+def _tile_estimate(method: str, t: _Tile, h: int, w: int, overlap: int) -> int:
+    a, b = _crop_cols(t, w, overlap)
+    rows = min(t.y1 + overlap, h) - max(t.y0 - overlap, 0)
+    return estimate_memory(method, rows, max(b - a, 1), t.hi - t.lo + 1, base=False)
+
+
+def _run_tiles(matcher: Matcher, left: np.ndarray, right: np.ndarray, tiles: list[_Tile],
+               overlap: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, dict[str, float]]:
+    h, w = left.shape[:2]
+    disp = np.full((h, w), np.nan, dtype=np.float32)
+    raw: np.ndarray | None = None
+    valid = np.zeros((h, w), dtype=bool)
+    timings: dict[str, float] = {}
+    for t in tiles:
+        a, b = _crop_cols(t, w, overlap)
+        if b <= a or t.x1 <= a:
+            continue
+        ya, yb = max(t.y0 - overlap, 0), min(t.y1 + overlap, h)
+        lt = np.ascontiguousarray(left[ya:yb, a:b])
+        rt = np.ascontiguousarray(right[ya:yb, a - t.lo:b - t.lo])
+        nd = min(t.hi - t.lo, b - a - 1)
+        res = matcher.compute(lt, rt, max_disp=nd, min_disp=0)
+        for k, v in res.timings.items():
+            timings[k] = timings.get(k, 0.0) + float(v)
+        cx0 = max(t.x0, a)
+        sy, sx = slice(t.y0 - ya, t.y1 - ya), slice(cx0 - a, t.x1 - a)
+        disp[t.y0:t.y1, cx0:t.x1] = res.disparity[sy, sx] + np.float32(t.lo)
+        valid[t.y0:t.y1, cx0:t.x1] = res.valid[sy, sx]
+        if res.disparity_raw is not None:
+            if raw is None:
+                raw = np.where(valid, disp, np.nan).astype(np.float32)
+            raw[t.y0:t.y1, cx0:t.x1] = res.disparity_raw[sy, sx] + np.float32(t.lo)
+        elif raw is not None:
+            raw[t.y0:t.y1, cx0:t.x1] = np.where(res.valid[sy, sx], res.disparity[sy, sx] + np.float32(t.lo),
+                                                np.nan)
+    return disp, valid, raw, timings
+
+
+def _strip_tiles(method: str, h: int, w: int, lo: int, hi: int, budget: int, overlap: int) -> list[_Tile]:
+    """Full-range tiles (strips of rows, then columns too) whose estimate fits ``budget``."""
+    avail = budget - PROCESS_BASE - int(_STITCH_PER_PIXEL * h * w)
+    rows, cols = h, w
+    while True:
+        tiles = [_Tile(y0, y1, x0, x1, lo, hi, True) for y0, y1 in _grid(h, rows) for x0, x1 in _grid(w, cols)]
+        worst = max(_tile_estimate(method, t, h, w, overlap) for t in tiles)
+        if worst <= avail:
+            return tiles
+        if rows > max(16, overlap):
+            rows = max(rows // 2, 16)
+        elif cols > max(16, overlap):
+            cols = max(cols // 2, 16)
+        else:
+            need = PROCESS_BASE + int(_STITCH_PER_PIXEL * h * w) + worst
+            raise MatchingError(f"expected a max_memory that fits one tile of the {w}×{h} pair over "
+                                f"{hi - lo + 1} disparities ({need / 2**30:.2f} GiB with method {method!r}), "
+                                f"got {budget / 2**30:.2f} GiB: raise max_memory or narrow the disparity range")
+
+
+def _band_tiles(method: str, coarse: MatchResult, f: int, h: int, w: int, lo: int, hi: int, p: ScaleParams,
+                budget: int) -> list[_Tile]:
+    """Tiles of side ``p.tile`` (smaller where the budget asks) with their coarse band."""
+    cd = coarse.disparity
+    cv = coarse.valid
+    ch, cw = cd.shape
+    avail = budget - PROCESS_BASE - int(_STITCH_PER_PIXEL * h * w)
+
+    def band(y0: int, y1: int, x0: int, x1: int) -> _Tile:
+        ry0, ry1 = max(y0 - p.overlap, 0) // f, min(-(-(y1 + p.overlap) // f), ch)
+        rx0, rx1 = max(x0 - p.overlap, 0) // f, min(-(-(x1 + p.overlap) // f), cw)
+        vals = cd[ry0:max(ry1, ry0 + 1), rx0:max(rx1, rx0 + 1)]
+        ok = np.isfinite(vals)
+        frac = float(cv[ry0:max(ry1, ry0 + 1), rx0:max(rx1, rx0 + 1)].mean()) if vals.size else 0.0
+        if not ok.any() or frac < p.min_valid:
+            return _Tile(y0, y1, x0, x1, lo, hi, True)
+        t_lo = max(lo, int(math.floor(float(vals[ok].min()) * f)) - p.margin)
+        t_hi = min(hi, int(math.ceil(float(vals[ok].max()) * f)) + p.margin)
+        return _Tile(y0, y1, x0, x1, min(t_lo, t_hi), t_hi, False)
+
+    out: list[_Tile] = []
+    stack = [(y0, y1, x0, x1) for y0, y1 in _grid(h, p.tile) for x0, x1 in _grid(w, p.tile)]
+    while stack:
+        y0, y1, x0, x1 = stack.pop()
+        t = band(y0, y1, x0, x1)
+        if _tile_estimate(method, t, h, w, p.overlap) <= avail:
+            out.append(t)
+        elif y1 - y0 > 16:
+            m = (y0 + y1) // 2
+            stack += [(y0, m, x0, x1), (m, y1, x0, x1)]
+        elif x1 - x0 > 16:
+            m = (x0 + x1) // 2
+            stack += [(y0, y1, x0, m), (y0, y1, m, x1)]
+        else:
+            need = PROCESS_BASE + int(_STITCH_PER_PIXEL * h * w) + _tile_estimate(method, t, h, w, p.overlap)
+            raise MatchingError(f"expected a max_memory that fits one {x1 - x0}×{y1 - y0} tile over "
+                                f"{t.hi - t.lo + 1} disparities ({need / 2**30:.2f} GiB with method {method!r}), "
+                                f"got {budget / 2**30:.2f} GiB: raise max_memory")
+    return out
+
+
+def match_scaled(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int = 0, method: str,
+                 params: dict[str, Any] | None = None, scale: ScaleParams | None = None,
+                 _level: int = 0) -> MatchResult:
+    """Match a validated pair coarse-to-fine and within a memory budget (module doc).
+
+    Parameters
+    ----------
+    left, right : ndarray, (H, W) or (H, W, 3)
+        Validated rectified pair (:func:`~prismstereo.matching.api.validate_pair`).
+    max_disp, min_disp : int, keyword-only
+        Inclusive search range (validated).
+    method : str, keyword-only
+        A registered matcher; ``params`` its tuning parameters.
+    scale : ScaleParams, keyword-only
+        Coarse-to-fine mode and tiling; default ``ScaleParams()``.
+
+    Returns
+    -------
+    MatchResult
+        As the matcher's, with ``extras["scale"]``: whether coarse-to-fine ran (``coarse_to_fine``), the
+        levels, tiles, mean band, tiles that fell back to the whole range, the memory estimate and budget
+        (bytes). The matcher's own extras are kept only for an untiled run. ``timings`` adds ``coarse``
+        (seconds of the coarse levels) to the matcher's stages summed over the tiles.
+
+    Raises
+    ------
+    MatchingError
+        No tile fits ``scale.max_memory``.
+    """
+    p = scale or ScaleParams()
+    prm = dict(params or {})
+    matcher = get_matcher(method, **prm)
+    budget = p.max_memory if p.max_memory is not None else default_memory_budget()
+    h, w = left.shape[:2]
+    lo, hi = int(min_disp), int(max_disp)
+    nd = hi - lo + 1
+    est_full = estimate_memory(method, h, w, nd)
+    c2f = _use_c2f(p, h, w, nd, est_full > budget)
+    info: dict[str, Any] = {"coarse_to_fine": c2f, "mode": p.coarse_to_fine, "levels": _level + 1,
+                            "estimate_bytes": est_full, "budget_bytes": int(budget), "tiles": 1,
+                            "band_mean": float(nd), "full_range_tiles": 0}
+    if not c2f:
+        if est_full <= budget:
+            if _level == 0:
+                log.info("match %s %d×%d, %d disparities: peak memory estimate %.2f GiB (budget %.2f GiB)",
+                         method, w, h, nd, est_full / 2**30, budget / 2**30)
+            res = matcher.compute(left, right, max_disp=hi, min_disp=lo)
+            return dataclasses.replace(res, extras={**res.extras, "scale": info})
+        tiles = _strip_tiles(method, h, w, lo, hi, budget, p.overlap)
+        coarse_s = 0.0
+    else:
+        f = p.factor
+        t0 = time.perf_counter()
+        cl, cr = _downsample(left, f), _downsample(right, f)
+        chi = min(-(-hi // f), cl.shape[1] - 1)
+        clo = min(lo // f, chi)
+        sub = dataclasses.replace(p, coarse_to_fine="auto" if p.coarse_to_fine == "on" else p.coarse_to_fine)
+        coarse = match_scaled(cl, cr, max_disp=chi, min_disp=clo, method=method, params=prm, scale=sub,
+                              _level=_level + 1)
+        coarse_s = time.perf_counter() - t0
+        info["levels"] = int(coarse.extras.get("scale", {}).get("levels", _level + 2))
+        tiles = _band_tiles(method, coarse, f, h, w, lo, hi, p, budget)
+        del coarse
+    est = PROCESS_BASE + int(_STITCH_PER_PIXEL * h * w) + max(_tile_estimate(method, t, h, w, p.overlap)
+                                                              for t in tiles)
+    if _level == 0:
+        log.info("match %s %d×%d, %d disparities: %s, %d tiles, peak memory estimate %.2f GiB (budget %.2f "
+                 "GiB; untiled full search %.2f GiB)", method, w, h, nd,
+                 "coarse-to-fine" if c2f else "strips", len(tiles), est / 2**30, budget / 2**30, est_full / 2**30)
+    disp, valid, raw, timings = _run_tiles(matcher, left, right, tiles, p.overlap)
+    timings["coarse"] = coarse_s
+    areas = np.array([(t.y1 - t.y0) * (t.x1 - t.x0) for t in tiles], dtype=np.float64)
+    bands = np.array([t.hi - t.lo + 1 for t in tiles], dtype=np.float64)
+    info.update({"tiles": len(tiles), "estimate_bytes": est,
+                 "band_mean": round(float((areas * bands).sum() / areas.sum()), 2),
+                 "full_range_tiles": int(sum(t.full for t in tiles)) if c2f else 0})
+    return MatchResult(disparity=disp, valid=valid, disparity_raw=raw, timings=timings, extras={"scale": info})

@@ -1,0 +1,206 @@
+"""Coarse-to-fine and memory-bounded matching (issue 30): against the full search on synthetic truth."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from prismstereo.errors import ConfigError, MatchingError
+from prismstereo.matching import get_matcher, match
+from prismstereo.matching.scale import ScaleParams, estimate_memory, match_scaled, parse_memory
+
+
+def _scene(h: int = 200, w: int = 320, *, seed: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A textured slanted background (d 10..22) and a fronto-parallel box in front of it (d 44), left view's
+    disparity ``gt``; the right view is rendered by forward-warping the left texture (occlusions real)."""
+    rng = np.random.default_rng(seed)
+    base = rng.uniform(0, 255, size=(h // 2 + 1, (w + 64) // 2 + 1, 3)).astype(np.float32)
+    tex = np.clip(cv2.resize(base, (w + 64, h), interpolation=cv2.INTER_CUBIC), 0, 255)
+    fg = np.clip(cv2.resize(rng.uniform(0, 255, size=(h // 2 + 1, w // 2 + 1, 3)).astype(np.float32), (w, h),
+                            interpolation=cv2.INTER_CUBIC), 0, 255)
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    gt = 10.0 + 12.0 * xs / w
+    box = (ys > h * 0.3) & (ys < h * 0.75) & (xs > w * 0.45) & (xs < w * 0.8)
+    gt = np.where(box, 44.0, gt).astype(np.float32)
+    # right view: the background at x_r = x - d_bg(x) and the box over it
+    right = np.empty((h, w, 3), np.float32)
+    x_bg = (xs + 10.0) / (1.0 - 12.0 / w)  # left x of a background right pixel
+    right[:] = cv2.remap(tex, x_bg, ys, interpolation=cv2.INTER_LINEAR)
+    left = cv2.remap(tex, xs, ys, interpolation=cv2.INTER_LINEAR)
+    left[box] = fg[box]
+    xr_box = xs + 44.0
+    inbox = (ys > h * 0.3) & (ys < h * 0.75) & (xr_box > w * 0.45) & (xr_box < w * 0.8)
+    right[inbox] = cv2.remap(fg, xr_box, ys, interpolation=cv2.INTER_LINEAR)[inbox]
+    return left.astype(np.uint8), right.astype(np.uint8), gt
+
+
+@pytest.fixture(scope="module")
+def scene() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return _scene()
+
+
+def _bad(d: np.ndarray, gt: np.ndarray, margin: int = 64) -> float:
+    sl = np.s_[:, margin:]
+    return float(100.0 * (~(np.abs(d[sl] - gt[sl]) <= 1.0)).mean())
+
+
+@pytest.mark.parametrize("method", ["sgm", "bpasw"])
+def test_coarse_to_fine_matches_the_full_search(scene: tuple, method: str) -> None:
+    left, right, gt = scene
+    full = match(left, right, max_disp=63, method=method)
+    p = ScaleParams(coarse_to_fine="on", tile=64, overlap=16)
+    c2f = match(left, right, max_disp=63, method=method, scale=p)
+    info = c2f.extras["scale"]
+    assert info["coarse_to_fine"] and info["tiles"] > 4 and info["band_mean"] < 45
+    assert c2f.disparity.shape == gt.shape and c2f.disparity.dtype == np.float32
+    assert _bad(full.disparity, gt) < 10.0
+    assert _bad(c2f.disparity, gt) <= _bad(full.disparity, gt) + 1.0
+    cover_full = full.valid[:, 64:].mean()
+    cover_c2f = c2f.valid[:, 64:].mean()
+    assert abs(cover_c2f - cover_full) < 0.02
+    assert c2f.disparity_raw is not None and full.disparity_raw is not None
+    assert set(c2f.timings) >= {"coarse"}
+
+
+def test_band_falls_back_to_the_full_range_where_the_coarse_map_is_unreliable(scene: tuple) -> None:
+    left, right, _ = scene
+    blank_l = left.copy()
+    blank_r = right.copy()
+    # the right half of the right view shows something else (pixel noise): the coarse left-right check
+    # rejects most of the left view's matches there
+    blank_r[:, 130:] = np.random.default_rng(9).integers(0, 256, size=blank_r[:, 130:].shape, dtype=np.uint8)
+    res = match(blank_l, blank_r, max_disp=63, method="sgm",
+                scale=ScaleParams(coarse_to_fine="on", tile=64, overlap=16))
+    assert res.extras["scale"]["full_range_tiles"] > 0
+    strict = match(left, right, max_disp=63, method="sgm",
+                   scale=ScaleParams(coarse_to_fine="on", tile=64, overlap=16, min_valid=1.0))
+    assert strict.extras["scale"]["full_range_tiles"] == strict.extras["scale"]["tiles"]
+
+
+def test_auto_below_the_size_is_the_matcher_itself(scene: tuple) -> None:
+    left, right, _ = scene
+    ref = get_matcher("sgm").compute(left, right, max_disp=63, min_disp=0)
+    res = match(left, right, max_disp=63, method="sgm", scale=ScaleParams())
+    assert not res.extras["scale"]["coarse_to_fine"]
+    np.testing.assert_array_equal(res.disparity, ref.disparity)
+    off = match(left, right, max_disp=63, method="sgm",
+                scale=ScaleParams(coarse_to_fine="off", auto_pixels=0, auto_range=0))
+    np.testing.assert_array_equal(off.disparity, ref.disparity)
+    on = match(left, right, max_disp=63, method="sgm", scale=ScaleParams(auto_pixels=1000, auto_range=8))
+    assert on.extras["scale"]["coarse_to_fine"]
+
+
+def test_a_tiny_budget_tiles_and_gives_the_untiled_map(scene: tuple) -> None:
+    left, right, gt = scene
+    untiled = match(left, right, max_disp=63, min_disp=4, method="sgm")
+    one = estimate_memory("sgm", *left.shape[:2], 60)
+    p = ScaleParams(coarse_to_fine="off", max_memory=one - 2 * 2**20)
+    tiled = match(left, right, max_disp=63, min_disp=4, method="sgm", scale=p)
+    assert tiled.extras["scale"]["tiles"] > 1
+    assert tiled.extras["scale"]["estimate_bytes"] <= p.max_memory
+    both = np.isfinite(tiled.disparity) & np.isfinite(untiled.disparity)
+    assert both.mean() > 0.9
+    same = np.abs(tiled.disparity - untiled.disparity)[both] <= 1.0
+    assert same.mean() > 0.98  # the seams differ a little (paths cut at the strips' far ends)
+    assert abs(tiled.valid.mean() - untiled.valid.mean()) < 0.01
+    assert _bad(tiled.disparity, gt) <= _bad(untiled.disparity, gt) + 0.5
+    # auto: over the budget with a wide enough range, coarse-to-fine rather than full-range strips
+    auto = match(left, right, max_disp=63, min_disp=4, method="sgm",
+                 scale=ScaleParams(max_memory=p.max_memory, tile=64, overlap=16))
+    assert auto.extras["scale"]["coarse_to_fine"]
+    assert auto.extras["scale"]["estimate_bytes"] <= p.max_memory
+    assert _bad(auto.disparity, gt) <= _bad(untiled.disparity, gt) + 1.0
+
+
+def test_no_tile_fits_is_refused(scene: tuple) -> None:
+    left, right, _ = scene
+    with pytest.raises(MatchingError, match="max_memory"):
+        match(left, right, max_disp=63, method="sgm", scale=ScaleParams(max_memory=100 * 2**20))
+    with pytest.raises(MatchingError, match="max_memory"):
+        match(left, right, max_disp=63, method="sgm",
+              scale=ScaleParams(coarse_to_fine="on", tile=64, max_memory=100 * 2**20))
+
+
+def test_parse_memory_and_parameters() -> None:
+    assert parse_memory("6G") == 6 * 2**30
+    assert parse_memory("512M") == 512 * 2**20
+    assert parse_memory("1.5GiB") == int(1.5 * 2**30)
+    assert parse_memory(1000) == 1000
+    assert parse_memory(None) is None
+    for bad in ("lots", "-1G", "0", 0):
+        with pytest.raises(ConfigError, match="max_memory"):
+            parse_memory(bad)
+    with pytest.raises(ConfigError, match="coarse_to_fine"):
+        ScaleParams(coarse_to_fine="sometimes")
+    with pytest.raises(ConfigError, match="factor"):
+        ScaleParams(factor=1)
+    with pytest.raises(ConfigError, match="min_valid"):
+        ScaleParams(min_valid=2.0)
+    with pytest.raises(ConfigError, match="max_memory"):
+        ScaleParams(max_memory=0)
+
+
+def test_match_scaled_needs_a_known_method(scene: tuple) -> None:
+    left, right, _ = scene
+    with pytest.raises(ConfigError):
+        match_scaled(left, right, max_disp=10, method="nope")
+
+
+_MEASURE = """
+import json, resource, sys
+import numpy as np
+sys.path.insert(0, {tests!r})
+from matching.test_scale import _scene
+from prismstereo.matching import match
+left, right, _ = _scene({h}, {w})
+# warm-up on the same pair with a quarter of the range: numba's kernels loaded (or compiled) before the
+# measured match, whose volumes are four times larger
+match(left, right, max_disp={d} // 4, method={method!r})
+with open("/proc/self/statm") as fh:  # resident now (the warm-up's peak may lie above it)
+    r0 = int(fh.read().split()[1]) * resource.getpagesize()
+match(left, right, max_disp={d}, method={method!r})
+r1 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+print(json.dumps({{"before": r0, "peak": r1}}))
+"""
+
+
+@pytest.mark.parametrize("method", ["sgm", "bpasw"])
+def test_memory_estimate_within_a_factor_of_the_measured_peak(method: str) -> None:
+    import pathlib
+
+    tests = str(pathlib.Path(__file__).resolve().parents[1])
+    h, w, d = 480, 640, 127
+    out = subprocess.run([sys.executable, "-c", _MEASURE.format(tests=tests, method=method, h=h, w=w, d=d)],
+                         capture_output=True, text=True, check=True)
+    m = json.loads(out.stdout.strip().splitlines()[-1])
+    used = m["peak"] - m["before"]
+    est = estimate_memory(method, h, w, d + 1, base=False)
+    assert used / 1.5 <= est <= used * 1.5, (used, est)
+
+
+def test_cli_match_coarse_to_fine_and_budget(scene: tuple, tmp_path, capsys) -> None:
+    from prismstereo.cli import main
+    from prismstereo.io import read_pfm, write_image
+
+    left, right, gt = scene
+    lp, rp = tmp_path / "l.png", tmp_path / "r.png"
+    write_image(lp, left)
+    write_image(rp, right)
+    out = tmp_path / "d.pfm"
+    assert main(["match", str(lp), str(rp), "-o", str(out), "--max-disp", "63", "--method", "sgm",
+                 "--coarse-to-fine", "on"]) == 0
+    assert _bad(read_pfm(out), gt) < 10.0
+    capsys.readouterr()
+    small = tmp_path / "s.pfm"
+    assert main(["match", str(lp), str(rp), "-o", str(small), "--max-disp", "63", "--method", "sgm",
+                 "--max-memory", "64M"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "max_memory" in err[0]
+    assert not small.exists() and not small.with_suffix(".png").exists()
+    assert main(["match", str(lp), str(rp), "-o", str(small), "--max-disp", "63", "--max-memory", "lots"]) == 2
+    assert "max_memory" in capsys.readouterr().err
