@@ -1,0 +1,102 @@
+"""``prismstereo design`` from the command line: outputs that load in the other commands, error paths."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from prismstereo.cli import main
+from prismstereo.config import load_rig, thesis_biprism
+from prismstereo.design.verify import verify_scene
+from prismstereo.io import read_image, write_image
+from prismstereo.simulate import render_capture
+
+#: a 256×192 sensor with the thesis camera's field of view (fast to search, render and match)
+CAMERA = ["--width", "256", "--height", "192", "--pixel-size", str(0.00465 * 4), "--focal-length", "25"]
+
+
+def _run(argv, capsys):
+    code = main(argv)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_design_outputs_and_depth_runs_on_the_rig(tmp_path, capsys):
+    out = tmp_path / "design"
+    code, text, err = _run(["design", *CAMERA, "--range", "1200,1800", "--glass", "n=1.5", "-o", str(out)], capsys)
+    assert code == 0, err
+    assert "best: 2 faces" in text and "expected error" in text
+    assert sorted(p.name for p in out.iterdir()) == ["design.json", "design.png", "rig.toml"]
+    rig = load_rig(out / "rig.toml")
+    assert rig.camera.width == 256 and rig.prism.faces == 2 and rig.prism.refractive_index == 1.5
+    doc = json.loads((out / "design.json").read_text())
+    assert doc["n_candidates"] == len(doc["candidates"]) > 10
+    assert doc["best"]["prism"] == rig.to_dict()["prism"]
+    per = doc["prediction"]["per_depth"]
+    assert per[0]["depth_mm"] == 1200 and per[-1]["depth_mm"] == 1800
+    assert {"baseline_mm", "disparity_px", "field_width_mm", "relative_error", "error_mm"} <= set(per[0])
+    assert all(c["rejected"] in (None, "tir", "size", "overlap", "field", "balance", "accuracy")
+               for c in doc["candidates"])
+    assert len(doc["prediction"]["sub_images"]) == 2
+    png = read_image(out / "design.png")
+    assert png.shape[0] > 400 and png.shape[1] > 600
+    # the rig loads in the depth command: a capture of a plane through the proposed prism
+    cap = render_capture(rig, verify_scene(rig, 1500.0))
+    write_image(tmp_path / "capture.png", cap.image)
+    code, text, err = _run(["depth", str(out / "rig.toml"), str(tmp_path / "capture.png"), "-o", str(tmp_path / "d"),
+                            "--method", "sad", "--depth-range", "1200,1800", "-q"], capsys)
+    assert code == 0, err
+    assert (tmp_path / "d" / "depth.pfm").is_file()
+
+
+def test_design_with_a_rig_file_ranks_its_prism(tmp_path, capsys):
+    rig = thesis_biprism()
+    small = rig.__class__(camera=rig.camera.__class__(width=256, height=192, focal_length=25.0,
+                                                      pixel_size=0.00465 * 4), prism=rig.prism)
+    small.save(tmp_path / "rig.toml")
+    code, text, err = _run(["design", str(tmp_path / "rig.toml"), "--range", "1200,1800", "--glass", "n=1.5",
+                            "-o", str(tmp_path / "o")], capsys)
+    assert code == 0, err
+    assert "given: 2 faces, corner angle 6.40°" in text and "meets the request" in text
+    doc = json.loads((tmp_path / "o" / "design.json").read_text())
+    given = [c for c in doc["candidates"] if c["source"] == "given"]
+    assert len(given) == 1 and given[0]["rejected"] is None
+    assert doc["best"]["prediction"]["per_depth"][-1]["relative_error"] <= \
+        given[0]["prediction"]["per_depth"][-1]["relative_error"]
+
+
+@pytest.mark.parametrize(("argv", "match"), [
+    (["--range", "1200,1800"], "--width --height --pixel-size --focal-length, got no --width"),
+    ([*CAMERA, "--range", "1200"], "--range: expected two numbers"),
+    ([*CAMERA, "--range", "1200,1800", "--accuracy", "good"], "--accuracy: expected"),
+    ([*CAMERA, "--range", "1200,1800", "--faces", "two"], "--faces: expected"),
+    ([*CAMERA, "--range", "1200,1800", "--glass", "wood"], "glass: expected one of"),
+    ([*CAMERA, "--range", "1200,1800", "--max-size", "5"], "max_size 5 mm binds"),
+    ([*CAMERA, "--range", "1800,1200"], "near, far"),
+])
+def test_design_errors_are_one_line(tmp_path, capsys, argv, match):
+    out = tmp_path / "o"
+    code, text, err = _run(["design", *argv, "-o", str(out)], capsys)
+    assert code == 2
+    assert match in err and err.count("\n") == 1 and err.startswith("prismstereo design: error: ")
+    assert not out.exists()
+
+
+def test_design_rig_and_camera_options_conflict(tmp_path, capsys):
+    thesis_biprism().save(tmp_path / "rig.toml")
+    code, _, err = _run(["design", str(tmp_path / "rig.toml"), *CAMERA, "--range", "1200,1800", "-o",
+                         str(tmp_path / "o")], capsys)
+    assert code == 2 and "got both" in err
+
+
+def test_design_accuracy_in_percent(tmp_path, capsys):
+    code, text, err = _run(["design", *CAMERA, "--range", "1200,1800", "--accuracy", "0.5%", "-o",
+                            str(tmp_path / "o")], capsys)
+    assert code == 0, err
+    doc = json.loads((tmp_path / "o" / "design.json").read_text())
+    assert doc["request"]["accuracy"] == pytest.approx(0.005)
+    errs = [c["prediction"]["per_depth"][-1]["relative_error"] for c in doc["candidates"] if c["rejected"] is None]
+    assert errs and max(errs) <= 0.005
+    assert np.isfinite(errs).all()
