@@ -115,8 +115,8 @@ def design_command(rig_path: str | None, out_dir: str, *, near: float, far: floa
                        disparity_precision=preset) if given is not None else None
     p = rig.prism
     png = design_figure(fine, reference=ref_pred, measured=measured,
-                        title=f"{p.faces}-face prism, α {p.corner_angle:.2f}°, {best.glass.name} "
-                              f"(n {p.refractive_index:g}), apex {p.apex_distance:.1f} mm, range {near:g}-{far:g} mm")
+                        title=f"{p.faces}-face prism, α {p.corner_angle:.2f}°, glass {best.glass.name} "
+                              f"(n_d {p.refractive_index:g}), apex {p.apex_distance:.1f} mm, range {near:g}-{far:g} mm")
     payload = {**design.to_dict(), "prediction": fine.to_dict(), "precision_measured_with": MEASURED_WITH,
                "versions": library_versions(), **extra}
     with output_dir(out_dir) as stage:
@@ -134,7 +134,8 @@ def _describe(label: str, c: Any) -> str:
     g = pred.glass
     state = "meets the request" if c.feasible else f"rejected ({c.rejected}: {c.reason})"
     dec = f", decenter {p.decenter[0]:.2f},{p.decenter[1]:.2f} mm" if any(p.decenter) else ""
-    return (f"{label}: {p.faces} faces, corner angle {p.corner_angle:.2f}°, {c.glass.name} (n {p.refractive_index:g}), "
+    glass = c.glass.name if c.glass.name.startswith("n=") else f"{c.glass.name} (n {p.refractive_index:g})"
+    return (f"{label}: {p.faces} faces, corner angle {p.corner_angle:.2f}°, {glass}, "
             f"apex {p.apex_distance:.1f} mm, back {p.back_distance:.2f} mm{dec}; glass {g.largest:.1f} mm; "
             f"baseline {far.baseline_mm:.1f} mm; expected error {100 * far.relative_error:.4f} % at "
             f"{far.depth_mm:.0f} mm, "
