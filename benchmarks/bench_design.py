@@ -40,6 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--presets", default="fast,balanced", help="comma-separated presets (fast, balanced, accurate)")
     ap.add_argument("--rigs", default=None, help="comma-separated substrings of the rig names to run (default all)")
+    ap.add_argument("--depths", default=None, help="comma-separated depths (mm) to keep of each rig's (default all)")
     ap.add_argument("--json", default=None, help="write the rows to this JSON file")
     args = ap.parse_args(argv)
     presets = [p.strip() for p in args.presets.split(",") if p.strip()]
@@ -52,7 +53,10 @@ def main(argv: list[str] | None = None) -> int:
         keys = [k.strip() for k in args.rigs.split(",")]
         chosen = {n: v for n, v in chosen.items() if any(k in n for k in keys)}
     for name, (rig, depths) in chosen.items():
+        keep = None if args.depths is None else {float(v) for v in args.depths.split(",")}
         for z in depths:
+            if keep is not None and z not in keep:
+                continue
             for preset in presets:
                 t = time.perf_counter()
                 m = measure_at_depth(rig, z, preset=preset)

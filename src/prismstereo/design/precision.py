@@ -19,7 +19,7 @@ __all__ = ["DEFAULT_PRESET", "DISPARITY_PRECISION", "MEASURED_WITH", "disparity_
 
 #: median |δd| in px per preset (``fast`` = sgm, ``balanced`` = bpasw, ``accurate`` = coop), pooled over the
 #: rigs and depths of ``benchmarks/bench_design.py``
-DISPARITY_PRECISION: dict[str, float] = {"fast": 0.0148, "balanced": 0.0149}
+DISPARITY_PRECISION: dict[str, float] = {"fast": 0.0146, "balanced": 0.0147}
 #: the command that measured :data:`DISPARITY_PRECISION`
 MEASURED_WITH = "PYTHONPATH=src python benchmarks/bench_design.py --presets fast,balanced,accurate"
 #: the preset a prediction assumes unless told otherwise (the depth command's default matcher, bpasw)
