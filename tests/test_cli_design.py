@@ -100,3 +100,22 @@ def test_design_accuracy_in_percent(tmp_path, capsys):
     errs = [c["prediction"]["per_depth"][-1]["relative_error"] for c in doc["candidates"] if c["rejected"] is None]
     assert errs and max(errs) <= 0.005
     assert np.isfinite(errs).all()
+
+
+@pytest.mark.slow
+def test_design_verify_prints_predicted_against_measured(tmp_path, capsys):
+    rig = thesis_biprism()
+    small = rig.__class__(camera=rig.camera.__class__(width=256, height=192, focal_length=25.0,
+                                                      pixel_size=0.00465 * 4), prism=rig.prism)
+    small.save(tmp_path / "rig.toml")
+    code, text, err = _run(["design", str(tmp_path / "rig.toml"), "--range", "1200,1800", "--glass", "n=1.5",
+                            "--preset", "fast", "--verify", "-o", str(tmp_path / "o")], capsys)
+    assert code == 0, err
+    assert "verify (best prism, preset fast" in text and "verify (given prism" in text
+    doc = json.loads((tmp_path / "o" / "design.json").read_text())
+    for name in ("best", "given"):
+        rows = doc["verify"][name]
+        assert [r["depth_mm"] for r in rows] == [1200.0, 1400.0, 1600.0, 1800.0]
+        assert all(r["measured_rel"] > 0 and r["predicted_rel"] > 0 for r in rows)
+        # a row that disagrees is flagged on stderr
+        assert all(r["agrees"] for r in rows) or "disagree" in err
