@@ -119,3 +119,15 @@ def test_design_verify_prints_predicted_against_measured(tmp_path, capsys):
         assert all(r["measured_rel"] > 0 and r["predicted_rel"] > 0 for r in rows)
         # a row that disagrees is flagged on stderr
         assert all(r["agrees"] for r in rows) or "disagree" in err
+
+
+def test_camera_from_a_camera_only_toml(tmp_path):
+    from prismstereo.apps.design_command import camera_from_options
+
+    (tmp_path / "camera.toml").write_text("[camera]\nwidth = 640\nheight = 480\nfx = 2000.0\nfy = 2000.0\n")
+    cam, prism = camera_from_options(str(tmp_path / "camera.toml"), width=None, height=None, pixel_size=None,
+                                     focal_length=None)
+    assert cam.width == 640 and cam.focal_px == 2000.0 and prism is None
+    (tmp_path / "bad.toml").write_text("[scene]\nx = 1\n")
+    with pytest.raises(Exception, match=r"\[camera\] table"):
+        camera_from_options(str(tmp_path / "bad.toml"), width=None, height=None, pixel_size=None, focal_length=None)

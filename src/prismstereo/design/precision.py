@@ -5,7 +5,7 @@ disparities with each preset's matcher, measured by ``benchmarks/bench_design.py
 planes (:func:`~prismstereo.design.verify.verify_scene`) rendered through several prisms at several depths
 (the table's numbers: docs/EXPERIMENTS.md, issue 29). The command that measured them:
 
-    PYTHONPATH=src python benchmarks/bench_design.py --presets fast,balanced,accurate
+    PYTHONPATH=src NUMBA_CACHE_DIR=.numba_cache python benchmarks/bench_design.py --presets balanced,fast
 
 It holds for well-textured surfaces facing the camera with the simulator's sensor noise of 1 grey level; slanted
 surfaces, depth edges, weak texture and real optics raise it (docs/design.md, limits).
@@ -21,7 +21,7 @@ __all__ = ["DEFAULT_PRESET", "DISPARITY_PRECISION", "MEASURED_WITH", "disparity_
 #: rigs and depths of ``benchmarks/bench_design.py``
 DISPARITY_PRECISION: dict[str, float] = {"fast": 0.0146, "balanced": 0.0147}
 #: the command that measured :data:`DISPARITY_PRECISION`
-MEASURED_WITH = "PYTHONPATH=src python benchmarks/bench_design.py --presets fast,balanced,accurate"
+MEASURED_WITH = "PYTHONPATH=src NUMBA_CACHE_DIR=.numba_cache python benchmarks/bench_design.py --presets balanced,fast"
 #: the preset a prediction assumes unless told otherwise (the depth command's default matcher, bpasw)
 DEFAULT_PRESET = "balanced"
 
