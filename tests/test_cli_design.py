@@ -131,3 +131,17 @@ def test_camera_from_a_camera_only_toml(tmp_path):
     (tmp_path / "bad.toml").write_text("[scene]\nx = 1\n")
     with pytest.raises(Exception, match=r"\[camera\] table"):
         camera_from_options(str(tmp_path / "bad.toml"), width=None, height=None, pixel_size=None, focal_length=None)
+
+
+def test_design_with_a_rejected_given_prism(tmp_path, capsys):
+    """A given prism that fails a check is reported with its reason; the proposal is still written."""
+    from prismstereo.config import PrismSpec, Rig
+
+    cam = thesis_biprism().camera.__class__(width=256, height=192, focal_length=25.0, pixel_size=0.00465 * 4)
+    Rig(camera=cam, prism=PrismSpec(faces=2, corner_angle=20.0, refractive_index=1.5, apex_distance=210.0,
+                                    back_distance=230.0)).save(tmp_path / "rig.toml")
+    code, text, err = _run(["design", str(tmp_path / "rig.toml"), "--range", "1200,1800", "--glass", "n=1.5",
+                            "-o", str(tmp_path / "o")], capsys)
+    assert code == 0, err
+    assert "given: 2 faces, corner angle 20.00°" in text and "rejected (" in text
+    assert (tmp_path / "o" / "rig.toml").is_file()

@@ -112,7 +112,7 @@ def design_command(rig_path: str | None, out_dir: str, *, near: float, far: floa
                             ", ".join(f"{r.depth_mm:.0f}" for r in bad), name)
     fine = predict(rig, depths=np.linspace(near, far, 13), disparity_precision=preset)
     ref_pred = predict(Rig(camera=camera, prism=given), depths=np.linspace(near, far, 13),
-                       disparity_precision=preset) if given is not None else None
+                       disparity_precision=preset) if ref is not None and ref.prediction is not None else None
     p = rig.prism
     png = design_figure(fine, reference=ref_pred, measured=measured,
                         title=f"{p.faces}-face prism, α {p.corner_angle:.2f}°, glass {best.glass.name} "
@@ -130,6 +130,9 @@ def design_command(rig_path: str | None, out_dir: str, *, near: float, far: floa
 def _describe(label: str, c: Any) -> str:
     p = c.rig.prism
     pred = c.prediction
+    if pred is None:
+        return (f"{label}: {p.faces} faces, corner angle {p.corner_angle:.2f}°, apex {p.apex_distance:.1f} mm: "
+                f"rejected ({c.rejected}: {c.reason})")
     far = pred.depths[-1]
     g = pred.glass
     state = "meets the request" if c.feasible else f"rejected ({c.rejected}: {c.reason})"
