@@ -111,8 +111,10 @@ def design_command(rig_path: str | None, out_dir: str, *, near: float, far: floa
                             "the prediction is not reliable for this rig", 100 * AGREEMENT,
                             ", ".join(f"{r.depth_mm:.0f}" for r in bad), name)
     fine = predict(rig, depths=np.linspace(near, far, 13), disparity_precision=preset)
-    ref_pred = predict(Rig(camera=camera, prism=given), depths=np.linspace(near, far, 13),
-                       disparity_precision=preset) if ref is not None and ref.prediction is not None else None
+    ref_pred = None
+    if given is not None and ref is not None and ref.prediction is not None:
+        ref_pred = predict(Rig(camera=camera, prism=given), depths=np.linspace(near, far, 13),
+                           disparity_precision=preset)
     p = rig.prism
     png = design_figure(fine, reference=ref_pred, measured=measured,
                         title=f"{p.faces}-face prism, α {p.corner_angle:.2f}°, glass {best.glass.name} "
