@@ -28,6 +28,7 @@ def test_design_outputs_and_depth_runs_on_the_rig(tmp_path, capsys):
     code, text, err = _run(["design", *CAMERA, "--range", "1200,1800", "--glass", "n=1.5", "-o", str(out)], capsys)
     assert code == 0, err
     assert "best: 2 faces" in text and "expected error" in text
+    assert "note: the glass's dispersion" not in text  # n=1.5: no Abbe number
     assert sorted(p.name for p in out.iterdir()) == ["design.json", "design.png", "rig.toml"]
     rig = load_rig(out / "rig.toml")
     assert rig.camera.width == 256 and rig.prism.faces == 2 and rig.prism.refractive_index == 1.5
@@ -97,6 +98,7 @@ def test_design_accuracy_in_percent(tmp_path, capsys):
     assert code == 0, err
     doc = json.loads((tmp_path / "o" / "design.json").read_text())
     assert doc["request"]["accuracy"] == pytest.approx(0.005)
+    assert doc["colour_spread_px"] > 0.5 and "note: the glass's dispersion spreads red and blue" in text  # N-BK7
     errs = [c["prediction"]["per_depth"][-1]["relative_error"] for c in doc["candidates"] if c["rejected"] is None]
     assert errs and max(errs) <= 0.005
     assert np.isfinite(errs).all()

@@ -64,6 +64,9 @@ def add_design(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--verify", action="store_true",
                    help="render textured planes across the range through the proposal (and the given prism), run "
                         "depth and print predicted against measured error")
+    p.add_argument("--dispersion", action="store_true",
+                   help="with --verify: render with the glass's dispersion (its Abbe number), as a colour camera "
+                        "sees it")
     p.add_argument("-o", "--output", required=True, help="output folder: rig.toml, design.json, design.png")
     p.set_defaults(handler=_cmd_design)
 
@@ -78,6 +81,7 @@ def _cmd_design(args: argparse.Namespace) -> int:
                          max_size=args.max_size, min_apex_distance=args.min_apex_distance,
                          max_apex_distance=args.max_apex_distance, preset=args.preset, verify_design=args.verify,
                          verify_given=args.verify and args.rig is not None and _has_prism(args.rig),
+                         dispersion=args.dispersion,
                          width=args.width, height=args.height, pixel_size=args.pixel_size,
                          focal_length=args.focal_length))
     return 0

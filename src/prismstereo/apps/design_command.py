@@ -15,6 +15,7 @@ import numpy as np
 from prismstereo.config import CameraSpec, PrismSpec, Rig, read_toml, rig_from_dict
 from prismstereo.design import Design, VerifyRow, predict, search, verify
 from prismstereo.design.figure import design_figure
+from prismstereo.design.geometry import colour_spread_px
 from prismstereo.design.precision import MEASURED_WITH
 from prismstereo.design.verify import AGREEMENT
 from prismstereo.errors import ConfigError
@@ -66,7 +67,8 @@ def design_command(rig_path: str | None, out_dir: str, *, near: float, far: floa
                    field: tuple[float, float] | None = None, accuracy: float | None = None,
                    faces: tuple[int, ...] = (2,), glass: str = "N-BK7", max_size: float = 100.0,
                    min_apex_distance: float = 50.0, max_apex_distance: float = 400.0, preset: str = "balanced",
-                   verify_design: bool = False, verify_given: bool = False, width: int | None = None,
+                   verify_design: bool = False, verify_given: bool = False, dispersion: bool = False,
+                   width: int | None = None,
                    height: int | None = None, pixel_size: float | None = None,
                    focal_length: float | None = None) -> str:
     """Run ``prismstereo design`` and return the lines to print."""
@@ -89,6 +91,10 @@ def design_command(rig_path: str | None, out_dir: str, *, near: float, far: floa
              _describe("best", best)]
     if ref is not None:
         lines.append(_describe("given", ref))
+    spread = colour_spread_px(rig, best.glass.abbe)
+    if spread > 0.5:
+        lines.append(f"note: the glass's dispersion spreads red and blue by up to {spread:.1f} px on the sensor; the "
+                     "prediction holds for a monochrome or narrow-band capture (docs/design.md, limits)")
     extra: dict[str, Any] = {}
     measured = None
     if verify_design or verify_given:
@@ -98,8 +104,9 @@ def design_command(rig_path: str | None, out_dir: str, *, near: float, far: floa
         extra["verify"] = {}
         for name, r, cand in targets:
             rows = verify(r, depths=depths, preset=preset, depth_range=(0.9 * near, 1.1 * far),
-                          abbe=cand.glass.abbe if cand is not None else None)
-            lines.append(f"verify ({name} prism, preset {preset}, fronto-parallel textured planes, predicted within "
+                          abbe=cand.glass.abbe if cand is not None and dispersion else None)
+            lines.append(f"verify ({name} prism, preset {preset}, fronto-parallel textured planes"
+                         f"{', with the glass dispersion' if dispersion else ''}, predicted within "
                          f"±{100 * AGREEMENT:.0f} %):")
             lines.extend(_verify_rows(rows))
             extra["verify"][name] = [row.to_dict() for row in rows]
@@ -119,7 +126,8 @@ def design_command(rig_path: str | None, out_dir: str, *, near: float, far: floa
     png = design_figure(fine, reference=ref_pred, measured=measured,
                         title=f"{p.faces}-face prism, α {p.corner_angle:.2f}°, glass {best.glass.name} "
                               f"(n_d {p.refractive_index:g}), apex {p.apex_distance:.1f} mm, range {near:g}-{far:g} mm")
-    payload = {**design.to_dict(), "prediction": fine.to_dict(), "precision_measured_with": MEASURED_WITH,
+    payload = {**design.to_dict(), "prediction": fine.to_dict(), "colour_spread_px": spread,
+               "precision_measured_with": MEASURED_WITH,
                "versions": library_versions(), **extra}
     with output_dir(out_dir) as stage:
         rig.save(stage / "rig.toml")

@@ -32,9 +32,10 @@ from scipy.spatial import ConvexHull, QhullError
 from prismstereo.config import CameraSpec, PrismSpec, Rig
 from prismstereo.errors import ConfigError
 from prismstereo.optics import RayBundle, closest_points_between_lines, pixel_grid, trace_pixels
+from prismstereo.simulate.render import dispersed_indices
 
 __all__ = ["SIZE_CLEARANCE_MM", "SIZE_MARGIN", "FieldAtDepth", "GlassSize", "RigSample", "SubImage",
-           "common_field", "glass_size", "sample_rig", "sensor_pixels", "size_prism"]
+           "colour_spread_px", "common_field", "glass_size", "sample_rig", "sensor_pixels", "size_prism"]
 
 #: relative margin on the glass's inradius beyond the last ray (mounting, chamfers)
 SIZE_MARGIN = 0.05
@@ -296,3 +297,24 @@ def common_field(sample: RigSample, face_a: int, face_b: int, depth_mm: float) -
         area = 0.0
     return FieldAtDepth(depth_mm=float(depth_mm), share=share, width_mm=float(ext[0]), height_mm=float(ext[1]),
                         area_mm2=area, centroid=common.mean(axis=0), hulls=(ha, hb))
+
+
+def colour_spread_px(rig: Rig, abbe: float | None, *, step: float = 32.0) -> float:
+    """Largest angle (in pixels of focal length) between the exit rays of the same sensor pixel at 656.3 nm and
+    486.1 nm (the glass's dispersion, indices from its Abbe number as the simulator's
+    :func:`~prismstereo.simulate.render.dispersed_indices`); 0 for a glass without an Abbe number.
+
+    A colour camera sees each face's red and blue images this far apart; the measured disparity precision
+    holds for a monochrome (narrow-band) capture (docs/design.md, limits).
+    """
+    if abbe is None:
+        return 0.0
+    n_c, _, n_f = dispersed_indices(rig.prism.refractive_index, abbe)
+    px = sensor_pixels(rig.camera, step)
+    red = trace_pixels(rig.with_prism(refractive_index=n_c), px)
+    blue = trace_pixels(rig.with_prism(refractive_index=n_f), px)
+    ok = red.valid & blue.valid & (red.face == blue.face)
+    if not ok.any():
+        return 0.0
+    cos = np.clip(np.einsum("ij,ij->i", red.directions[ok], blue.directions[ok]), -1.0, 1.0)
+    return float(np.max(np.arccos(cos)) * rig.camera.focal_px)
