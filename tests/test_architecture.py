@@ -35,6 +35,7 @@ LAYERS: tuple[frozenset[str], ...] = (
     frozenset({"depth"}),  # the depth pipeline: cameras -> rectify -> match -> triangulate
     frozenset({"calibration"}),  # camera and prism calibration from boards
     frozenset({"evaluation"}),  # metrics against ground truth (Middlebury, simulated depth)
+    frozenset({"design"}),  # choose a prism for a camera and a job: predict, search, verify on renders
     frozenset({"batch"}),  # depth of many frames on Dask
     frozenset({"apps", "cli", "__main__"}),  # the commands, demo, warm-up and thesis tables
 )

@@ -482,6 +482,10 @@ def _cmd_batch(args: argparse.Namespace) -> int:
 
 _ADDERS.append(_add_batch)
 
+from prismstereo.apps.design_cli import add_design  # noqa: E402
+
+_ADDERS.append(add_design)
+
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
