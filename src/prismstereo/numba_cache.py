@@ -10,11 +10,13 @@ goes on with the compiled kernel, and the next process compiles it again.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 log = logging.getLogger(__name__)
 
-__all__ = ["tolerate_cache_write_errors"]
+__all__ = ["compilation_notice", "tolerate_cache_write_errors"]
 
 _MARK = "_prismstereo_tolerant"
 
@@ -47,3 +49,27 @@ def tolerate_cache_write_errors() -> None:
 
     setattr(save_overload, _MARK, True)
     Cache.save_overload = save_overload  # type: ignore[method-assign]
+
+
+@contextmanager
+def compilation_notice(announce: Callable[[], None]) -> Iterator[None]:
+    """Call ``announce()`` once, when the first kernel inside the ``with`` block must be compiled (not found
+    in numba's cache: a first run in this environment, or after an upgrade), before that compilation starts.
+
+    A warm cache never calls it: numba signals a compilation only on a cache miss.
+    """
+    from numba.core import event
+
+    class _First(event.Listener):
+        fired = False
+
+        def on_start(self, ev: Any) -> None:
+            if not self.fired:
+                self.fired = True
+                announce()
+
+        def on_end(self, ev: Any) -> None:
+            pass
+
+    with event.install_listener("numba:compile", _First()):
+        yield

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import re
 import sys
 from collections.abc import Callable, Sequence
 
@@ -392,14 +393,19 @@ _ADDERS += [add_calibrate_camera, add_calibrate_prism, add_check]
 def _add_warmup(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("warmup", help="compile the numba kernels once into numba's disk cache (first-run cost)")
     p.add_argument("--methods", default=None, help="comma-separated matchers to warm (default: all)")
+    p.add_argument("--parts", default=None, metavar="depth,multiview",
+                   help="also warm the depth pipeline (with the first of --methods) and/or multi-view matching "
+                        "(default both; 'none' for neither)")
     p.set_defaults(handler=_cmd_warmup)
 
 
 def _cmd_warmup(args: argparse.Namespace) -> int:
-    from prismstereo.apps.warmup import warmup
+    from prismstereo.apps.warmup import PARTS, warmup
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
-    print(warmup(methods).summary())
+    parts = PARTS if args.parts is None else tuple(p.strip() for p in args.parts.split(",")
+                                                    if p.strip() and p.strip() != "none")
+    print(warmup(methods, parts=parts).summary())
     return 0
 
 
@@ -530,15 +536,45 @@ def main(argv: Sequence[str] | None = None) -> int:
             os.environ["TQDM_DISABLE"] = previous
 
 
+#: library parameter names whose command-line flag is not the name with dashes
+_FLAG_OF = {"ground_truth": "--gt", "data_dir": "--data", "matcher_params": "--param"}
+
+
+def cli_message(parser: argparse.ArgumentParser, command: str, message: str) -> str:
+    """A library error with the parameter it names first (``views: ...``, ``DepthConfig.min_confidence: ...``)
+    as the command's flag (``--views: ...``) when the command has one; otherwise the message as it is."""
+    m = re.match(r"(?:[A-Z]\w*\.)?([a-z_]\w*): ", message)
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if m is None or not subs or command not in subs[0].choices:
+        return message
+    name = m.group(1)
+    flag = _FLAG_OF.get(name, "--" + name.replace("_", "-"))
+    if flag in subs[0].choices[command]._option_string_actions:
+        return flag + message[m.end(1):]
+    return message
+
+
+def _compiling(command: str) -> None:
+    """The first kernel of a run that is not in numba's cache: say why the run is slow, once."""
+    line = ("compiling the numba kernels this run needs (first run in this environment; later runs load them "
+            "from the cache; `prismstereo warmup` compiles them ahead)")
+    if sys.stderr.isatty():
+        print(f"prismstereo {command}: {line}", file=sys.stderr, flush=True)
+    else:
+        log.info("%s", line)
+
+
 def _run_handler(handler: Handler, args: argparse.Namespace) -> int:
     """Run a subcommand's handler; errors become one line on stderr and the exit code."""
-    from prismstereo.numba_cache import tolerate_cache_write_errors
+    from prismstereo.numba_cache import compilation_notice, tolerate_cache_write_errors
 
     tolerate_cache_write_errors()  # a numba cache that cannot be written costs a compile, not the command
     try:
-        return handler(args)
+        with compilation_notice(lambda: _compiling(args.command)):
+            return handler(args)
     except PrismStereoError as exc:
-        print(f"prismstereo {args.command}: error: {exc}", file=sys.stderr)
+        print(f"prismstereo {args.command}: error: {cli_message(build_parser(), args.command, str(exc))}",
+              file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"prismstereo {args.command}: interrupted", file=sys.stderr)

@@ -75,9 +75,9 @@ def warmup(methods: Sequence[str] | None = None, *, parts: Sequence[str] = PARTS
     methods : sequence of str, optional
         Matchers to warm (default: every registered one).
     parts : sequence of str
-        Also warm ``"depth"`` (a 128×96 rendered capture through the depth pipeline with the ``fast``
-        preset's matcher; the renderer is warmed with it) and ``"multiview"`` (local and global matching
-        of three views).
+        Also warm ``"depth"`` (a 128×96 rendered capture through the depth pipeline with the first of
+        ``methods``, or the ``fast`` preset's matcher when none is named; the renderer is warmed with it)
+        and ``"multiview"`` (local and global matching of three views).
 
     Returns
     -------
@@ -109,7 +109,8 @@ def warmup(methods: Sequence[str] | None = None, *, parts: Sequence[str] = PARTS
         t = time.perf_counter()
         rig = scaled_rig(demo_rig(), 4)
         cap = render_capture(rig, plane_scene(1600.0, tilt_deg=-20.0, seed=5))
-        run_depth(rig, cap.image, config=DepthConfig(method=PRESETS["fast"]), progress=False)
+        method = names[0] if methods is not None and names else PRESETS["fast"]
+        run_depth(rig, cap.image, config=DepthConfig(method=method), progress=False)
         seconds["depth"] = time.perf_counter() - t
     if "multiview" in parts:
 
