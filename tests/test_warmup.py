@@ -18,15 +18,15 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 
 
 def test_warmup_selected_methods() -> None:
-    rep = warmup(["sgm", "SAD"], parts=())
+    rep = warmup(["sgm", "SAD"], parts=(), jobs=1)
     assert list(rep.seconds) == ["match sgm", "match sad"]
     assert f"numba cache: {rep.cache}" in rep.summary()
 
 
 _STATS = """
 import json, sys, numba
-from prismstereo.apps.warmup import warmup
-rep = warmup(["sad"], parts=())
+from prismstereo.apps.warmup import numba_cache_location, warmup
+rep = warmup(["sad"], parts=(), jobs=1)
 hits = misses = 0
 for name, mod in list(sys.modules.items()):
     if name.startswith("prismstereo."):

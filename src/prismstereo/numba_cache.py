@@ -10,13 +10,14 @@ goes on with the compiled kernel, and the next process compiles it again.
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
 log = logging.getLogger(__name__)
 
-__all__ = ["compilation_notice", "tolerate_cache_write_errors"]
+__all__ = ["compilation_notice", "has_cached_code", "tolerate_cache_write_errors"]
 
 _MARK = "_prismstereo_tolerant"
 
@@ -73,3 +74,11 @@ def compilation_notice(announce: Callable[[], None]) -> Iterator[None]:
 
     with event.install_listener("numba:compile", _First()):
         yield
+
+
+def has_cached_code(dispatcher: Any) -> bool:
+    """Whether numba's disk cache holds code of the ``cache=True`` kernel ``dispatcher`` (its index file exists;
+    a stale entry, from changed sources, is compiled again when called)."""
+    cache = getattr(dispatcher, "_cache", None)
+    path = getattr(getattr(cache, "_cache_file", None), "_index_path", None)
+    return isinstance(path, str) and os.path.exists(path)

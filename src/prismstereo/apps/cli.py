@@ -303,6 +303,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     depth_range = None if args.depth_range is None else _parse_pair(args.depth_range, "--depth-range")
     method, preset = (args.method, None) if args.preset is None and args.config is not None \
         else resolve_preset(args.preset, args.method)
+    _first_run(args.command, method or "bpasw")
     print(depth_command(args.rig, args.image, args.output, method=method, preset=preset,
                         params=_parse_params(args.param),
                         depth_range=depth_range, roi=_parse_roi(args.roi), views=views,
@@ -310,6 +311,21 @@ def _cmd_depth(args: argparse.Namespace) -> int:
                         refine=False if args.no_refine else None, config_path=args.config,
                         self_calibrate=args.self_calibrate, min_confidence=args.min_confidence))
     return 0
+
+
+def _first_run(command: str, method: str) -> None:
+    """A first run in this environment (the depth pipeline's kernels are not in numba's cache): compile what
+    the command needs in two processes at once (the matcher's kernels, the pipeline's), saying so once."""
+    from prismstereo.depth.refine import REFINE_KERNELS
+    from prismstereo.numba_cache import has_cached_code
+
+    if (os.cpu_count() or 1) < 2 or all(has_cached_code(k) for k in REFINE_KERNELS):
+        return  # one core: compiling in the run itself costs the same
+    from prismstereo.apps.warmup import warmup
+    from prismstereo.matching import available_matchers
+
+    _compiling(command)
+    warmup([method] if method.lower() in available_matchers() else [], parts=("depth",))
 
 
 def _add_demo(sub: argparse._SubParsersAction) -> None:
@@ -396,6 +412,8 @@ def _add_warmup(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--parts", default=None, metavar="depth,multiview",
                    help="also warm the depth pipeline (with the first of --methods) and/or multi-view matching "
                         "(default both; 'none' for neither)")
+    p.add_argument("--jobs", type=int, default=None,
+                   help="processes compiling at the same time (default: one per core)")
     p.set_defaults(handler=_cmd_warmup)
 
 
@@ -405,7 +423,7 @@ def _cmd_warmup(args: argparse.Namespace) -> int:
     methods = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
     parts = PARTS if args.parts is None else tuple(p.strip() for p in args.parts.split(",")
                                                     if p.strip() and p.strip() != "none")
-    print(warmup(methods, parts=parts).summary())
+    print(warmup(methods, parts=parts, jobs=args.jobs).summary())
     return 0
 
 
