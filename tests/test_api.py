@@ -158,3 +158,16 @@ def test_calibrate_prism_checks_its_options_first(capture_folder: Path, tmp_path
                                     from_scene=True)
     with pytest.raises(ImageError, match="^captures: "):
         prismstereo.calibrate_prism(capture_folder / "rig.toml", [], from_scene=True)
+
+
+@pytest.mark.slow
+def test_the_worked_example_of_docs_api_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """docs/api.md's first Python block (simulate, depth with ground truth, points, save), as written."""
+    block = re.findall(r"```python\n(.*?)```", (REPO / "docs" / "api.md").read_text(), flags=re.S)[0]
+    monkeypatch.chdir(tmp_path)
+    scope: dict[str, object] = {"__name__": "api_md"}
+    exec(compile(block, "docs/api.md", "exec"), scope)  # noqa: S102 - our own documentation
+    result = scope["result"]
+    assert isinstance(result, api.DepthResult) and result.accuracy is not None
+    assert result.accuracy["median_rel"] < 0.005
+    assert sorted(p.name for p in (tmp_path / "depth").iterdir()) == sorted(OUTPUT_FILES)
