@@ -12,7 +12,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/prismstereo warmup
+	$(BIN)/prismstereo warmup --methods bpasw --parts depth    # the kernels the demo runs, not every matcher's
 	$(BIN)/prismstereo demo -o demo_out
 
 test: $(STAMP)

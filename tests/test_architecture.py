@@ -5,6 +5,11 @@ or a package listed beside it) and from the layers below, never from a layer abo
 placed in :data:`LAYERS` before it can be imported. Imports are read with ``ast`` from the source, at module
 level AND inside functions (a function-level import that dodges a cycle is still an upward import). Outside
 the commands (``apps/``) imports sit at module level, and no module imports another's underscore names.
+
+The one-call API (``prismstereo.depth``, ``load_rig``, ``simulate``, ``calibrate_prism``) is the module
+:mod:`prismstereo.api`, a layer of its own just below the commands (which call it). The top-level package
+names these functions but loads :mod:`prismstereo.api` only when one is first used (by name, through
+``importlib``, never an ``import`` statement): ``import prismstereo`` loads nothing but the bottom layer.
 """
 
 from __future__ import annotations
@@ -22,7 +27,7 @@ PACKAGE = SRC / "prismstereo"
 
 #: lowest first; "" is the top-level package itself (prismstereo/__init__.py, its version)
 LAYERS: tuple[frozenset[str], ...] = (
-    frozenset({"", "errors", "progress", "numba_cache"}),
+    frozenset({"", "errors", "checks", "progress", "numba_cache"}),
     frozenset({"io"}),  # files, atomic writes, JSON
     frozenset({"config"}),  # the rig (TOML) and the thesis's rigs
     frozenset({"optics"}),  # refraction through the prism, exact projection
@@ -37,6 +42,7 @@ LAYERS: tuple[frozenset[str], ...] = (
     frozenset({"evaluation"}),  # metrics against ground truth (Middlebury, simulated depth)
     frozenset({"design"}),  # choose a prism for a camera and a job: predict, search, verify on renders
     frozenset({"batch"}),  # depth of many frames on Dask
+    frozenset({"api"}),  # one call per task: load_rig, depth, simulate, calibrate_prism (docs/api.md)
     frozenset({"apps", "cli", "__main__"}),  # the commands, demo, warm-up and thesis tables
 )
 RANK = {name: i for i, layer in enumerate(LAYERS) for name in layer}
@@ -187,6 +193,19 @@ def test_importing_the_pipeline_loads_nothing_above_it() -> None:
                          env={"PYTHONPATH": str(SRC), "PATH": "/usr/bin:/bin"}).stdout.split()
     above = sorted(m for m in out if RANK.get(_package_of(m), 0) > RANK["depth"])
     assert not above, f"the depth pipeline pulls in higher layers: {above}"
+
+
+def test_importing_the_package_loads_only_the_bottom_layer() -> None:
+    """``import prismstereo`` names the API's functions without loading them (or numpy); the first use does."""
+    code = ("import sys, prismstereo\n"
+            "before = sorted(m for m in sys.modules if m.startswith('prismstereo.') or m == 'numpy')\n"
+            "prismstereo.load_rig\n"
+            "print(' '.join(before), '|', 'prismstereo.api' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         env={"PYTHONPATH": str(SRC), "PATH": "/usr/bin:/bin"}).stdout.split("|")
+    loaded = out[0].split()
+    assert all(RANK[_package_of(m)] == 0 for m in loaded) and "numpy" not in loaded, loaded
+    assert out[1].strip() == "True"
 
 
 @pytest.mark.slow

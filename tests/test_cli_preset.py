@@ -19,7 +19,7 @@ def test_preset_table() -> None:
     assert resolve_preset(None, None) == ("bpasw", None)
     with pytest.raises(ConfigError, match="both"):
         resolve_preset("fast", "sgm")
-    with pytest.raises(ConfigError, match="--preset"):
+    with pytest.raises(ConfigError, match="^preset: "):
         resolve_preset("turbo", None)
 
 

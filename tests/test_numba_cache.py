@@ -64,3 +64,25 @@ def test_without_it_numba_fails_the_run(tmp_path: Path) -> None:
     proc = _run(tmp_path, "plain")
     assert proc.returncode != 0 and "sum" not in proc.stdout
     assert "OSError" in proc.stderr or "File too large" in proc.stderr, proc.stderr
+
+
+def test_compilation_is_announced_once_and_only_on_a_compile() -> None:
+    from numba import njit
+
+    from prismstereo.numba_cache import compilation_notice
+
+    calls: list[int] = []
+
+    @njit
+    def add(a, b):  # type: ignore[no-untyped-def]
+        return a + b
+
+    with compilation_notice(lambda: calls.append(1)):
+        add(1, 2)
+        add(1.0, 2.0)  # a second signature: compiled too, not announced again
+    assert calls == [1]
+    with compilation_notice(lambda: calls.append(2)):
+        add(3, 4)  # compiled already: nothing to say
+    assert calls == [1]
+    add(1j, 2j)  # outside the block
+    assert calls == [1]

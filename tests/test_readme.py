@@ -3,7 +3,7 @@
 The commands are read from the README itself. The only substitutions: the robot scene at half resolution
 (``examples/biprism_demo.toml``: the same scene and prism on a 512×384 sensor, so every disparity halves and
 stays inside the README's ``--max-disp``) and the Middlebury folder of this machine. Each command must exit
-0 and give its stated result or a warning.
+0 and give its stated result (a warning where the README says it warns).
 """
 
 from __future__ import annotations
@@ -78,7 +78,8 @@ def test_readme_command_line_runs_as_written(tmp_path: Path) -> None:
             assert short.returncode == 0 and "largest searched disparity 32" in short.stderr, short.stderr
         elif args[0] == "depth":
             run = json.loads((tmp_path / "depth" / "run.json").read_text())
-            assert run["accuracy"]["median_rel"] < 0.005 or run["warnings"]
+            # the README's claim holds whatever else the run warns about
+            assert run["accuracy"]["median_rel"] < 0.005, (run["accuracy"], run["warnings"])
         elif args[0] == "evaluate":
             res = json.loads((tmp_path / "mb" / "results.json").read_text())
             assert res["average"]["nonocc"] < 10.0

@@ -10,11 +10,14 @@ goes on with the compiled kernel, and the next process compiles it again.
 from __future__ import annotations
 
 import logging
+import os
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 log = logging.getLogger(__name__)
 
-__all__ = ["tolerate_cache_write_errors"]
+__all__ = ["compilation_notice", "has_cached_code", "tolerate_cache_write_errors"]
 
 _MARK = "_prismstereo_tolerant"
 
@@ -47,3 +50,35 @@ def tolerate_cache_write_errors() -> None:
 
     setattr(save_overload, _MARK, True)
     Cache.save_overload = save_overload  # type: ignore[method-assign]
+
+
+@contextmanager
+def compilation_notice(announce: Callable[[], None]) -> Iterator[None]:
+    """Call ``announce()`` once, when the first kernel inside the ``with`` block must be compiled (not found
+    in numba's cache: a first run in this environment, or after an upgrade), before that compilation starts.
+
+    A warm cache never calls it: numba signals a compilation only on a cache miss.
+    """
+    from numba.core import event
+
+    class _First(event.Listener):
+        fired = False
+
+        def on_start(self, ev: Any) -> None:
+            if not self.fired:
+                self.fired = True
+                announce()
+
+        def on_end(self, ev: Any) -> None:
+            pass
+
+    with event.install_listener("numba:compile", _First()):
+        yield
+
+
+def has_cached_code(dispatcher: Any) -> bool:
+    """Whether numba's disk cache holds code of the ``cache=True`` kernel ``dispatcher`` (its index file exists;
+    a stale entry, from changed sources, is compiled again when called)."""
+    cache = getattr(dispatcher, "_cache", None)
+    path = getattr(getattr(cache, "_cache_file", None), "_index_path", None)
+    return isinstance(path, str) and os.path.exists(path)

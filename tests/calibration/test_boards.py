@@ -15,11 +15,11 @@ def test_parse_board():
     obj = b.object_points()
     assert obj.shape == (48, 3) and obj[1, 0] == 3.0 and obj[8, 1] == 3.0
     for bad in ("8", "8x", "ax6", "8*6"):
-        with pytest.raises(ConfigError, match="--board: expected inner corners as COLSxROWS"):
+        with pytest.raises(ConfigError, match="^board: expected inner corners as COLSxROWS"):
             parse_board(bad, 3.0)
-    with pytest.raises(ConfigError, match="--board: expected at least 2x2"):
+    with pytest.raises(ConfigError, match="^board: expected at least 2x2"):
         parse_board("1x6", 3.0)
-    with pytest.raises(ConfigError, match="--square: expected a positive size"):
+    with pytest.raises(ConfigError, match="^square: expected a positive size"):
         parse_board("8x6", -1.0)
 
 

@@ -63,7 +63,7 @@ def test_parse_free():
     assert parse_free(None) == ("rotation", "tilt_x", "tilt_y", "decenter_x", "decenter_y", "fx", "fy")
     assert parse_free("principal_point,k1") == ("cx", "cy", "k1")
     assert parse_free("rotation,apex_distance") == ("rotation", "apex_distance")
-    with pytest.raises(ConfigError, match="--free: expected a comma list"):
+    with pytest.raises(ConfigError, match="^free: expected a comma list"):
         parse_free("rotation,spin")
 
 

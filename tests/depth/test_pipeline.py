@@ -109,15 +109,15 @@ def test_validation_errors(plane_capture):
     rig, _, cap = plane_capture
     with pytest.raises(ImageError, match="expected a 512×384 capture"):
         validate_inputs(rig, cap.image[:100], DepthConfig())
-    with pytest.raises(ConfigError, match="--method"):
+    with pytest.raises(ConfigError, match="^DepthConfig.method: "):
         validate_inputs(rig, cap.image, DepthConfig(method="nope"))
-    with pytest.raises(ConfigError, match="--views"):
+    with pytest.raises(ConfigError, match="^DepthConfig.views: "):
         validate_inputs(rig, cap.image, DepthConfig(views=(0, 0)))
-    with pytest.raises(ConfigError, match="--views"):
+    with pytest.raises(ConfigError, match="^DepthConfig.views: "):
         validate_inputs(rig, cap.image, DepthConfig(views=(0, 5)))
-    with pytest.raises(ConfigError, match="--depth-range"):
+    with pytest.raises(ConfigError, match="^DepthConfig.depth_range: "):
         validate_inputs(rig, cap.image, DepthConfig(depth_range=(100.0, 5000.0)))
-    with pytest.raises(ConfigError, match="--triangulation"):
+    with pytest.raises(ConfigError, match="^DepthConfig.triangulation: "):
         validate_inputs(rig, cap.image, DepthConfig(triangulation="magic"))
     with pytest.raises(ConfigError, match="refine_prefilter"):
         validate_inputs(rig, cap.image, DepthConfig(refine_prefilter=-0.5))

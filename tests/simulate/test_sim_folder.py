@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import prismstereo.apps.simulate_folder as folder_mod
+import prismstereo.api as folder_mod
 from prismstereo.apps.simulate_folder import OUTPUT_FILES, simulate_to_folder
 from prismstereo.cli import main
 from prismstereo.config import load_rig

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import re
 import sys
 from collections.abc import Callable, Sequence
 
@@ -329,6 +330,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     depth_range = None if args.depth_range is None else _parse_pair(args.depth_range, "--depth-range")
     method, preset = (args.method, None) if args.preset is None and args.config is not None \
         else resolve_preset(args.preset, args.method)
+    _first_run(args.command, method or "bpasw")
     print(depth_command(args.rig, args.image, args.output, method=method, preset=preset,
                         params=_parse_params(args.param),
                         depth_range=depth_range, roi=_parse_roi(args.roi), views=views,
@@ -337,6 +339,21 @@ def _cmd_depth(args: argparse.Namespace) -> int:
                         self_calibrate=args.self_calibrate, min_confidence=args.min_confidence,
                         coarse_to_fine=args.coarse_to_fine, max_memory=_parse_memory(args.max_memory)))
     return 0
+
+
+def _first_run(command: str, method: str) -> None:
+    """A first run in this environment (the depth pipeline's kernels are not in numba's cache): compile what
+    the command needs in two processes at once (the matcher's kernels, the pipeline's), saying so once."""
+    from prismstereo.depth.refine import REFINE_KERNELS
+    from prismstereo.numba_cache import has_cached_code
+
+    if (os.cpu_count() or 1) < 2 or all(has_cached_code(k) for k in REFINE_KERNELS):
+        return  # one core: compiling in the run itself costs the same
+    from prismstereo.apps.warmup import warmup
+    from prismstereo.matching import available_matchers
+
+    _compiling(command)
+    warmup([method] if method.lower() in available_matchers() else [], parts=("depth",))
 
 
 def _add_demo(sub: argparse._SubParsersAction) -> None:
@@ -420,14 +437,21 @@ _ADDERS += [add_calibrate_camera, add_calibrate_prism, add_check]
 def _add_warmup(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("warmup", help="compile the numba kernels once into numba's disk cache (first-run cost)")
     p.add_argument("--methods", default=None, help="comma-separated matchers to warm (default: all)")
+    p.add_argument("--parts", default=None, metavar="depth,multiview",
+                   help="also warm the depth pipeline (with the first of --methods) and/or multi-view matching "
+                        "(default both; 'none' for neither)")
+    p.add_argument("--jobs", type=int, default=None,
+                   help="processes compiling at the same time (default: one per core)")
     p.set_defaults(handler=_cmd_warmup)
 
 
 def _cmd_warmup(args: argparse.Namespace) -> int:
-    from prismstereo.apps.warmup import warmup
+    from prismstereo.apps.warmup import PARTS, warmup
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
-    print(warmup(methods).summary())
+    parts = PARTS if args.parts is None else tuple(p.strip() for p in args.parts.split(",")
+                                                    if p.strip() and p.strip() != "none")
+    print(warmup(methods, parts=parts, jobs=args.jobs).summary())
     return 0
 
 
@@ -562,15 +586,45 @@ def main(argv: Sequence[str] | None = None) -> int:
             os.environ["TQDM_DISABLE"] = previous
 
 
+#: library parameter names whose command-line flag is not the name with dashes
+_FLAG_OF = {"ground_truth": "--gt", "data_dir": "--data", "matcher_params": "--param"}
+
+
+def cli_message(parser: argparse.ArgumentParser, command: str, message: str) -> str:
+    """A library error with the parameter it names first (``views: ...``, ``DepthConfig.min_confidence: ...``)
+    as the command's flag (``--views: ...``) when the command has one; otherwise the message as it is."""
+    m = re.match(r"(?:[A-Z]\w*\.)?([a-z_]\w*): ", message)
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if m is None or not subs or command not in subs[0].choices:
+        return message
+    name = m.group(1)
+    flag = _FLAG_OF.get(name, "--" + name.replace("_", "-"))
+    if flag in subs[0].choices[command]._option_string_actions:
+        return flag + message[m.end(1):]
+    return message
+
+
+def _compiling(command: str) -> None:
+    """The first kernel of a run that is not in numba's cache: say why the run is slow, once."""
+    line = ("compiling the numba kernels this run needs (first run in this environment; later runs load them "
+            "from the cache; `prismstereo warmup` compiles them ahead)")
+    if sys.stderr.isatty():
+        print(f"prismstereo {command}: {line}", file=sys.stderr, flush=True)
+    else:
+        log.info("%s", line)
+
+
 def _run_handler(handler: Handler, args: argparse.Namespace) -> int:
     """Run a subcommand's handler; errors become one line on stderr and the exit code."""
-    from prismstereo.numba_cache import tolerate_cache_write_errors
+    from prismstereo.numba_cache import compilation_notice, tolerate_cache_write_errors
 
     tolerate_cache_write_errors()  # a numba cache that cannot be written costs a compile, not the command
     try:
-        return handler(args)
+        with compilation_notice(lambda: _compiling(args.command)):
+            return handler(args)
     except PrismStereoError as exc:
-        print(f"prismstereo {args.command}: error: {exc}", file=sys.stderr)
+        print(f"prismstereo {args.command}: error: {cli_message(build_parser(), args.command, str(exc))}",
+              file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"prismstereo {args.command}: interrupted", file=sys.stderr)

@@ -66,56 +66,19 @@ def add_calibrate_prism(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_calibrate_prism(args: argparse.Namespace) -> int:
-    from prismstereo.calibration import calibrate_prism, parse_board, parse_free
-    from prismstereo.calibration.report import residual_figure
-    from prismstereo.config import load_rig
-    from prismstereo.io.atomic import atomic_write_bytes
-    from prismstereo.io.jsonio import write_json
+    from prismstereo.api import calibrate_prism
+    from prismstereo.io.atomic import check_output_file
 
-    if args.from_scene:
-        return _cmd_calibrate_from_scene(args)
-    if args.board is None or args.square is None:
+    if not args.from_scene and (args.board is None or args.square is None):
         raise ConfigError("calibrate-prism: expected --board COLSxROWS and --square MM (checkerboard captures) or "
                           "--from-scene (captures of a textured scene), got neither")
-    rig = load_rig(args.rig)
-    board = parse_board(args.board, args.square)
-    free = parse_free(args.free)
-    images = _read_images(args.captures)
-    result = calibrate_prism(rig, images, board, names=[Path(p).name for p in args.captures], free=free)
-    out = Path(args.output)
-    png = residual_figure(result, rig.camera.width, rig.camera.height)
-    stem = out.with_suffix("") if out.suffix == ".toml" else out
-    report_path = Path(f"{stem}.report.json")
-    plot_path = Path(f"{stem}.residuals.png")
-    write_json(report_path, result.report())
-    atomic_write_bytes(plot_path, png)
-    result.rig.save(out)  # last: a rig file on disk means the whole calibration succeeded
+    if args.from_scene:
+        check_output_file(args.output)
+    result = calibrate_prism(args.rig, args.captures, board=args.board, square=args.square, free=args.free,
+                             from_scene=args.from_scene)
+    written = result.save(args.output)
     print(result.summary())
-    print(f"wrote {out}, {report_path}, {plot_path}")
-    return 0
-
-
-def _cmd_calibrate_from_scene(args: argparse.Namespace) -> int:
-    from prismstereo.calibration.from_scene import calibrate_from_scene, parse_scene_free
-    from prismstereo.config import load_rig
-    from prismstereo.io.atomic import check_output_file
-    from prismstereo.io.jsonio import write_json
-
-    if args.board is not None or args.square is not None:
-        raise ConfigError("calibrate-prism --from-scene: expected no --board/--square (the scene needs no "
-                          "checkerboard), got them")
-    rig = load_rig(args.rig)
-    free = parse_scene_free(args.free)
-    out = Path(args.output)
-    check_output_file(out)
-    images = _read_images(args.captures)
-    result = calibrate_from_scene(rig, images, free=free)
-    stem = out.with_suffix("") if out.suffix == ".toml" else out
-    report_path = Path(f"{stem}.report.json")
-    write_json(report_path, {"inputs": {"rig": str(args.rig), "captures": list(args.captures)}, **result.report()})
-    result.rig.save(out)  # last: a rig file on disk means the whole calibration succeeded
-    print(result.summary())
-    print(f"wrote {out}, {report_path}")
+    print(f"wrote {', '.join(map(str, written))}")
     return 0
 
 

@@ -12,8 +12,11 @@ cache holds the same signatures the real run asks for.
 from __future__ import annotations
 
 import logging
+import multiprocessing
+import os
 import time
 from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,7 +25,7 @@ import prismstereo
 from prismstereo.apps.demo import demo_rig, plane_scene, scaled_rig
 from prismstereo.depth import DepthConfig, run_depth
 from prismstereo.errors import ConfigError
-from prismstereo.matching import PRESETS, available_matchers, match
+from prismstereo.matching import available_matchers, match
 from prismstereo.multiview.api import match_multiview
 from prismstereo.simulate import render_capture
 
@@ -67,7 +70,32 @@ def _pair(h: int = 48, w: int = 72, shift: int = 4) -> tuple[np.ndarray, np.ndar
     return np.ascontiguousarray(big[:, :w]), np.ascontiguousarray(big[:, shift:shift + w])
 
 
-def warmup(methods: Sequence[str] | None = None, *, parts: Sequence[str] = PARTS) -> WarmupReport:
+def _warm_item(item: tuple[str, str]) -> float:
+    """Run one warm-up item (``("match", method)``, ``("depth", "")``, ``("multiview", "")``); its seconds."""
+    kind, name = item
+    t = time.perf_counter()
+    if kind == "match":
+        left, right = _pair()
+        match(left, right, max_disp=8, method=name)
+    elif kind == "depth":
+        # the pipeline's own kernels (renderer, refinement, triangulation) with OpenCV's SGBM, which compiles
+        # nothing: the matchers' kernels are the "match" items' (the pipeline calls them on contiguous uint8
+        # RGB views, the tiny pair's types)
+        rig = scaled_rig(demo_rig(), 4)
+        cap = render_capture(rig, plane_scene(1600.0, tilt_deg=-20.0, seed=5))
+        run_depth(rig, cap.image, config=DepthConfig(method="sgbm"), progress=False)
+    else:
+        left, right = _pair()
+        far = _pair(shift=8)[1]
+        for mv in ("local", "global"):
+            match_multiview(left, [right, far], ratios=[1.0, 2.0], max_disp=6, method=mv)
+    seconds = time.perf_counter() - t
+    log.info("warmed %s %s in %.1f s", kind, name, seconds)
+    return seconds
+
+
+def warmup(methods: Sequence[str] | None = None, *, parts: Sequence[str] = PARTS,
+           jobs: int | None = None) -> WarmupReport:
     """Run every matcher (and the depth pipeline and multi-view matching) once on tiny inputs.
 
     Parameters
@@ -75,9 +103,12 @@ def warmup(methods: Sequence[str] | None = None, *, parts: Sequence[str] = PARTS
     methods : sequence of str, optional
         Matchers to warm (default: every registered one).
     parts : sequence of str
-        Also warm ``"depth"`` (a 128×96 rendered capture through the depth pipeline with the ``fast``
-        preset's matcher; the renderer is warmed with it) and ``"multiview"`` (local and global matching
-        of three views).
+        Also warm ``"depth"`` (a 128×96 rendered capture through the depth pipeline, with OpenCV's SGBM: the
+        renderer's and the pipeline's kernels; the matchers' are the methods') and ``"multiview"`` (local
+        and global matching of three views).
+    jobs : int, optional
+        Processes compiling at the same time (numba compiles on one core per process; every process writes
+        the shared disk cache). Default: one per core, at most one per item; 1: in this process.
 
     Returns
     -------
@@ -87,35 +118,25 @@ def warmup(methods: Sequence[str] | None = None, *, parts: Sequence[str] = PARTS
     Raises
     ------
     ConfigError
-        Unknown method or part.
+        Unknown method or part, or ``jobs`` < 1.
     """
 
     names = list(available_matchers()) if methods is None else [str(m).lower() for m in methods]
     unknown = sorted(set(names) - set(available_matchers()))
     if unknown:
-        raise ConfigError(f"expected methods among {', '.join(available_matchers())}, got {unknown}")
+        raise ConfigError(f"methods: expected methods among {', '.join(available_matchers())}, got {unknown}")
     bad_parts = sorted(set(parts) - set(PARTS))
     if bad_parts:
-        raise ConfigError(f"expected warmup parts among {', '.join(PARTS)}, got {bad_parts}")
-    seconds: dict[str, float] = {}
-    left, right = _pair()
-    for name in names:
-        t = time.perf_counter()
-        match(left, right, max_disp=8, method=name)
-        seconds[f"match {name}"] = time.perf_counter() - t
-        log.info("warmed %s in %.1f s", name, seconds[f"match {name}"])
-    if "depth" in parts:
-
-        t = time.perf_counter()
-        rig = scaled_rig(demo_rig(), 4)
-        cap = render_capture(rig, plane_scene(1600.0, tilt_deg=-20.0, seed=5))
-        run_depth(rig, cap.image, config=DepthConfig(method=PRESETS["fast"]), progress=False)
-        seconds["depth"] = time.perf_counter() - t
-    if "multiview" in parts:
-
-        t = time.perf_counter()
-        far = _pair(shift=8)[1]
-        for mv in ("local", "global"):
-            match_multiview(left, [right, far], ratios=[1.0, 2.0], max_disp=6, method=mv)
-        seconds["multiview"] = time.perf_counter() - t
-    return WarmupReport(seconds, numba_cache_location())
+        raise ConfigError(f"parts: expected warmup parts among {', '.join(PARTS)}, got {bad_parts}")
+    if jobs is not None and (isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1):
+        raise ConfigError(f"jobs: expected a positive integer, got {jobs!r}")
+    items = [("match", n) for n in names] + [(p, "") for p in PARTS if p in parts]
+    labels = [f"match {n}" if k == "match" else k for k, n in items]
+    workers = min(len(items), jobs if jobs is not None else (os.cpu_count() or 1))
+    if workers <= 1:
+        seconds = [_warm_item(it) for it in items]
+    else:
+        # fresh interpreters (spawn): a forked copy of a process that has run numba's threads is unsafe
+        with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+            seconds = list(pool.map(_warm_item, items))
+    return WarmupReport(dict(zip(labels, seconds, strict=True)), numba_cache_location())

@@ -53,7 +53,7 @@ def parse_outputs(outputs: str | Sequence[str] | None) -> tuple[str, ...]:
     names = [s.strip() for s in (outputs.split(",") if isinstance(outputs, str) else outputs) if s.strip()]
     bad = [n for n in names if n not in OUTPUT_CHOICES]
     if bad or not names:
-        raise ConfigError(f"--outputs: expected names among {','.join(OUTPUT_CHOICES)}, "
+        raise ConfigError(f"outputs: expected names among {','.join(OUTPUT_CHOICES)}, "
                           f"got {','.join(names) or '(none)'}")
     return tuple(n for n in OUTPUT_CHOICES if n in names)
 

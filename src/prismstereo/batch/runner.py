@@ -261,7 +261,7 @@ def _dask_client(client: Any, scheduler: str | None, workers: int | None, thread
         try:
             own = Client(scheduler, timeout="10s")
         except (OSError, TimeoutError, ValueError) as exc:
-            raise ConfigError(f"--scheduler: expected a reachable Dask scheduler like tcp://HOST:8786, got "
+            raise ConfigError(f"scheduler: expected a reachable Dask scheduler like tcp://HOST:8786, got "
                               f"{scheduler!r} ({_error_line(exc)})") from None
         try:
             yield own, {"kind": "scheduler", "address": scheduler}
@@ -409,15 +409,15 @@ def run_batch(rig: Rig | str | os.PathLike[str], inputs: Sequence[str | os.PathL
     rig_obj = rig if isinstance(rig, Rig) else load_rig(rig)
     chosen = parse_outputs(outputs)
     if workers is not None and workers < 1:
-        raise ConfigError(f"--workers: expected a positive number, got {workers}")
+        raise ConfigError(f"workers: expected a positive number, got {workers}")
     if threads_per_worker < 1:
-        raise ConfigError(f"--threads-per-worker: expected a positive number, got {threads_per_worker}")
+        raise ConfigError(f"threads_per_worker: expected a positive number, got {threads_per_worker}")
     if retries < 0:
         raise ConfigError(f"retries: expected 0 or more, got {retries}")
     if numba_threads is not None and numba_threads < 1:
-        raise ConfigError(f"--numba-threads: expected a positive number, got {numba_threads}")
+        raise ConfigError(f"numba_threads: expected a positive number, got {numba_threads}")
     if scheduler is not None and client is None and "://" not in scheduler:
-        raise ConfigError(f"--scheduler: expected an address like tcp://HOST:8786, got {scheduler!r}")
+        raise ConfigError(f"scheduler: expected an address like tcp://HOST:8786, got {scheduler!r}")
     out_dir = Path(out)
     check_output_dir(out_dir)
     frames = list_frames(inputs)

@@ -17,7 +17,8 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from prismstereo.errors import ConfigError, ImageError
+from prismstereo.errors import ConfigError
+from prismstereo.io.images import as_image
 
 #: edge width (px, 10–90 % rise) above which a board is too blurred to calibrate from
 MAX_EDGE_WIDTH_PX = 4.0
@@ -37,9 +38,9 @@ class Board:
 
     def __post_init__(self) -> None:
         if min(self.cols, self.rows) < 2:
-            raise ConfigError(f"--board: expected at least 2x2 inner corners, got {self.cols}x{self.rows}")
+            raise ConfigError(f"board: expected at least 2x2 inner corners, got {self.cols}x{self.rows}")
         if not np.isfinite(self.square) or self.square <= 0:
-            raise ConfigError(f"--square: expected a positive size in mm, got {self.square!r}")
+            raise ConfigError(f"square: expected a positive size in mm, got {self.square!r}")
 
     @property
     def pattern_size(self) -> tuple[int, int]:
@@ -62,22 +63,14 @@ def parse_board(text: str, square: float) -> Board:
     """``"8x6"`` and a square size (mm) → :class:`Board`; a clear ConfigError otherwise."""
     m = re.fullmatch(r"\s*(\d+)\s*[xX×]\s*(\d+)\s*", str(text))
     if m is None:
-        raise ConfigError(f"--board: expected inner corners as COLSxROWS like 8x6, got {text!r}")
+        raise ConfigError(f"board: expected inner corners as COLSxROWS like 8x6, got {text!r}")
     return Board(int(m.group(1)), int(m.group(2)), float(square))
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
-    """(H, W) uint8 grey image of an RGB/grey uint8 or uint16 image."""
-    img = np.asarray(image)
-    if img.ndim == 3:
-        img = cv2.cvtColor(img[..., :3], cv2.COLOR_RGB2GRAY)
-    if img.ndim != 2:
-        raise ImageError(f"expected an H×W or H×W×3 image, got shape {img.shape}")
-    if img.dtype == np.uint16:
-        img = (img / 257.0).round().astype(np.uint8)
-    elif img.dtype != np.uint8:
-        img = np.clip(np.nan_to_num(img), 0, 255).round().astype(np.uint8)
-    return img
+    """(H, W) uint8 grey image of an RGB or grey image, for OpenCV's corner detection
+    (:func:`~prismstereo.io.images.as_image`: 16-bit and float images scaled, BT.601 luminance, rounded)."""
+    return as_image(image, channels=1)
 
 
 @dataclass(frozen=True)

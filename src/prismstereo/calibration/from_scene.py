@@ -170,14 +170,15 @@ def parse_scene_free(text: str | Sequence[str] | None) -> tuple[str, ...]:
     out: list[str] = []
     for item in free_items(text, DEFAULT_FREE):
         if item in ("apex_distance", "refractive_index", "corner_angle"):
-            raise ConfigError(f"--free: {item} sets the depth scale, which feature matches cannot observe; calibrate "
-                              "it with a checkerboard (calibrate-prism --board) and fit rotation, tilt, decenter here")
+            raise ConfigError(f"free: {item} sets the depth scale, which feature matches cannot observe; calibrate "
+                              "it with a checkerboard (calibrate_prism with a board) and fit rotation, tilt, decenter "
+                              "here")
         names = FREE_GROUPS.get(item, (item,) if item in STD_LIMIT else ())
         if not names:
-            raise ConfigError(f"--free: expected a comma list of {', '.join(FREE_GROUPS)}, got {item!r}")
+            raise ConfigError(f"free: expected a comma list of {', '.join(FREE_GROUPS)}, got {item!r}")
         out += [p for p in names if p not in out]
     if not out:
-        raise ConfigError("--free: expected at least one parameter to fit, got none")
+        raise ConfigError("free: expected at least one parameter to fit, got none")
     return tuple(out)
 
 
@@ -450,7 +451,7 @@ def calibrate_from_scene(
         if seen.mean() < 0.98:
             raise GeometryError(f"expected the refined prism to show every matched feature through the face it was "
                                 f"found in, got {int((~seen).sum())} of {seen.size} elsewhere; the fit is "
-                                "ill-conditioned (check the camera calibration, or fit only --free rotation)")
+                                "ill-conditioned (check the camera calibration, or fit only free=rotation)")
     notes = tuple(f"{k}: not observed by this scene (data-only std {sdata[k]:.3g} {PARAMETERS[k][0]}), held near "
                   f"its input value by a prior of ± {PRIOR_STD[k]:g}" for k in free_params if not observed[k])
     dt, dc = time.perf_counter() - t0, time.process_time() - c0

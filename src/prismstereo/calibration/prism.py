@@ -157,10 +157,10 @@ def parse_free(text: str | Sequence[str] | None) -> tuple[str, ...]:
     out: list[str] = []
     for item in free_items(text, DEFAULT_FREE):
         if item not in FREE_GROUPS and item not in PARAMETERS:
-            raise ConfigError(f"--free: expected a comma list of {', '.join(FREE_GROUPS)}, got {item!r}")
+            raise ConfigError(f"free: expected a comma list of {', '.join(FREE_GROUPS)}, got {item!r}")
         out += [p for p in FREE_GROUPS.get(item, (item,)) if p not in out]
     if not out:
-        raise ConfigError("--free: expected at least one parameter to fit, got none")
+        raise ConfigError("free: expected at least one parameter to fit, got none")
     return tuple(out)
 
 
@@ -450,7 +450,7 @@ def calibrate_prism(
         raise GeometryError(
             f"expected a prism fit inside the ±{DECENTER_BOUND_MM:g} mm decenter bound, got {', '.join(at_bound)} "
             f"at it: the corners ask for more than a decenter can do (a camera calibration error?); "
-            f"add focal to --free or recalibrate the camera")
+            f"add focal to free or recalibrate the camera")
     # every corner must still be seen through the face it was found in
     for face in range(n_faces):
         seen = trace_pixels(fitted, obs_face[face]).face == face
@@ -458,7 +458,7 @@ def calibrate_prism(
             raise GeometryError(
                 f"expected the fitted prism to show each board through the face it was found in, got "
                 f"{int((~seen).sum())} of {seen.size} corners of face {face} elsewhere; the fit is ill-conditioned "
-                f"(check the camera calibration, or fit fewer parameters with --free)")
+                f"(check the camera calibration, or fit fewer parameters: free)")
     values = prism_values(fitted)
     estimates = {k: float(values[k]) for k in free_params}
     std = {k: float(std_all[i] * scale[k]) for i, k in enumerate(free_params)}
@@ -467,7 +467,7 @@ def calibrate_prism(
         detail = ", ".join(f"{k} ± {std[k]:.3g} {PARAMETERS[k][0]}".strip() for k in bad)
         raise GeometryError(
             f"expected a well-conditioned prism fit, got {detail}; add captures with the board at more depths "
-            f"and positions, or fit fewer parameters (--free)")
+            f"and positions, or fit fewer parameters (free)")
     view_names = [f"{n}:{k}" for n in names for k in range(n_faces)]
     per_view = {view_names[c * n_faces + k]: float(np.sqrt(np.mean(np.sum(res[c, k] ** 2, axis=1))))
                 for c in range(n_cap) for k in range(n_faces)}

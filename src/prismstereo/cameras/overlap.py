@@ -29,15 +29,16 @@ from prismstereo.config import Rig
 from prismstereo.errors import GeometryError
 from prismstereo.optics import RayBundle, pixel_grid, project_exact, trace_pixels
 
-__all__ = ["DEPTH_STEP_LIMIT", "MODEL_FRACTION", "OVERLAP_FRACTION", "face_overlap", "working_depth_range"]
+__all__ = ["DEPTH_STEP_LIMIT", "FAR_MM", "MODEL_FRACTION", "OVERLAP_FRACTION", "face_overlap", "working_depth_range"]
 
-#: a depth can be matched when the views share at least this share of their best overlap
+#: a depth can be matched when the views share at least this share of their best overlap (also the rectified
+#: search of :mod:`prismstereo.depth.search_range`)
 OVERLAP_FRACTION = 0.25
 #: the virtual cameras are fitted from the depth where the views share this share of their best overlap
 MODEL_FRACTION = 0.8
 #: farthest depth of the working range: one pixel of disparity at most this share of the depth
 DEPTH_STEP_LIMIT = 0.04
-#: farthest depth looked at, mm
+#: farthest depth looked at, mm (here and in :mod:`prismstereo.depth.search_range`)
 FAR_MM = 100_000.0
 
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import numbers
 import time
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -39,6 +40,7 @@ import numpy as np
 
 from prismstereo import __version__
 from prismstereo.cameras import VirtualView, calibrate_rig
+from prismstereo.checks import check_fields, fail
 from prismstereo.config import DEFAULT_DEPTH_RANGE_MM, Rig
 from prismstereo.depth.confidence import confident_matches
 from prismstereo.depth.confidence import remove_speckles as drop_small_patches
@@ -54,6 +56,7 @@ from prismstereo.depth.search_range import (
 from prismstereo.depth.setup_cache import load_setup, save_setup
 from prismstereo.depth.triangulation import TRIANGULATIONS, triangulate_matches
 from prismstereo.errors import ConfigError, GeometryError, ImageError
+from prismstereo.io.images import as_image
 from prismstereo.io.jsonio import library_versions
 from prismstereo.matching import available_matchers, match
 from prismstereo.matching.registry import resolved_params
@@ -182,6 +185,31 @@ class DepthConfig:
     sweep: SweepParams = field(default_factory=SweepParams)
     coarse_to_fine: str = "auto"
     max_memory: int | None = None
+
+    def __post_init__(self) -> None:
+        """The ranges that do not depend on the rig (:func:`validate_config` checks the rest)."""
+        check_fields(self, {"refine_radius": (1, 50), "min_confidence": (0.0, 1.0), "speckle_fraction": (0.0, 1.0),
+                            "refine_iterations": (0, 100), "refine_max_shift": (None, 20.0),
+                            "refine_min_texture": (0.0, None), "refine_max_lr_gap": (0.0, None),
+                            "refine_prefilter": (0.0, 5.0)}, positive=("max_gap_mm", "refine_max_shift"))
+        if not isinstance(self.method, str):
+            fail(self, "method", "a matcher name", self.method)
+        if not isinstance(self.matcher_params, Mapping):
+            fail(self, "matcher_params", "a dict of the matcher's tuning parameters", self.matcher_params)
+        if self.triangulation not in TRIANGULATIONS:
+            fail(self, "triangulation", f"one of {', '.join(TRIANGULATIONS)}", self.triangulation)
+        if self.calibration not in ("fit", "thesis"):
+            fail(self, "calibration", "'fit' or 'thesis'", self.calibration)
+        if self.depth_range is not None and (
+                len(self.depth_range) != 2 or not all(isinstance(v, numbers.Real) and math.isfinite(v)
+                                                      for v in self.depth_range)
+                or not self.depth_range[0] < self.depth_range[1]):
+            fail(self, "depth_range", "(min, max) in mm with min < max, or None", self.depth_range)
+        if self.roi is not None and (len(self.roi) != 4 or not all(isinstance(v, numbers.Integral) for v in self.roi)
+                                     or self.roi[0] < 0 or self.roi[1] < 0 or self.roi[2] <= 0 or self.roi[3] <= 0):
+            fail(self, "roi", "(x, y, w, h) integers with x, y >= 0 and w, h > 0, or None", self.roi)
+        if not isinstance(self.sweep, SweepParams):
+            fail(self, "sweep", "SweepParams", self.sweep)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON types (tuples as lists); :meth:`from_dict` reads it back."""
@@ -507,7 +535,8 @@ def default_views(rig: Rig) -> tuple[int, int]:
 
 
 def validate_image(rig: Rig, image: Any) -> np.ndarray:
-    """Check that ``image`` is a capture of ``rig``: H×W or H×W×3 of the rig's size; returns RGB uint8."""
+    """Check that ``image`` is a capture of ``rig``: H×W or H×W×3 of the rig's size; returns RGB uint8
+    (:func:`prismstereo.io.images.as_image`: 16-bit and float captures scaled to 0..255)."""
     img = np.asarray(image)
     if img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
@@ -516,15 +545,7 @@ def validate_image(rig: Rig, image: Any) -> np.ndarray:
     w, h = rig.camera.width, rig.camera.height
     if img.shape[0] != h or img.shape[1] != w:
         raise ImageError(f"expected a {w}×{h} capture (the rig's camera), got {img.shape[1]}×{img.shape[0]}")
-    if img.dtype == np.uint16:
-        img = (img // 257).astype(np.uint8)
-    elif img.dtype != np.uint8:
-        if img.dtype.kind != "f" or not np.isfinite(img).all():
-            raise ImageError(f"expected a uint8 or finite float capture, got dtype {img.dtype}")
-        img = np.clip(np.rint(img), 0, 255).astype(np.uint8)
-    if img.ndim == 2:
-        img = np.repeat(img[:, :, None], 3, axis=2)
-    return np.ascontiguousarray(img)
+    return as_image(img, name="capture", channels=3)  # the one coercion rule (docs/conventions.md)
 
 
 def validate_config(rig: Rig, config: DepthConfig) -> DepthConfig:
@@ -536,48 +557,38 @@ def validate_config(rig: Rig, config: DepthConfig) -> DepthConfig:
         One-line "expected …, got …" messages.
     """
     if config.method.lower() not in available_matchers():
-        raise ConfigError(f"--method: expected one of {', '.join(available_matchers())}, got {config.method!r}")
+        raise ConfigError(f"DepthConfig.method: expected one of {', '.join(available_matchers())}, "
+                          f"got {config.method!r}")
     if config.triangulation not in TRIANGULATIONS:
-        raise ConfigError(f"--triangulation: expected one of {', '.join(TRIANGULATIONS)}, "
+        raise ConfigError(f"DepthConfig.triangulation: expected one of {', '.join(TRIANGULATIONS)}, "
                           f"got {config.triangulation!r}")
     if config.calibration not in ("fit", "thesis"):
-        raise ConfigError(f"calibration: expected 'fit' or 'thesis', got {config.calibration!r}")
+        raise ConfigError(f"DepthConfig.calibration: expected 'fit' or 'thesis', got {config.calibration!r}")
     depth_range: tuple[float, float] | None = None
     if config.depth_range is not None:
         zmin, zmax = (float(v) for v in config.depth_range)
         back = rig.prism.back_distance
         if not (math.isfinite(zmin) and math.isfinite(zmax)) or zmin <= back or zmax <= zmin:
-            raise ConfigError(f"--depth-range: expected MIN,MAX mm with {back:g} (the prism's back plane) < MIN "
-                              f"< MAX, got {zmin:g},{zmax:g}")
+            raise ConfigError(f"DepthConfig.depth_range: expected (min, max) mm with {back:g} (the prism's back "
+                              f"plane) < min < max, got ({zmin:g}, {zmax:g})")
         depth_range = (zmin, zmax)
     n = rig.prism.faces
     views: tuple[int, int] | str
     if isinstance(config.views, str):
         if config.views.lower() != "all":
-            raise ConfigError(f"--views: expected face indices I,J or 'all', got {config.views!r}")
+            raise ConfigError(f"DepthConfig.views: expected face indices (i, j) or 'all', got {config.views!r}")
         views = "all" if n >= 3 else default_views(rig)
     else:
         pair = config.views if config.views is not None else default_views(rig)
         if len(pair) != 2:
-            raise ConfigError(f"--views: expected two face indices I,J, got {list(pair)}")
+            raise ConfigError(f"DepthConfig.views: expected two face indices (i, j), got {list(pair)}")
         for v in pair:
             if not 0 <= int(v) < n:
-                raise ConfigError(f"--views: expected face indices in 0..{n - 1}, got {list(pair)}")
+                raise ConfigError(f"DepthConfig.views: expected face indices in 0..{n - 1}, got {list(pair)}")
         if int(pair[0]) == int(pair[1]):
-            raise ConfigError(f"--views: expected two different faces, got {list(pair)}")
+            raise ConfigError(f"DepthConfig.views: expected two different faces, got {list(pair)}")
         views = (int(pair[0]), int(pair[1]))
-    if config.roi is not None:
-        x, y, w, h = config.roi
-        if w <= 0 or h <= 0 or x < 0 or y < 0:
-            raise ConfigError(f"--roi: expected x,y,w,h with x, y >= 0 and w, h > 0, got {list(config.roi)}")
-    if config.min_confidence is not None and not 0.0 <= config.min_confidence <= 1.0:
-        raise ConfigError(f"--min-confidence: expected a number in [0, 1] (0 keeps every match), "
-                          f"got {config.min_confidence!r}")
-    if config.refine_prefilter is not None and not 0.0 <= config.refine_prefilter <= 5.0:
-        raise ConfigError(f"refine_prefilter: expected a standard deviation in [0, 5] px or None, "
-                          f"got {config.refine_prefilter!r}")
-    if config.max_gap_mm is not None and not config.max_gap_mm > 0:
-        raise ConfigError(f"max_gap_mm: expected a positive number, got {config.max_gap_mm!r}")
+    # the ranges that do not depend on the rig were checked when the configuration was made (__post_init__)
     ScaleParams(coarse_to_fine=config.coarse_to_fine, max_memory=config.max_memory)  # coarse_to_fine, max_memory
     method = config.method.lower()
     params = resolved_params(method, **config.matcher_params)
@@ -662,7 +673,7 @@ def search_region(rig: Rig, pair: RectifiedPair, config: DepthConfig, left: np.n
     if config.roi is not None:
         x, y, w_, h_ = config.roi
         if x >= width or y >= h:
-            raise ConfigError(f"--roi: expected a region inside the {width}×{h} rectified left view, "
+            raise ConfigError(f"DepthConfig.roi: expected a region inside the {width}×{h} rectified left view, "
                               f"got {list(config.roi)}")
         mask[y:y + h_, x:x + w_] = True
     else:
@@ -957,7 +968,7 @@ def prepare_depth(rig: Rig, *, config: DepthConfig | None = None) -> DepthSetup:
     """
     cfg = validate_config(rig, config or DepthConfig())
     if cfg.views == "all":
-        raise ConfigError("--views: expected a pair I,J for a sequence, got 'all' (the all-view sweep is "
+        raise ConfigError("DepthConfig.views: expected a pair (i, j) for a sequence, got 'all' (the all-view sweep is "
                           "depth-only)")
     clock = _Clock(_SETUP_STEPS, False)
     views, pair, epipolar = _geometry(rig, cfg, clock)

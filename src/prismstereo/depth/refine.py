@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["refine_disparity"]
+__all__ = ["REFINE_KERNELS", "refine_disparity"]
 
 
 @njit(cache=True, inline="always")
@@ -519,3 +519,8 @@ def refine_disparity(
         out[ys[keep], xs[keep]] = d[keep]
         conf[ys[keep], xs[keep]] = zncc[keep]
     return out, conf
+
+
+#: the refinement's numba kernels, whose cached code tells whether this environment compiled the depth
+#: pipeline already (``prismstereo depth``'s first run)
+REFINE_KERNELS = (_refine_kernel, _refine_cut_kernel)

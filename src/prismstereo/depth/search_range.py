@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 
 from prismstereo.cameras import calibrate_rig
+from prismstereo.cameras.overlap import FAR_MM, OVERLAP_FRACTION
 from prismstereo.config import Rig
 from prismstereo.errors import GeometryError
 from prismstereo.matching.diagnostics import LIMIT_SHARE, limit_shares
@@ -41,12 +42,8 @@ log = logging.getLogger(__name__)
 __all__ = ["Coverage", "SearchRange", "auto_search_range", "depth_warnings", "estimate_disparity_range",
            "rig_depth_range", "scene_coverage", "view_overlap"]
 
-#: a depth is part of the rig's range when the views share at least this fraction of their best overlap
-OVERLAP_FRACTION = 0.25
 #: largest disparity span of the coarse match, px at the coarse scale (sets the downsampling factor)
 COARSE_SPAN = 128
-#: farthest depth considered, mm
-FAR_MM = 100_000.0
 #: consistent coarse matches (share of the common view) needed to trust the image-based range
 MIN_SUPPORT = 0.05
 #: warnings: fewer points than this share of the matched region
@@ -153,7 +150,7 @@ def _rig_range(pair: RectifiedPair, back_mm: float) -> tuple[np.ndarray, np.ndar
     frac, disp = view_overlap(pair, depths, stride=6)
     if not (frac > 0).any():
         raise GeometryError("expected the two views to share part of the scene at some depth, got views that "
-                            "never overlap (choose other --views)")
+                            "never overlap (choose other views)")
     keep = np.flatnonzero(frac >= OVERLAP_FRACTION * frac.max())
     return depths, disp, (float(depths[keep[0]]), float(depths[keep[-1]]))
 

@@ -73,7 +73,7 @@ def read_depth_gt(path: str | os.PathLike[str], rig: Rig) -> np.ndarray:
     """
     depth_gt = read_pfm(path)
     if depth_gt.shape != (rig.camera.height, rig.camera.width):
-        raise ConfigError(f"--gt: expected a {rig.camera.width}×{rig.camera.height} depth map, got "
+        raise ConfigError(f"ground_truth: expected a {rig.camera.width}×{rig.camera.height} depth map, got "
                           f"{depth_gt.shape[1]}×{depth_gt.shape[0]}")
     return np.asarray(depth_gt, dtype=np.float64)
 

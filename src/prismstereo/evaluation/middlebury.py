@@ -110,7 +110,7 @@ def resolve_data_dir(data_dir: str | os.PathLike[str] | None) -> Path:
     if data_dir is None:
         found = default_data_dir()
         if found is None:
-            raise ConfigError("expected the Middlebury folder (--data DIR or $PRISMSTEREO_MIDDLEBURY), "
+            raise ConfigError("data_dir: expected the Middlebury folder (or $PRISMSTEREO_MIDDLEBURY), "
                               "got none at ../shared/data/middlebury")
         return found
     p = Path(data_dir)

@@ -14,7 +14,89 @@ from prismstereo.errors import ImageError
 from prismstereo.io.atomic import atomic_path
 from prismstereo.io.memory import check_fits_in_memory
 
-__all__ = ["image_size", "read_image", "write_image"]
+__all__ = ["as_image", "image_size", "read_image", "to_gray", "write_image"]
+
+
+#: luminance weights of ITU-R BT.601 (R, G, B), those of OpenCV's ``COLOR_RGB2GRAY``
+GRAY_WEIGHTS = (0.299, 0.587, 0.114)
+
+
+def as_image(image: object, *, name: str = "image", dtype: type = np.uint8, channels: int | None = None,
+             unit: bool | None = None) -> np.ndarray:
+    """The one rule by which every function turns an input image into what it computes on (docs/conventions.md).
+
+    Accepted: H×W, H×W×1, H×W×3 (RGB) or H×W×4 (RGBA, alpha dropped) arrays of ``uint8`` (the 0..255 scale
+    everything is tuned for, kept as it is), ``uint16`` (divided by 257: 65535 → 255), other integers
+    (0..255 scale) or finite floats: 0..255 scale, except that a float image whose values all lie in
+    [0, 1] (scikit-image's convention) is multiplied by 255.
+
+    Parameters
+    ----------
+    image : array-like
+    name : str
+        What the image is, for the error message (``"left"``, ``"capture"``).
+    dtype : np.uint8 or np.float32
+        ``uint8``: rounded to the nearest integer and clipped to 0..255; ``float32``: the scaled values
+        (a uint8 image converted exactly).
+    channels : 1, 3 or None
+        1: an H×W gray image (:func:`to_gray`); 3: H×W×3 (a gray image repeated); None: as given
+        (H×W or H×W×3).
+    unit : bool or None
+        Whether a float image is on the [0, 1] scale; None: decided from its values. A pair decides once
+        for both images.
+
+    Raises
+    ------
+    ImageError
+        Another shape or dtype (bool, complex, object), an empty image, NaN or infinite values.
+    """
+    arr = np.asarray(image)
+    if arr.ndim == 3 and arr.shape[2] in (1, 4):
+        arr = arr[:, :, :1] if arr.shape[2] == 1 else arr[:, :, :3]
+        arr = arr[:, :, 0] if arr.shape[2] == 1 else arr
+    if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] != 3):
+        raise ImageError(f"expected {name} as an H×W or H×W×3 image, got shape {arr.shape}")
+    if arr.shape[0] < 1 or arr.shape[1] < 1:
+        raise ImageError(f"expected a non-empty {name} image, got shape {arr.shape}")
+    if arr.dtype.kind not in "uif":
+        raise ImageError(f"expected {name} of dtype uint8, uint16 or float, got {arr.dtype}")
+    if arr.dtype != np.uint8:
+        if arr.dtype == np.uint16:
+            f = arr.astype(np.float32) / np.float32(257.0)
+        else:
+            f = arr.astype(np.float32)
+            if arr.dtype.kind == "f":
+                if not np.isfinite(f).all():
+                    raise ImageError(f"expected a finite {name} image, got NaN or inf values")
+                if unit is None:
+                    unit = float(f.max()) <= 1.0
+                if unit:
+                    f = f * np.float32(255.0)
+        arr = f
+    if channels == 1 and arr.ndim == 3:
+        arr = to_gray(arr)
+    elif channels == 3 and arr.ndim == 2:
+        arr = np.repeat(arr[:, :, None], 3, axis=2)
+    if dtype is np.uint8:
+        if arr.dtype != np.uint8:
+            arr = np.clip(np.rint(arr), 0, 255).astype(np.uint8)
+    elif dtype is np.float32:
+        arr = arr.astype(np.float32)
+    else:
+        raise ValueError(f"dtype: expected np.uint8 or np.float32, got {dtype!r}")
+    return np.ascontiguousarray(arr)
+
+
+def to_gray(image: np.ndarray) -> np.ndarray:
+    """Luminance (ITU-R BT.601 weights, :data:`GRAY_WEIGHTS`) of an H×W×3 RGB image as float32 H×W, on the
+    image's own scale; an H×W (or H×W×1) image is returned as float32. Coerce first (:func:`as_image`)."""
+    img = np.ascontiguousarray(image, dtype=np.float32)
+    if img.ndim == 3:
+        if img.shape[2] == 1:
+            return np.ascontiguousarray(img[:, :, 0])
+        r, g, b = GRAY_WEIGHTS
+        return np.ascontiguousarray(img[:, :, 0] * r + img[:, :, 1] * g + img[:, :, 2] * b)
+    return img
 
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from prismstereo.errors import ImageError, MatchingError
+from prismstereo.io.images import as_image
 from prismstereo.matching.registry import MatchResult, get_matcher
 from prismstereo.matching.scale import match_scaled
 
@@ -16,23 +17,11 @@ log = logging.getLogger(__name__)
 __all__ = ["match", "validate_pair", "validate_range"]
 
 
-def _check_image(img: Any, name: str) -> np.ndarray:
+def _check_image(img: Any, name: str, unit: bool | None) -> np.ndarray:
+    """uint8 kept (H×W×1 squeezed), anything else float32 on the 0..255 scale (:func:`~prismstereo.io.images.
+    as_image`)."""
     arr = np.asarray(img)
-    if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] not in (1, 3)):
-        raise ImageError(f"expected {name} image of shape H×W or H×W×3, got shape {arr.shape}")
-    if arr.shape[0] < 1 or arr.shape[1] < 1:
-        raise ImageError(f"expected a non-empty {name} image, got shape {arr.shape}")
-    if arr.dtype == np.uint8:
-        return arr
-    if arr.dtype.kind not in "fiu" or arr.dtype == np.bool_:
-        raise ImageError(f"expected {name} image of dtype uint8 or float, got {arr.dtype}")
-    if not np.isfinite(arr).all():
-        raise ImageError(f"expected a finite {name} image, got NaN or inf values")
-    if arr.ndim == 3 and arr.shape[2] == 1:
-        arr = arr[:, :, 0]
-    if arr.dtype == np.uint16:  # 16-bit files: bring to the 0..255 scale the costs are tuned for
-        return (arr.astype(np.float32) / np.float32(257.0)).astype(np.float32)
-    return arr.astype(np.float32)
+    return as_image(arr, name=name, dtype=np.uint8 if arr.dtype == np.uint8 else np.float32, unit=unit)
 
 
 def validate_pair(left: Any, right: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -41,14 +30,16 @@ def validate_pair(left: Any, right: Any) -> tuple[np.ndarray, np.ndarray]:
     Float pairs whose values all lie in [0, 1] (scikit-image convention) are rescaled to 0..255, the
     scale the matching costs are tuned for.
     """
-    lt, rt = _check_image(left, "left"), _check_image(right, "right")
+    la, ra = np.asarray(left), np.asarray(right)
+    # scikit-image convention: float images in [0, 1], decided for the pair
+    unit = None
+    if la.dtype.kind == "f" and ra.dtype.kind == "f" and la.size and ra.size:
+        with np.errstate(invalid="ignore"):
+            unit = bool(max(float(np.nanmax(la)), float(np.nanmax(ra))) <= 1.0)
+    lt, rt = _check_image(la, "left", unit), _check_image(ra, "right", unit)
     if lt.shape[:2] != rt.shape[:2]:
         raise ImageError(f"expected left and right images of the same size, got {lt.shape[1]}×{lt.shape[0]} "
                          f"and {rt.shape[1]}×{rt.shape[0]} (W×H)")
-    if lt.dtype != np.uint8 and rt.dtype != np.uint8:
-        top = max(float(lt.max()), float(rt.max()))
-        if top <= 1.0:  # scikit-image convention: float images in [0, 1]
-            lt, rt = lt * np.float32(255.0), rt * np.float32(255.0)
     if lt.ndim != rt.ndim:
         lt = lt if lt.ndim == 3 else np.repeat(lt[:, :, None], 3, axis=2)
         rt = rt if rt.ndim == 3 else np.repeat(rt[:, :, None], 3, axis=2)

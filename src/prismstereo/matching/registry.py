@@ -59,10 +59,11 @@ PRESETS: dict[str, str] = {"fast": "sgm", "balanced": "bpasw", "accurate": "coop
 #: modules that register built-in matchers when imported
 _BUILTIN_MODULES = ("prismstereo.matching.local.matchers", "prismstereo.matching.local.sgbm",
                     "prismstereo.matching.local.sgm")
-#: optional modules (other issues) that may not exist yet
-_OPTIONAL_MODULES = ("prismstereo.matching.coop",)
+#: modules that register matchers whose import compiles or loads many numba kernels (coop): imported only
+#: when a name is not among the light ones, so that ``get_matcher("sad")`` does not pay for them
+_HEAVY_MODULES = ("prismstereo.matching.coop",)
 _loaded = False
-_optional_loaded = False
+_heavy_loaded = False
 
 T = TypeVar("T")
 
@@ -78,21 +79,17 @@ def register_matcher(name: str) -> Callable[[T], T]:
     return deco
 
 
-def _load_builtins(*, optional: bool = True) -> None:
-    """Import the modules that register matchers; the optional ones (other issues) only when needed."""
-    global _loaded, _optional_loaded
+def _load_builtins(*, heavy: bool = True) -> None:
+    """Import the modules that register matchers; the heavy ones (:data:`_HEAVY_MODULES`) with ``heavy``."""
+    global _loaded, _heavy_loaded
     if not _loaded:
         for mod in _BUILTIN_MODULES:
             importlib.import_module(mod)
         _loaded = True
-    if optional and not _optional_loaded:
-        for mod in _OPTIONAL_MODULES:
-            try:
-                importlib.import_module(mod)
-            except ModuleNotFoundError as exc:
-                if exc.name != mod:
-                    raise
-        _optional_loaded = True
+    if heavy and not _heavy_loaded:
+        for mod in _HEAVY_MODULES:
+            importlib.import_module(mod)
+        _heavy_loaded = True
 
 
 def available_matchers() -> list[str]:
@@ -110,7 +107,7 @@ def get_matcher(name: str, **params: Any) -> Matcher:
         Unknown name, or a parameter the matcher does not take.
     """
     key = str(name).lower()
-    _load_builtins(optional=False)
+    _load_builtins(heavy=False)
     if key not in _REGISTRY:
         _load_builtins()
     if key not in _REGISTRY:
@@ -177,9 +174,10 @@ def resolve_preset(preset: str | None, method: str | None, *, default: str = "bp
         return (default if method is None else method), None
     key = str(preset).lower()
     if key not in PRESETS:
-        raise ConfigError(f"--preset: expected one of {', '.join(PRESETS)}, got {preset!r}")
+        raise ConfigError(f"preset: expected one of {', '.join(PRESETS)}, got {preset!r}")
     if method is not None:
-        raise ConfigError(f"expected --preset or --method, got both (--preset {key} means --method {PRESETS[key]})")
+        raise ConfigError(f"preset: expected a preset or a method, got both (preset {key!r} means method "
+                          f"{PRESETS[key]!r})")
     return PRESETS[key], key
 
 

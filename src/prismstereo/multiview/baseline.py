@@ -29,6 +29,7 @@ import numpy as np
 import numpy.typing as npt
 
 from prismstereo.errors import ConfigError, ImageError, MatchingError
+from prismstereo.io.images import as_image
 from prismstereo.matching.coop.coopcost import CostParams, aggregated_costs, guided_filter_volume, raw_cost
 from prismstereo.matching.coop.pipeline import box_filter_volume, initial_disparity
 from prismstereo.matching.local import costs
@@ -85,24 +86,16 @@ def parse_view_spec(text: str) -> tuple[str, float]:
         No colon, an empty path, or a bad ratio.
     """
     if ":" not in text:
-        raise ConfigError(f"--view: expected IMG:RATIO like col4.png:1 or col1.png:-2, got {text!r}")
+        raise ConfigError(f"view: expected IMG:RATIO like col4.png:1 or col1.png:-2, got {text!r}")
     path, ratio = text.rsplit(":", 1)
     if not path:
-        raise ConfigError(f"--view: expected an image path before ':', got {text!r}")
+        raise ConfigError(f"view: expected an image path before ':', got {text!r}")
     return path, parse_ratio(ratio)
 
 
 def _as_image(img: Any, name: str) -> np.ndarray:
-    arr = np.asarray(img)
-    if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] not in (1, 3)):
-        raise ImageError(f"expected {name} of shape H×W or H×W×3, got shape {arr.shape}")
-    if arr.dtype != np.uint8 and (arr.dtype.kind not in "fiu" or not np.isfinite(arr).all()):
-        raise ImageError(f"expected {name} as uint8 or finite float, got dtype {arr.dtype}")
-    if arr.ndim == 3 and arr.shape[2] == 1:
-        arr = arr[:, :, 0]
-    if arr.ndim == 2:
-        arr = np.repeat(arr[:, :, None], 3, axis=2)
-    return arr if arr.dtype == np.uint8 else arr.astype(np.float32)
+    arr = np.asarray(img)  # the one coercion rule (docs/conventions.md): uint8 kept, else float32 0..255
+    return as_image(arr, name=name, dtype=np.uint8 if arr.dtype == np.uint8 else np.float32, channels=3)
 
 
 def check_views(reference: Any, views: Sequence[Any], ratios: Sequence[float], *,

@@ -57,6 +57,7 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit
 
+from prismstereo.checks import check_fields
 from prismstereo.errors import ConfigError
 from prismstereo.matching.coop.cooperative import (
     CoopMemo,
@@ -211,6 +212,8 @@ class GlobalMultiViewParams:
     def __post_init__(self) -> None:
         # a mapping (the CLI's -p JSON) changes the multi-view defaults' fields; validated here, before any image
         object.__setattr__(self, "steps", coerce_params(StepParams, self.steps, "steps", MULTIVIEW_STEPS))
+        check_fields(self, {"unreliable_weight": (0.0, None), "data_radius": (0, 50), "fit_min_ratio": (0.0, None),
+                            "data_bpasw": (0.0, None), "data_agg": (0.0, None)})
 
 
 @njit(cache=True)

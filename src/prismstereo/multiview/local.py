@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from prismstereo.checks import check_fields
+from prismstereo.errors import ConfigError
 from prismstereo.matching.local.selection import fill_holes, subpixel_refine, weighted_median_filter, winner_take_all
 from prismstereo.matching.registry import MatchResult
 from prismstereo.multiview.baseline import CostName, check_views, fuse_costs, pair_cost, resolve_occlusion
@@ -64,6 +66,14 @@ class LocalMultiViewParams:
     occlusion: str = "auto"
     final_median: bool = True
     weight_by_baseline: bool = True
+
+    def __post_init__(self) -> None:
+        check_fields(self, {"support_tolerance": (0.0, None)})
+        if self.cost not in ("bpasw", "guided"):
+            raise ConfigError(f"LocalMultiViewParams.cost: expected 'bpasw' or 'guided', got {self.cost!r}")
+        if self.occlusion not in ("auto", "sum", "sides"):
+            raise ConfigError(f"LocalMultiViewParams.occlusion: expected 'auto', 'sum' or 'sides', got "
+                              f"{self.occlusion!r}")
 
 
 def match_multibaseline(reference: Any, views: Sequence[Any], *, ratios: Sequence[float], max_disp: int,

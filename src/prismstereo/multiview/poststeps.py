@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from prismstereo.checks import check_fields
 from prismstereo.matching.coop.pipeline import occlusion_background_fill, segment_sweep_candidates
 from prismstereo.matching.coop.steps import OcclusionParams, SweepParams
 from prismstereo.matching.local.selection import (
@@ -82,6 +83,11 @@ class PostParams:
     occ_both: bool = True
     occ_ratio: float = 1.0
     sweep_ratio: float = 1.0
+
+    def __post_init__(self) -> None:
+        check_fields(self, {"bpasw_min_ratio": (0.0, None), "bpasw_max_ratio": (0.0, None),
+                            "bpasw_max_ratio_sides": (0.0, None), "consistency_tol": (0.0, None),
+                            "occ_ratio": (0.0, None), "sweep_ratio": (0.0, None)})
 
 
 @dataclass(frozen=True)

@@ -43,6 +43,7 @@ import numpy as np
 import numpy.typing as npt
 
 from prismstereo.cameras import calibrate_rig
+from prismstereo.checks import check_fields
 from prismstereo.config import DEFAULT_DEPTH_RANGE_MM, Rig
 from prismstereo.errors import ConfigError, ImageError
 from prismstereo.optics import trace_pixels
@@ -87,6 +88,11 @@ class SweepParams:
     uniqueness: float = 0.05
     min_views: int = 1
     margin_px: int = 4
+
+    def __post_init__(self) -> None:
+        check_fields(self, {"n_depths": (2, 100_000), "radius": (0, 50), "tau_color": (None, 255.0),
+                            "tau_grad": (None, 255.0), "omega": (0.0, 1.0), "uniqueness": (0.0, 1.0),
+                            "min_views": (1, 64), "margin_px": (0, 10_000)}, positive=("tau_color", "tau_grad"))
 
 
 @dataclass(frozen=True)

@@ -703,7 +703,7 @@ def common_view(pair: RectifiedPair, depth_min_mm: float, depth_max_mm: float, *
     if not mask.any():
         raise GeometryError(f"expected faces {pair.left_face} and {pair.right_face} to see a common part of the "
                             f"scene at {depth_min_mm:g}–{depth_max_mm:g} mm, got views that do not overlap "
-                            "(choose other --views or --depth-range)")
+                            "(choose other views or depth_range)")
     return mask, (max(0, int(np.floor(lo))), int(np.ceil(hi)))
 
 

@@ -17,7 +17,8 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit, prange
 
-from prismstereo.errors import MatchingError
+from prismstereo.checks import check_fields
+from prismstereo.errors import ConfigError, MatchingError
 from prismstereo.matching.local.costs import popcount64
 
 __all__ = ["CostParams", "ShearedInputs", "aggregated_costs", "guided_filter_volume", "raw_cost", "sheared_costs",
@@ -56,6 +57,13 @@ class CostParams:
     census_ry: int = 3
     radius: int = 9
     eps: float = 1e-4
+
+    def __post_init__(self) -> None:  # a census of (2 rx + 1)(2 ry + 1) - 1 <= 64 bits
+        check_fields(self, {"census_rx": (0, 7), "census_ry": (0, 7), "radius": (0, 100)},
+                     positive=("tau_color", "tau_grad", "lambda_census", "lambda_ad", "eps"))
+        if (2 * self.census_rx + 1) * (2 * self.census_ry + 1) > 65:
+            raise ConfigError(f"CostParams.census_rx, census_ry: expected a census window of at most 65 pixels, "
+                              f"got {2 * self.census_rx + 1}x{2 * self.census_ry + 1}")
 
 
 def census_bits(gray: F32, ry: int, rx: int) -> npt.NDArray[np.uint64]:

@@ -31,6 +31,7 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit, prange
 
+from prismstereo.checks import check_fields
 from prismstereo.matching.segments.planes import SegmentIndex
 
 log = logging.getLogger(__name__)
@@ -101,6 +102,12 @@ class CoopParams:
     neighbour_own_planes: bool = False
     powell_cycles: int = 2
     refine_min_size: int = 1
+
+    def __post_init__(self) -> None:
+        check_fields(self, {"kappa": (0.0, None), "mu": (0.0, None), "omega_occ": (0.0, None), "gamma": (0.0, None),
+                            "smooth_threshold": (0.0, None), "unreliable_weight": (0.0, None), "max_iter": (0, 10_000),
+                            "occ_margin": (0.0, None), "refine_rounds": (0, 100), "omega_border": (0.0, None),
+                            "powell_cycles": (0, 100), "refine_min_size": (0, None)}, positive=("data_trunc",))
 
 
 @dataclass(frozen=True)

@@ -36,6 +36,7 @@ import numpy.typing as npt
 from numba import njit
 
 from prismstereo.errors import ConfigError, ImageError
+from prismstereo.io.images import as_image
 from prismstereo.matching.coop.coopcost import (
     CostParams,
     ShearedInputs,
@@ -116,18 +117,7 @@ class CoopResult:
 
 
 def _as_rgb8(image: npt.NDArray[np.generic], name: str) -> npt.NDArray[np.uint8]:
-    img = np.asarray(image)
-    if img.ndim == 2:
-        img = np.repeat(img[:, :, None], 3, axis=2)
-    if img.ndim != 3 or img.shape[2] not in (3, 4):
-        raise ImageError(f"expected {name} as an H×W or H×W×3 image, got shape {img.shape}")
-    img = img[:, :, :3]
-    if img.dtype != np.uint8:
-        f = img.astype(np.float32)
-        if f.size and float(np.nanmax(f)) <= 1.0 + 1e-6:
-            f = f * 255.0
-        img = np.clip(np.rint(np.nan_to_num(f)), 0, 255).astype(np.uint8)
-    return np.ascontiguousarray(img)
+    return as_image(image, name=name, channels=3)  # the one coercion rule (docs/conventions.md)
 
 
 def initial_disparity(cost_left: F32, cost_right: F32, *, min_disp: int = 0,

@@ -20,6 +20,7 @@ import numpy as np
 from numba import njit, prange
 
 from prismstereo.errors import MatchingError
+from prismstereo.io.images import to_gray
 
 __all__ = [
     "census_transform",
@@ -40,16 +41,6 @@ __all__ = [
 def to_float(image: np.ndarray) -> np.ndarray:
     """``image`` as contiguous float32, ``H×W`` or ``H×W×C`` (values kept on the 0..255 scale)."""
     return np.ascontiguousarray(image, dtype=np.float32)
-
-
-def to_gray(image: np.ndarray) -> np.ndarray:
-    """Luminance (ITU-R BT.601 weights) of an RGB image as float32 ``H×W``; gray images pass through."""
-    img = to_float(image)
-    if img.ndim == 3:
-        if img.shape[2] == 1:
-            return np.ascontiguousarray(img[:, :, 0])
-        return np.ascontiguousarray(img[:, :, 0] * 0.299 + img[:, :, 1] * 0.587 + img[:, :, 2] * 0.114)
-    return img
 
 
 def _channels(image: np.ndarray) -> np.ndarray:

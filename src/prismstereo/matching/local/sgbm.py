@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from prismstereo.io.images import as_image
 from prismstereo.matching.local import selection
 from prismstereo.matching.registry import MatchResult, register_matcher
 
@@ -15,9 +16,7 @@ __all__ = ["SGBMMatcher"]
 
 
 def _as_uint8(image: np.ndarray) -> np.ndarray:
-    img = np.asarray(image)
-    if img.dtype != np.uint8:
-        img = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    img = as_image(image, unit=False)  # validated by match(): uint8 or float32 on the 0..255 scale
     if img.ndim == 3:
         img = cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_RGB2BGR)
     return np.ascontiguousarray(img)

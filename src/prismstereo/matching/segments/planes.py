@@ -19,6 +19,7 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit, prange
 
+from prismstereo.checks import check_fields
 from prismstereo.matching.segments.segmentation import split_segments
 
 log = logging.getLogger(__name__)
@@ -74,6 +75,13 @@ class PlaneParams:
     split_min_pixels: int = 2000
     piece_min_pixels: int = 200
     split_rounds: int = 4
+
+    def __post_init__(self) -> None:
+        check_fields(self, {"gamma_segment": (0.0, 1.0), "t_outlier": (0.0, None), "epsilon": (0.0, 1.0),
+                            "max_iter": (0, 1000), "min_pixels": (1, None), "ransac_trials": (0, 100_000),
+                            "max_slope": (0.0, None), "delta": (0.0, 1.0), "min_support": (0.0, 1.0),
+                            "split_min_pixels": (1, None), "piece_min_pixels": (1, None), "split_rounds": (0, 100)},
+                     positive=("t_outlier",))
 
 
 @dataclass(frozen=True)

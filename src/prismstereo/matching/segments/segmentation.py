@@ -17,7 +17,9 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit, prange
 
+from prismstereo.checks import check_fields
 from prismstereo.errors import ImageError
+from prismstereo.io.images import as_image
 
 log = logging.getLogger(__name__)
 
@@ -58,19 +60,15 @@ class SegmentationParams:
     depth_tau: float = 0.0
     clahe: float = 0.0
 
+    def __post_init__(self) -> None:
+        check_fields(self, {"hs": (1, 100), "hr": (None, 255.0), "min_region": (1, None), "max_level": (0, 8),
+                            "max_region": (0, None), "depth_tau": (0.0, None), "clahe": (0.0, 100.0)},
+                     positive=("hr",))
+
 
 def _to_lab8(image: npt.NDArray[np.generic]) -> npt.NDArray[np.uint8]:
-    img = np.asarray(image)
-    if img.ndim == 2:
-        img = np.repeat(img[:, :, None], 3, axis=2)
-    if img.ndim != 3 or img.shape[2] != 3:
-        raise ImageError(f"expected an H×W or H×W×3 image, got shape {img.shape}")
-    if img.dtype != np.uint8:
-        f = img.astype(np.float32)
-        if f.max() <= 1.0 + 1e-6:
-            f = f * 255.0
-        img = np.clip(np.rint(f), 0, 255).astype(np.uint8)
-    return np.ascontiguousarray(cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_RGB2Lab))
+    img = as_image(image, channels=3)  # the one coercion rule (docs/conventions.md)
+    return np.ascontiguousarray(cv2.cvtColor(img, cv2.COLOR_RGB2Lab))
 
 
 @njit(cache=True)

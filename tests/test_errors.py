@@ -1,0 +1,72 @@
+"""Library errors name the parameter, never a command-line flag; the CLI prints its flags (issue 28)."""
+
+from __future__ import annotations
+
+import ast
+import re
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from prismstereo.apps.cli import build_parser, cli_message
+from prismstereo.cli import main
+
+PACKAGE = Path(__file__).resolve().parents[1] / "src" / "prismstereo"
+
+
+def _raised_texts(text: str) -> Iterator[tuple[int, str]]:
+    """(line, literal text) of the string parts of every ``raise X(...)`` message in a module's source."""
+    for node in ast.walk(ast.parse(text)):
+        if isinstance(node, ast.Raise) and isinstance(node.exc, ast.Call):
+            for arg in node.exc.args:
+                for sub in ast.walk(arg):
+                    if isinstance(sub, ast.Constant) and isinstance(sub.value, str):
+                        yield node.lineno, sub.value
+
+
+def test_the_scanner_sees_flags_in_f_strings() -> None:
+    body = 'def f(x):\n    raise ValueError(f"--views: expected {x}, got " "it")\n'
+    assert [t for _, t in _raised_texts(body)] == ["--views: expected ", ", got it"]
+
+
+def test_no_library_error_message_speaks_the_command_line() -> None:
+    """Outside the commands (``apps/``, ``cli``) no raised message holds a ``--flag``."""
+    found = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        rel = path.relative_to(PACKAGE)
+        if rel.parts[0] in ("apps", "cli.py", "__main__.py"):
+            continue
+        for line, text in _raised_texts(path.read_text(encoding="utf-8")):
+            if re.search(r"(^|[\s(])--[a-z]", text):
+                found.append(f"{rel}:{line}: {text!r}")
+    assert not found, "library errors that name a flag instead of the parameter:\n" + "\n".join(found)
+
+
+@pytest.mark.parametrize(("command", "message", "printed"), [
+    ("depth", "DepthConfig.min_confidence: expected a number in [0, 1], got 5",
+     "--min-confidence: expected a number in [0, 1], got 5"),
+    ("depth", "DepthConfig.depth_range: expected (min, max) mm", "--depth-range: expected (min, max) mm"),
+    ("depth", "views: expected face indices", "--views: expected face indices"),
+    ("depth", "ground_truth: expected a 512×384 depth map", "--gt: expected a 512×384 depth map"),
+    ("depth", "DepthConfig.refine_iterations: expected 1..50", "DepthConfig.refine_iterations: expected 1..50"),
+    ("depth", "rig: expected a Rig", "rig: expected a Rig"),
+    ("batch", "workers: expected a positive number, got 0", "--workers: expected a positive number, got 0"),
+    ("calibrate-prism", "board: expected inner corners", "--board: expected inner corners"),
+    ("simulate", "supersample: expected an integer in 1..16", "--supersample: expected an integer in 1..16"),
+    ("match", "expected a 3x3 image", "expected a 3x3 image"),
+])
+def test_the_cli_prints_its_flags(command: str, message: str, printed: str) -> None:
+    assert cli_message(build_parser(), command, message) == printed
+
+
+def test_a_bad_option_is_one_line_naming_the_flag(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    rig = tmp_path / "rig.toml"
+    rig.write_text("[camera]\nwidth = 64\nheight = 48\nfocal_length = 25.0\npixel_size = 0.0744\n"
+                   "[prism]\nfaces = 2\ncorner_angle = 6.4\nrefractive_index = 1.5\napex_distance = 210.0\n"
+                   "back_distance = 215.6\n")
+    code = main(["depth", str(rig), str(tmp_path / "none.png"), "-o", str(tmp_path / "out"), "--min-confidence",
+                 "5"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("prismstereo depth: error: --min-confidence: expected"), err
+    assert not (tmp_path / "out").exists()
