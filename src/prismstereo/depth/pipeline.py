@@ -40,7 +40,7 @@ import numpy as np
 from prismstereo import __version__
 from prismstereo.cameras import VirtualView, calibrate_rig
 from prismstereo.config import DEFAULT_DEPTH_RANGE_MM, Rig
-from prismstereo.depth.confidence import confident_matches
+from prismstereo.depth.confidence import confident_fill, confident_matches
 from prismstereo.depth.confidence import remove_speckles as drop_small_patches
 from prismstereo.depth.search_range import (
     Coverage,
@@ -150,6 +150,12 @@ class DepthConfig:
         Standard deviation (px) of a Gaussian low-pass along the rows of both rectified views before the
         refinement (not the matching): it damps the fine texture whose sub-pixel-phase-dependent damping
         by the linear interpolation biases the refined disparities; None: none.
+    refine_fill : bool
+        Where no cross-checked match was kept, try again from the matcher's dense (hole-filled, smoothed)
+        map and keep what the refinement, its sub-pixel left–right check and ``min_confidence`` confirm
+        (:func:`~prismstereo.depth.confidence.confident_fill`): on weak texture the integer cross-check
+        and the refinement from the raw values drop whole regions the matcher had right. Needs ``refine``
+        and ``refine_max_lr_gap`` (without the check nothing tests the filled values: not used).
     sweep : SweepParams
         The plane sweep of ``views="all"`` (:class:`~prismstereo.multiview.prism.SweepParams`).
     """
@@ -172,6 +178,7 @@ class DepthConfig:
     refine_min_texture: float = 0.01
     refine_max_lr_gap: float | None = 0.45
     refine_prefilter: float | None = 0.7
+    refine_fill: bool = True
     sweep: SweepParams = field(default_factory=SweepParams)
 
     def to_dict(self) -> dict[str, Any]:
@@ -700,19 +707,25 @@ def match_pair(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, region:
 
 
 def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, disparity: np.ndarray,
-                   config: DepthConfig, *, epipolar: EpipolarTable | None) -> tuple[np.ndarray, np.ndarray]:
+                   config: DepthConfig, *, epipolar: EpipolarTable | None,
+                   filled: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Sub-pixel refinement, confidence and the confidence filter
     (:func:`~prismstereo.depth.confidence.confident_matches`), the right windows on the epipolar curves of
-    ``epipolar`` (:func:`epipolar_curves`; None: on the left pixels' rows); returns (disparity, confidence
+    ``epipolar`` (:func:`epipolar_curves`; None: on the left pixels' rows); with ``filled`` (the matcher's
+    dense map) and ``refine_fill``, a second try from it where none was kept
+    (:func:`~prismstereo.depth.confidence.confident_fill`); returns (disparity, confidence
     in [0, 1], 0 for every match when the refinement is off, NaN where there is no match)."""
     if not config.refine:
         return disparity, np.where(np.isfinite(disparity), np.float32(0.0), np.float32(np.nan))
     vl, vr = pair.valid_masks()
-    return confident_matches(left, right, disparity, radius=config.refine_radius,
-                             iterations=config.refine_iterations, max_shift=config.refine_max_shift,
-                             min_texture=config.refine_min_texture, min_confidence=config.min_confidence,
-                             max_lr_gap=config.refine_max_lr_gap, valid_left=vl, valid_right=vr,
-                             epipolar=epipolar, prefilter=config.refine_prefilter)
+    kw = dict(radius=config.refine_radius, iterations=config.refine_iterations, max_shift=config.refine_max_shift,
+              min_texture=config.refine_min_texture, min_confidence=config.min_confidence,
+              max_lr_gap=config.refine_max_lr_gap, valid_left=vl, epipolar=epipolar,
+              prefilter=config.refine_prefilter)
+    disp, conf = confident_matches(left, right, disparity, valid_right=vr, **kw)
+    if filled is not None and config.refine_fill and config.refine_max_lr_gap is not None:
+        disp, conf = confident_fill(left, right, disp, conf, filled, valid_right=vr, **kw)
+    return disp, conf
 
 
 def remove_speckles(disparity: np.ndarray, region: SearchRegion, config: DepthConfig) -> np.ndarray:
@@ -840,7 +853,8 @@ def _run_frame(setup: DepthSetup, image: np.ndarray, left: np.ndarray, right: np
         matched = match_pair(left, right, pair, region, cfg)
     counts = {"matched": int(np.isfinite(matched.disparity).sum())}
     with clock.step("refine"):
-        disp, conf = refine_matches(left, right, pair, matched.disparity, cfg, epipolar=setup.epipolar)
+        disp, conf = refine_matches(left, right, pair, matched.disparity, cfg, epipolar=setup.epipolar,
+                                    filled=None if cfg.use_filled else matched.filled)
     if cfg.refine:
         counts["refined"] = int(np.isfinite(disp).sum())
     with clock.step("speckles"):
