@@ -105,8 +105,8 @@ def intersect_scene(
     object_id = np.empty(n, dtype=np.int32)
     points = np.empty((n, 3))
     colors = np.empty((n, 3), dtype=np.float32)
-    trace_scene_kernel(o, d, compiled.prims, compiled.textures, compiled.pixels, float(shade), LIGHT,
-                       distance, object_id, points, colors)
+    trace_scene_kernel(o, d, compiled.prims, compiled.textures, compiled.pixels, compiled.fields, compiled.flags,
+                       float(shade), LIGHT, distance, object_id, points, colors)
     return SceneHits(distance=distance, points=points, object_id=object_id, colors=colors)
 
 
