@@ -483,6 +483,40 @@ class RGBDSurface:
 SceneObject = Rectangle | Box | Sphere | Plane | RGBDSurface
 
 
+BAYER_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
+DEMOSAIC_METHODS = ("bilinear", "edge-aware", "vng")
+
+
+@dataclass(frozen=True)
+class ThinLens:
+    """A thin lens at the optical centre (docs/scenes.md): defocus and the apex band come from tracing.
+
+    Each pixel sample is ``samples`` rays from points spread over the entrance pupil (diameter
+    focal length / ``f_number``, :func:`prismstereo.optics.lens.aperture_points`) toward the sample's in-focus
+    point on the plane z = ``focus_distance``, each traced through the face it meets.
+
+    Attributes
+    ----------
+    f_number : float
+        N (≥ 0.5).
+    focus_distance : float
+        Distance of the plane in focus, mm along the optical axis (> 0).
+    samples : int
+        Aperture rays per pixel sample (1..256).
+    """
+
+    f_number: float = 8.0
+    focus_distance: float = 1400.0
+    samples: int = 16
+
+    def __post_init__(self) -> None:
+        _scalar(self, "f_number", lo=0.5, hi=1000.0)
+        _scalar(self, "focus_distance", positive=True)
+        if isinstance(self.samples, bool) or not isinstance(self.samples, int | np.integer) \
+                or not 1 <= self.samples <= 256:
+            raise ConfigError(f"ThinLens samples: expected an integer in 1..256, got {self.samples!r}")
+
+
 @dataclass(frozen=True)
 class Scene:
     """Objects plus render settings.
@@ -510,6 +544,16 @@ class Scene:
         Abbe number V_d of the glass for dispersion: the red, green and blue channels are rendered with
         the refractive indices of the C (656 nm), d (588 nm) and F (486 nm) lines of a Cauchy glass with
         n_d = the rig's index and n_F − n_C = (n_d − 1) / V_d, which gives colour fringes. None = no dispersion.
+    lens : ThinLens or None
+        A thin lens (defocus, and the band around the apex line where two views mix); None = a pinhole.
+    bayer : str or None
+        Colour filter mosaic ("RGGB", "BGGR", "GRBG", "GBRG": the colours of the top-left 2×2 pixels, row by
+        row): the sensor records one channel per pixel (noise is added to it), and the image is demosaiced
+        with ``demosaic``; None = every pixel records RGB.
+    demosaic : str
+        "bilinear", "edge-aware" or "vng" (OpenCV's Bayer conversions).
+    jpeg_quality : int or None
+        Store the capture as a JPEG of this quality (1..100) and decode it; None = lossless.
     """
 
     objects: tuple[SceneObject, ...] = ()
@@ -521,6 +565,10 @@ class Scene:
     name: str = "scene"
     vignetting: float = 0.0
     abbe: float | None = None
+    lens: ThinLens | None = None
+    bayer: str | None = None
+    demosaic: str = "edge-aware"
+    jpeg_quality: int | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "objects", tuple(self.objects))
@@ -530,3 +578,13 @@ class Scene:
         _scalar(self, "vignetting", lo=0.0, hi=0.99)
         if self.abbe is not None:
             _scalar(self, "abbe", lo=10.0, hi=120.0)
+        if self.lens is not None and not isinstance(self.lens, ThinLens):
+            raise ConfigError(f"Scene lens: expected a ThinLens or None, got {self.lens!r}")
+        if self.bayer is not None and self.bayer not in BAYER_PATTERNS:
+            raise ConfigError(f"Scene bayer: expected one of {', '.join(BAYER_PATTERNS)} or None, got {self.bayer!r}")
+        if self.demosaic not in DEMOSAIC_METHODS:
+            raise ConfigError(f"Scene demosaic: expected one of {', '.join(DEMOSAIC_METHODS)}, got {self.demosaic!r}")
+        if self.jpeg_quality is not None and (isinstance(self.jpeg_quality, bool)
+                                              or not isinstance(self.jpeg_quality, int | np.integer)
+                                              or not 1 <= self.jpeg_quality <= 100):
+            raise ConfigError(f"Scene jpeg_quality: expected an integer in 1..100 or None, got {self.jpeg_quality!r}")

@@ -23,6 +23,14 @@ Example::
     noise = 0.0                   # sensor noise std, grey levels (the capture is rounded to 8 bits after it)
     vignetting = 0.0              # fraction of light lost at the image corners, [0, 0.99]
     # abbe = 64.2                 # Abbe number of the glass: per-channel index, colour fringes (default none)
+    # bayer = "RGGB"              # colour filter mosaic (RGGB, BGGR, GRBG, GBRG), noise per recorded channel,
+    # demosaic = "edge-aware"     #   then demosaiced: "bilinear" | "edge-aware" | "vng" (default none)
+    # jpeg_quality = 85           # saved as JPEG of this quality and decoded (default lossless)
+
+    # [lens]                      # a thin lens (default: a pinhole), docs/scenes.md
+    # f_number = 8.0
+    # focus_distance = 1400.0     # mm along the axis
+    # samples = 16                # aperture rays per pixel
 
     [[objects]]
     type = "box"                  # "rectangle" | "box" | "sphere" | "plane" | "rgbd" (below)
@@ -72,6 +80,8 @@ from prismstereo.config import Rig, read_toml, rig_from_dict
 from prismstereo.errors import ConfigError, ImageError
 from prismstereo.io import read_image
 from prismstereo.simulate.scene import (
+    BAYER_PATTERNS,
+    DEMOSAIC_METHODS,
     Box,
     CheckerTexture,
     Color,
@@ -85,11 +95,14 @@ from prismstereo.simulate.scene import (
     SolidTexture,
     Sphere,
     Texture,
+    ThinLens,
     Vec3,
     rotation_from_normal,
 )
 
-_RENDER_KEYS = {"supersample", "seed", "background", "shading", "noise", "vignetting", "abbe"}
+_RENDER_KEYS = {"supersample", "seed", "background", "shading", "noise", "vignetting", "abbe", "bayer", "demosaic",
+                "jpeg_quality"}
+_LENS_KEYS = {"f_number", "focus_distance", "samples"}
 _OBJECT_KEYS = {
     "rectangle": {"type", "name", "center", "size", "rotation", "normal", "spin", "texture"},
     "box": {"type", "name", "center", "size", "rotation", "normal", "spin", "texture"},
@@ -388,7 +401,7 @@ def scene_from_dict(data: Mapping[str, Any], *, base_dir: str | os.PathLike[str]
     ConfigError
         On unknown tables/keys/types, missing keys, non-positive sizes, NaN or out-of-range values.
     """
-    rig = rig_from_dict(data, name=name, extra_sections={"render", "objects"})
+    rig = rig_from_dict(data, name=name, extra_sections={"render", "objects", "lens"})
     render = _keys("[render]", data.get("render", {}), _RENDER_KEYS)
     seed = _int("[render]", "seed", render.get("seed", 0), lo=0)
     ss = _int("[render]", "supersample", render.get("supersample", 2), lo=1, hi=16)
@@ -397,13 +410,30 @@ def scene_from_dict(data: Mapping[str, Any], *, base_dir: str | os.PathLike[str]
     noise = _num("[render]", "noise", render.get("noise", 0.0), lo=0.0, hi=255.0)
     vignetting = _num("[render]", "vignetting", render.get("vignetting", 0.0), lo=0.0, hi=0.99)
     abbe = None if "abbe" not in render else _num("[render]", "abbe", render["abbe"], lo=10.0, hi=120.0)
+    bayer = render.get("bayer")
+    if bayer is not None and bayer not in BAYER_PATTERNS:
+        raise ConfigError(f"[render] bayer: expected one of {', '.join(BAYER_PATTERNS)}, got {bayer!r}")
+    demosaic = render.get("demosaic", "edge-aware")
+    if demosaic not in DEMOSAIC_METHODS:
+        raise ConfigError(f"[render] demosaic: expected one of {', '.join(DEMOSAIC_METHODS)}, got {demosaic!r}")
+    if "demosaic" in render and bayer is None:
+        raise ConfigError("[render] demosaic: goes with bayer (a colour filter mosaic), which is not set")
+    jpeg = None if "jpeg_quality" not in render else _int("[render]", "jpeg_quality", render["jpeg_quality"],
+                                                          lo=1, hi=100)
+    lens = None
+    if "lens" in data:
+        lt = _keys("[lens]", data["lens"], _LENS_KEYS, {"f_number", "focus_distance"})
+        lens = ThinLens(f_number=_num("[lens]", "f_number", lt["f_number"], lo=0.5, hi=1000.0),
+                        focus_distance=_num("[lens]", "focus_distance", lt["focus_distance"], positive=True),
+                        samples=_int("[lens]", "samples", lt.get("samples", 16), lo=1, hi=256))
     objs = data.get("objects", [])
     if not isinstance(objs, list) or not objs:
         raise ConfigError(f"[[objects]]: expected at least one [[objects]] table, got {objs!r}")
     base = Path(base_dir)
     objects = tuple(_object(i, o, seed=seed, base_dir=base) for i, o in enumerate(objs))
     scene = Scene(objects=objects, background=background, shading=shading, noise=noise, seed=seed,
-                  supersample=ss, name=name, vignetting=vignetting, abbe=abbe)
+                  supersample=ss, name=name, vignetting=vignetting, abbe=abbe, lens=lens, bayer=bayer,
+                  demosaic=demosaic, jpeg_quality=jpeg)
     return rig, scene
 
 
@@ -461,6 +491,13 @@ def scene_to_dict(rig: Rig, scene: Scene) -> dict[str, Any]:
                       "shading": scene.shading, "noise": scene.noise, "vignetting": scene.vignetting}
     if scene.abbe is not None:
         data["render"]["abbe"] = scene.abbe
+    if scene.bayer is not None:
+        data["render"].update(bayer=scene.bayer, demosaic=scene.demosaic)
+    if scene.jpeg_quality is not None:
+        data["render"]["jpeg_quality"] = scene.jpeg_quality
+    if scene.lens is not None:
+        data["lens"] = {"f_number": scene.lens.f_number, "focus_distance": scene.lens.focus_distance,
+                        "samples": scene.lens.samples}
     data["objects"] = [object_to_dict(o) for o in scene.objects]
     return data
 
