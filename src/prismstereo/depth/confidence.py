@@ -101,10 +101,11 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
         # on the mirrored pair, where the right view is the left one; only at the right pixels the check
         # reads (each pixel is refined on its own, so the others change nothing)
         asked = conf > 0.0 if min_confidence is None else conf >= max(min_confidence, np.nextafter(0.0, 1.0))
-        kw = dict(radius=radius, iterations=iterations, max_shift=max_shift, min_texture=min_texture,
-                  min_pixels=min_pixels, valid_left=valid_left, valid_right=valid_right, prefilter=prefilter)
         seen = _seen_from_right(disparity if right_seeds is None else right_seeds)
-        disp_r = _right_refined(left, right, seen, disp, asked & matched, epipolar, **kw)
+        disp_r = _right_refined(left, right, seen, disp, asked & matched, epipolar, radius=radius,
+                                iterations=iterations, max_shift=max_shift, min_texture=min_texture,
+                                min_pixels=min_pixels, valid_left=valid_left, valid_right=valid_right,
+                                prefilter=prefilter)
         conf[_lr_gap(disp, disp_r) > max_lr_gap] = 0.0
     keep = matched if min_confidence is None else matched & (conf >= min_confidence)
     nan = np.float32(np.nan)

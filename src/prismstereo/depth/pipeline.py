@@ -40,6 +40,7 @@ import numpy as np
 from prismstereo import __version__
 from prismstereo.cameras import VirtualView, calibrate_rig
 from prismstereo.config import DEFAULT_DEPTH_RANGE_MM, Rig
+from prismstereo.depth.apex_band import apex_band_info, apex_band_views
 from prismstereo.depth.confidence import confident_fill, confident_matches
 from prismstereo.depth.confidence import remove_speckles as drop_small_patches
 from prismstereo.depth.search_range import (
@@ -235,6 +236,9 @@ class SearchRegion:
     source : str
         Where the depth range came from: ``"given"``, ``"rig"`` or ``"rig+images"``.
     warnings : tuple of str
+    right_excluded : (h, w) bool or None
+        Pixels of the rectified right view no match may land on (the apex band,
+        :mod:`prismstereo.depth.apex_band`); None: none.
     """
 
     mask: np.ndarray
@@ -242,6 +246,7 @@ class SearchRegion:
     depth_range: tuple[float, float]
     source: str
     warnings: tuple[str, ...] = ()
+    right_excluded: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -485,6 +490,7 @@ class DepthResult:
             "counts": self.counts(),
             "coverage": None if self.coverage is None else self.coverage.to_dict(),
             "accuracy": self.accuracy,
+            "apex_band": apex_band_info(self.rig),
         }
         if self.view_counts is not None:
             per = np.bincount(self.view_counts.ravel(), minlength=len(self.faces) + 1)
@@ -659,8 +665,11 @@ def search_region(rig: Rig, pair: RectifiedPair, config: DepthConfig, left: np.n
         mask[y:y + h_, x:x + w_] = True
     else:
         mask[:] = True
+    band = apex_band_views(rig, pair)  # the views mix there (the camera's f_number / focus_distance)
+    if band is not None:
+        mask &= ~band[0]
     return SearchRegion(mask=mask & common, disparity_range=(lo, hi), depth_range=(zmin, zmax), source=source,
-                        warnings=warnings)
+                        warnings=warnings, right_excluded=None if band is None else band[1])
 
 
 def _roi_box(mask: np.ndarray) -> tuple[int, int, int, int]:
@@ -694,6 +703,8 @@ def match_pair(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, region:
     dense[out] = np.nan
     # a match must land inside the right view's valid region
     vr = np.asarray(pair.valid_masks()[1], dtype=bool)
+    if region.right_excluded is not None:
+        vr = vr & ~region.right_excluded
     src = dense if config.use_filled else raw
     ys, xs = np.nonzero(np.isfinite(src))
     xr = np.rint(xs - src[ys, xs]).astype(np.int64)
@@ -708,23 +719,27 @@ def match_pair(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, region:
 
 def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, disparity: np.ndarray,
                    config: DepthConfig, *, epipolar: EpipolarTable | None,
-                   filled: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                   filled: np.ndarray | None = None, right_excluded: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """Sub-pixel refinement, confidence and the confidence filter
     (:func:`~prismstereo.depth.confidence.confident_matches`), the right windows on the epipolar curves of
     ``epipolar`` (:func:`epipolar_curves`; None: on the left pixels' rows); with ``filled`` (the matcher's
     dense map) and ``refine_fill``, a second try from it where none was kept
-    (:func:`~prismstereo.depth.confidence.confident_fill`); returns (disparity, confidence
-    in [0, 1], 0 for every match when the refinement is off, NaN where there is no match)."""
+    (:func:`~prismstereo.depth.confidence.confident_fill`; none lands on ``right_excluded``); returns
+    (disparity, confidence in [0, 1], 0 for every match when the refinement is off, NaN where there is no
+    match)."""
     if not config.refine:
         return disparity, np.where(np.isfinite(disparity), np.float32(0.0), np.float32(np.nan))
     vl, vr = pair.valid_masks()
-    kw = dict(radius=config.refine_radius, iterations=config.refine_iterations, max_shift=config.refine_max_shift,
-              min_texture=config.refine_min_texture, min_confidence=config.min_confidence,
-              max_lr_gap=config.refine_max_lr_gap, valid_left=vl, epipolar=epipolar,
-              prefilter=config.refine_prefilter)
+    kw: dict[str, Any] = dict(radius=config.refine_radius, iterations=config.refine_iterations,
+                              max_shift=config.refine_max_shift,
+                              min_texture=config.refine_min_texture, min_confidence=config.min_confidence,
+                              max_lr_gap=config.refine_max_lr_gap, valid_left=vl, epipolar=epipolar,
+                              prefilter=config.refine_prefilter)
     disp, conf = confident_matches(left, right, disparity, valid_right=vr, **kw)
     if filled is not None and config.refine_fill and config.refine_max_lr_gap is not None:
-        disp, conf = confident_fill(left, right, disp, conf, filled, valid_right=vr, **kw)
+        vr_fill = vr if right_excluded is None else np.asarray(vr, dtype=bool) & ~right_excluded
+        disp, conf = confident_fill(left, right, disp, conf, filled, valid_right=vr_fill, **kw)
     return disp, conf
 
 
@@ -853,8 +868,9 @@ def _run_frame(setup: DepthSetup, image: np.ndarray, left: np.ndarray, right: np
         matched = match_pair(left, right, pair, region, cfg)
     counts = {"matched": int(np.isfinite(matched.disparity).sum())}
     with clock.step("refine"):
+        filled = None if cfg.use_filled else matched.filled
         disp, conf = refine_matches(left, right, pair, matched.disparity, cfg, epipolar=setup.epipolar,
-                                    filled=None if cfg.use_filled else matched.filled)
+                                    filled=filled, right_excluded=region.right_excluded)
     if cfg.refine:
         counts["refined"] = int(np.isfinite(disp).sum())
     with clock.step("speckles"):
