@@ -15,6 +15,7 @@ from typing import Any
 from prismstereo.apps.demo import run_demo
 from prismstereo.apps.replay import replay_options
 from prismstereo.calibration.from_scene import calibrate_from_scene
+from prismstereo.calibration.scene_uncertainty import uncertainty_warnings, unobserved_depth_error
 from prismstereo.depth.outputs import write_depth_outputs
 from prismstereo.depth.pipeline import DepthConfig, run_depth, validate_inputs
 from prismstereo.errors import ConfigError
@@ -107,6 +108,13 @@ def _self_calibrate(rig: Any, image: Any) -> tuple[Any, list[str], dict[str, Any
     cal = calibrate_from_scene(rig, [image])
     lines = ["self-calibration from the capture:", cal.summary()]
     report = {k: v for k, v in cal.report().items() if k != "rig"}
+    # what the parameters the scene did not observe can do to the depth, at the scene's depths
+    unobserved = unobserved_depth_error(cal)
+    warnings = uncertainty_warnings(unobserved)
+    report["depth_error_unobserved"] = unobserved
+    report["warnings"] = warnings
+    for line in warnings:
+        log.warning("%s", line)
     return cal.rig, lines, {"self_calibration": report}
 
 
