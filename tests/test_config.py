@@ -149,6 +149,12 @@ def test_four_term_distortion_is_padded():
         ("camera", {"fx": 5000.0, "fy": math.nan}, "[camera] fy: expected a finite number"),
         ("camera", {"fx": True, "fy": 5000.0}, "[camera] fx: expected a number"),
         ("camera", {"focal_length": None}, "expected focal_length and pixel_size, or fx and fy"),
+        ("camera", {"f_number": 8.0}, "[camera] f_number, focus_distance: expected both or neither"),
+        ("camera", {"focus_distance": 1400.0}, "[camera] f_number, focus_distance: expected both or neither"),
+        ("camera", {"f_number": 0.0, "focus_distance": 1400.0}, "[camera] f_number: expected a positive value"),
+        ("camera", {"f_number": 8.0, "focus_distance": "far"}, "[camera] focus_distance: expected a number"),
+        ("camera", {"f_number": 8.0, "focus_distance": 1400.0, "focal_length": None, "pixel_size": None,
+                    "fx": 5000.0, "fy": 5000.0}, "[camera] f_number: expected focal_length or pixel_size"),
         ("prism", {"tilt": [1.0]}, "[prism] tilt: expected [tx, ty] in degrees"),
         ("prism", {"tilt": [1.0, math.inf]}, "[prism] tilt: expected a finite number"),
         ("prism", {"tilt": [45.0, 0.0]}, "[prism] tilt: expected every value within ±30"),
@@ -177,3 +183,12 @@ def test_rig_reference_lists_every_key():
         documented = {k for row in table.splitlines() if row.startswith("| `")
                       for k in re.findall(r"`(\w+)`", row.split("|")[1])}
         assert documented == keys, section
+
+
+def test_lens_keys_round_trip_and_default_to_none():
+    rig = thesis_biprism()
+    assert rig.camera.f_number is None and rig.camera.focus_distance is None
+    assert "f_number" not in rig.to_dict()["camera"]
+    lens = rig_from_dict(_with("camera", f_number=8, focus_distance=1400))
+    assert lens.camera.f_number == 8.0 and lens.camera.focus_distance == 1400.0
+    assert rig_from_dict(lens.to_dict()) == lens

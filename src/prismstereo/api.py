@@ -26,6 +26,7 @@ from prismstereo.calibration import Board, PrismCalibration, parse_board, parse_
 from prismstereo.calibration import calibrate_prism as fit_prism_to_boards
 from prismstereo.calibration.from_scene import SceneCalibration, calibrate_from_scene, parse_scene_free
 from prismstereo.calibration.report import residual_figure
+from prismstereo.calibration.scene_uncertainty import uncertainty_warnings, unobserved_depth_error
 from prismstereo.config import Rig, load_rig
 from prismstereo.depth.outputs import write_depth_outputs
 from prismstereo.depth.pipeline import DepthConfig, run_depth, validate_config, validate_image
@@ -119,6 +120,9 @@ class DepthResult:
         The rig refined from the capture itself (``self_calibrate=True``); ``run.rig`` is the same rig.
     calibration : SceneCalibration or None
         That refinement's record.
+    unobserved : dict or None
+        With ``calibration``: the depth error that the parameters the scene did not observe can cause
+        (:func:`~prismstereo.calibration.scene_uncertainty.unobserved_depth_error`), in ``run.json``.
     """
 
     run: PipelineResult
@@ -126,6 +130,7 @@ class DepthResult:
     preset: str | None = None
     refined_rig: Rig | None = None
     calibration: SceneCalibration | None = None
+    unobserved: dict[str, Any] | None = None
 
     @property
     def depth(self) -> np.ndarray:
@@ -177,7 +182,11 @@ class DepthResult:
     def _extra(self) -> dict[str, Any]:
         extra: dict[str, Any] = {"inputs": dict(self.inputs), "preset": self.preset}
         if self.calibration is not None:
-            extra["self_calibration"] = {k: v for k, v in self.calibration.report().items() if k != "rig"}
+            report = {k: v for k, v in self.calibration.report().items() if k != "rig"}
+            if self.unobserved is not None:
+                report["depth_error_unobserved"] = self.unobserved
+                report["warnings"] = uncertainty_warnings(self.unobserved)
+            extra["self_calibration"] = report
         return extra
 
     def save(self, folder: PathLike, *, report: bool = True) -> dict[str, Path]:
@@ -272,16 +281,22 @@ def depth(rig: Rig | PathLike, image: np.ndarray | PathLike, *, preset: str | No
     img = validate_image(rig_, _capture(rig_, image))
     depth_gt = None if ground_truth is None else _ground_truth(rig_, ground_truth)
     scene_cal = None
+    unobserved = None
     if self_calibrate:
         scene_cal = calibrate_from_scene(rig_, [img])
         rig_ = scene_cal.rig
+        # what the parameters the scene did not observe can do to the depth, at the scene's depths
+        unobserved = unobserved_depth_error(scene_cal)
+        for line in uncertainty_warnings(unobserved):
+            log.warning("%s", line)
     res = run_depth(rig_, img, config=cfg, progress=progress)
     if depth_gt is not None:
         res = dataclasses.replace(res, accuracy=evaluate_depth(res, depth_gt=depth_gt))
     inputs = {"rig": None if isinstance(rig, Rig) else str(rig), "image": str(image) if _is_path(image) else None,
               "gt": str(ground_truth) if ground_truth is not None and _is_path(ground_truth) else None}
     return DepthResult(run=res, inputs=inputs, preset=None if preset is None else str(preset).lower(),
-                       refined_rig=None if scene_cal is None else scene_cal.rig, calibration=scene_cal)
+                       refined_rig=None if scene_cal is None else scene_cal.rig, calibration=scene_cal,
+                       unobserved=unobserved)
 
 
 # --------------------------------------------------------------------------- simulate

@@ -84,6 +84,11 @@ class CameraSpec:
     distortion : (k1, k2, p1, p2, k3)
         OpenCV distortion of normalised coordinates; all zero = a distortion-free pinhole. A real pixel
         looks along the ray through its undistorted normalised point (as ``cv2.undistortPoints``).
+    f_number, focus_distance : float or None
+        The lens's f-number N and the distance it is focused at (mm from the optical centre along the
+        axis), both or neither. With them the depth pipeline and the self-calibration leave out the band
+        around the image of each prism edge where a pixel's beam passes through two faces and the views
+        mix (``prismstereo.optics.lens.apex_band_mask``, width f_px · (f/N) · |1/apex − 1/F| px).
     """
 
     width: int
@@ -94,9 +99,21 @@ class CameraSpec:
     fx: float | None = None
     fy: float | None = None
     distortion: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
+    f_number: float | None = None
+    focus_distance: float | None = None
 
     def __post_init__(self) -> None:
         _positive("camera", "width", self.width, integer=True)
+        if (self.f_number is None) != (self.focus_distance is None):
+            raise ConfigError(f"[camera] f_number, focus_distance: expected both or neither (the apex band's "
+                              f"width needs both), got f_number={self.f_number!r}, "
+                              f"focus_distance={self.focus_distance!r}")
+        if self.f_number is not None and self.focus_distance is not None:
+            object.__setattr__(self, "f_number", _positive("camera", "f_number", self.f_number))
+            object.__setattr__(self, "focus_distance", _positive("camera", "focus_distance", self.focus_distance))
+            if self.focal_length is None and self.pixel_size is None:
+                raise ConfigError("[camera] f_number: expected focal_length or pixel_size (mm) beside it, to size "
+                                  "the aperture; add one to the rig file")
         _positive("camera", "height", self.height, integer=True)
         if (self.fx is None) != (self.fy is None):
             raise ConfigError(f"[camera] fx, fy: expected both or neither, got fx={self.fx!r}, fy={self.fy!r}")
@@ -315,6 +332,9 @@ class Rig:
             cam["fy"] = self.camera.fy
         if self.camera.has_distortion:
             cam["distortion"] = list(self.camera.distortion)
+        if self.camera.f_number is not None:
+            cam["f_number"] = self.camera.f_number
+            cam["focus_distance"] = self.camera.focus_distance
         prism: dict[str, Any] = {
             "faces": self.prism.faces,
             "corner_angle": self.prism.corner_angle,
@@ -345,7 +365,8 @@ class Rig:
 
 
 _CAMERA_REQUIRED = {"width", "height"}
-_CAMERA_OPTIONAL = {"principal_point", "focal_length", "pixel_size", "fx", "fy", "distortion"}
+_CAMERA_OPTIONAL = {"principal_point", "focal_length", "pixel_size", "fx", "fy", "distortion", "f_number",
+                    "focus_distance"}
 _PRISM_REQUIRED = {"faces", "corner_angle", "refractive_index", "apex_distance", "back_distance"}
 _PRISM_OPTIONAL = {"height", "rotation", "tilt", "decenter"}
 
@@ -377,6 +398,8 @@ def rig_from_dict(data: Mapping[str, Any], *, name: str = "rig", extra_sections:
         fx=cam.get("fx"),
         fy=cam.get("fy"),
         distortion=cam.get("distortion", (0.0, 0.0, 0.0, 0.0, 0.0)),
+        f_number=cam.get("f_number"),
+        focus_distance=cam.get("focus_distance"),
     )
     spec = PrismSpec(
         faces=prism["faces"],

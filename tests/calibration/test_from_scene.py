@@ -120,5 +120,27 @@ def test_depth_self_calibrate(tmp_path, start_rig, scene_capture, capsys):
     run = json.loads((out / "run.json").read_text())
     sc = run["self_calibration"]
     assert abs(sc["estimates"]["rotation"] - 1.4) < 0.05 and sc["n_matches"] >= 200
+    unobserved = sc["depth_error_unobserved"]
+    assert set(unobserved["parameters"]) == {k for k, seen in sc["observed"].items() if not seen}
+    assert isinstance(sc["warnings"], list)
     refined = (out / "rig_refined.toml").read_text()
     assert "rotation" in refined and "self-calibration" in capsys.readouterr().out
+
+
+def test_the_depth_error_of_unobserved_parameters_is_quantified(start_rig, scene_capture):
+    from prismstereo.calibration.scene_uncertainty import uncertainty_warnings, unobserved_depth_error
+
+    cal = calibrate_from_scene(start_rig, [scene_capture])
+    rep = unobserved_depth_error(cal)
+    lo, mid, hi = rep["depth_mm"]
+    assert 1000.0 < lo <= mid <= hi < 2000.0  # the planes at 1.1-1.8 m
+    unobserved = {k for k, seen in cal.observed.items() if not seen}
+    assert set(rep["parameters"]) == unobserved
+    for k, v in rep["parameters"].items():
+        assert v["std"] == cal.std[k] and 0.0 < v["median_pct"] <= v["p95_pct"]
+        assert abs(v["per_unit_pct"] * v["std"] - v["median_pct"]) < 1e-3
+    assert rep["max_median_pct"] == max((v["median_pct"] for v in rep["parameters"].values()), default=0.0)
+    assert uncertainty_warnings(rep, limit_pct=1e9) == []
+    if rep["parameters"]:
+        lines = uncertainty_warnings(rep, limit_pct=0.0)
+        assert len(lines) == len(rep["parameters"]) and all("not observed" in line for line in lines)

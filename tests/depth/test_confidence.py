@@ -279,3 +279,27 @@ def test_the_left_right_check_refines_only_what_it_reads_with_the_same_result():
         assert ((c0 == 0) & (z0 > 0.9)).any() and (c0 > 0.9).any()  # the check did drop good windows
         assert np.array_equal(np.isfinite(disp), keep)
         assert np.array_equal(disp[keep], d0[keep]) and np.array_equal(conf[keep], c0[keep])
+
+
+def test_confident_fill_adds_the_filled_values_the_check_confirms_and_only_those():
+    from prismstereo.depth.confidence import confident_fill
+    from prismstereo.errors import ConfigError
+
+    left, right = _shifted_pair(7.3)
+    raw = np.full(left.shape, 7.0, dtype=np.float32)
+    raw[:, 30:70] = np.nan  # the matcher's cross-check rejected these
+    filled = np.full(left.shape, 7.0, dtype=np.float32)
+    filled[:, 50:70] = 12.0  # its dense map guessed wrong there
+    kw = dict(radius=5, min_confidence=0.5, max_lr_gap=0.45)
+    d1, c1 = confident_matches(left, right, raw, **kw)
+    d2, c2 = confident_fill(left, right, d1, c1, filled, **kw)
+    right_part = (slice(8, -8), slice(35, 45))
+    wrong_part = (slice(8, -8), slice(55, 65))
+    assert np.all(np.isnan(d1[right_part]))
+    assert np.all(np.abs(d2[right_part] - 7.3) < 0.05) and np.all(c2[right_part] >= 0.5)
+    assert np.all(np.isnan(d2[wrong_part]))  # 4.7 px off: the refinement cannot reach it, nothing is added
+    kept = np.isfinite(d1)
+    assert np.array_equal(d2[kept], d1[kept]) and np.array_equal(c2[kept], c1[kept])  # the first try stays
+    assert np.array_equal(np.isfinite(d2), np.isfinite(c2))
+    with pytest.raises(ConfigError, match="max_lr_gap"):
+        confident_fill(left, right, d1, c1, filled, radius=5, max_lr_gap=None)

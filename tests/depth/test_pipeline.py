@@ -153,7 +153,8 @@ def test_the_steps_compose_to_run_depth(plane_capture, plane_run):
     left, right = pl.rectify_capture(pair, img)
     region = pl.search_region(rig, pair, cfg, left, right)
     matched = pl.match_pair(left, right, pair, region, cfg)
-    disp, _ = pl.refine_matches(left, right, pair, matched.disparity, cfg, epipolar=pl.epipolar_curves(pair))
+    disp, _ = pl.refine_matches(left, right, pair, matched.disparity, cfg, epipolar=pl.epipolar_curves(pair),
+                                filled=matched.filled, right_excluded=region.right_excluded)
     disp = pl.remove_speckles(disp, region, cfg)
     pts = pl.triangulate_disparity(rig, pair, views, disp, cfg)
     np.testing.assert_array_equal(pts.depth, plane_run.depth)

@@ -233,9 +233,15 @@ def _undistorted_px(rig: Rig, px: np.ndarray) -> np.ndarray:
 
 
 def _face_masks(rig: Rig, band_px: int) -> list[np.ndarray]:
+    """Each face's pixels less ``band_px`` around its edges and, where the camera gives its f-number and focus
+    distance, less the apex band where the lens sees through two faces (:mod:`prismstereo.depth.apex_band`)."""
+    from prismstereo.depth.apex_band import apex_band_real
+
     fm = face_map(rig)
     kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * band_px + 1, 2 * band_px + 1))
-    return [cv2.erode((fm == k).astype(np.uint8), kernel) > 0 for k in range(rig.prism.faces)]
+    masks = [cv2.erode((fm == k).astype(np.uint8), kernel) > 0 for k in range(rig.prism.faces)]
+    band = apex_band_real(rig)
+    return masks if band is None else [m & ~band for m in masks]
 
 
 def match_faces(

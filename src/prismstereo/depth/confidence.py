@@ -13,17 +13,24 @@ The pipeline's ``refine`` and ``speckles`` steps are these plain functions on ar
   tri-prism's) that is a large share of it. Matches below ``min_confidence`` are dropped;
   ``min_confidence=None`` keeps them all with their confidence, for the user to filter.
 - :func:`remove_speckles` drops connected patches of disparity smaller than a share of the matched region.
+- :func:`confident_fill` tries again, from the matcher's dense (hole-filled, smoothed) map, where no
+  cross-checked match was kept: on weak texture the integer cross-check and the refinement from the raw
+  values drop whole regions the matcher had right; the same refinement, sub-pixel left–right check and
+  confidence threshold confirm or drop each of them.
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import cv2
 import numpy as np
 
 from prismstereo.depth.refine import refine_disparity
+from prismstereo.errors import ConfigError
 from prismstereo.rectify.epipolar import EpipolarTable
 
-__all__ = ["confident_matches", "remove_speckles"]
+__all__ = ["confident_fill", "confident_matches", "remove_speckles"]
 
 
 def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, *, radius: int = 5,
@@ -33,7 +40,8 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
                       valid_left: np.ndarray | None = None,
                       valid_right: np.ndarray | None = None,
                       epipolar: EpipolarTable | None = None,
-                      prefilter: float | None = 0.7) -> tuple[np.ndarray, np.ndarray]:
+                      prefilter: float | None = 0.7,
+                      right_seeds: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Refine matches, rate them and keep the confident ones.
 
     Parameters
@@ -67,6 +75,10 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
     prefilter : float or None
         Gaussian low-pass (standard deviation, px) along the rows of both views before the refinement
         (``prefilter`` of :func:`~prismstereo.depth.refine.refine_disparity`); None: none.
+    right_seeds : (H, W) float array, optional
+        The left view's disparities whose moves to x − d give the right view's matches of the sub-pixel
+        check (default: ``disparity``); :func:`confident_fill` checks a few left pixels against the right
+        view of a whole map.
 
     Returns
     -------
@@ -89,20 +101,73 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
         # on the mirrored pair, where the right view is the left one; only at the right pixels the check
         # reads (each pixel is refined on its own, so the others change nothing)
         asked = conf > 0.0 if min_confidence is None else conf >= max(min_confidence, np.nextafter(0.0, 1.0))
-        seen = np.where(_read_by_check(disp, asked & matched), _seen_from_right(disparity), np.float32(np.nan))
-        rows_r = None if epipolar is None else _right_row_offsets(epipolar, seen)
-        d_r, _ = refine_disparity(_mirror(right), _mirror(left), _mirror(seen),
-                                    radius=radius, iterations=iterations, max_shift=max_shift,
-                                    min_texture=min_texture, min_pixels=min_pixels,
-                                    valid_left=None if valid_right is None else _mirror(valid_right),
-                                    valid_right=None if valid_left is None else _mirror(valid_left),
-                                    row_offset=None if rows_r is None else _mirror(rows_r),
-                                    prefilter=prefilter)
-        disp_r = _mirror(d_r)
+        seen = _seen_from_right(disparity if right_seeds is None else right_seeds)
+        disp_r = _right_refined(left, right, seen, disp, asked & matched, epipolar, radius=radius,
+                                iterations=iterations, max_shift=max_shift, min_texture=min_texture,
+                                min_pixels=min_pixels, valid_left=valid_left, valid_right=valid_right,
+                                prefilter=prefilter)
         conf[_lr_gap(disp, disp_r) > max_lr_gap] = 0.0
     keep = matched if min_confidence is None else matched & (conf >= min_confidence)
     nan = np.float32(np.nan)
     return np.where(keep, disp, nan).astype(np.float32), np.where(keep, conf, nan).astype(np.float32)
+
+
+def confident_fill(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, confidence: np.ndarray,
+                   filled: np.ndarray, *, valid_right: np.ndarray | None = None, **kwargs: Any
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Add the confident matches of the matcher's dense (hole-filled, post-processed) map where
+    :func:`confident_matches` kept none of its cross-checked ones.
+
+    The second try starts each remaining pixel from ``filled`` (the matcher's own dense output, its
+    smoothing included) and checks it like any match: the refinement must converge within ``max_shift``,
+    the sub-pixel left–right check (against the right view of the whole ``filled`` map) must agree, and
+    the confidence must reach ``min_confidence``. On weak texture the matcher's integer cross-check and
+    the refinement from its raw values drop whole regions that this confirms.
+
+    Parameters
+    ----------
+    left, right : (H, W) or (H, W, 3) arrays
+        The rectified pair.
+    disparity, confidence : (H, W) float32
+        :func:`confident_matches`' result on the cross-checked matches (NaN = none kept).
+    filled : (H, W) float array
+        The matcher's dense disparities, px, NaN outside the searched region.
+    valid_right : (H, W) bool, optional
+        Valid region of the rectified right view (a filled value whose right pixel is outside is skipped).
+    **kwargs
+        The other keyword arguments of :func:`confident_matches` (``max_lr_gap`` must not be None: the
+        check is what tests a filled value).
+
+    Returns
+    -------
+    disparity, confidence : (H, W) float32
+        ``disparity`` and ``confidence`` with the confirmed filled matches added.
+
+    Raises
+    ------
+    ConfigError
+        ``max_lr_gap`` None.
+    """
+    if kwargs.get("max_lr_gap", 0.45) is None:
+        raise ConfigError("confident_fill max_lr_gap: expected a number of px (the sub-pixel left–right "
+                          "check is what tests a filled value), got None; pass the pipeline's refine_max_lr_gap")
+    d = np.asarray(disparity, dtype=np.float32)
+    f = np.asarray(filled, dtype=np.float32)
+    h, w = d.shape
+    ys, xs = np.nonzero(np.isfinite(f))
+    xr = np.rint(xs - f[ys, xs]).astype(np.int64)
+    inside = (xr >= 0) & (xr < w)
+    if valid_right is not None:
+        inside[inside] &= np.asarray(valid_right, dtype=bool)[ys[inside], xr[inside]]
+    seeds = np.full((h, w), np.nan, dtype=np.float32)
+    seeds[ys[inside], xs[inside]] = f[ys[inside], xs[inside]]
+    retry = np.where(~np.isfinite(d), seeds, np.float32(np.nan))
+    if not np.isfinite(retry).any():
+        return d, np.asarray(confidence, dtype=np.float32)
+    d2, c2 = confident_matches(left, right, retry, valid_right=valid_right, right_seeds=seeds, **kwargs)
+    add = ~np.isfinite(d) & np.isfinite(d2)
+    return (np.where(add, d2, d).astype(np.float32),
+            np.where(add, c2, np.asarray(confidence, dtype=np.float32)).astype(np.float32))
 
 
 def remove_speckles(disparity: np.ndarray, *, max_size: int) -> np.ndarray:
@@ -130,6 +195,25 @@ def remove_speckles(disparity: np.ndarray, *, max_size: int) -> np.ndarray:
     d16 = np.where(finite, np.rint(disp * 16.0), -16).astype(np.int16)
     cv2.filterSpeckles(d16, -16, int(max_size), 16)
     return np.where(d16 == -16, np.float32(np.nan), disp).astype(np.float32)
+
+
+def _right_refined(left: np.ndarray, right: np.ndarray, seen: np.ndarray, disp: np.ndarray, where: np.ndarray,
+                   epipolar: EpipolarTable | None, *, radius: int, iterations: int, max_shift: float,
+                   min_texture: float, min_pixels: int | None, valid_left: np.ndarray | None,
+                   valid_right: np.ndarray | None, prefilter: float | None) -> np.ndarray:
+    """(H, W) float32: the right view's disparities ``seen`` (:func:`_seen_from_right`) refined on the
+    mirrored pair, where the right view is the left one, at the right pixels the check of the left pixels
+    ``where`` reads (each pixel is refined on its own, so the others change nothing); NaN elsewhere."""
+    seeds = np.where(_read_by_check(disp, where), seen, np.float32(np.nan))
+    rows_r = None if epipolar is None else _right_row_offsets(epipolar, seeds)
+    d_r, _ = refine_disparity(_mirror(right), _mirror(left), _mirror(seeds),
+                              radius=radius, iterations=iterations, max_shift=max_shift,
+                              min_texture=min_texture, min_pixels=min_pixels,
+                              valid_left=None if valid_right is None else _mirror(valid_right),
+                              valid_right=None if valid_left is None else _mirror(valid_left),
+                              row_offset=None if rows_r is None else _mirror(rows_r),
+                              prefilter=prefilter)
+    return _mirror(d_r)
 
 
 def _mirror(a: np.ndarray) -> np.ndarray:

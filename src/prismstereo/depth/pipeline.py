@@ -42,7 +42,8 @@ from prismstereo import __version__
 from prismstereo.cameras import VirtualView, calibrate_rig
 from prismstereo.checks import check_fields, fail
 from prismstereo.config import DEFAULT_DEPTH_RANGE_MM, Rig
-from prismstereo.depth.confidence import confident_matches
+from prismstereo.depth.apex_band import apex_band_info, apex_band_views
+from prismstereo.depth.confidence import confident_fill, confident_matches
 from prismstereo.depth.confidence import remove_speckles as drop_small_patches
 from prismstereo.depth.search_range import (
     Coverage,
@@ -154,6 +155,12 @@ class DepthConfig:
         Standard deviation (px) of a Gaussian low-pass along the rows of both rectified views before the
         refinement (not the matching): it damps the fine texture whose sub-pixel-phase-dependent damping
         by the linear interpolation biases the refined disparities; None: none.
+    refine_fill : bool
+        Where no cross-checked match was kept, try again from the matcher's dense (hole-filled, smoothed)
+        map and keep what the refinement, its sub-pixel left–right check and ``min_confidence`` confirm
+        (:func:`~prismstereo.depth.confidence.confident_fill`): on weak texture the integer cross-check
+        and the refinement from the raw values drop whole regions the matcher had right. Needs ``refine``
+        and ``refine_max_lr_gap`` (without the check nothing tests the filled values: not used).
     sweep : SweepParams
         The plane sweep of ``views="all"`` (:class:`~prismstereo.multiview.prism.SweepParams`).
     coarse_to_fine : {"auto", "on", "off"}
@@ -182,6 +189,7 @@ class DepthConfig:
     refine_min_texture: float = 0.01
     refine_max_lr_gap: float | None = 0.45
     refine_prefilter: float | None = 0.7
+    refine_fill: bool = True
     sweep: SweepParams = field(default_factory=SweepParams)
     coarse_to_fine: str = "auto"
     max_memory: int | None = None
@@ -265,6 +273,9 @@ class SearchRegion:
     source : str
         Where the depth range came from: ``"given"``, ``"rig"`` or ``"rig+images"``.
     warnings : tuple of str
+    right_excluded : (h, w) bool or None
+        Pixels of the rectified right view no match may land on (the apex band,
+        :mod:`prismstereo.depth.apex_band`); None: none.
     """
 
     mask: np.ndarray
@@ -272,6 +283,7 @@ class SearchRegion:
     depth_range: tuple[float, float]
     source: str
     warnings: tuple[str, ...] = ()
+    right_excluded: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -520,6 +532,7 @@ class DepthResult:
             "counts": self.counts(),
             "coverage": None if self.coverage is None else self.coverage.to_dict(),
             "accuracy": self.accuracy,
+            "apex_band": apex_band_info(self.rig),
         }
         if self.view_counts is not None:
             per = np.bincount(self.view_counts.ravel(), minlength=len(self.faces) + 1)
@@ -678,8 +691,11 @@ def search_region(rig: Rig, pair: RectifiedPair, config: DepthConfig, left: np.n
         mask[y:y + h_, x:x + w_] = True
     else:
         mask[:] = True
+    band = apex_band_views(rig, pair)  # the views mix there (the camera's f_number / focus_distance)
+    if band is not None:
+        mask &= ~band[0]
     return SearchRegion(mask=mask & common, disparity_range=(lo, hi), depth_range=(zmin, zmax), source=source,
-                        warnings=warnings)
+                        warnings=warnings, right_excluded=None if band is None else band[1])
 
 
 def _roi_box(mask: np.ndarray) -> tuple[int, int, int, int]:
@@ -715,6 +731,8 @@ def match_pair(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, region:
     dense[out] = np.nan
     # a match must land inside the right view's valid region
     vr = np.asarray(pair.valid_masks()[1], dtype=bool)
+    if region.right_excluded is not None:
+        vr = vr & ~region.right_excluded
     src = dense if config.use_filled else raw
     ys, xs = np.nonzero(np.isfinite(src))
     xr = np.rint(xs - src[ys, xs]).astype(np.int64)
@@ -729,19 +747,29 @@ def match_pair(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, region:
 
 
 def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, disparity: np.ndarray,
-                   config: DepthConfig, *, epipolar: EpipolarTable | None) -> tuple[np.ndarray, np.ndarray]:
+                   config: DepthConfig, *, epipolar: EpipolarTable | None,
+                   filled: np.ndarray | None = None, right_excluded: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """Sub-pixel refinement, confidence and the confidence filter
     (:func:`~prismstereo.depth.confidence.confident_matches`), the right windows on the epipolar curves of
-    ``epipolar`` (:func:`epipolar_curves`; None: on the left pixels' rows); returns (disparity, confidence
-    in [0, 1], 0 for every match when the refinement is off, NaN where there is no match)."""
+    ``epipolar`` (:func:`epipolar_curves`; None: on the left pixels' rows); with ``filled`` (the matcher's
+    dense map) and ``refine_fill``, a second try from it where none was kept
+    (:func:`~prismstereo.depth.confidence.confident_fill`; none lands on ``right_excluded``); returns
+    (disparity, confidence in [0, 1], 0 for every match when the refinement is off, NaN where there is no
+    match)."""
     if not config.refine:
         return disparity, np.where(np.isfinite(disparity), np.float32(0.0), np.float32(np.nan))
     vl, vr = pair.valid_masks()
-    return confident_matches(left, right, disparity, radius=config.refine_radius,
-                             iterations=config.refine_iterations, max_shift=config.refine_max_shift,
-                             min_texture=config.refine_min_texture, min_confidence=config.min_confidence,
-                             max_lr_gap=config.refine_max_lr_gap, valid_left=vl, valid_right=vr,
-                             epipolar=epipolar, prefilter=config.refine_prefilter)
+    kw: dict[str, Any] = dict(radius=config.refine_radius, iterations=config.refine_iterations,
+                              max_shift=config.refine_max_shift,
+                              min_texture=config.refine_min_texture, min_confidence=config.min_confidence,
+                              max_lr_gap=config.refine_max_lr_gap, valid_left=vl, epipolar=epipolar,
+                              prefilter=config.refine_prefilter)
+    disp, conf = confident_matches(left, right, disparity, valid_right=vr, **kw)
+    if filled is not None and config.refine_fill and config.refine_max_lr_gap is not None:
+        vr_fill = vr if right_excluded is None else np.asarray(vr, dtype=bool) & ~right_excluded
+        disp, conf = confident_fill(left, right, disp, conf, filled, valid_right=vr_fill, **kw)
+    return disp, conf
 
 
 def remove_speckles(disparity: np.ndarray, region: SearchRegion, config: DepthConfig) -> np.ndarray:
@@ -869,7 +897,9 @@ def _run_frame(setup: DepthSetup, image: np.ndarray, left: np.ndarray, right: np
         matched = match_pair(left, right, pair, region, cfg)
     counts = {"matched": int(np.isfinite(matched.disparity).sum())}
     with clock.step("refine"):
-        disp, conf = refine_matches(left, right, pair, matched.disparity, cfg, epipolar=setup.epipolar)
+        filled = None if cfg.use_filled else matched.filled
+        disp, conf = refine_matches(left, right, pair, matched.disparity, cfg, epipolar=setup.epipolar,
+                                    filled=filled, right_excluded=region.right_excluded)
     if cfg.refine:
         counts["refined"] = int(np.isfinite(disp).sum())
     with clock.step("speckles"):

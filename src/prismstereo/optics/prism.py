@@ -84,9 +84,10 @@ def rays_from_pixels(pixels: np.ndarray, K: np.ndarray, dist: np.ndarray | tuple
 
 
 def trace_rays(
-    rig: Rig, directions: np.ndarray, *, face: int | None = None, bounded: bool = True
+    rig: Rig, directions: np.ndarray, *, face: int | None = None, bounded: bool = True,
+    origins: np.ndarray | None = None,
 ) -> RayBundle:
-    """Trace rays leaving the real camera's optical centre through the prism.
+    """Trace rays leaving the real camera's optical centre (or ``origins``) through the prism.
 
     Parameters
     ----------
@@ -101,6 +102,9 @@ def trace_rays(
         If False, treat the faces and the back plane as unbounded planes (no face-height or side-wall
         checks). Used inside solvers whose iterates may stray outside the glass; callers check the final
         answer with a bounded trace.
+    origins : (..., 3) array, optional
+        Start points of the rays (world frame, mm, in front of the prism, e.g. points of a lens aperture);
+        default the optical centre.
 
     Returns
     -------
@@ -114,18 +118,25 @@ def trace_rays(
     t = prism.tan_alpha
     apex, back, n_glass = prism.apex_distance, prism.back_distance, prism.refractive_index
     posed = prism.is_posed
+    o_rows = None if origins is None else np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+    if o_rows is not None and o_rows.shape[0] != d.shape[0]:
+        raise ValueError(f"expected one origin per direction, got {o_rows.shape[0]} and {d.shape[0]}")
     if posed:
         # Trace in the frame of the centred prism: the camera's centre and rays move by the inverse pose.
         M, apex_cam = prism.pose()
         a0 = np.array([0.0, 0.0, apex])
         o = M.T @ (-apex_cam) + a0
+        if o_rows is not None:
+            o_rows = (o_rows - apex_cam) @ M + a0
         d = d @ M  # Mᵀ d for row vectors
 
     # Half-space k of the convex front surface: z − t·(u_k·p) ≥ apex. Along p = o + s·d it is entered at
     # s_k = (apex − o_z + t·u_k·o) / (d_z − t·u_k·d); a ray with a non-positive denominator never enters it.
     denom = d[:, 2:3] - t * (d @ u.T)  # M×N
     with np.errstate(divide="ignore", invalid="ignore"):
-        if posed:
+        if o_rows is not None:
+            s_k = np.where(denom > _EPS, (apex - o_rows[:, 2:3] + t * (o_rows @ u.T)) / denom, np.inf)
+        elif posed:
             s_k = np.where(denom > _EPS, (apex - o[2] + t * (u @ o))[None, :] / denom, np.inf)
         else:
             s_k = np.where(denom > _EPS, apex / denom, np.inf)
@@ -136,7 +147,10 @@ def trace_rays(
         k = np.full(d.shape[0], int(face))
         valid = denom[:, face] > _EPS
     s = np.take_along_axis(s_k, k[:, None], axis=1)[:, 0]
-    entry = o + s[:, None] * d if posed else s[:, None] * d
+    if o_rows is not None:
+        entry = o_rows + s[:, None] * d
+    else:
+        entry = o + s[:, None] * d if posed else s[:, None] * d
     inradius = prism.inradius
     if bounded:
         valid &= entry[:, 2] <= apex + prism.face_height + 1e-9 * max(1.0, apex)

@@ -4,6 +4,9 @@
   :class:`SolidTexture`, :class:`CheckerTexture`, :class:`NoiseTexture`, :class:`ImageTexture`, in a
   :class:`Scene`; poses as Euler angles (:func:`euler_to_matrix`) or a facing normal
   (:func:`rotation_from_normal`).
+* Photographed scenes (:mod:`.rgbd`): :class:`RGBDSurface`, a colour image and its depth map (or a
+  disparity map with its calibration) rendered as a triangulated height field, ground truth unknown on the
+  skin across depth jumps; :func:`middlebury_rgbd` reads a Middlebury folder.
 * :func:`intersect_scene` — nearest hit, point, object and colour of N rays (numba).
 * :func:`render_capture` — the real camera's image through the prism with s × s supersampling, plus depth,
   face map, hit points and object ids of the pixel-centre rays (:class:`Capture`).
@@ -24,6 +27,7 @@ from prismstereo.simulate.checkerboard import (
     checkerboard_poses,
 )
 from prismstereo.simulate.render import Capture, SceneHits, intersect_scene, render_capture, sample_offsets
+from prismstereo.simulate.rgbd import depth_from_disparity, middlebury_rgbd
 from prismstereo.simulate.scene import (
     Box,
     CheckerTexture,
@@ -31,6 +35,7 @@ from prismstereo.simulate.scene import (
     NoiseTexture,
     Plane,
     Rectangle,
+    RGBDSurface,
     Scene,
     SceneObject,
     SolidTexture,
@@ -48,7 +53,9 @@ __all__ = [
     "board_rectangle",
     "board_visible",
     "checkerboard_poses",
+    "depth_from_disparity",
     "load_scene",
+    "middlebury_rgbd",
     "panel_texture_image",
     "robot_objects",
     "robot_scene",
@@ -62,6 +69,7 @@ __all__ = [
     "NoiseTexture",
     "Plane",
     "Rectangle",
+    "RGBDSurface",
     "Scene",
     "SceneHits",
     "SceneObject",

@@ -9,7 +9,7 @@ each) and the concatenated pixels of image textures. The kernel loops over rays 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numba
 import numpy as np
@@ -21,6 +21,7 @@ from prismstereo.simulate.scene import (
     NoiseTexture,
     Plane,
     Rectangle,
+    RGBDSurface,
     Scene,
     SolidTexture,
     Sphere,
@@ -29,11 +30,13 @@ from prismstereo.simulate.scene import (
 
 # primitive kinds; BOUND is a bounding sphere (centre, radius at column 13) that guards the next
 # ``int(row[14])`` primitives: a ray that misses it skips them (the six faces of a box).
-RECT, SPHERE, PLANE, BOUND = 0, 1, 2, 3
+# HFIELD is an RGB-D surface (a triangulated height field over its source camera's pixel grid, see
+# :func:`_hit_field`): columns 13 = scale, 22..31 = W, H, fx, fy, cx, cy, depth offset, zmin, zmax, flag offset.
+RECT, SPHERE, PLANE, BOUND, HFIELD = 0, 1, 2, 3, 4
 # texture kinds
 T_SOLID, T_CHECKER, T_NOISE, T_IMAGE = 0, 1, 2, 3
 
-PRIM_WIDTH = 22  # kind, c(3), e1(3), e2(3), e3(3), a, b, tex, obj, salt, ext_s, ext_t, s0, t0
+PRIM_WIDTH = 32  # kind, c(3), e1(3), e2(3), e3(3), a, b, tex, obj, salt, ext_s, ext_t, s0, t0, 10 field values
 TEX_WIDTH = 16
 
 # A fixed light for the optional Lambertian shading: direction toward the light (up-left, toward the camera).
@@ -46,14 +49,18 @@ class CompiledScene:
 
     Attributes
     ----------
-    prims : (P, 22) float64
+    prims : (P, 32) float64
     textures : (T, 16) float64
     pixels : (K,) float32, all image textures' RGB values concatenated
+    fields : (F,) float64, the filled depth maps of all RGB-D surfaces concatenated (row-major), mm
+    flags : (G,) uint8, their per-cell unknown-triangle flags (:func:`~prismstereo.simulate.rgbd.surface_mesh`)
     """
 
     prims: np.ndarray
     textures: np.ndarray
     pixels: np.ndarray
+    fields: np.ndarray = field(default_factory=lambda: np.zeros(1))
+    flags: np.ndarray = field(default_factory=lambda: np.zeros(1, dtype=np.uint8))
 
 
 def _tex_row(tex: Texture, pixel_chunks: list[np.ndarray], offset: int) -> tuple[np.ndarray, int]:
@@ -122,8 +129,31 @@ def compile_scene(scene: Scene) -> CompiledScene:
     prims: list[np.ndarray] = []
     tex_rows: list[np.ndarray] = []
     chunks: list[np.ndarray] = []
+    field_chunks: list[np.ndarray] = []
+    flag_chunks: list[np.ndarray] = []
+    n_field = n_flag = 0
     offset = 0
     for obj_id, obj in enumerate(scene.objects):
+        if isinstance(obj, RGBDSurface):
+            from prismstereo.simulate.rgbd import surface_mesh  # rgbd imports the scene model, not the kernels
+
+            w, h = obj.size
+            texture: Texture = ImageTexture(image=obj.image, size=(float(w), float(h)))
+            trow, offset = _tex_row(texture, chunks, offset)
+            tex_rows.append(trow)
+            depth, flags = surface_mesh(obj)
+            row = _prim(HFIELD, np.asarray(obj.origin, dtype=np.float64), obj.matrix, obj.scale, 0.0, obj_id, 0,
+                        (0.0, 0.0), (0.0, 0.0))
+            row[15] = len(tex_rows) - 1
+            cx, cy = obj.center
+            row[22:32] = (w, h, obj.focal[0], obj.focal[1], cx, cy, n_field, float(depth.min()),
+                          float(depth.max()), n_flag)
+            prims.append(row)
+            field_chunks.append(depth.ravel())
+            flag_chunks.append(flags.ravel())
+            n_field += depth.size
+            n_flag += flags.size
+            continue
         trow, offset = _tex_row(obj.texture, chunks, offset)
         tex_id = len(tex_rows)
         tex_rows.append(trow)
@@ -150,7 +180,10 @@ def compile_scene(scene: Scene) -> CompiledScene:
     prim_arr = np.stack(prims) if prims else np.zeros((0, PRIM_WIDTH))
     tex_arr = np.stack(tex_rows) if tex_rows else np.zeros((0, TEX_WIDTH))
     pix = np.concatenate(chunks).astype(np.float32) if chunks else np.zeros(1, np.float32)
-    return CompiledScene(prims=np.ascontiguousarray(prim_arr), textures=np.ascontiguousarray(tex_arr), pixels=pix)
+    fields = np.concatenate(field_chunks) if field_chunks else np.zeros(1)
+    flag_arr = np.concatenate(flag_chunks).astype(np.uint8) if flag_chunks else np.zeros(1, dtype=np.uint8)
+    return CompiledScene(prims=np.ascontiguousarray(prim_arr), textures=np.ascontiguousarray(tex_arr), pixels=pix,
+                         fields=np.ascontiguousarray(fields, dtype=np.float64), flags=np.ascontiguousarray(flag_arr))
 
 
 # --------------------------------------------------------------------------- numba helpers
@@ -273,20 +306,201 @@ def _texture(tex: np.ndarray, pixels: np.ndarray, s: float, t: float, ext_s: flo
     return r, g, b
 
 
+@numba.njit(cache=True, inline="always")
+def _clip(a: float, b: float, lo: float, hi: float) -> tuple[float, float]:
+    """Narrow the ray interval [lo, hi] to the t with a + b·t ≥ 0."""
+    if b > 0.0:
+        lo = max(lo, -a / b)
+    elif b < 0.0:
+        hi = min(hi, -a / b)
+    elif a < 0.0:
+        hi = -math.inf
+    return lo, hi
+
+
+@numba.njit(cache=True, inline="always")
+def _triangle(ox: float, oy: float, oz: float, dx: float, dy: float, dz: float,
+              ax: float, ay: float, az: float, bx: float, by: float, bz: float,
+              cx: float, cy: float, cz: float) -> tuple[float, float, float, float]:
+    """Möller–Trumbore: ray parameter of the hit with triangle abc (inf if none) and its normal (b−a)×(c−a)."""
+    e1x = bx - ax
+    e1y = by - ay
+    e1z = bz - az
+    e2x = cx - ax
+    e2y = cy - ay
+    e2z = cz - az
+    px = dy * e2z - dz * e2y
+    py = dz * e2x - dx * e2z
+    pz = dx * e2y - dy * e2x
+    det = e1x * px + e1y * py + e1z * pz
+    nx = e1y * e2z - e1z * e2y
+    ny = e1z * e2x - e1x * e2z
+    nz = e1x * e2y - e1y * e2x
+    if det == 0.0 or not math.isfinite(det):
+        return math.inf, nx, ny, nz
+    inv = 1.0 / det
+    tx = ox - ax
+    ty = oy - ay
+    tz = oz - az
+    u = (tx * px + ty * py + tz * pz) * inv
+    tol = 1e-9  # the two triangles of a cell and the neighbouring cells overlap by this much: no pinholes
+    if u < -tol or u > 1.0 + tol:
+        return math.inf, nx, ny, nz
+    qx = ty * e1z - tz * e1y
+    qy = tz * e1x - tx * e1z
+    qz = tx * e1y - ty * e1x
+    v = (dx * qx + dy * qy + dz * qz) * inv
+    if v < -tol or u + v > 1.0 + tol:
+        return math.inf, nx, ny, nz
+    return (e2x * qx + e2y * qy + e2z * qz) * inv, nx, ny, nz
+
+
+@numba.njit(cache=True)
+def _hit_field(prim: np.ndarray, fields: np.ndarray, flags: np.ndarray, ox: float, oy: float, oz: float,
+               dx: float, dy: float, dz: float, t_max: float
+               ) -> tuple[float, float, float, int, float, float, float]:
+    """Nearest hit of a ray with an RGB-D surface (a triangulated height field), exactly.
+
+    The ray is moved into the source camera's frame (p' = Rᵀ(p − origin)/scale; the ray parameter is
+    unchanged) and clipped to the slab zmin ≤ z ≤ zmax of the depths and to the pixel grid's frustum
+    0 ≤ u ≤ W − 1, 0 ≤ v ≤ H − 1. Every triangle of cell (i, j) projects into the square [i, i+1]×[j, j+1]
+    (its vertices project onto the grid points and a flat triangle projects onto the triangle of its
+    projected vertices), and the clipped ray projects onto a segment traversed in order of increasing ray
+    parameter, so walking the segment's cells (2-D DDA) and testing their two triangles finds the nearest hit.
+
+    Returns
+    -------
+    t (inf if none), u, v (hit's projection into the source image, px), unknown (1 = no ground truth),
+    normal (world, unnormalised).
+    """
+    c0 = prim[1]
+    c1 = prim[2]
+    c2 = prim[3]
+    sc = prim[13]
+    rx = ox - c0
+    ry = oy - c1
+    rz = oz - c2
+    lox = (rx * prim[4] + ry * prim[5] + rz * prim[6]) / sc
+    loy = (rx * prim[7] + ry * prim[8] + rz * prim[9]) / sc
+    loz = (rx * prim[10] + ry * prim[11] + rz * prim[12]) / sc
+    ldx = (dx * prim[4] + dy * prim[5] + dz * prim[6]) / sc
+    ldy = (dx * prim[7] + dy * prim[8] + dz * prim[9]) / sc
+    ldz = (dx * prim[10] + dy * prim[11] + dz * prim[12]) / sc
+    w = np.int64(prim[22])
+    h = np.int64(prim[23])
+    fx = prim[24]
+    fy = prim[25]
+    cx = prim[26]
+    cy = prim[27]
+    off = np.int64(prim[28])
+    zmin = prim[29]
+    zmax = prim[30]
+    foff = np.int64(prim[31])
+    lo = 1e-9
+    hi = t_max
+    lo, hi = _clip(loz - zmin * (1.0 - 1e-12), ldz, lo, hi)
+    lo, hi = _clip(zmax * (1.0 + 1e-12) - loz, -ldz, lo, hi)
+    lo, hi = _clip(fx * lox - (0.0 - cx) * loz, fx * ldx - (0.0 - cx) * ldz, lo, hi)
+    lo, hi = _clip((w - 1.0 - cx) * loz - fx * lox, (w - 1.0 - cx) * ldz - fx * ldx, lo, hi)
+    lo, hi = _clip(fy * loy - (0.0 - cy) * loz, fy * ldy - (0.0 - cy) * ldz, lo, hi)
+    lo, hi = _clip((h - 1.0 - cy) * loz - fy * loy, (h - 1.0 - cy) * ldz - fy * ldy, lo, hi)
+    if not hi >= lo or not math.isfinite(hi):
+        return math.inf, 0.0, 0.0, 0, 0.0, 0.0, 0.0
+    za = loz + lo * ldz
+    zb = loz + hi * ldz
+    u0 = min(w - 1.0, max(0.0, fx * (lox + lo * ldx) / za + cx))
+    v0 = min(h - 1.0, max(0.0, fy * (loy + lo * ldy) / za + cy))
+    u1 = min(w - 1.0, max(0.0, fx * (lox + hi * ldx) / zb + cx))
+    v1 = min(h - 1.0, max(0.0, fy * (loy + hi * ldy) / zb + cy))
+    du = u1 - u0
+    dv = v1 - v0
+    i = min(np.int64(math.floor(u0)), w - 2)
+    j = min(np.int64(math.floor(v0)), h - 2)
+    si = 1 if du > 0.0 else -1
+    sj = 1 if dv > 0.0 else -1
+    if du != 0.0:
+        tmu = ((i + 1.0 if du > 0.0 else float(i)) - u0) / du
+        tdu = 1.0 / abs(du)
+    else:
+        tmu = math.inf
+        tdu = math.inf
+    if dv != 0.0:
+        tmv = ((j + 1.0 if dv > 0.0 else float(j)) - v0) / dv
+        tdv = 1.0 / abs(dv)
+    else:
+        tmv = math.inf
+        tdv = math.inf
+    best = math.inf
+    bnx = 0.0
+    bny = 0.0
+    bnz = 0.0
+    bunk = 0
+    for _ in range(2 * (w + h) + 4):
+        if i < 0 or j < 0 or i > w - 2 or j > h - 2:
+            break
+        k = off + j * w + i
+        z00 = fields[k]
+        z10 = fields[k + 1]
+        z01 = fields[k + w]
+        z11 = fields[k + w + 1]
+        xa = (i - cx) / fx
+        xb = (i + 1.0 - cx) / fx
+        ya = (j - cy) / fy
+        yb = (j + 1.0 - cy) / fy
+        fl = flags[foff + j * (w - 1) + i]
+        t0, n0x, n0y, n0z = _triangle(lox, loy, loz, ldx, ldy, ldz, xa * z00, ya * z00, z00, xb * z10, ya * z10,
+                                      z10, xb * z11, yb * z11, z11)
+        if t0 > 1e-9 and t0 < best and t0 < t_max:
+            best = t0
+            bnx = n0x
+            bny = n0y
+            bnz = n0z
+            bunk = fl & 1
+        t1, n1x, n1y, n1z = _triangle(lox, loy, loz, ldx, ldy, ldz, xa * z00, ya * z00, z00, xb * z11, yb * z11,
+                                      z11, xa * z01, yb * z01, z01)
+        if t1 > 1e-9 and t1 < best and t1 < t_max:
+            best = t1
+            bnx = n1x
+            bny = n1y
+            bnz = n1z
+            bunk = (fl >> 1) & 1
+        if best < math.inf or min(tmu, tmv) > 1.0:
+            break
+        if tmu < tmv:
+            i += si
+            tmu += tdu
+        else:
+            j += sj
+            tmv += tdv
+    if best == math.inf:
+        return math.inf, 0.0, 0.0, 0, 0.0, 0.0, 0.0
+    px = lox + best * ldx
+    py = loy + best * ldy
+    pz = loz + best * ldz
+    hu = fx * px / pz + cx
+    hv = fy * py / pz + cy
+    wnx = bnx * prim[4] + bny * prim[7] + bnz * prim[10]
+    wny = bnx * prim[5] + bny * prim[8] + bnz * prim[11]
+    wnz = bnx * prim[6] + bny * prim[9] + bnz * prim[12]
+    return best, hu, hv, bunk, wnx, wny, wnz
+
+
 @numba.njit(cache=True, parallel=True, nogil=True)
 def trace_scene_kernel(origins: np.ndarray, directions: np.ndarray, prims: np.ndarray, textures: np.ndarray,
-                       pixels: np.ndarray, shading: float, light: np.ndarray, distance: np.ndarray,
-                       object_id: np.ndarray, points: np.ndarray, colors: np.ndarray) -> None:
+                       pixels: np.ndarray, fields: np.ndarray, flags: np.ndarray, shading: float,
+                       light: np.ndarray, distance: np.ndarray, object_id: np.ndarray, points: np.ndarray,
+                       colors: np.ndarray) -> None:
     """Nearest hit of each ray with the primitives, its point, object id and shaded colour.
 
     Parameters
     ----------
     origins, directions : (N, 3) float64; rows with NaN are skipped (no hit).
-    prims, textures, pixels : arrays of :class:`CompiledScene`.
+    prims, textures, pixels, fields, flags : arrays of :class:`CompiledScene`.
     shading : float in [0, 1]; light : (3,) unit direction toward the light.
     distance : (N,) float64 out: ray parameter times |d| (mm along the ray), NaN if no hit.
     object_id : (N,) int32 out: −1 if no hit.
-    points : (N, 3) float64 out; colors : (N, 3) float32 out (NaN if no hit).
+    points : (N, 3) float64 out (NaN if no hit, and where an RGB-D surface has no ground truth);
+    colors : (N, 3) float32 out (NaN if no hit).
     """
     n = origins.shape[0]
     n_prims = prims.shape[0]
@@ -299,12 +513,31 @@ def trace_scene_kernel(origins: np.ndarray, directions: np.ndarray, prims: np.nd
         dz = directions[r, 2]
         best_t = np.inf
         best_p = -1
+        fu = 0.0
+        fv = 0.0
+        funk = 0
+        fnx = 0.0
+        fny = 0.0
+        fnz = 0.0
         if math.isfinite(ox + oy + oz + dx + dy + dz):
             dd = dx * dx + dy * dy + dz * dz
             p = -1
             while p + 1 < n_prims:
                 p += 1
                 kind = prims[p, 0]
+                if kind == 4:
+                    th, hu, hv, hunk, hnx, hny, hnz = _hit_field(prims[p], fields, flags, ox, oy, oz, dx, dy, dz,
+                                                                 best_t)
+                    if th < best_t:
+                        best_t = th
+                        best_p = p
+                        fu = hu
+                        fv = hv
+                        funk = hunk
+                        fnx = hnx
+                        fny = hny
+                        fnz = hnz
+                    continue
                 cx = prims[p, 1] - ox
                 cy = prims[p, 2] - oy
                 cz = prims[p, 3] - oz
@@ -361,16 +594,32 @@ def trace_scene_kernel(origins: np.ndarray, directions: np.ndarray, prims: np.nd
         pz = oz + best_t * dz
         distance[r] = best_t * math.sqrt(dd)
         object_id[r] = np.int32(prims[p, 16])
-        points[r, 0] = px
-        points[r, 1] = py
-        points[r, 2] = pz
+        if funk and prims[p, 0] == 4:
+            points[r, 0] = np.nan
+            points[r, 1] = np.nan
+            points[r, 2] = np.nan
+        else:
+            points[r, 0] = px
+            points[r, 1] = py
+            points[r, 2] = pz
         qx = px - prims[p, 1]
         qy = py - prims[p, 2]
         qz = pz - prims[p, 3]
         u = qx * prims[p, 4] + qy * prims[p, 5] + qz * prims[p, 6]
         v = qx * prims[p, 7] + qy * prims[p, 8] + qz * prims[p, 9]
         kind = prims[p, 0]
-        if kind == 1:
+        if kind == 4:
+            s = fu + 0.5
+            tt = fv + 0.5
+            nn = math.sqrt(fnx * fnx + fny * fny + fnz * fnz)
+            nx = fnx / nn if nn > 0.0 else 0.0
+            ny = fny / nn if nn > 0.0 else 0.0
+            nz = fnz / nn if nn > 0.0 else 0.0
+            if nx * dx + ny * dy + nz * dz > 0.0:
+                nx = -nx
+                ny = -ny
+                nz = -nz
+        elif kind == 1:
             w = qx * prims[p, 10] + qy * prims[p, 11] + qz * prims[p, 12]
             rad = prims[p, 13]
             s = rad * (math.atan2(u, -w) + math.pi)

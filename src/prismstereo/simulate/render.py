@@ -13,12 +13,14 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from prismstereo.config import Rig
 from prismstereo.errors import ConfigError
 from prismstereo.optics import trace_rays
 from prismstereo.optics.distortion import undistort_points
+from prismstereo.optics.lens import aperture_diameter, aperture_points
 from prismstereo.simulate.kernels import (
     LIGHT,
     CompiledScene,
@@ -105,8 +107,8 @@ def intersect_scene(
     object_id = np.empty(n, dtype=np.int32)
     points = np.empty((n, 3))
     colors = np.empty((n, 3), dtype=np.float32)
-    trace_scene_kernel(o, d, compiled.prims, compiled.textures, compiled.pixels, float(shade), LIGHT,
-                       distance, object_id, points, colors)
+    trace_scene_kernel(o, d, compiled.prims, compiled.textures, compiled.pixels, compiled.fields, compiled.flags,
+                       float(shade), LIGHT, distance, object_id, points, colors)
     return SceneHits(distance=distance, points=points, object_id=object_id, colors=colors)
 
 
@@ -152,9 +154,13 @@ class Capture:
         return {int(k): float(c) / self.faces.size for k, c in zip(ids, counts, strict=True)}
 
 
-def _trace(rig: Rig, pixels: np.ndarray, prism: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _trace(rig: Rig, pixels: np.ndarray, prism: bool, aperture: np.ndarray | None = None,
+           focus: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Rays of real pixels (N, 2): what :func:`prismstereo.optics.trace_pixels` gives, without its
-    per-call inverse of K (the pinhole direction K⁻¹[u, v, 1] is computed directly; trace_rays normalises)."""
+    per-call inverse of K (the pinhole direction K⁻¹[u, v, 1] is computed directly; trace_rays normalises).
+
+    With ``aperture`` (N, 2), mm: thin-lens rays, each from its aperture point (x, y, 0) toward the pixel's
+    in-focus point ``focus · (x_n, y_n, 1)`` (x_n, y_n its undistorted normalised point), through the prism."""
     cam = rig.camera
     cx, cy = cam.center
     d = np.empty((pixels.shape[0], 3))
@@ -169,12 +175,17 @@ def _trace(rig: Rig, pixels: np.ndarray, prism: bool) -> tuple[np.ndarray, np.nd
     if cam.has_distortion:
         d[:, :2] = undistort_points(d[:, :2], cam.distortion)
     d[:, 2] = 1.0
+    o = None
+    if aperture is not None:
+        o = np.zeros_like(d)
+        o[:, :2] = aperture
+        d = d * focus - o
     if prism:
-        b = trace_rays(rig, d)
+        b = trace_rays(rig, d, origins=o)
         return b.origins, b.directions, b.face, b.valid
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     n = pixels.shape[0]
-    return np.zeros((n, 3)), d, np.zeros(n, dtype=np.int64), np.ones(n, dtype=bool)
+    return (np.zeros((n, 3)) if o is None else o), d, np.zeros(n, dtype=np.int64), np.ones(n, dtype=bool)
 
 
 def sample_offsets(supersample: int) -> np.ndarray:
@@ -210,6 +221,15 @@ def _render_pass(
     W, H = rig.camera.width, rig.camera.height
     offsets = sample_offsets(s)
     n_samp = s * s
+    aperture = None
+    focus = 0.0
+    if scene.lens is not None:
+        # thin lens: sample k has sub-pixel offset k mod s² and aperture point k (a golden-angle spiral, so
+        # each sub-pixel position gets points spread over the whole pupil)
+        n_samp = max(scene.lens.samples, s * s)
+        aperture = aperture_points(n_samp, aperture_diameter(rig, f_number=scene.lens.f_number))
+        offsets = offsets[np.arange(n_samp) % (s * s)]
+        focus = scene.lens.focus_distance
     background = np.asarray(scene.background, dtype=np.float32)
 
     image = np.empty((H, W, 3), dtype=np.float32)
@@ -222,7 +242,7 @@ def _render_pass(
     # ~256k rays; each block then goes to the parallel numba kernels in one call. A helper thread traces
     # the next block while the kernels (which release the GIL) shade the current one.
     # With odd s the middle sample is the pixel centre; with even s the centre ray is traced in addition.
-    extra = 0 if s % 2 else 1
+    extra = 0 if (s % 2 and aperture is None) else 1
     mid = n_samp // 2
     per_row = W * (n_samp + extra)
     block_rows = max(1, _RAYS_PER_BLOCK // per_row)
@@ -236,13 +256,18 @@ def _render_pass(
         samples = (centres[:, :, None, :] + offsets[None, None, :, :]).reshape(-1, 2)  # (h·W·S, 2)
         px = np.concatenate([centres.reshape(-1, 2), samples]) if extra else samples
         n = px.shape[0]
+        ap = None
+        if aperture is not None:  # the centre rays are the pinhole's (chief rays): the ground truth
+            ap = np.concatenate([np.zeros((centres.shape[0] * W, 2)),
+                                 np.broadcast_to(aperture, (centres.shape[0] * W, n_samp, 2)).reshape(-1, 2)])
         origins = np.empty((n, 3))
         dirs = np.empty((n, 3))
         face = np.empty(n, dtype=np.int64)
         valid = np.empty(n, dtype=bool)
         for c0 in range(0, n, chunk_rays):
             c1 = min(n, c0 + chunk_rays)
-            origins[c0:c1], dirs[c0:c1], face[c0:c1], valid[c0:c1] = _trace(rig, px[c0:c1], prism)
+            origins[c0:c1], dirs[c0:c1], face[c0:c1], valid[c0:c1] = _trace(
+                rig, px[c0:c1], prism, None if ap is None else ap[c0:c1], focus)
         return origins, dirs, face, valid
 
     starts = list(range(0, H, block_rows))
@@ -278,6 +303,53 @@ def _render_pass(
     return image, depth, faces, points, object_ids
 
 
+#: OpenCV names a Bayer pattern by the second row's second and third pixels: RGGB is its "BG".
+_CV_BAYER = {"RGGB": "BG", "BGGR": "RG", "GRBG": "GB", "GBRG": "GR"}
+_CV_DEMOSAIC = {"bilinear": "", "edge-aware": "_EA", "vng": "_VNG"}
+_PATTERN_CHANNEL = {p: [["RGB".index(p[0]), "RGB".index(p[1])], ["RGB".index(p[2]), "RGB".index(p[3])]]
+                    for p in _CV_BAYER}
+
+
+def bayer_mosaic(image: np.ndarray, pattern: str) -> np.ndarray:
+    """(H, W) one channel per pixel of an (H, W, 3) RGB image through a colour filter array.
+
+    ``pattern`` names the colours of the top-left 2×2 pixels row by row ("RGGB", "BGGR", "GRBG", "GBRG").
+    """
+    if pattern not in _PATTERN_CHANNEL:
+        raise ConfigError(f"bayer: expected one of {', '.join(_PATTERN_CHANNEL)}, got {pattern!r}")
+    img = np.asarray(image)
+    out = np.empty(img.shape[:2], dtype=img.dtype)
+    ch = _PATTERN_CHANNEL[pattern]
+    for i in range(2):
+        for j in range(2):
+            out[i::2, j::2] = img[i::2, j::2, ch[i][j]]
+    return out
+
+
+def demosaic(mosaic: np.ndarray, pattern: str, *, method: str = "edge-aware") -> np.ndarray:
+    """(H, W, 3) uint8 RGB from an (H, W) uint8 Bayer mosaic (OpenCV's bilinear, edge-aware or VNG)."""
+    if pattern not in _CV_BAYER:
+        raise ConfigError(f"bayer: expected one of {', '.join(_CV_BAYER)}, got {pattern!r}")
+    if method not in _CV_DEMOSAIC:
+        raise ConfigError(f"demosaic: expected one of {', '.join(_CV_DEMOSAIC)}, got {method!r}")
+    code = getattr(cv2, f"COLOR_Bayer{_CV_BAYER[pattern]}2RGB{_CV_DEMOSAIC[method]}")
+    return np.ascontiguousarray(cv2.cvtColor(np.ascontiguousarray(mosaic, dtype=np.uint8), code))
+
+
+def jpeg_roundtrip(image: np.ndarray, *, quality: int) -> np.ndarray:
+    """An (H, W, 3) uint8 RGB image after JPEG encoding at ``quality`` (1..100, OpenCV/libjpeg, 4:2:0) and
+    decoding: what a camera that saves JPEG gives."""
+    if isinstance(quality, bool) or not isinstance(quality, int | np.integer) or not 1 <= quality <= 100:
+        raise ConfigError(f"jpeg_quality: expected an integer in 1..100, got {quality!r}")
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(image[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:  # pragma: no cover - OpenCV always encodes a uint8 image
+        raise ConfigError("jpeg_quality: OpenCV could not encode the capture as JPEG")
+    decoded = cv2.imdecode(buf, cv2.IMREAD_COLOR)
+    if decoded is None:  # pragma: no cover
+        raise ConfigError("jpeg_quality: OpenCV could not decode its own JPEG")
+    return np.ascontiguousarray(np.asarray(decoded)[..., ::-1])
+
+
 def render_capture(
     rig: Rig,
     scene: Scene,
@@ -305,9 +377,12 @@ def render_capture(
     Notes
     -----
     The camera model is the rig's: a distorting lens (``rig.camera.distortion``) and a misaligned prism
-    (``tilt``, ``decenter``) are rendered exactly. The sensor then applies, in this order, the scene's
-    vignetting, dispersion (red and blue channels traced with their own index when ``scene.abbe`` is set),
-    additive Gaussian noise and rounding to 8 bits.
+    (``tilt``, ``decenter``) are rendered exactly; ``scene.lens`` (a thin lens) traces each sample from
+    points across the aperture through its in-focus point (defocus, the apex band). The sensor then applies,
+    in this order, the scene's vignetting, dispersion (red and blue channels traced with their own index
+    when ``scene.abbe`` is set), the Bayer mosaic (``scene.bayer``: one channel per pixel), additive
+    Gaussian noise, rounding to 8 bits, demosaicing and JPEG compression (``scene.jpeg_quality``).
+    Ground truth is always the pixel centre's chief ray (the pinhole ray).
 
     Returns
     -------
@@ -335,10 +410,16 @@ def render_capture(
     out = image * np.float32(255.0)
     if scene.vignetting > 0:
         out *= vignetting_gain(rig, scene.vignetting)[..., None]
+    if scene.bayer is not None:
+        out = bayer_mosaic(out, scene.bayer)
     if sigma > 0:
         rng = np.random.default_rng(scene.seed if seed is None else seed)
         out += rng.normal(0.0, sigma, size=out.shape).astype(np.float32)
     img8 = np.clip(np.rint(out), 0, 255).astype(np.uint8)
+    if scene.bayer is not None:
+        img8 = demosaic(img8, scene.bayer, method=scene.demosaic)
+    if scene.jpeg_quality is not None:
+        img8 = jpeg_roundtrip(img8, quality=scene.jpeg_quality)
     dt = time.perf_counter() - t0
     log.info("rendered %dx%d with %dx%d supersampling in %.2f s", W, H, s, s, dt)
     return Capture(image=img8, depth=depth, faces=faces, points=points, object_ids=object_ids,

@@ -11,6 +11,8 @@ coordinates (s, t) in mm:
 * :class:`Sphere` — s = R·(longitude + π) with longitude 0 toward local −Z, t = R·colatitude from the
   local −Y pole (the top).
 * :class:`Plane` — an infinite plane (e.g. a background wall); s, t measured from its centre.
+* :class:`RGBDSurface` — a photographed scene: a colour image and its depth map as a triangulated height
+  field over the source camera's pixel grid, its colour the photograph (no separate texture).
 
 Rotations are given as extrinsic XYZ Euler angles in degrees (``R = Rz·Ry·Rx``, local-to-world), or built
 from a facing normal with :func:`rotation_from_normal`.
@@ -24,6 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -334,7 +337,184 @@ class Plane(_Posed):
     name: str = ""
 
 
-SceneObject = Rectangle | Box | Sphere | Plane
+@dataclass(frozen=True)
+class RGBDSurface:
+    """A photographed scene: a colour image and its depth map, rendered as a triangulated height field.
+
+    The source camera is a pinhole with focal lengths ``focal`` = (fx, fy) px and principal point ``cx, cy``
+    (default the image centre ((W − 1)/2, (H − 1)/2)); its pixel (u, v) with depth Z (mm, along its optical
+    axis) is the point ``Z · ((u − cx)/fx, (v − cy)/fy, 1)`` of its own frame. The surface is the mesh of
+    these points: every cell of four neighbouring pixels is two flat triangles, (u, v)–(u+1, v)–(u+1, v+1)
+    and (u, v)–(u+1, v+1)–(u, v+1), intersected by rays exactly (:mod:`.kernels`); a hit's colour is the
+    image, bilinear, at the hit's projection into the source camera (which is what it photographed).
+
+    Pose and size: a world point is ``origin + scale · R · p`` with p in the source frame and R the
+    rotation of ``rotation`` (:func:`euler_to_matrix`), so the object is a similar copy of the photographed
+    scene (``scale`` < 1: smaller) seen by the source camera from ``origin``. :meth:`placed` puts the
+    scene's median depth at a chosen world depth.
+
+    Ground truth is unknown (NaN points, inf in ``depth_gt.pfm``) where a ray hits a triangle that is
+    stretched across a depth jump, i.e. whose three depths spread by more than ``jump`` times the smallest
+    (the "skin" a depth map spans between a foreground edge and the background), and where a triangle
+    touches a pixel of unknown depth. Unknown depths are filled for rendering (each with the farther of the
+    nearest known depths to its left and right in its row: occlusions in a stereo depth map are background).
+
+    Attributes
+    ----------
+    image : (H, W, 3) uint8/uint16/float array (or (H, W) grey)
+        Colour, RGB.
+    depth : (H, W) float array
+        Depth Z in mm in the source camera frame; NaN, inf or ≤ 0 = unknown.
+    focal : (fx, fy)
+        Source camera focal lengths, px.
+    principal_point : (cx, cy) or None
+        Px; None = ((W − 1)/2, (H − 1)/2).
+    origin : (3,)
+        World position of the source camera's centre, mm.
+    rotation : (3,)
+        Extrinsic XYZ Euler angles of the source camera's axes in the world, degrees.
+    scale : float
+        Size of the copy relative to the photographed scene (> 0).
+    jump : float
+        Relative depth spread above which a triangle is skin (> 0).
+    name : str
+    source : mapping
+        How the object was read (file paths and calibration), written back to a resolved scene file.
+    """
+
+    image: np.ndarray = field(repr=False, compare=False, default_factory=lambda: np.zeros((2, 2, 3)))
+    depth: np.ndarray = field(repr=False, compare=False, default_factory=lambda: np.ones((2, 2)))
+    focal: tuple[float, float] = (1000.0, 1000.0)
+    principal_point: tuple[float, float] | None = None
+    origin: Vec3 = (0.0, 0.0, 0.0)
+    rotation: Vec3 = _IDENTITY
+    scale: float = 1.0
+    jump: float = 0.02
+    name: str = ""
+    source: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
+
+    def __post_init__(self) -> None:
+        img = np.asarray(self.image)
+        if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] < 3) or min(img.shape[:2]) < 2:
+            raise ConfigError(f"RGBDSurface image: expected an H×W×3 (or H×W) array with H, W >= 2, got shape "
+                              f"{img.shape}")
+        dep = np.asarray(self.depth)
+        if dep.ndim != 2 or not np.issubdtype(dep.dtype, np.number):
+            raise ConfigError(f"RGBDSurface depth: expected an H×W array of numbers, got shape {dep.shape}")
+        if dep.shape != img.shape[:2]:
+            raise ConfigError(f"RGBDSurface depth: expected the colour image's size {img.shape[1]}×{img.shape[0]}, "
+                              f"got {dep.shape[1]}×{dep.shape[0]}; give a depth map of the same view and size")
+        d = np.asarray(dep, dtype=np.float64)
+        with np.errstate(invalid="ignore"):
+            known = np.isfinite(d) & (d > 0)
+        if not known.any():
+            raise ConfigError("RGBDSurface depth: expected some known (finite, positive) depths, got none")
+        object.__setattr__(self, "depth", np.where(known, d, np.nan))
+        _vec(self, "focal", 2, positive=True)
+        if self.principal_point is not None:
+            _vec(self, "principal_point", 2)
+        _vec(self, "origin", 3)
+        _vec(self, "rotation", 3)
+        _scalar(self, "scale", positive=True)
+        _scalar(self, "jump", positive=True)
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(W, H) of the source images, px."""
+        return (int(self.depth.shape[1]), int(self.depth.shape[0]))
+
+    @property
+    def center(self) -> tuple[float, float]:
+        """(cx, cy) of the source camera, px."""
+        if self.principal_point is not None:
+            return (float(self.principal_point[0]), float(self.principal_point[1]))
+        w, h = self.size
+        return ((w - 1) / 2.0, (h - 1) / 2.0)
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """(3, 3) source-camera-to-world rotation; columns are the source camera's axes."""
+        return euler_to_matrix(self.rotation)
+
+    @property
+    def median_depth(self) -> float:
+        """Median of the known source depths, mm (before scaling)."""
+        return float(np.nanmedian(self.depth))
+
+    def points(self) -> np.ndarray:
+        """(H, W, 3) world points of the depth map's pixels (the mesh vertices), mm; NaN where unknown."""
+        w, h = self.size
+        cx, cy = self.center
+        vv, uu = np.mgrid[0:h, 0:w].astype(np.float64)
+        z = self.depth
+        local = np.stack([(uu - cx) / self.focal[0] * z, (vv - cy) / self.focal[1] * z, z], axis=-1)
+        return self.scale * local @ self.matrix.T + np.asarray(self.origin)
+
+    @classmethod
+    def placed(cls, image: np.ndarray, depth: np.ndarray, *, focal: tuple[float, float],
+               center_depth: float, principal_point: tuple[float, float] | None = None,
+               scale: float | None = None, width: float | None = None, jump: float = 0.02, name: str = "",
+               source: dict[str, Any] | None = None) -> RGBDSurface:
+        """The scene facing the camera with its median depth at world depth ``center_depth`` (mm).
+
+        The source camera looks along world +Z from ``(0, 0, center_depth − scale · median_depth)``.
+        ``scale`` default: ``center_depth / median_depth`` (the source camera at the real camera's centre,
+        so the copy fills the same angles as the photograph); ``width`` (mm) instead: the scale at which
+        the photograph's field is ``width`` wide at its median depth.
+        """
+        if scale is not None and width is not None:
+            raise ConfigError(f"RGBDSurface: expected scale or width, got both ({scale!r}, {width!r})")
+        probe = cls(image=image, depth=depth, focal=focal, principal_point=principal_point, jump=jump, name=name)
+        if isinstance(center_depth, bool) or not isinstance(center_depth, int | float) \
+                or not math.isfinite(center_depth) or center_depth <= 0:
+            raise ConfigError(f"RGBDSurface center_depth: expected a positive number of mm, got {center_depth!r}")
+        zmed = probe.median_depth
+        if width is not None:
+            if isinstance(width, bool) or not isinstance(width, int | float) or not math.isfinite(width) \
+                    or width <= 0:
+                raise ConfigError(f"RGBDSurface width: expected a positive number of mm, got {width!r}")
+            scale = float(width) / (probe.size[0] * zmed / probe.focal[0])
+        s = float(center_depth) / zmed if scale is None else scale
+        return cls(image=image, depth=depth, focal=focal, principal_point=principal_point,
+                   origin=(0.0, 0.0, float(center_depth) - float(s) * zmed), scale=s, jump=jump, name=name,
+                   source=dict(source or {}))
+
+
+SceneObject = Rectangle | Box | Sphere | Plane | RGBDSurface
+
+
+BAYER_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
+DEMOSAIC_METHODS = ("bilinear", "edge-aware", "vng")
+
+
+@dataclass(frozen=True)
+class ThinLens:
+    """A thin lens at the optical centre (docs/scenes.md): defocus and the apex band come from tracing.
+
+    Each pixel sample is ``samples`` rays from points spread over the entrance pupil (diameter
+    focal length / ``f_number``, :func:`prismstereo.optics.lens.aperture_points`) toward the sample's in-focus
+    point on the plane z = ``focus_distance``, each traced through the face it meets.
+
+    Attributes
+    ----------
+    f_number : float
+        N (≥ 0.5).
+    focus_distance : float
+        Distance of the plane in focus, mm along the optical axis (> 0).
+    samples : int
+        Aperture rays per pixel sample (1..256).
+    """
+
+    f_number: float = 8.0
+    focus_distance: float = 1400.0
+    samples: int = 16
+
+    def __post_init__(self) -> None:
+        _scalar(self, "f_number", lo=0.5, hi=1000.0)
+        _scalar(self, "focus_distance", positive=True)
+        if isinstance(self.samples, bool) or not isinstance(self.samples, int | np.integer) \
+                or not 1 <= self.samples <= 256:
+            raise ConfigError(f"ThinLens samples: expected an integer in 1..256, got {self.samples!r}")
 
 
 @dataclass(frozen=True)
@@ -364,6 +544,16 @@ class Scene:
         Abbe number V_d of the glass for dispersion: the red, green and blue channels are rendered with
         the refractive indices of the C (656 nm), d (588 nm) and F (486 nm) lines of a Cauchy glass with
         n_d = the rig's index and n_F − n_C = (n_d − 1) / V_d, which gives colour fringes. None = no dispersion.
+    lens : ThinLens or None
+        A thin lens (defocus, and the band around the apex line where two views mix); None = a pinhole.
+    bayer : str or None
+        Colour filter mosaic ("RGGB", "BGGR", "GRBG", "GBRG": the colours of the top-left 2×2 pixels, row by
+        row): the sensor records one channel per pixel (noise is added to it), and the image is demosaiced
+        with ``demosaic``; None = every pixel records RGB.
+    demosaic : str
+        "bilinear", "edge-aware" or "vng" (OpenCV's Bayer conversions).
+    jpeg_quality : int or None
+        Store the capture as a JPEG of this quality (1..100) and decode it; None = lossless.
     """
 
     objects: tuple[SceneObject, ...] = ()
@@ -375,6 +565,10 @@ class Scene:
     name: str = "scene"
     vignetting: float = 0.0
     abbe: float | None = None
+    lens: ThinLens | None = None
+    bayer: str | None = None
+    demosaic: str = "edge-aware"
+    jpeg_quality: int | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "objects", tuple(self.objects))
@@ -384,3 +578,13 @@ class Scene:
         _scalar(self, "vignetting", lo=0.0, hi=0.99)
         if self.abbe is not None:
             _scalar(self, "abbe", lo=10.0, hi=120.0)
+        if self.lens is not None and not isinstance(self.lens, ThinLens):
+            raise ConfigError(f"Scene lens: expected a ThinLens or None, got {self.lens!r}")
+        if self.bayer is not None and self.bayer not in BAYER_PATTERNS:
+            raise ConfigError(f"Scene bayer: expected one of {', '.join(BAYER_PATTERNS)} or None, got {self.bayer!r}")
+        if self.demosaic not in DEMOSAIC_METHODS:
+            raise ConfigError(f"Scene demosaic: expected one of {', '.join(DEMOSAIC_METHODS)}, got {self.demosaic!r}")
+        if self.jpeg_quality is not None and (isinstance(self.jpeg_quality, bool)
+                                              or not isinstance(self.jpeg_quality, int | np.integer)
+                                              or not 1 <= self.jpeg_quality <= 100):
+            raise ConfigError(f"Scene jpeg_quality: expected an integer in 1..100 or None, got {self.jpeg_quality!r}")

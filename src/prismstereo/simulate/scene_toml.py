@@ -23,9 +23,17 @@ Example::
     noise = 0.0                   # sensor noise std, grey levels (the capture is rounded to 8 bits after it)
     vignetting = 0.0              # fraction of light lost at the image corners, [0, 0.99]
     # abbe = 64.2                 # Abbe number of the glass: per-channel index, colour fringes (default none)
+    # bayer = "RGGB"              # colour filter mosaic (RGGB, BGGR, GRBG, GBRG), noise per recorded channel,
+    # demosaic = "edge-aware"     #   then demosaiced: "bilinear" | "edge-aware" | "vng" (default none)
+    # jpeg_quality = 85           # saved as JPEG of this quality and decoded (default lossless)
+
+    # [lens]                      # a thin lens (default: a pinhole), docs/scenes.md
+    # f_number = 8.0
+    # focus_distance = 1400.0     # mm along the axis
+    # samples = 16                # aperture rays per pixel
 
     [[objects]]
-    type = "box"                  # "rectangle" | "box" | "sphere" | "plane"
+    type = "box"                  # "rectangle" | "box" | "sphere" | "plane" | "rgbd" (below)
     name = "torso"                # optional
     center = [0.0, 0.0, 1500.0]   # mm, world frame (+X right, +Y down, +Z forward)
     size = [60.0, 80.0, 40.0]     # rectangle: [w, h]; box: [sx, sy, sz]; sphere: radius = R instead
@@ -37,6 +45,22 @@ Example::
     # checker: square = 10.0, colors = [[0,0,0],[1,1,1]], squares = [9, 7], margin = 10.0, border_color
     # image:   path = "textures/robot.png" (relative to the scene file), size = [w_mm, h_mm] (optional)
     # solid:   color = [0.8, 0.2, 0.1]
+
+    [[objects]]                   # a photographed scene: colour + depth, a height field (simulate/rgbd.py)
+    type = "rgbd"
+    color = "im0.png"             # the colour image (relative to the scene file)
+    disparity = "disp0GT.pfm"     # ... with baseline (mm), doffs (px, default 0), disparity_scale (value / it)
+    baseline = 193.0              #     Z = baseline · focal_px / (d + doffs); PNG 0 / PFM inf = unknown
+    doffs = 124.3
+    # depth = "depth.pfm"         # ... or depth in mm (PFM, or a PNG with depth_scale mm per unit)
+    focal_px = 3997.7             # the colour camera's focal length, px (or [fx, fy])
+    # principal_point = [1176.7, 1011.3]   # px; default the image centre
+    center_depth = 1400.0         # mm: world Z of the scene's median depth, facing the camera ...
+    width = 120.0                 # mm: the photograph's field at that depth (or scale = s; default: the
+                                  #     source camera at the camera centre, scale = center_depth / median)
+    # origin = [0, 0, 500]        # ... or the source camera's centre (mm) with rotation/normal and scale
+    # jump = 0.02                 # relative depth spread above which a triangle is skin (no ground truth)
+    # middlebury = "../shared/data/middlebury-2014/Piano"  # instead of color ... principal_point: a folder
 
 Everything is validated before rendering; problems raise :class:`~prismstereo.errors.ConfigError` with
 one line naming the table and key.
@@ -56,6 +80,8 @@ from prismstereo.config import Rig, read_toml, rig_from_dict
 from prismstereo.errors import ConfigError, ImageError
 from prismstereo.io import read_image
 from prismstereo.simulate.scene import (
+    BAYER_PATTERNS,
+    DEMOSAIC_METHODS,
     Box,
     CheckerTexture,
     Color,
@@ -63,21 +89,28 @@ from prismstereo.simulate.scene import (
     NoiseTexture,
     Plane,
     Rectangle,
+    RGBDSurface,
     Scene,
     SceneObject,
     SolidTexture,
     Sphere,
     Texture,
+    ThinLens,
     Vec3,
     rotation_from_normal,
 )
 
-_RENDER_KEYS = {"supersample", "seed", "background", "shading", "noise", "vignetting", "abbe"}
+_RENDER_KEYS = {"supersample", "seed", "background", "shading", "noise", "vignetting", "abbe", "bayer", "demosaic",
+                "jpeg_quality"}
+_LENS_KEYS = {"f_number", "focus_distance", "samples"}
 _OBJECT_KEYS = {
     "rectangle": {"type", "name", "center", "size", "rotation", "normal", "spin", "texture"},
     "box": {"type", "name", "center", "size", "rotation", "normal", "spin", "texture"},
     "sphere": {"type", "name", "center", "radius", "rotation", "normal", "spin", "texture"},
     "plane": {"type", "name", "center", "rotation", "normal", "spin", "texture"},
+    "rgbd": {"type", "name", "color", "depth", "depth_scale", "disparity", "disparity_scale", "baseline", "doffs",
+             "focal_px", "principal_point", "middlebury", "center_depth", "scale", "width", "origin", "rotation",
+             "normal", "spin", "jump"},
 }
 _TEXTURE_KEYS = {
     "solid": {"type", "color"},
@@ -196,6 +229,116 @@ def _texture(where: str, t: Any, *, default_seed: int, base_dir: Path, obj_type:
     return ImageTexture(path=str(full.resolve()), image=img, size=None if sz is None else (sz[0], sz[1]))
 
 
+def _path(where: str, key: str, v: Any, base_dir: Path) -> Path:
+    if not isinstance(v, str) or not v:
+        raise ConfigError(f"{where} {key}: expected a file name, got {v!r}")
+    p = Path(v) if os.path.isabs(v) else base_dir / v
+    if not p.exists():
+        raise ConfigError(f"{where} {key}: expected an existing file, got {str(p)!r} (no such file)")
+    return p
+
+
+def _rotation(where: str, o: Mapping[str, Any]) -> Vec3:
+    if "rotation" in o and ("normal" in o or "spin" in o):
+        raise ConfigError(f"{where}: expected either rotation or normal (+ spin), got both")
+    if "rotation" in o:
+        r = _vec(where, "rotation", o["rotation"], 3)
+        return (r[0], r[1], r[2])
+    normal = _vec(where, "normal", o.get("normal", [0.0, 0.0, -1.0]), 3)
+    if math.hypot(*normal) < 1e-12:
+        raise ConfigError(f"{where} normal: expected a non-zero vector, got {list(normal)}")
+    return rotation_from_normal((normal[0], normal[1], normal[2]), spin=_num(where, "spin", o.get("spin", 0.0)))
+
+
+def _rgbd_object(where: str, o: Mapping[str, Any], name: str, base_dir: Path) -> RGBDSurface:
+    """An ``rgbd`` object: colour + depth (or disparity + calibration), intrinsics, pose and scale."""
+    from prismstereo.simulate.rgbd import depth_from_disparity, middlebury_rgbd, read_depth_map, read_disparity_map
+
+    jump = _num(where, "jump", o.get("jump", 0.02), positive=True)
+    placed = "center_depth" in o
+    if placed == ("origin" in o):
+        raise ConfigError(f"{where}: expected center_depth (with scale or width) or origin (with rotation or "
+                          f"normal, and scale), got {'both' if placed else 'neither'}")
+    if placed and ({"rotation", "normal", "spin"} & set(o)):
+        raise ConfigError(f"{where}: rotation/normal/spin go with origin; center_depth places the scene facing "
+                          f"the camera")
+    if "scale" in o and "width" in o:
+        raise ConfigError(f"{where}: expected scale or width, got both")
+    if "width" in o and not placed:
+        raise ConfigError(f"{where} width: goes with center_depth; with origin give scale")
+    scale = None if "scale" not in o else _num(where, "scale", o["scale"], positive=True)
+    width = None if "width" not in o else _num(where, "width", o["width"], positive=True)
+    if "middlebury" in o:
+        clash = sorted({"color", "depth", "disparity", "depth_scale", "disparity_scale", "baseline", "doffs",
+                        "focal_px", "principal_point"} & set(o))
+        if clash:
+            raise ConfigError(f"{where}: middlebury reads the folder's own files and calibration; remove "
+                              f"{', '.join(clash)}")
+        if not placed:
+            raise ConfigError(f"{where}: middlebury goes with center_depth (and scale or width)")
+        folder = _path(where, "middlebury", o["middlebury"], base_dir)
+        surf = middlebury_rgbd(folder, center_depth=_num(where, "center_depth", o["center_depth"], positive=True),
+                               scale=scale, width=width, jump=jump)
+        return RGBDSurface(image=surf.image, depth=surf.depth, focal=surf.focal,
+                           principal_point=surf.principal_point, origin=surf.origin, rotation=surf.rotation,
+                           scale=surf.scale, jump=surf.jump, name=name, source=surf.source)
+    if "color" not in o:
+        raise ConfigError(f"{where}: missing key color (the colour image)")
+    if ("depth" in o) == ("disparity" in o):
+        raise ConfigError(f"{where}: expected depth (mm) or disparity (px, with baseline and focal_px), got "
+                          f"{'both' if 'depth' in o else 'neither'}")
+    if "focal_px" not in o:
+        raise ConfigError(f"{where}: missing key focal_px (the colour camera's focal length, px)")
+    fv = o["focal_px"]
+    if isinstance(fv, list | tuple):
+        f2 = _vec(where, "focal_px", fv, 2, positive=True)
+        focal = (f2[0], f2[1])
+    else:
+        f1 = _num(where, "focal_px", fv, positive=True)
+        focal = (f1, f1)
+    pp = None
+    if "principal_point" in o:
+        c2 = _vec(where, "principal_point", o["principal_point"], 2)
+        pp = (c2[0], c2[1])
+    color_path = _path(where, "color", o["color"], base_dir)
+    try:
+        image = read_image(color_path)
+    except ImageError as exc:
+        raise ConfigError(f"{where} color: {exc}") from None
+    source: dict[str, Any] = {"color": str(color_path.resolve())}
+    if "depth" in o:
+        extra = sorted({"disparity_scale", "baseline", "doffs"} & set(o))
+        if extra:
+            raise ConfigError(f"{where}: {', '.join(extra)} go(es) with disparity, not depth")
+        dscale = _num(where, "depth_scale", o.get("depth_scale", 1.0), positive=True)
+        dpath = _path(where, "depth", o["depth"], base_dir)
+        depth = read_depth_map(dpath, scale=dscale)
+        source.update(depth=str(dpath.resolve()), depth_scale=dscale)
+    else:
+        if "depth_scale" in o:
+            raise ConfigError(f"{where}: depth_scale goes with depth, not disparity (use disparity_scale)")
+        if "baseline" not in o:
+            raise ConfigError(f"{where}: missing key baseline (mm) to turn the disparity into depth")
+        baseline = _num(where, "baseline", o["baseline"], positive=True)
+        doffs = _num(where, "doffs", o.get("doffs", 0.0))
+        pscale = _num(where, "disparity_scale", o.get("disparity_scale", 1.0), positive=True)
+        dpath = _path(where, "disparity", o["disparity"], base_dir)
+        depth = depth_from_disparity(read_disparity_map(dpath, scale=pscale), focal_px=focal[0],
+                                     baseline_mm=baseline, doffs_px=doffs)
+        source.update(disparity=str(dpath.resolve()), disparity_scale=pscale, baseline=baseline, doffs=doffs)
+    if depth.shape != image.shape[:2]:
+        raise ConfigError(f"{where}: expected the depth/disparity map at the colour image's size "
+                          f"{image.shape[1]}×{image.shape[0]}, got {depth.shape[1]}×{depth.shape[0]}")
+    if placed:
+        return RGBDSurface.placed(image, depth, focal=focal, principal_point=pp,
+                                  center_depth=_num(where, "center_depth", o["center_depth"], positive=True),
+                                  scale=scale, width=width, jump=jump, name=name, source=source)
+    org = _vec(where, "origin", o["origin"], 3)
+    return RGBDSurface(image=image, depth=depth, focal=focal, principal_point=pp, origin=(org[0], org[1], org[2]),
+                       rotation=_rotation(where, o), scale=1.0 if scale is None else scale, jump=jump, name=name,
+                       source=source)
+
+
 def _object(i: int, o: Any, *, seed: int, base_dir: Path) -> SceneObject:
     where = f"[[objects]] #{i}"
     if not isinstance(o, Mapping):
@@ -207,6 +350,9 @@ def _object(i: int, o: Any, *, seed: int, base_dir: Path) -> SceneObject:
     if not isinstance(name, str):
         raise ConfigError(f"{where} name: expected a string, got {name!r}")
     where = f"[[objects]] #{i} ({kind} {name!r})"
+    if kind == "rgbd":
+        _keys(where, o, _OBJECT_KEYS[kind], {"type"})
+        return _rgbd_object(where, o, name, Path(base_dir))
     required = {"type", "center"} | {"rectangle": {"size"}, "box": {"size"}, "sphere": {"radius"}, "plane": set()}[kind]
     _keys(where, o, _OBJECT_KEYS[kind], required)
     c = _vec(where, "center", o["center"], 3)
@@ -255,7 +401,7 @@ def scene_from_dict(data: Mapping[str, Any], *, base_dir: str | os.PathLike[str]
     ConfigError
         On unknown tables/keys/types, missing keys, non-positive sizes, NaN or out-of-range values.
     """
-    rig = rig_from_dict(data, name=name, extra_sections={"render", "objects"})
+    rig = rig_from_dict(data, name=name, extra_sections={"render", "objects", "lens"})
     render = _keys("[render]", data.get("render", {}), _RENDER_KEYS)
     seed = _int("[render]", "seed", render.get("seed", 0), lo=0)
     ss = _int("[render]", "supersample", render.get("supersample", 2), lo=1, hi=16)
@@ -264,13 +410,30 @@ def scene_from_dict(data: Mapping[str, Any], *, base_dir: str | os.PathLike[str]
     noise = _num("[render]", "noise", render.get("noise", 0.0), lo=0.0, hi=255.0)
     vignetting = _num("[render]", "vignetting", render.get("vignetting", 0.0), lo=0.0, hi=0.99)
     abbe = None if "abbe" not in render else _num("[render]", "abbe", render["abbe"], lo=10.0, hi=120.0)
+    bayer = render.get("bayer")
+    if bayer is not None and bayer not in BAYER_PATTERNS:
+        raise ConfigError(f"[render] bayer: expected one of {', '.join(BAYER_PATTERNS)}, got {bayer!r}")
+    demosaic = render.get("demosaic", "edge-aware")
+    if demosaic not in DEMOSAIC_METHODS:
+        raise ConfigError(f"[render] demosaic: expected one of {', '.join(DEMOSAIC_METHODS)}, got {demosaic!r}")
+    if "demosaic" in render and bayer is None:
+        raise ConfigError("[render] demosaic: goes with bayer (a colour filter mosaic), which is not set")
+    jpeg = None if "jpeg_quality" not in render else _int("[render]", "jpeg_quality", render["jpeg_quality"],
+                                                          lo=1, hi=100)
+    lens = None
+    if "lens" in data:
+        lt = _keys("[lens]", data["lens"], _LENS_KEYS, {"f_number", "focus_distance"})
+        lens = ThinLens(f_number=_num("[lens]", "f_number", lt["f_number"], lo=0.5, hi=1000.0),
+                        focus_distance=_num("[lens]", "focus_distance", lt["focus_distance"], positive=True),
+                        samples=_int("[lens]", "samples", lt.get("samples", 16), lo=1, hi=256))
     objs = data.get("objects", [])
     if not isinstance(objs, list) or not objs:
         raise ConfigError(f"[[objects]]: expected at least one [[objects]] table, got {objs!r}")
     base = Path(base_dir)
     objects = tuple(_object(i, o, seed=seed, base_dir=base) for i, o in enumerate(objs))
     scene = Scene(objects=objects, background=background, shading=shading, noise=noise, seed=seed,
-                  supersample=ss, name=name, vignetting=vignetting, abbe=abbe)
+                  supersample=ss, name=name, vignetting=vignetting, abbe=abbe, lens=lens, bayer=bayer,
+                  demosaic=demosaic, jpeg_quality=jpeg)
     return rig, scene
 
 
@@ -301,6 +464,15 @@ def _texture_dict(t: Texture) -> dict[str, Any]:
 
 def object_to_dict(obj: SceneObject) -> dict[str, Any]:
     """The ``[[objects]]`` table of an object (resolved: rotation as Euler angles, full texture)."""
+    if isinstance(obj, RGBDSurface):
+        if "color" not in obj.source or not ({"depth", "disparity"} & set(obj.source)):
+            raise ConfigError(f"rgbd object {obj.name!r}: expected the files it was read from (its source) to "
+                              f"write a scene file, got none; build it from files (scene TOML or middlebury_rgbd)")
+        r: dict[str, Any] = {"type": "rgbd", "name": obj.name, **obj.source, "focal_px": list(obj.focal)}
+        if obj.principal_point is not None:
+            r["principal_point"] = list(obj.principal_point)
+        r.update(origin=list(obj.origin), rotation=list(obj.rotation), scale=obj.scale, jump=obj.jump)
+        return r
     kind = {Rectangle: "rectangle", Box: "box", Sphere: "sphere", Plane: "plane"}[type(obj)]
     d: dict[str, Any] = {"type": kind, "name": obj.name, "center": list(obj.center)}
     if isinstance(obj, Rectangle | Box):
@@ -319,6 +491,13 @@ def scene_to_dict(rig: Rig, scene: Scene) -> dict[str, Any]:
                       "shading": scene.shading, "noise": scene.noise, "vignetting": scene.vignetting}
     if scene.abbe is not None:
         data["render"]["abbe"] = scene.abbe
+    if scene.bayer is not None:
+        data["render"].update(bayer=scene.bayer, demosaic=scene.demosaic)
+    if scene.jpeg_quality is not None:
+        data["render"]["jpeg_quality"] = scene.jpeg_quality
+    if scene.lens is not None:
+        data["lens"] = {"f_number": scene.lens.f_number, "focus_distance": scene.lens.focus_distance,
+                        "samples": scene.lens.samples}
     data["objects"] = [object_to_dict(o) for o in scene.objects]
     return data
 
