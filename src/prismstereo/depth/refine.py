@@ -104,7 +104,7 @@ def _tap_sums(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, y: int, x: int, b0: 
             srara, srarb, srbrb, slra, slrb)
 
 
-@njit(cache=True, parallel=True, fastmath=True)
+@njit(cache=True, parallel=True, fastmath=True, nogil=True)
 def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray, xs: np.ndarray, d0: np.ndarray,
                    oys: np.ndarray, fys: np.ndarray, radius: int, iterations: int, max_shift: float,
                    min_texture: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - numba
@@ -318,7 +318,7 @@ def _refine_masked(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray,
     return d, zncc, keep
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _refine_cut_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray, VR: np.ndarray,
                        ys: np.ndarray, xs: np.ndarray, d0: np.ndarray, oys: np.ndarray, fys: np.ndarray,
                        radius: int, iterations: int, max_shift: float, min_texture: float,

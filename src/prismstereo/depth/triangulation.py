@@ -455,7 +455,7 @@ def ray_table(rig: Rig, pair: RectifiedPair) -> RayTable:
     return RayTable(left_origins=lo, left_directions=ld, right_origins=ro, right_directions=rd)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _table_kernel(lo: np.ndarray, ld: np.ndarray, ro: np.ndarray, rd: np.ndarray, ys: np.ndarray, xs: np.ndarray,
                   d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - numba
     """Midpoint of the left ray of (xs, ys) and the right ray at (xs − d, ys), linear between columns

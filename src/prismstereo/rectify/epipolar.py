@@ -87,7 +87,7 @@ def _clamped(c: float, n: int) -> tuple[int, float]:  # pragma: no cover - numba
     return i, c - i
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _trilinear(grid: np.ndarray, ys: np.ndarray, xs: np.ndarray, d: np.ndarray, step: float, d_start: float,
                d_step: float) -> np.ndarray:  # pragma: no cover - numba
     """(N,) float64 trilinear lookup of ``grid[k, i, j]`` at k = (d − d_start) / d_step, i = y / step,
