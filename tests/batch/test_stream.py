@@ -120,3 +120,36 @@ def test_cli_bad_camera_is_one_line_and_exit_2(tmp_path: Path) -> None:
     assert p.returncode == 2
     lines = p.stderr.strip().splitlines()
     assert len(lines) == 1 and "camera 97" in lines[0], p.stderr
+
+
+def test_ctrl_c_keeps_the_finished_frames(tmp_path: Path, captures) -> None:  # type: ignore[no-untyped-def]
+    import signal
+    import time
+
+    rig, _, images = captures
+    rig_path = tmp_path / "rig.toml"
+    rig.save(rig_path)
+    folder = tmp_path / "in"
+    folder.mkdir()
+    for i in range(6):
+        write_image(folder / f"f{i}.png", images[i % 3])
+    out = tmp_path / "out"
+    p = subprocess.Popen([sys.executable, "-m", "prismstereo", "stream", str(rig_path), str(folder), "-o", str(out),
+                          "--depth-range", "1000,1700", "--preset", "fast", "--idle-timeout", "600"],
+                         stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 300
+        while not (out / "frames" / "f0" / "frame.json").is_file():
+            assert p.poll() is None and time.monotonic() < deadline, p.communicate()
+            time.sleep(0.1)
+        p.send_signal(signal.SIGINT)
+        _, err = p.communicate(timeout=120)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 130, err
+    done = sorted(x.name for x in (out / "frames").iterdir())
+    assert done and all(not n.startswith(".") for n in done)
+    for n in done:
+        assert {f.name for f in (out / "frames" / n).iterdir()} == {"disparity.pfm", "depth.png", "frame.json"}
+    assert len(done) < 6

@@ -21,8 +21,9 @@ Sources (:func:`open_source`):
 - a folder: its images in name order, then every new image that appears (a file counts once its size has
   stayed the same for one poll and it decodes), until no new image came for ``idle_timeout`` seconds.
 
-Ctrl-C (KeyboardInterrupt in the calling thread) stops the reader, lets the writer finish the frames whose
-depth is done, and returns the summary with ``interrupted`` set; no frame folder is left half-written.
+Ctrl-C (SIGINT; in the main thread a handler is installed for the stream's duration) ends the stream after the
+frame in progress: the reader stops, the writer finishes the frames whose depth is done, and the summary
+comes back with ``interrupted`` set; no frame folder is left half-written. A second Ctrl-C interrupts at once.
 A frame of the wrong size from a camera or video is an error before the first depth (the whole stream
 would be); in a folder it is that frame's failure (logged, counted) and the stream goes on.
 """
@@ -32,6 +33,7 @@ from __future__ import annotations
 import logging
 import os
 import queue
+import signal
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -398,6 +400,7 @@ def run_stream(rig: Rig, source: str, out: str | os.PathLike[str], *, config: De
                threading.Thread(target=writer, name="stream-writer", daemon=True)]
     t_start = time.perf_counter()
     last_report = t_start
+    previous = _catch_interrupt(stop, summary)
     for th in threads:
         th.start()
     try:
@@ -405,6 +408,8 @@ def run_stream(rig: Rig, source: str, out: str | os.PathLike[str], *, config: De
             item = in_q.get()
             if item is _END:
                 break
+            if stop.is_set():  # interrupted: what is still queued is not processed
+                continue
             if item.image is None:
                 summary.failed.append((item.name, item.error))
                 continue
@@ -430,9 +435,15 @@ def run_stream(rig: Rig, source: str, out: str | os.PathLike[str], *, config: De
         summary.interrupted = True
     finally:
         stop.set()
+        while threads[0].is_alive():  # let the reader hand over its end marker
+            try:
+                in_q.get(timeout=0.1)
+            except queue.Empty:
+                pass
         out_q.put(_END)
-        for th in threads:
-            th.join(timeout=60.0)
+        threads[1].join()
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
         if vid is not None:
             vid.close()
         remove_partial(frames_dir)
@@ -451,6 +462,24 @@ def run_stream(rig: Rig, source: str, out: str | os.PathLike[str], *, config: De
     if errors and not summary.interrupted:
         raise errors[0]
     return summary
+
+
+def _catch_interrupt(stop: threading.Event, summary: StreamSummary) -> Any:
+    """In the main thread, make Ctrl-C end the stream after the frame in progress (a KeyboardInterrupt raised
+    inside a numba kernel would abort it); a second Ctrl-C interrupts at once. Returns the previous handler
+    to put back (None: not the main thread, nothing installed)."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    previous = signal.getsignal(signal.SIGINT)
+
+    def handler(signum: int, frame: Any) -> None:
+        if stop.is_set():
+            raise KeyboardInterrupt
+        summary.interrupted = True
+        stop.set()
+
+    signal.signal(signal.SIGINT, handler)
+    return previous
 
 
 def _chain(first: Any, rest: Iterator[Any]) -> Iterator[Any]:
