@@ -16,7 +16,8 @@ misses numpy's and numba's allocations):
    median relative depth error, share of points within 1 %, coverage of the common view.
 
 Printed: seconds per frame (the pipeline's own total), its stages, the per-frame work outside matching as
-a share of the frame, × SGBM, seconds per megapixel, peak RSS, accuracy. ``--stream`` adds a streaming run
+a share of the frame (wall, and in CPU seconds of the process, which a loaded machine distorts less),
+× SGBM, seconds per megapixel, peak RSS, accuracy. ``--stream`` adds a streaming run
 (:func:`prismstereo.batch.stream.run_stream`, ``fast``) over a lossless video of ``--stream-frames``
 renders at the first size, depth range :data:`STREAM_RANGE_MM` given: frames/s.
 
@@ -169,7 +170,11 @@ def _row(scene: str, width: int, preset: str, r: dict[str, Any]) -> str:
     total = t["total"]
     outside = total - t.get("match", 0.0)
     stages = ", ".join(f"{k} {v:.2f}" for k, v in t.items() if k not in ("total", "validate") and v >= 0.005)
+    cpu = r.get("cpu", {})
+    cpu_total = sum(cpu.values())
+    cpu_out = cpu_total - cpu.get("match", 0.0)
     return (f"| {scene} | {width}×{width * 3 // 4} | {preset} | {total:.2f} | {100 * outside / total:.0f} % | "
+            f"{cpu_total:.2f} | {100 * cpu_out / max(cpu_total, 1e-9):.0f} % | "
             f"{total / r['sgbm_s']:.0f}× ({r['sgbm_s']:.3f} s) | {total / mp:.2f} | {r['peak_rss_gb']:.2f} | "
             f"{100 * r['median_rel']:.3f} % | {100 * r['within_1pct']:.1f} % | {100 * r['coverage']:.1f} % | "
             f"{stages} |")
@@ -186,6 +191,7 @@ def main() -> None:
     ap.add_argument("--json", default=None, help="write the measurements here")
     ap.add_argument("--work", default=None, help="folder for the renders (default: a temporary one)")
     ap.add_argument("--child", nargs=3, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--table", default=None, metavar="JSON", help="print the table of an earlier --json and exit")
     args = ap.parse_args()
     if args.child is not None:
         kind, folder, what = args.child
@@ -198,6 +204,11 @@ def main() -> None:
         else:
             print(json.dumps(_stream_child(Path(folder), int(what))))
         return
+    if args.table is not None:
+        for r in json.loads(Path(args.table).read_text()):
+            if not r.get("stream"):
+                print(_row(r["scene"], r["width"], r["preset"], r))
+        return
     sizes = [int(s) for s in args.sizes.split(",")]
     presets = [p.strip() for p in args.presets.split(",")]
     scenes = [s.strip() for s in args.scenes.split(",")]
@@ -207,9 +218,9 @@ def main() -> None:
     work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="bench_scale-"))
     results: list[dict[str, Any]] = []
     print(f"load average {open('/proc/loadavg').read().split()[:3]}; renders in {work}")
-    print("| scene | capture | preset | s per frame | outside match | × SGBM-3WAY | s per MP | peak RSS GB | "
-          "median depth err | within 1 % | coverage | stages (s) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| scene | capture | preset | s per frame | outside match | CPU s | CPU outside match | × SGBM-3WAY | "
+          "s per MP | peak RSS GB | median depth err | within 1 % | coverage | stages (s) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for scene in scenes:
         for width in sizes:
             folder = work / f"{scene}-{width}"

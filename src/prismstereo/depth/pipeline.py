@@ -46,14 +46,15 @@ from prismstereo.depth.confidence import confident_matches
 from prismstereo.depth.confidence import remove_speckles as drop_small_patches
 from prismstereo.depth.search_range import (
     Coverage,
+    RigRange,
     SearchRange,
     auto_search_range,
     auto_search_range_of_capture,
     depth_warnings,
-    rig_depth_range,
+    rig_range,
     scene_coverage,
 )
-from prismstereo.depth.setup_cache import load_rays, load_setup, save_rays, save_setup
+from prismstereo.depth.setup_cache import load_range, load_rays, load_setup, save_range, save_rays, save_setup
 from prismstereo.depth.triangulation import TRIANGULATIONS, RayTable, ray_table, triangulate_matches
 from prismstereo.errors import ConfigError, GeometryError, ImageError
 from prismstereo.io.jsonio import library_versions
@@ -301,6 +302,9 @@ class DepthSetup:
     rays : RayTable or None
         The exact ray of every rectified pixel (:func:`~prismstereo.depth.triangulation.ray_table`) for
         ``triangulation="exact"``; None: traced per frame.
+    rig_range : RigRange or None
+        The rig-only part of the automatic search range (:func:`~prismstereo.depth.search_range.rig_range`);
+        None: computed where needed.
     timings : dict
         Seconds spent on the set-up steps.
     """
@@ -312,6 +316,7 @@ class DepthSetup:
     region: SearchRegion
     epipolar: EpipolarTable | None = None
     rays: RayTable | None = None
+    rig_range: RigRange | None = None
     timings: dict[str, float] = field(default_factory=dict)
 
     @property
@@ -619,13 +624,14 @@ def rectify_capture(pair: RectifiedPair, image: np.ndarray) -> tuple[np.ndarray,
 
 
 def search_region(rig: Rig, pair: RectifiedPair, config: DepthConfig, left: np.ndarray | None = None,
-                  right: np.ndarray | None = None) -> SearchRegion:
+                  right: np.ndarray | None = None, *, known: RigRange | None = None) -> SearchRegion:
     """The pixels and disparities to search.
 
     With the configuration's depth range: its common view; without one, the range the rig allows,
     narrowed by a coarse match of the rectified images when they are given
     (:func:`~prismstereo.depth.search_range.auto_search_range`; a sequence passes none, since one frame's
-    content says nothing of the next's).
+    content says nothing of the next's). ``known``: the pair's rig-only range
+    (:func:`~prismstereo.depth.search_range.rig_range`), if the caller has it: the same region, sooner.
 
     Raises
     ------
@@ -636,15 +642,19 @@ def search_region(rig: Rig, pair: RectifiedPair, config: DepthConfig, left: np.n
     """
     width = pair.size[0] if left is None else left.shape[1]
     if config.depth_range is None and left is not None and right is not None:
-        found = auto_search_range(pair, rig.prism.back_distance, left, right)
+        found = auto_search_range(pair, rig.prism.back_distance, left, right, rig=known)
         zmin, zmax = found.depth_mm
         common, _ = common_view(pair, zmin, zmax)
         lo, hi = found.disparity_px
         source, warnings = found.source, tuple(found.warnings)
     else:
         source = "given" if config.depth_range is not None else "rig"
-        zmin, zmax = config.depth_range or rig_depth_range(pair, rig.prism.back_distance)
-        common, (lo, hi) = common_view(pair, zmin, zmax)
+        if config.depth_range is not None:
+            zmin, zmax = config.depth_range
+            common, (lo, hi) = common_view(pair, zmin, zmax)
+        else:
+            everything = known if known is not None else rig_range(pair, rig.prism.back_distance)
+            (zmin, zmax), common, (lo, hi) = everything.depth_mm, everything.region, everything.disparity_px
         warnings = ()
     hi = min(hi, width - 1)
     lo = min(lo, hi)
@@ -869,7 +879,7 @@ def _run_frame(setup: DepthSetup, image: np.ndarray, left: np.ndarray, right: np
 
 
 def _geometry(rig: Rig, cfg: DepthConfig, clock: _Clock
-              ) -> tuple[tuple[VirtualView, ...], RectifiedPair, EpipolarTable, RayTable | None]:
+              ) -> tuple[tuple[VirtualView, ...], RectifiedPair, EpipolarTable, RayTable | None, RigRange | None]:
     """The virtual cameras, the rectified pair, its epipolar curves and (exact triangulation) its ray table,
     from the set-up cache when it holds them (:mod:`prismstereo.depth.setup_cache`), else computed and
     stored there. The clock's ``rectify`` step goes on in the caller (the capture's remap, the search
@@ -892,7 +902,14 @@ def _geometry(rig: Rig, cfg: DepthConfig, clock: _Clock
             if rays is None:
                 rays = ray_table(rig, pair)
                 save_rays(rig, faces, cfg.calibration, rays)
-    return views, pair, epipolar, rays
+    known = None
+    if cfg.depth_range is None:
+        with clock.step("rectify"):
+            known = load_range(rig, faces, cfg.calibration, shape=(pair.size[1], pair.size[0]))
+            if known is None:
+                known = rig_range(pair, rig.prism.back_distance)
+                save_range(rig, faces, cfg.calibration, known)
+    return views, pair, epipolar, rays, known
 
 
 def run_depth(rig: Rig, image: Any, *, config: DepthConfig | None = None,
@@ -929,12 +946,12 @@ def run_depth(rig: Rig, image: Any, *, config: DepthConfig | None = None,
         result = dataclasses.replace(result, timings={"validate": validated}, match_timings=sweep_timings)
         return _finish(result, clock, t0)
     clock = _Clock(_SETUP_STEPS + _FRAME_STEPS, progress)
-    views, pair, epipolar, rays = _geometry(rig, cfg, clock)
+    views, pair, epipolar, rays, known = _geometry(rig, cfg, clock)
     with clock.step("rectify"):
         left, right = rectify_capture(pair, img)
-        region = search_region(rig, pair, cfg, left, right)
+        region = search_region(rig, pair, cfg, left, right, known=known)
     setup = DepthSetup(rig=rig, config=cfg, views=views, pair=pair, region=region, epipolar=epipolar,
-                       rays=rays, timings={"validate": validated, **clock.timings})
+                       rays=rays, rig_range=known, timings={"validate": validated, **clock.timings})
     return _run_frame(setup, img, left, right, clock, t0)
 
 
@@ -958,11 +975,11 @@ def prepare_depth(rig: Rig, *, config: DepthConfig | None = None) -> DepthSetup:
         raise ConfigError("--views: expected a pair I,J for a sequence, got 'all' (the all-view sweep is "
                           "depth-only)")
     clock = _Clock(_SETUP_STEPS, False)
-    views, pair, epipolar, rays = _geometry(rig, cfg, clock)
+    views, pair, epipolar, rays, known = _geometry(rig, cfg, clock)
     with clock.step("rectify"):
-        region = search_region(rig, pair, cfg)
+        region = search_region(rig, pair, cfg, known=known)
     return DepthSetup(rig=rig, config=cfg, views=views, pair=pair, region=region, epipolar=epipolar,
-                      rays=rays, timings=dict(clock.timings))
+                      rays=rays, rig_range=known, timings=dict(clock.timings))
 
 
 def run_depth_frame(setup: DepthSetup, image: Any, *, progress: bool | None = False) -> DepthResult:
