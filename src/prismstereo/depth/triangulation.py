@@ -424,16 +424,26 @@ class RayTable:
         return cls(*parts)
 
 
+#: pixels traced at a time by :func:`ray_table` (bounds its temporaries to a few hundred MB at any size)
+_RAY_BLOCK_PX = 1 << 19
+
+
 def _view_rays(rig: Rig, real_map: np.ndarray, face: int) -> tuple[np.ndarray, np.ndarray]:
-    """(h, w, 3) origins and directions of the exact rays of a remap table's real pixels through ``face``."""
-    px = np.asarray(real_map, dtype=np.float64)
-    finite = np.all(np.isfinite(px), axis=-1)
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        rays = trace_pixels(rig, np.where(finite[..., None], px, -1e6))
-    ok = finite & rays.valid & (rays.face == face)
-    nan3 = np.full(3, np.nan)
-    return (np.ascontiguousarray(np.where(ok[..., None], rays.origins, nan3)),
-            np.ascontiguousarray(np.where(ok[..., None], rays.directions, nan3)))
+    """(h, w, 3) origins and directions of the exact rays of a remap table's real pixels through ``face``,
+    traced a block of rows at a time."""
+    h, w = real_map.shape[:2]
+    origins = np.full((h, w, 3), np.nan)
+    directions = np.full((h, w, 3), np.nan)
+    rows = max(1, _RAY_BLOCK_PX // max(w, 1))
+    for r0 in range(0, h, rows):
+        px = np.asarray(real_map[r0:r0 + rows], dtype=np.float64)
+        finite = np.all(np.isfinite(px), axis=-1)
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            rays = trace_pixels(rig, np.where(finite[..., None], px, -1e6))
+        ok = finite & rays.valid & (rays.face == face)
+        origins[r0:r0 + rows][ok] = rays.origins[ok]
+        directions[r0:r0 + rows][ok] = rays.directions[ok]
+    return origins, directions
 
 
 def ray_table(rig: Rig, pair: RectifiedPair) -> RayTable:
