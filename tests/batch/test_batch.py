@@ -282,3 +282,24 @@ def test_cli_exit_codes(tmp_path, rig, frames_dir, capsys):
         assert len(err) == 1 and err[0].startswith("prismstereo batch: error:"), err
         assert not out2.exists()
     assert main(["batch", str(tmp_path / "norig.toml"), str(frames_dir / "f0.png"), "-o", str(out)]) == 2
+
+
+def test_cli_preset_and_min_confidence(tmp_path, rig, frames_dir, capsys):
+    import json
+
+    rig_path = tmp_path / "rig.toml"
+    rig.save(rig_path)
+    out = tmp_path / "out"
+    args = ["batch", str(rig_path), str(frames_dir / "f0.png"), "-o", str(out), "--preset", "fast",
+            "--min-confidence", "0.3", "--depth-range", "800,5000", "--outputs", "depth.pfm", "--in-process",
+            "--workers", "1"]
+    assert main(args) == 0
+    config = json.loads((out / "run.json").read_text())["config"]
+    assert config["method"] == "sgm" and config["min_confidence"] == 0.3
+    capsys.readouterr()
+    for bad in (["--preset", "fast", "--method", "sad"], ["--preset", "quick"], ["--min-confidence", "2"]):
+        out2 = tmp_path / "bad"
+        assert main(["batch", str(rig_path), str(frames_dir / "f0.png"), "-o", str(out2), *bad]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("prismstereo batch: error:"), err
+        assert not out2.exists()

@@ -156,7 +156,9 @@ def test_the_steps_compose_to_run_depth(plane_capture, plane_run):
     disp, _ = pl.refine_matches(left, right, pair, matched.disparity, cfg, epipolar=pl.epipolar_curves(pair),
                                 filled=matched.filled, right_excluded=region.right_excluded)
     disp = pl.remove_speckles(disp, region, cfg)
-    pts = pl.triangulate_disparity(rig, pair, views, disp, cfg)
+    from prismstereo.depth.triangulation import ray_table
+
+    pts = pl.triangulate_disparity(rig, pair, views, disp, cfg, rays=ray_table(rig, pair))
     np.testing.assert_array_equal(pts.depth, plane_run.depth)
     np.testing.assert_array_equal(disp, plane_run.disparity)
     assert region.disparity_range == plane_run.disparity_range and cfg == plane_run.config

@@ -116,3 +116,56 @@ def test_old_entries_are_pruned(cache: Path, computed, monkeypatch: pytest.Monke
     path = save_setup(rig, cfg.views, cfg.calibration, views, pair, epi)
     assert path is not None
     assert sorted(p.name for p in cache.iterdir()) == sorted([path.name, "setup-old2.npz"])
+
+
+def test_ray_table_round_trip_and_bad_entries(cache: Path, computed) -> None:
+    from prismstereo.depth.setup_cache import load_rays, save_rays
+    from prismstereo.depth.triangulation import ray_table
+
+    rig, cfg, views, pair, epi = computed
+    shape = (pair.size[1], pair.size[0])
+    table = ray_table(rig, pair)
+    assert load_rays(rig, cfg.views, cfg.calibration, shape=shape) is None
+    path = save_rays(rig, cfg.views, cfg.calibration, table)
+    assert path is not None and path.name.startswith("rays-")
+    got = load_rays(rig, cfg.views, cfg.calibration, shape=shape)
+    assert got is not None
+    for a, b in zip(got.to_arrays().values(), table.to_arrays().values(), strict=True):
+        assert np.array_equal(a, b, equal_nan=True)
+    assert load_rays(rig, cfg.views, cfg.calibration, shape=(shape[0] + 1, shape[1])) is None  # another size
+    path.write_bytes(path.read_bytes()[:1000])  # truncated: missing, not an error
+    assert load_rays(rig, cfg.views, cfg.calibration, shape=shape) is None
+
+
+def test_run_depth_caches_the_ray_table(cache: Path) -> None:
+    rig = demo_rig()
+    s1 = pl.prepare_depth(rig, config=DepthConfig(method="sad"))
+    assert s1.rays is not None and list(cache.glob("rays-*.npz"))
+    s2 = pl.prepare_depth(rig, config=DepthConfig(method="sad"))
+    assert s2.rays is not None and np.array_equal(s2.rays.right_directions, s1.rays.right_directions,
+                                                  equal_nan=True)
+    s3 = pl.prepare_depth(rig, config=DepthConfig(method="sad", triangulation="midpoint"))
+    assert s3.rays is None
+
+
+def test_rig_range_round_trip_and_same_region(cache: Path, computed) -> None:
+    from prismstereo.depth.search_range import rig_range
+    from prismstereo.depth.setup_cache import load_range, save_range
+
+    rig, cfg, views, pair, epi = computed
+    shape = (pair.size[1], pair.size[0])
+    found = rig_range(pair, rig.prism.back_distance)
+    assert load_range(rig, cfg.views, cfg.calibration, shape=shape) is None
+    path = save_range(rig, cfg.views, cfg.calibration, found)
+    assert path is not None and path.name.startswith("range-")
+    got = load_range(rig, cfg.views, cfg.calibration, shape=shape)
+    assert got is not None and got.depth_mm == found.depth_mm and got.disparity_px == found.disparity_px
+    assert np.array_equal(got.region, found.region) and np.array_equal(got.disparity, found.disparity, equal_nan=True)
+    assert load_range(rig, cfg.views, cfg.calibration, shape=(1, 1)) is None
+    path.write_bytes(b"PK\x03\x04 truncated")
+    assert load_range(rig, cfg.views, cfg.calibration, shape=shape) is None
+    # the region a run searches is the same with the cached rig range as without
+    with_known = pl.search_region(rig, pair, cfg, known=found)
+    without = pl.search_region(rig, pair, cfg)
+    assert np.array_equal(with_known.mask, without.mask)
+    assert with_known.disparity_range == without.disparity_range and with_known.depth_range == without.depth_range

@@ -107,3 +107,58 @@ def test_q_reprojection_on_rectified_data():
     world = rectified_to_world(pts[5, 7], R, C)
     cam = PinholeCamera(K=np.array([[f, 0, cx], [0, f, cy], [0, 0, 1]]), R=R, C=C)
     np.testing.assert_allclose(cam.project(world), [7.0, 5.0], atol=1e-8)
+
+
+@pytest.fixture(scope="module")
+def demo_setup():  # type: ignore[no-untyped-def]
+    from prismstereo.apps.demo import demo_rig
+    from prismstereo.depth import DepthConfig, prepare_depth
+
+    rig = demo_rig()
+    return rig, prepare_depth(rig, config=DepthConfig(method="sad"))
+
+
+def test_ray_table_matches_exact_triangulation(demo_setup) -> None:  # type: ignore[no-untyped-def]
+    """The table's points are triangulate_exact's within 1e-5 relative to 20 m (d >= 2 px on this rig) and
+    within the equivalent of 2e-5 px of disparity everywhere (to 100 m), the same points valid."""
+    from prismstereo.depth.triangulation import ray_table, triangulate_matches, triangulate_table
+
+    rig, s = demo_setup
+    table = s.rays if s.rays is not None else ray_table(rig, s.pair)
+    assert table.shape == (s.pair.size[1], s.pair.size[0])
+    rng = np.random.default_rng(5)
+    ys, xs = np.nonzero(s.region.mask)
+    pick = rng.choice(ys.size, 40000)
+    ys, xs = ys[pick], xs[pick]
+    d = rng.uniform(*s.region.disparity_range, ys.size)
+    d[::50] = np.nan
+    got = triangulate_table(table, ys, xs, d)
+    ref = triangulate_matches(rig, s.pair, ys, xs, d, method="exact", views=s.views)
+    assert ref.valid.sum() > 10000
+    assert np.array_equal(got.valid, ref.valid)
+    ok = ref.valid
+    rel = np.linalg.norm(got.points[ok] - ref.points[ok], axis=1) / np.linalg.norm(ref.points[ok], axis=1)
+    z = ref.points[ok, 2]
+    assert rel[z < 20000.0].max() < 1e-5
+    assert rel[z < 3000.0].max() < 1e-6
+    assert (rel * d[ok]).max() < 3e-5  # the equivalent disparity error, px
+    np.testing.assert_allclose(got.gaps[ok], ref.gaps[ok], rtol=1e-3, atol=1e-3)
+    # the same through triangulate_matches with the table
+    via = triangulate_matches(rig, s.pair, ys, xs, d, method="exact", views=s.views, rays=table)
+    assert np.array_equal(via.points, got.points, equal_nan=True)
+
+
+def test_ray_table_off_the_view_is_invalid(demo_setup) -> None:  # type: ignore[no-untyped-def]
+    from prismstereo.depth.triangulation import RayTable, triangulate_table
+
+    _, s = demo_setup
+    h, w = s.rays.shape
+    y = h // 2
+    x = np.array([w // 2, w // 2, w // 2, 3])
+    d = np.array([float(w), -float(w), np.inf, 5.0])  # right pixel beyond either edge, no disparity
+    tri = triangulate_table(s.rays, np.full(4, y), x, d)
+    assert not tri.valid.any() and np.isnan(tri.points).all()
+    back = RayTable.from_arrays(s.rays.to_arrays())
+    assert np.array_equal(back.left_origins, s.rays.left_origins, equal_nan=True)
+    with pytest.raises(ValueError):
+        RayTable.from_arrays({**s.rays.to_arrays(), "rays_right_d": np.zeros((2, 2, 3))})

@@ -80,3 +80,21 @@ def test_resampling_is_np_interp_per_column() -> None:
         m = ok[:, j]
         order = np.argsort(d[m, j])
         np.testing.assert_allclose(got[:, j], np.interp(layers, d[m, j][order], dy[m, j][order]), atol=1e-12)
+
+
+def test_lookup_is_scipy_trilinear_with_nearest_edges() -> None:
+    """The numba lookup is scipy's ``map_coordinates(order=1, mode="nearest")`` on the table (in and beyond it)."""
+    from scipy.ndimage import map_coordinates
+
+    rng = np.random.default_rng(3)
+    table = EpipolarTable(offsets=rng.normal(size=(12, 9, 14)).astype(np.float32), step=16, d_start=-3.0,
+                          d_step=7.5)
+    n = 5000
+    ys, xs, d = rng.uniform(-20, 160, n), rng.uniform(-20, 240, n), rng.uniform(-30, 110, n)
+    d[::7] = np.nan
+    k = (np.nan_to_num(d, nan=table.d_start) - table.d_start) / table.d_step
+    ref = map_coordinates(table.offsets.astype(np.float64), [k, ys / table.step, xs / table.step], order=1,
+                          mode="nearest")
+    got = table.row_offset(ys, xs, d)
+    assert np.array_equal(np.isnan(got), np.isnan(d))
+    np.testing.assert_allclose(got[np.isfinite(d)], ref[np.isfinite(d)], rtol=0, atol=1e-12)

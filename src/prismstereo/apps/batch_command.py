@@ -25,7 +25,8 @@ def batch_command(rig_path: str, inputs: Sequence[str], out_dir: str, *, method:
                   roi: tuple[int, int, int, int] | None = None, views: Any = None, triangulation: str = "exact",
                   calibration: str = "fit", refine: bool = True, outputs: str | None = None,
                   scheduler: str | None = None, workers: int | None = None, threads_per_worker: int = 1,
-                  processes: bool = True, retries: int = 2, numba_threads: int | None = None) -> int:
+                  processes: bool = True, retries: int = 2, numba_threads: int | None = None,
+                  min_confidence: float | None = None) -> int:
     """Run ``prismstereo batch``: print the summary, return the exit code (0, or 3 when frames failed)."""
     # imported when the command runs: ``prismstereo --help`` starts without Dask and the numerical packages
     from prismstereo.batch.runner import run_batch
@@ -37,9 +38,10 @@ def batch_command(rig_path: str, inputs: Sequence[str], out_dir: str, *, method:
         raise ConfigError("--views: expected a pair I,J for batch, got 'all' (the all-view sweep is depth-only)")
     if views is not None and len(views) != 2:
         raise ConfigError(f"--views: expected two faces I,J, got {','.join(map(str, views))}")
+    extra: dict[str, Any] = {} if min_confidence is None else {"min_confidence": min_confidence}
     config = DepthConfig(method=method, matcher_params=dict(params or {}), depth_range=depth_range, roi=roi,
                          views=None if views is None else (int(views[0]), int(views[1])),
-                         triangulation=triangulation, calibration=calibration, refine=refine)
+                         triangulation=triangulation, calibration=calibration, refine=refine, **extra)
 
     if logging.getLogger("prismstereo").getEffectiveLevel() > logging.INFO:
         import distributed  # noqa: F401 - its import sets its loggers' levels: lower them afterwards

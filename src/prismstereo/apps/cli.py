@@ -466,7 +466,12 @@ def _add_batch(sub: argparse._SubParsersAction) -> None:
     p.add_argument("rig", help="rig TOML (docs/rig.md)")
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="image files, folders, globs or video files")
     p.add_argument("-o", "--output", required=True, help="output folder")
-    p.add_argument("--method", default="bpasw", help="matcher name (any registered: bpasw, sad, sgbm, coop, ...)")
+    p.add_argument("--method", default=None,
+                   help="matcher name (any registered: bpasw (default), sad, sgbm, coop, ...)")
+    p.add_argument("--preset", default=None, metavar="fast|balanced|accurate",
+                   help="fast = sgm, balanced = bpasw, accurate = coop (instead of --method)")
+    p.add_argument("--min-confidence", type=float, default=None, metavar="C",
+                   help="keep points whose confidence (0..1) is at least C; 0 keeps every match (default: depth's)")
     p.add_argument("-p", "--param", action="append", metavar="KEY=VALUE", help="matcher tuning parameter")
     p.add_argument("--depth-range", default=None, metavar="MIN,MAX",
                    help="scene depths to search, mm (default: every depth at which the views share a field, "
@@ -494,9 +499,12 @@ def _add_batch(sub: argparse._SubParsersAction) -> None:
 
 def _cmd_batch(args: argparse.Namespace) -> int:
     from prismstereo.apps.batch_command import batch_command
+    from prismstereo.matching.registry import resolve_preset
 
     depth_range = None if args.depth_range is None else _parse_pair(args.depth_range, "--depth-range")
-    return batch_command(args.rig, args.inputs, args.output, method=args.method, params=_parse_params(args.param),
+    method, _ = resolve_preset(args.preset, args.method)
+    return batch_command(args.rig, args.inputs, args.output, method=method, params=_parse_params(args.param),
+                         min_confidence=args.min_confidence,
                          depth_range=depth_range, roi=_parse_roi(args.roi), views=_parse_views(args.views),
                          triangulation=args.triangulation, calibration=args.calibration, refine=not args.no_refine,
                          outputs=args.outputs, scheduler=args.scheduler, workers=args.workers,
@@ -509,6 +517,52 @@ _ADDERS.append(_add_batch)
 from prismstereo.apps.design_cli import add_design  # noqa: E402
 
 _ADDERS.append(add_design)
+
+
+# --------------------------------------------------------------------------- stream
+def _add_stream(sub: argparse._SubParsersAction) -> None:
+    from prismstereo.apps.stream_command import STREAM_EPILOG
+
+    p = sub.add_parser("stream", help="depth of frames as they arrive (camera, video, folder that fills up)",
+                       epilog=STREAM_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("rig", help="rig TOML (docs/rig.md)")
+    p.add_argument("source", help="camera index, video file or folder")
+    p.add_argument("-o", "--output", required=True, help="output folder")
+    p.add_argument("--method", default=None, help="matcher name (default: the fast preset's, sgm)")
+    p.add_argument("--preset", default=None, metavar="fast|balanced|accurate",
+                   help="fast = sgm (default), balanced = bpasw, accurate = coop (instead of --method)")
+    p.add_argument("-p", "--param", action="append", metavar="KEY=VALUE", help="matcher tuning parameter")
+    p.add_argument("--depth-range", default=None, metavar="MIN,MAX", help="scene depths to search, mm")
+    p.add_argument("--roi", default=None, metavar="X,Y,W,H", help="region of the rectified left view")
+    p.add_argument("--views", default=None, metavar="I,J", help="faces to pair (default: 1,0 for a bi-prism)")
+    p.add_argument("--triangulation", default="exact", choices=["exact", "midpoint", "dlt", "q"])
+    p.add_argument("--no-refine", action="store_true", help="skip the sub-pixel disparity refinement")
+    p.add_argument("--min-confidence", type=float, default=None, metavar="C",
+                   help="keep points whose confidence (0..1) is at least C; 0 keeps every match")
+    p.add_argument("--outputs", default=None, metavar="FILES",
+                   help="files per frame, comma-separated (as batch's), or 'none' (default: disparity.pfm,depth.png)")
+    p.add_argument("--video", default=None, metavar="PATH", help="also write a colourised depth video (mp4, avi)")
+    p.add_argument("--video-fps", type=float, default=10.0, help="frame rate of --video (default 10)")
+    p.add_argument("--idle-timeout", type=float, default=10.0, metavar="S",
+                   help="folder source: stop after S seconds without a new image (default 10)")
+    p.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
+    p.set_defaults(handler=_cmd_stream)
+
+
+def _cmd_stream(args: argparse.Namespace) -> int:
+    from prismstereo.apps.stream_command import stream_command
+    from prismstereo.matching.registry import resolve_preset
+
+    depth_range = None if args.depth_range is None else _parse_pair(args.depth_range, "--depth-range")
+    method, _ = resolve_preset(args.preset, args.method, default="sgm")
+    return stream_command(args.rig, args.source, args.output, method=method, params=_parse_params(args.param),
+                          depth_range=depth_range, roi=_parse_roi(args.roi), views=_parse_views(args.views),
+                          triangulation=args.triangulation, refine=not args.no_refine,
+                          min_confidence=args.min_confidence, outputs=args.outputs, video=args.video,
+                          video_fps=args.video_fps, idle_timeout=args.idle_timeout, max_frames=args.max_frames)
+
+
+_ADDERS.append(_add_stream)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -11,8 +11,10 @@ pair of faces
 all faces (N ≥ 3)
     :func:`validate_inputs` → :func:`search_region_all_views` → :func:`sweep_all_views` → :func:`diagnose`
 
-The per-rig part of a pair run (cameras, rectification, epipolar curves, search region) is a :class:`DepthSetup`
-(:func:`prepare_depth`) that a sequence computes once and shares between frames (:func:`run_depth_frame`).
+The per-rig part of a pair run (cameras, rectification, epipolar curves, the exact-ray table of exact
+triangulation, search region) is a :class:`DepthSetup` (:func:`prepare_depth`) that a sequence computes once
+and shares between frames (:func:`run_depth_frame`); all but the search region are kept in the on-disk set-up
+cache (:mod:`prismstereo.depth.setup_cache`), so a new process reads them instead of computing them.
 
 Everything the user can get wrong (image size, views, depth range, region of interest, method) is checked
 in :func:`validate_inputs` before any heavy work. The files of a run are written by
@@ -47,15 +49,16 @@ from prismstereo.depth.confidence import confident_fill, confident_matches
 from prismstereo.depth.confidence import remove_speckles as drop_small_patches
 from prismstereo.depth.search_range import (
     Coverage,
+    RigRange,
     SearchRange,
     auto_search_range,
     auto_search_range_of_capture,
     depth_warnings,
-    rig_depth_range,
+    rig_range,
     scene_coverage,
 )
-from prismstereo.depth.setup_cache import load_setup, save_setup
-from prismstereo.depth.triangulation import TRIANGULATIONS, triangulate_matches
+from prismstereo.depth.setup_cache import load_range, load_rays, load_setup, save_range, save_rays, save_setup
+from prismstereo.depth.triangulation import TRIANGULATIONS, RayTable, ray_table, triangulate_matches
 from prismstereo.errors import ConfigError, GeometryError, ImageError
 from prismstereo.io.images import as_image
 from prismstereo.io.jsonio import library_versions
@@ -348,6 +351,12 @@ class DepthSetup:
     region : SearchRegion
     epipolar : EpipolarTable or None
         The pair's epipolar curves (:func:`epipolar_curves`), which the refinement samples along.
+    rays : RayTable or None
+        The exact ray of every rectified pixel (:func:`~prismstereo.depth.triangulation.ray_table`) for
+        ``triangulation="exact"``; None: traced per frame.
+    rig_range : RigRange or None
+        The rig-only part of the automatic search range (:func:`~prismstereo.depth.search_range.rig_range`);
+        None: computed where needed.
     timings : dict
         Seconds spent on the set-up steps.
     """
@@ -358,6 +367,8 @@ class DepthSetup:
     pair: RectifiedPair
     region: SearchRegion
     epipolar: EpipolarTable | None = None
+    rays: RayTable | None = None
+    rig_range: RigRange | None = None
     timings: dict[str, float] = field(default_factory=dict)
 
     @property
@@ -652,13 +663,14 @@ def rectify_capture(pair: RectifiedPair, image: np.ndarray) -> tuple[np.ndarray,
 
 
 def search_region(rig: Rig, pair: RectifiedPair, config: DepthConfig, left: np.ndarray | None = None,
-                  right: np.ndarray | None = None) -> SearchRegion:
+                  right: np.ndarray | None = None, *, known: RigRange | None = None) -> SearchRegion:
     """The pixels and disparities to search.
 
     With the configuration's depth range: its common view; without one, the range the rig allows,
     narrowed by a coarse match of the rectified images when they are given
     (:func:`~prismstereo.depth.search_range.auto_search_range`; a sequence passes none, since one frame's
-    content says nothing of the next's).
+    content says nothing of the next's). ``known``: the pair's rig-only range
+    (:func:`~prismstereo.depth.search_range.rig_range`), if the caller has it: the same region, sooner.
 
     Raises
     ------
@@ -669,15 +681,19 @@ def search_region(rig: Rig, pair: RectifiedPair, config: DepthConfig, left: np.n
     """
     width = pair.size[0] if left is None else left.shape[1]
     if config.depth_range is None and left is not None and right is not None:
-        found = auto_search_range(pair, rig.prism.back_distance, left, right)
+        found = auto_search_range(pair, rig.prism.back_distance, left, right, rig=known)
         zmin, zmax = found.depth_mm
         common, _ = common_view(pair, zmin, zmax)
         lo, hi = found.disparity_px
         source, warnings = found.source, tuple(found.warnings)
     else:
         source = "given" if config.depth_range is not None else "rig"
-        zmin, zmax = config.depth_range or rig_depth_range(pair, rig.prism.back_distance)
-        common, (lo, hi) = common_view(pair, zmin, zmax)
+        if config.depth_range is not None:
+            zmin, zmax = config.depth_range
+            common, (lo, hi) = common_view(pair, zmin, zmax)
+        else:
+            everything = known if known is not None else rig_range(pair, rig.prism.back_distance)
+            (zmin, zmax), common, (lo, hi) = everything.depth_mm, everything.region, everything.disparity_px
         warnings = ()
     hi = min(hi, width - 1)
     lo = min(lo, hi)
@@ -781,12 +797,14 @@ def remove_speckles(disparity: np.ndarray, region: SearchRegion, config: DepthCo
 
 
 def triangulate_disparity(rig: Rig, pair: RectifiedPair, views: Sequence[VirtualView], disparity: np.ndarray,
-                          config: DepthConfig) -> Points:
-    """Triangulate every finite disparity of the rectified left grid (thesis §7.2); filter by gap and depth."""
+                          config: DepthConfig, *, rays: RayTable | None = None) -> Points:
+    """Triangulate every finite disparity of the rectified left grid (thesis §7.2); filter by gap and depth.
+    ``rays``: the pair's exact-ray table for ``triangulation="exact"`` (:class:`~prismstereo.depth.
+    triangulation.RayTable`: the same points within 1e-5 relative, without tracing rays)."""
     h, w = disparity.shape
     ys, xs = np.nonzero(np.isfinite(disparity))
     d = disparity[ys, xs].astype(np.float64)
-    tri = triangulate_matches(rig, pair, ys, xs, d, method=config.triangulation, views=views)
+    tri = triangulate_matches(rig, pair, ys, xs, d, method=config.triangulation, views=views, rays=rays)
     ok = tri.valid.copy()
     if config.max_gap_mm is not None:
         ok &= ~(tri.gaps > config.max_gap_mm)
@@ -875,7 +893,7 @@ class _Clock:
             self._bar.close()
 
 
-_SETUP_STEPS = ("cameras", "rectify")
+_SETUP_STEPS = ("cameras", "rectify", "rays")
 _FRAME_STEPS = ("match", "refine", "speckles", "triangulate", "diagnose")
 
 
@@ -907,7 +925,7 @@ def _run_frame(setup: DepthSetup, image: np.ndarray, left: np.ndarray, right: np
     if despeckled is not disp:
         counts["despeckled"] = int(np.isfinite(despeckled).sum())
     with clock.step("triangulate"):
-        pts = triangulate_disparity(setup.rig, pair, setup.views, despeckled, cfg)
+        pts = triangulate_disparity(setup.rig, pair, setup.views, despeckled, cfg, rays=setup.rays)
     result = DepthResult(
         config=cfg, rig=setup.rig, image=image, views=setup.views, pair=pair, left=left, right=right,
         disparity=despeckled, disparity_filled=matched.filled, raw_disparity=matched.raw, points=pts.points,
@@ -921,21 +939,37 @@ def _run_frame(setup: DepthSetup, image: np.ndarray, left: np.ndarray, right: np
 
 
 def _geometry(rig: Rig, cfg: DepthConfig, clock: _Clock
-              ) -> tuple[tuple[VirtualView, ...], RectifiedPair, EpipolarTable]:
-    """The virtual cameras, the rectified pair and its epipolar curves, from the set-up cache when it holds
-    them (:mod:`prismstereo.depth.setup_cache`), else computed and stored there. The clock's ``rectify`` step
-    goes on in the caller (the capture's remap, the search region)."""
+              ) -> tuple[tuple[VirtualView, ...], RectifiedPair, EpipolarTable, RayTable | None, RigRange | None]:
+    """The virtual cameras, the rectified pair, its epipolar curves and (exact triangulation) its ray table,
+    from the set-up cache when it holds them (:mod:`prismstereo.depth.setup_cache`), else computed and
+    stored there. The clock's ``rectify`` step goes on in the caller (the capture's remap, the search
+    region)."""
     faces = _pair_faces(cfg)
     with clock.step("cameras"):
         cached = load_setup(rig, faces, cfg.calibration)
         views = cached[0] if cached is not None else virtual_cameras(rig, cfg)
     with clock.step("rectify"):
         if cached is not None:
-            return views, cached[1], cached[2]
-        pair = rectify_geometry(rig, views, cfg)
-        epipolar = epipolar_curves(pair)
-        save_setup(rig, faces, cfg.calibration, views, pair, epipolar)
-    return views, pair, epipolar
+            pair, epipolar = cached[1], cached[2]
+        else:
+            pair = rectify_geometry(rig, views, cfg)
+            epipolar = epipolar_curves(pair)
+            save_setup(rig, faces, cfg.calibration, views, pair, epipolar)
+    rays = None
+    if cfg.triangulation == "exact":
+        with clock.step("rays"):
+            rays = load_rays(rig, faces, cfg.calibration, shape=(pair.size[1], pair.size[0]))
+            if rays is None:
+                rays = ray_table(rig, pair)
+                save_rays(rig, faces, cfg.calibration, rays)
+    known = None
+    if cfg.depth_range is None:
+        with clock.step("rectify"):
+            known = load_range(rig, faces, cfg.calibration, shape=(pair.size[1], pair.size[0]))
+            if known is None:
+                known = rig_range(pair, rig.prism.back_distance)
+                save_range(rig, faces, cfg.calibration, known)
+    return views, pair, epipolar, rays, known
 
 
 def run_depth(rig: Rig, image: Any, *, config: DepthConfig | None = None,
@@ -972,12 +1006,12 @@ def run_depth(rig: Rig, image: Any, *, config: DepthConfig | None = None,
         result = dataclasses.replace(result, timings={"validate": validated}, match_timings=sweep_timings)
         return _finish(result, clock, t0)
     clock = _Clock(_SETUP_STEPS + _FRAME_STEPS, progress)
-    views, pair, epipolar = _geometry(rig, cfg, clock)
+    views, pair, epipolar, rays, known = _geometry(rig, cfg, clock)
     with clock.step("rectify"):
         left, right = rectify_capture(pair, img)
-        region = search_region(rig, pair, cfg, left, right)
+        region = search_region(rig, pair, cfg, left, right, known=known)
     setup = DepthSetup(rig=rig, config=cfg, views=views, pair=pair, region=region, epipolar=epipolar,
-                       timings={"validate": validated, **clock.timings})
+                       rays=rays, rig_range=known, timings={"validate": validated, **clock.timings})
     return _run_frame(setup, img, left, right, clock, t0)
 
 
@@ -1001,11 +1035,11 @@ def prepare_depth(rig: Rig, *, config: DepthConfig | None = None) -> DepthSetup:
         raise ConfigError("DepthConfig.views: expected a pair (i, j) for a sequence, got 'all' (the all-view sweep is "
                           "depth-only)")
     clock = _Clock(_SETUP_STEPS, False)
-    views, pair, epipolar = _geometry(rig, cfg, clock)
+    views, pair, epipolar, rays, known = _geometry(rig, cfg, clock)
     with clock.step("rectify"):
-        region = search_region(rig, pair, cfg)
+        region = search_region(rig, pair, cfg, known=known)
     return DepthSetup(rig=rig, config=cfg, views=views, pair=pair, region=region, epipolar=epipolar,
-                      timings=dict(clock.timings))
+                      rays=rays, rig_range=known, timings=dict(clock.timings))
 
 
 def run_depth_frame(setup: DepthSetup, image: Any, *, progress: bool | None = False) -> DepthResult:

@@ -76,11 +76,26 @@ def _tap_sums(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, y: int, x: int, b0: 
     sra = srb = sja = sjb = slja = sljb = 0.0
     sraja = srajb = srbja = srbjb = sjaja = sjajb = sjbjb = 0.0
     srara = srarb = srbrb = slra = slrb = 0.0
+    h = R.shape[0]
+    gy = 1.0 - fy
     for dy in range(-radius, radius + 1):
         yy = y + dy
+        # the taps of :func:`_taps`, each column sampled once: tap b of one column is tap a of the next
+        ya = min(max(yy + oy, 0), h - 1)
+        yb = min(max(yy + oy + 1, 0), h - 1)
+        xa = b0 - radius
+        ra = float(R[ya, xa])
+        ja = float(Rx[ya, xa])
+        if fy != 0.0:
+            ra = gy * ra + fy * float(R[yb, xa])
+            ja = gy * ja + fy * float(Rx[yb, xa])
         for dx in range(-radius, radius + 1):
-            xa = b0 + dx
-            ra, rb, ja, jb = _taps(R, Rx, yy + oy, fy, xa)
+            xb = b0 + dx + 1
+            rb = float(R[ya, xb])
+            jb = float(Rx[ya, xb])
+            if fy != 0.0:
+                rb = gy * rb + fy * float(R[yb, xb])
+                jb = gy * jb + fy * float(Rx[yb, xb])
             lz = L[yy, x + dx] - lmean
             sra += ra
             srb += rb
@@ -100,11 +115,13 @@ def _tap_sums(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, y: int, x: int, b0: 
             srbrb += rb * rb
             slra += lz * ra
             slrb += lz * rb
+            ra = rb
+            ja = jb
     return (sra, srb, sja, sjb, slja, sljb, sraja, srajb, srbja, srbjb, sjaja, sjajb, sjbjb,
             srara, srarb, srbrb, slra, slrb)
 
 
-@njit(cache=True, parallel=True, fastmath=True)
+@njit(cache=True, parallel=True, fastmath=True, nogil=True)
 def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray, xs: np.ndarray, d0: np.ndarray,
                    oys: np.ndarray, fys: np.ndarray, radius: int, iterations: int, max_shift: float,
                    min_texture: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - numba
@@ -318,7 +335,7 @@ def _refine_masked(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray,
     return d, zncc, keep
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _refine_cut_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray, VR: np.ndarray,
                        ys: np.ndarray, xs: np.ndarray, d0: np.ndarray, oys: np.ndarray, fys: np.ndarray,
                        radius: int, iterations: int, max_shift: float, min_texture: float,

@@ -39,8 +39,8 @@ from prismstereo.rectify import RectifiedPair, common_view, rectify_pair, view_o
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Coverage", "SearchRange", "auto_search_range", "depth_warnings", "estimate_disparity_range",
-           "rig_depth_range", "scene_coverage", "view_overlap"]
+__all__ = ["Coverage", "RigRange", "SearchRange", "auto_search_range", "depth_warnings", "estimate_disparity_range",
+           "rig_depth_range", "rig_range", "scene_coverage", "view_overlap"]
 
 #: largest disparity span of the coarse match, px at the coarse scale (sets the downsampling factor)
 COARSE_SPAN = 128
@@ -222,6 +222,54 @@ def estimate_disparity_range(left: np.ndarray, right: np.ndarray, region: np.nda
     return (rlo, rhi), support
 
 
+@dataclass(frozen=True, eq=False)
+class RigRange:
+    """The rig-only part of the automatic search range of a rectified pair, computed once per set-up.
+
+    Attributes
+    ----------
+    depths, disparity : (32,) float64
+        World depths sampled from just beyond the prism to 100 m and the views' median disparity there
+        (:func:`~prismstereo.rectify.view_overlap`; NaN where they do not overlap).
+    depth_mm : (min, max)
+        Every depth at which the views share a field (:func:`rig_depth_range`).
+    region : (h, w) bool
+        Their common view over that range (:func:`~prismstereo.rectify.common_view`).
+    disparity_px : (min, max)
+        Its integer disparities.
+    """
+
+    depths: np.ndarray
+    disparity: np.ndarray
+    depth_mm: tuple[float, float]
+    region: np.ndarray
+    disparity_px: tuple[int, int]
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """Plain arrays (for an ``.npz``; :meth:`from_arrays` reads them back)."""
+        return {"range_depths": self.depths, "range_disparity": self.disparity,
+                "range_limits": np.array([*self.depth_mm, *self.disparity_px], dtype=np.float64),
+                "range_region": self.region}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> RigRange:
+        lim = np.asarray(arrays["range_limits"], dtype=np.float64)
+        if lim.shape != (4,):
+            raise ValueError("range limits of another layout")
+        return cls(depths=np.asarray(arrays["range_depths"], dtype=np.float64),
+                   disparity=np.asarray(arrays["range_disparity"], dtype=np.float64),
+                   depth_mm=(float(lim[0]), float(lim[1])), region=np.asarray(arrays["range_region"], dtype=bool),
+                   disparity_px=(int(lim[2]), int(lim[3])))
+
+
+def rig_range(pair: RectifiedPair, back_mm: float) -> RigRange:
+    """The rig-only part of :func:`auto_search_range` (:class:`RigRange`)."""
+    depths, disp, (zmin, zmax) = _rig_range(pair, back_mm)
+    region, (dlo, dhi) = common_view(pair, zmin, zmax)
+    return RigRange(depths=depths, disparity=disp, depth_mm=(zmin, zmax), region=region,
+                    disparity_px=(int(dlo), int(dhi)))
+
+
 def rig_depth_range(pair: RectifiedPair, back_mm: float) -> tuple[float, float]:
     """Every depth (mm) at which the two views of ``pair`` share a field.
 
@@ -230,10 +278,13 @@ def rig_depth_range(pair: RectifiedPair, back_mm: float) -> tuple[float, float]:
     return _rig_range(pair, back_mm)[2]
 
 
-def auto_search_range(pair: RectifiedPair, back_mm: float, left: np.ndarray, right: np.ndarray) -> SearchRange:
-    """The depth and disparity range to search when the user gave none (see the module docstring)."""
-    depths, disp, (zmin, zmax) = _rig_range(pair, back_mm)
-    region, (dlo, dhi) = common_view(pair, zmin, zmax)
+def auto_search_range(pair: RectifiedPair, back_mm: float, left: np.ndarray, right: np.ndarray, *,
+                      rig: RigRange | None = None) -> SearchRange:
+    """The depth and disparity range to search when the user gave none (see the module docstring).
+    ``rig``: the pair's :func:`rig_range`, when the caller has it (the same result, without recomputing it)."""
+    known = rig if rig is not None else rig_range(pair, back_mm)
+    depths, disp, (zmin, zmax) = known.depths, known.disparity, known.depth_mm
+    region, (dlo, dhi) = known.region, known.disparity_px
     dhi = min(dhi, left.shape[1] - 1)
     dlo = min(dlo, dhi)
     vl, vr = (np.asarray(m, dtype=bool) for m in pair.valid_masks())  # type: ignore[attr-defined]

@@ -5,7 +5,11 @@ and the camera model, yet a ``prismstereo depth`` call (a new process) would red
 They are kept in one ``.npz`` file per set-up (arrays only, read without pickle):
 
 - content: the virtual cameras, the rectified pair with its remap tables and the pair's epipolar curves
-  (:class:`~prismstereo.rectify.epipolar.EpipolarTable`);
+  (:class:`~prismstereo.rectify.epipolar.EpipolarTable`); in a second file of the same key (``rays-*.npz``,
+  read only by exact triangulation) the exact ray of every rectified pixel
+  (:class:`~prismstereo.depth.triangulation.RayTable`, 96 bytes per pixel); in a third (``range-*.npz``) the
+  rig-only part of the automatic search range (:class:`~prismstereo.depth.search_range.RigRange`: the depths
+  at which the views overlap and their common view);
 - key: SHA-256 of the resolved rig (:meth:`~prismstereo.config.Rig.to_dict`, which holds the image size),
   the pair of faces, the camera model, the package version and the source of the modules that compute the
   set-up (``cameras``, ``optics``, ``rectify``, ``config``, this module), so that an edited library never
@@ -36,17 +40,21 @@ import prismstereo
 from prismstereo.cameras import VirtualView
 from prismstereo.cameras.pinhole import PinholeCamera
 from prismstereo.config import Rig
+from prismstereo.depth.search_range import RigRange
+from prismstereo.depth.triangulation import RayTable
 from prismstereo.rectify import RectifiedPair
 from prismstereo.rectify.epipolar import EpipolarTable
 
 log = logging.getLogger(__name__)
 
-__all__ = ["cache_folder", "load_setup", "save_setup", "setup_key"]
+__all__ = ["cache_folder", "load_range", "load_rays", "load_setup", "save_range", "save_rays", "save_setup",
+           "setup_key"]
 
 _OFF = {"0", "off", "no", "false"}
 #: bump when the file layout changes
 _LAYOUT = 2
-_SOURCES = ("cameras", "optics", "rectify", "config.py", "depth/setup_cache.py")
+_SOURCES = ("cameras", "optics", "rectify", "config.py", "depth/setup_cache.py", "depth/triangulation.py",
+            "depth/search_range.py")
 #: entries kept in the folder (the oldest beyond are removed when one is written)
 MAX_ENTRIES = 32
 
@@ -82,9 +90,9 @@ def setup_key(rig: Rig, faces: tuple[int, int], calibration: str) -> str:
     return h.hexdigest()[:40]
 
 
-def _path(rig: Rig, faces: tuple[int, int], calibration: str) -> Path | None:
+def _path(rig: Rig, faces: tuple[int, int], calibration: str, kind: str = "setup") -> Path | None:
     folder = cache_folder()
-    return None if folder is None else folder / f"setup-{setup_key(rig, faces, calibration)}.npz"
+    return None if folder is None else folder / f"{kind}-{setup_key(rig, faces, calibration)}.npz"
 
 
 def load_setup(rig: Rig, faces: tuple[int, int], calibration: str
@@ -146,10 +154,60 @@ def save_setup(rig: Rig, faces: tuple[int, int], calibration: str, views: Sequen
         "disparity_offset": np.array(pair.disparity_offset),
         **epipolar.to_arrays(),
     }
+    return _write(path, arrays)
+
+
+def load_rays(rig: Rig, faces: tuple[int, int], calibration: str, *, shape: tuple[int, int]) -> RayTable | None:
+    """The cached exact-ray table of a set-up (:class:`~prismstereo.depth.triangulation.RayTable`) whose
+    rectified views are ``shape`` (h, w), or None (no entry, unreadable, another shape, disabled)."""
+    path = _path(rig, faces, calibration, "rays")
+    if path is None or not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            table = RayTable.from_arrays({k: z[k] for k in z.files})
+        if table.shape != tuple(shape):
+            raise ValueError(f"a table of {table.shape}, expected {tuple(shape)}")
+    except (OSError, ValueError, KeyError, TypeError, IndexError, EOFError, zipfile.BadZipFile) as exc:
+        log.info("ray table cache entry %s unreadable (%s): computing it again", path, exc)
+        return None
+    return table
+
+
+def save_rays(rig: Rig, faces: tuple[int, int], calibration: str, table: RayTable) -> Path | None:
+    """Store a set-up's exact-ray table (best effort, as :func:`save_setup`)."""
+    path = _path(rig, faces, calibration, "rays")
+    return None if path is None else _write(path, table.to_arrays())
+
+
+def load_range(rig: Rig, faces: tuple[int, int], calibration: str, *, shape: tuple[int, int]) -> RigRange | None:
+    """The cached rig-only search range of a set-up whose rectified views are ``shape`` (h, w), or None."""
+    path = _path(rig, faces, calibration, "range")
+    if path is None or not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            found = RigRange.from_arrays({k: z[k] for k in z.files})
+        if found.region.shape != tuple(shape):
+            raise ValueError(f"a region of {found.region.shape}, expected {tuple(shape)}")
+    except (OSError, ValueError, KeyError, TypeError, IndexError, EOFError, zipfile.BadZipFile) as exc:
+        log.info("search range cache entry %s unreadable (%s): computing it again", path, exc)
+        return None
+    return found
+
+
+def save_range(rig: Rig, faces: tuple[int, int], calibration: str, found: RigRange) -> Path | None:
+    """Store a set-up's rig-only search range (best effort, as :func:`save_setup`)."""
+    path = _path(rig, faces, calibration, "range")
+    return None if path is None else _write(path, found.to_arrays())
+
+
+def _write(path: Path, arrays: dict[str, np.ndarray]) -> Path | None:
+    """Write an entry atomically (module docstring); None when it could not be written."""
     tmp: str | None = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=".setup-", suffix=".tmp", dir=path.parent)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name.split('-')[0]}-", suffix=".tmp", dir=path.parent)
         with os.fdopen(fd, "wb") as fh:
             np.savez(fh, **arrays)  # type: ignore[arg-type]
         os.replace(tmp, path)
@@ -171,8 +229,9 @@ def _prune(folder: Path) -> None:
     """Keep the :data:`MAX_ENTRIES` most recently written entries (each edit of the geometry code or rig makes
     a new key; the old files would otherwise stay)."""
     try:
-        entries = sorted(folder.glob("setup-*.npz"), key=lambda p: p.stat().st_mtime, reverse=True)
-        for old in entries[MAX_ENTRIES:]:
-            old.unlink()
+        for kind in ("setup", "rays", "range"):
+            entries = sorted(folder.glob(f"{kind}-*.npz"), key=lambda p: p.stat().st_mtime, reverse=True)
+            for old in entries[MAX_ENTRIES:]:
+                old.unlink()
     except OSError:  # another process pruned first, or the folder went away: nothing to keep tidy
         pass

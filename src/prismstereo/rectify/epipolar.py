@@ -17,7 +17,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import distance_transform_edt, map_coordinates
+from numba import njit, prange
+from scipy.ndimage import distance_transform_edt
 
 from prismstereo.optics import project_exact, trace_pixels
 from prismstereo.rectify.rectification import RectifiedPair
@@ -51,11 +52,12 @@ class EpipolarTable:
     def row_offset(self, ys: np.ndarray, xs: np.ndarray, d: np.ndarray) -> np.ndarray:
         """(N,) float64 δy of left pixels ``(xs, ys)`` matched at disparities ``d`` (trilinear; pixels and
         disparities beyond the table take its nearest entries; NaN where ``d`` is not finite)."""
-        dd = np.asarray(d, dtype=np.float64)
-        k = (np.nan_to_num(dd, nan=self.d_start) - self.d_start) / self.d_step
-        coords = [k, np.asarray(ys, dtype=np.float64) / self.step, np.asarray(xs, dtype=np.float64) / self.step]
-        out = map_coordinates(self.offsets.astype(np.float64), coords, order=1, mode="nearest")
-        return np.where(np.isfinite(dd), out, np.nan)
+        dd = np.asarray(d, dtype=np.float64).ravel()
+        yy = np.broadcast_to(np.asarray(ys, dtype=np.float64), np.shape(d)).ravel()
+        xx = np.broadcast_to(np.asarray(xs, dtype=np.float64), np.shape(d)).ravel()
+        out = _trilinear(self.offsets, np.ascontiguousarray(yy), np.ascontiguousarray(xx), dd,
+                         float(self.step), float(self.d_start), float(self.d_step))
+        return out.reshape(np.shape(d))
 
     def row_offset_map(self, disparity: np.ndarray) -> np.ndarray:
         """(H, W) float32 δy of every pixel of a left disparity map (NaN where it is NaN)."""
@@ -74,6 +76,38 @@ class EpipolarTable:
         grid = np.asarray(arrays["epi_grid"], dtype=np.float64)
         return cls(offsets=np.asarray(arrays["epi_offsets"], dtype=np.float32), step=int(grid[0]),
                    d_start=float(grid[1]), d_step=float(grid[2]))
+
+
+@njit(cache=True, inline="always")
+def _clamped(c: float, n: int) -> tuple[int, float]:  # pragma: no cover - numba
+    """Cell and fraction of coordinate ``c`` on a grid of ``n`` samples, clamped to the grid (the edge value
+    beyond it: scipy's ``map_coordinates(order=1, mode="nearest")``)."""
+    c = min(max(c, 0.0), float(n - 1))
+    i = min(int(np.floor(c)), max(n - 2, 0))
+    return i, c - i
+
+
+@njit(cache=True, parallel=True, nogil=True)
+def _trilinear(grid: np.ndarray, ys: np.ndarray, xs: np.ndarray, d: np.ndarray, step: float, d_start: float,
+               d_step: float) -> np.ndarray:  # pragma: no cover - numba
+    """(N,) float64 trilinear lookup of ``grid[k, i, j]`` at k = (d − d_start) / d_step, i = y / step,
+    j = x / step (clamped to the grid); NaN where ``d`` is not finite."""
+    nk, ni, nj = grid.shape
+    out = np.empty(d.size)
+    for n in prange(d.size):
+        if not np.isfinite(d[n]):
+            out[n] = np.nan
+            continue
+        k, fk = _clamped((d[n] - d_start) / d_step, nk)
+        i, fi = _clamped(ys[n] / step, ni)
+        j, fj = _clamped(xs[n] / step, nj)
+        k1, i1, j1 = min(k + 1, nk - 1), min(i + 1, ni - 1), min(j + 1, nj - 1)
+        v = 0.0
+        for a, wa in ((k, 1.0 - fk), (k1, fk)):
+            for b, wb in ((i, 1.0 - fi), (i1, fi)):
+                v += wa * wb * ((1.0 - fj) * float(grid[a, b, j]) + fj * float(grid[a, b, j1]))
+        out[n] = v
+    return out
 
 
 def _right_rectified(pair: RectifiedPair, real_px: np.ndarray, iterations: int = 2) -> np.ndarray:

@@ -1,0 +1,253 @@
+"""Depth at the camera's resolution: every preset at 0.8, 3 and 12 megapixels (issue 30, item 6).
+
+For each built-in scene (``robot``: the simulator's bi-prism robot scene; ``demo``: the demo's box, ball and
+panel; ``plane``: a tilted textured plane at 1.4 m) a capture is rendered at each size through the thesis
+bi-prism rig (:func:`prismstereo.simulate.robot_scene`'s camera scaled: width W, height 3W/4, pixel size
+4.65 µm × 1024 / W, so the optics and the field of view stay the thesis rig's). Then, per preset, ONE
+subprocess (so that its peak memory is its own: ``resource.getrusage(RUSAGE_SELF).ru_maxrss``; tracemalloc
+misses numpy's and numba's allocations):
+
+1. ``run_depth(rig, capture, DepthConfig(method=PRESETS[p]))`` once (numba's cache loaded, the rig's set-up
+   computed and cached on disk), then again: the second run is the one measured, as ``prismstereo depth
+   RIG capture.png --preset P`` on a rig whose set-up is cached (its ``run.json`` ``timings_s``);
+2. OpenCV StereoSGBM (``MODE_SGBM_3WAY``, block 5, P1 = 8·3·25, P2 = 32·3·25) on the same rectified pair
+   and disparity range, best of 3, in the same process;
+3. accuracy against the render's ground truth (:func:`~prismstereo.evaluation.depth_metrics.evaluate_depth`):
+   median relative depth error, share of points within 1 %, coverage of the common view.
+
+Printed: seconds per frame (the pipeline's own total), its stages, the per-frame work outside matching as
+a share of the frame (wall, and in CPU seconds of the process, which a loaded machine distorts less),
+× SGBM, seconds per megapixel, peak RSS, accuracy. ``--stream`` adds a streaming run
+(:func:`prismstereo.batch.stream.run_stream`, ``fast``) over a lossless video of ``--stream-frames``
+renders at the first size, depth range :data:`STREAM_RANGE_MM` given: frames/s.
+
+    NUMBA_CACHE_DIR=.numba_cache PYTHONPATH=src .venv/bin/python benchmarks/bench_scale.py \\
+        --sizes 1024,2048 --presets fast,balanced --scenes robot [--stream] [--json out.json]
+    ... --sizes 4096 --presets fast          # 12 MP: several GB per run; run one at a time
+
+Each run is a fresh process: numba's compiled kernels come from its disk cache (``prismstereo warmup``
+first, or the first run pays the compile, which the warm-up run absorbs).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(os.path.dirname(__file__), "..", ".numba_cache"))
+
+SCENES = ("robot", "demo", "plane")
+PRESETS = ("fast", "balanced", "accurate")
+#: the stream's depth range (a stream has no image to narrow the rig's range with): the built-in scenes' objects
+#: and walls lie at 1.2-2.2 m
+STREAM_RANGE_MM = (1000.0, 2500.0)
+
+
+def _scene(name: str, width: int) -> tuple[Any, Any]:
+    from dataclasses import replace
+
+    from prismstereo.apps.demo import demo_scene, plane_scene
+    from prismstereo.simulate import robot_scene
+
+    rig, robot = robot_scene(width=width)
+    if name == "robot":
+        return rig, robot
+    if name == "demo":
+        return rig, replace(demo_scene(), supersample=2)
+    if name == "plane":
+        return rig, plane_scene(1400.0, tilt_deg=25.0)
+    raise SystemExit(f"--scenes: expected names among {', '.join(SCENES)}, got {name!r}")
+
+
+def _render(scene: str, width: int, folder: Path) -> None:
+    """capture.png, depth_gt.pfm and rig.toml of a scene at a width (in a child: a 12 MP render is large)."""
+    from prismstereo.io import write_image, write_pfm
+    from prismstereo.simulate import render_capture
+
+    rig, sc = _scene(scene, width)
+    cap = render_capture(rig, sc)
+    folder.mkdir(parents=True, exist_ok=True)
+    write_image(folder / "capture.png", cap.image)
+    write_pfm(folder / "depth_gt.pfm", cap.depth)
+    rig.save(folder / "rig.toml")
+
+
+def _sgbm_seconds(left: Any, right: Any, lo: int, hi: int, repeat: int = 3) -> float:
+    import cv2
+
+    n = int(math.ceil((hi - lo + 1) / 16.0)) * 16
+    b = 5
+    sgbm = cv2.StereoSGBM_create(minDisparity=int(lo), numDisparities=n, blockSize=b, P1=8 * 3 * b * b,  # type: ignore[attr-defined]
+                                 P2=32 * 3 * b * b, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+    best = float("inf")
+    for _ in range(repeat):
+        t = time.perf_counter()
+        sgbm.compute(left, right)
+        best = min(best, time.perf_counter() - t)
+    return best
+
+
+def _depth_child(folder: Path, preset: str) -> dict[str, Any]:
+    """One preset on one capture (a child process): the measured second run, SGBM, accuracy, peak RSS."""
+    import numpy as np
+
+    from prismstereo.config import load_rig
+    from prismstereo.depth import DepthConfig, run_depth
+    from prismstereo.evaluation.depth_metrics import evaluate_depth, read_depth_gt
+    from prismstereo.io import read_image
+    from prismstereo.matching import PRESETS as TABLE
+
+    rig = load_rig(folder / "rig.toml")
+    img = read_image(folder / "capture.png")
+    gt = read_depth_gt(folder / "depth_gt.pfm", rig)
+    cfg = DepthConfig(method=TABLE[preset])
+    t = time.perf_counter()
+    run_depth(rig, img, config=cfg, progress=False)
+    first = time.perf_counter() - t
+    res = run_depth(rig, img, config=cfg, progress=False)
+    acc = evaluate_depth(res, depth_gt=gt)
+    lo, hi = res.disparity_range
+    sgbm = _sgbm_seconds(np.ascontiguousarray(res.left), np.ascontiguousarray(res.right), lo, hi)
+    return {"timings": {k: round(v, 4) for k, v in res.timings.items()},
+            "cpu": {k: round(v, 4) for k, v in res.cpu_timings.items()},
+            "match_timings": {k: round(v, 4) for k, v in res.match_timings.items()},
+            "first_run_s": round(first, 3), "sgbm_s": round(sgbm, 4), "disparity_range": [lo, hi],
+            "rectified": list(res.left.shape[:2]),
+            "median_rel": acc["median_rel"], "within_1pct": acc["within_1pct"], "coverage": acc["coverage"],
+            "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20}
+
+
+def _stream_child(folder: Path, frames: int) -> dict[str, Any]:
+    """A fast stream over a lossless video of ``frames`` copies of the capture (a child process)."""
+    import cv2
+
+    from prismstereo.batch.stream import run_stream
+    from prismstereo.config import load_rig
+    from prismstereo.depth import DepthConfig
+    from prismstereo.io import read_image
+
+    rig = load_rig(folder / "rig.toml")
+    img = read_image(folder / "capture.png")
+    with tempfile.TemporaryDirectory() as tmp:
+        video = Path(tmp) / "caps.avi"
+        vw = cv2.VideoWriter(str(video), cv2.VideoWriter.fourcc(*"FFV1"), 10.0, (img.shape[1], img.shape[0]))
+        bgr = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
+        for _ in range(frames):
+            vw.write(bgr)
+        vw.release()
+        # warm: numba's kernels loaded and the set-up cached, on the first frame
+        cfg = DepthConfig(method="sgm", depth_range=STREAM_RANGE_MM)
+        run_stream(rig, str(video), Path(tmp) / "warm", config=cfg, max_frames=1)
+        s = run_stream(rig, str(video), Path(tmp) / "out", config=cfg)
+    return {"frames": s.frames, "frames_per_s": round(s.frames_per_s, 3), "stage_s": s.stage_s,
+            "setup_s": round(s.setup_s, 3), "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20}
+
+
+def _child(args: list[str]) -> dict[str, Any]:
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).resolve().parents[1] / "src"),
+                                                        os.environ.get("PYTHONPATH", "")])}
+    p = subprocess.run([sys.executable, __file__, *args], capture_output=True, text=True, env=env)
+    if p.returncode != 0:
+        return {"error": (p.stderr.strip().splitlines() or [f"exit {p.returncode}"])[-1],
+                "exit": p.returncode}
+    return dict(json.loads(p.stdout.strip().splitlines()[-1]))
+
+
+def _row(scene: str, width: int, preset: str, r: dict[str, Any]) -> str:
+    mp = width * width * 3 / 4 / 1e6
+    if "error" in r:
+        return f"| {scene} | {width}×{width * 3 // 4} | {preset} | failed: {r['error']} (exit {r['exit']}) |"
+    t = r["timings"]
+    total = t["total"]
+    outside = total - t.get("match", 0.0)
+    stages = ", ".join(f"{k} {v:.2f}" for k, v in t.items() if k not in ("total", "validate") and v >= 0.005)
+    cpu = r.get("cpu", {})
+    cpu_total = sum(cpu.values())
+    cpu_out = cpu_total - cpu.get("match", 0.0)
+    return (f"| {scene} | {width}×{width * 3 // 4} | {preset} | {total:.2f} | {100 * outside / total:.0f} % | "
+            f"{cpu_total:.2f} | {100 * cpu_out / max(cpu_total, 1e-9):.0f} % | "
+            f"{total / r['sgbm_s']:.0f}× ({r['sgbm_s']:.3f} s) | {total / mp:.2f} | {r['peak_rss_gb']:.2f} | "
+            f"{100 * r['median_rel']:.3f} % | {100 * r['within_1pct']:.1f} % | {100 * r['coverage']:.1f} % | "
+            f"{stages} |")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--sizes", default="1024,2048,4096", help="sensor widths (4:3): 1024 = 0.8 MP, 2048 = 3 MP, "
+                                                              "4096 = 12 MP")
+    ap.add_argument("--presets", default=",".join(PRESETS))
+    ap.add_argument("--scenes", default="robot", help=f"among {','.join(SCENES)}")
+    ap.add_argument("--stream", action="store_true", help="also a fast stream at the first size: frames/s")
+    ap.add_argument("--stream-frames", type=int, default=12)
+    ap.add_argument("--json", default=None, help="write the measurements here")
+    ap.add_argument("--work", default=None, help="folder for the renders (default: a temporary one)")
+    ap.add_argument("--child", nargs=3, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--table", default=None, metavar="JSON", help="print the table of an earlier --json and exit")
+    args = ap.parse_args()
+    if args.child is not None:
+        kind, folder, what = args.child
+        if kind == "render":
+            scene, width = what.split(":")
+            _render(scene, int(width), Path(folder))
+            print(json.dumps({"ok": True}))
+        elif kind == "depth":
+            print(json.dumps(_depth_child(Path(folder), what)))
+        else:
+            print(json.dumps(_stream_child(Path(folder), int(what))))
+        return
+    if args.table is not None:
+        for r in json.loads(Path(args.table).read_text()):
+            if not r.get("stream"):
+                print(_row(r["scene"], r["width"], r["preset"], r))
+        return
+    sizes = [int(s) for s in args.sizes.split(",")]
+    presets = [p.strip() for p in args.presets.split(",")]
+    scenes = [s.strip() for s in args.scenes.split(",")]
+    bad = [p for p in presets if p not in PRESETS] + [s for s in scenes if s not in SCENES]
+    if bad:
+        raise SystemExit(f"expected presets among {PRESETS} and scenes among {SCENES}, got {bad}")
+    work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="bench_scale-"))
+    results: list[dict[str, Any]] = []
+    print(f"load average {open('/proc/loadavg').read().split()[:3]}; renders in {work}")
+    print("| scene | capture | preset | s per frame | outside match | CPU s | CPU outside match | × SGBM-3WAY | "
+          "s per MP | peak RSS GB | median depth err | within 1 % | coverage | stages (s) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for scene in scenes:
+        for width in sizes:
+            folder = work / f"{scene}-{width}"
+            if not (folder / "capture.png").is_file():
+                r = _child(["--child", "render", str(folder), f"{scene}:{width}"])
+                if "error" in r:
+                    print(f"| {scene} | {width} | render failed: {r['error']} |")
+                    continue
+            for preset in presets:
+                r = _child(["--child", "depth", str(folder), preset])
+                results.append({"scene": scene, "width": width, "preset": preset, **r})
+                print(_row(scene, width, preset, r), flush=True)
+    if args.stream:
+        folder = work / f"{scenes[0]}-{sizes[0]}"
+        r = _child(["--child", "stream", str(folder), str(args.stream_frames)])
+        results.append({"scene": scenes[0], "width": sizes[0], "stream": True, **r})
+        if "error" in r:
+            print(f"stream: failed: {r['error']}")
+        else:
+            s = r["stage_s"]
+            print(f"stream ({scenes[0]}, {sizes[0]}×{sizes[0] * 3 // 4}, fast, {r['frames']} frames): "
+                  f"{r['frames_per_s']:.2f} frames/s (per frame: read {s['read']:.3f} s, depth {s['depth']:.3f} s, "
+                  f"write {s['write']:.3f} s, overlapped), peak RSS {r['peak_rss_gb']:.2f} GB")
+    print(f"load average {open('/proc/loadavg').read().split()[:3]}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,54 @@
+"""What ``prismstereo stream`` does, kept out of cli.py (no algorithm code there)."""
+
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+from prismstereo.errors import ConfigError
+
+__all__ = ["STREAM_EPILOG", "stream_command"]
+
+STREAM_EPILOG = """\
+SOURCE: a camera index (0, 1, ...), a video file (mp4, avi, ...) or a folder that fills up (its images in name
+order, then each new one; the stream ends after --idle-timeout seconds without a new image). Frames are read,
+matched and written at once (three threads with short queues); frames/s is printed as it goes.
+Outputs: OUT/frames/<name>/ per frame (--outputs, default disparity.pfm and depth.png: 16-bit Z in mm, 0 = none),
+written complete or not at all; --video PATH also writes a colourised depth video; OUT/stream.json (configuration,
+totals). Ctrl-C ends the stream and keeps every finished frame.
+Exit codes: 0 done; 2 bad arguments or a source that cannot be opened (before any frame); 3 some frames failed
+(folder sources: unreadable or wrong-size images; the others are written); 130 interrupted."""
+
+
+def stream_command(rig_path: str, source: str, out_dir: str, *, method: str = "sgm",
+                   params: dict[str, Any] | None = None, depth_range: tuple[float, float] | None = None,
+                   roi: tuple[int, int, int, int] | None = None, views: Any = None, triangulation: str = "exact",
+                   refine: bool = True, min_confidence: float | None = None, outputs: str | None = None,
+                   video: str | None = None, video_fps: float = 10.0, idle_timeout: float = 10.0,
+                   max_frames: int | None = None) -> int:
+    """Run ``prismstereo stream``: print the summary, return the exit code (0, 3 when frames failed, 130
+    when interrupted)."""
+    from prismstereo.batch.stream import STREAM_OUTPUTS, run_stream
+    from prismstereo.config import load_rig
+    from prismstereo.depth.pipeline import DepthConfig
+
+    rig = load_rig(rig_path)
+    if views == "all":
+        raise ConfigError("--views: expected a pair I,J for a stream, got 'all' (the all-view sweep is depth-only)")
+    if views is not None and len(views) != 2:
+        raise ConfigError(f"--views: expected two faces I,J, got {','.join(map(str, views))}")
+    extra: dict[str, Any] = {} if min_confidence is None else {"min_confidence": min_confidence}
+    config = DepthConfig(method=method, matcher_params=dict(params or {}), depth_range=depth_range, roi=roi,
+                         views=None if views is None else (int(views[0]), int(views[1])),
+                         triangulation=triangulation, refine=refine, **extra)
+
+    def echo(line: str) -> None:
+        print(line, file=sys.stderr, flush=True)
+
+    chosen: Any = STREAM_OUTPUTS if outputs is None else ("" if outputs.strip().lower() == "none" else outputs)
+    summary = run_stream(rig, source, out_dir, config=config, outputs=chosen, video=video, video_fps=video_fps,
+                         idle_timeout=idle_timeout, max_frames=max_frames, echo=echo)
+    print(summary.text())
+    if summary.interrupted:
+        return 130
+    return 3 if summary.failed else 0
