@@ -163,7 +163,8 @@ class DepthConfig:
         map and keep what the refinement, its sub-pixel left–right check and ``min_confidence`` confirm
         (:func:`~prismstereo.depth.confidence.confident_fill`): on weak texture the integer cross-check
         and the refinement from the raw values drop whole regions the matcher had right. Needs ``refine``
-        and ``refine_max_lr_gap`` (without the check nothing tests the filled values: not used).
+        and ``refine_max_lr_gap`` (without the check nothing tests the filled values: not used). Off by
+        default: the points it adds are right but less precise (docs/EXPERIMENTS.md, issue 26).
     sweep : SweepParams
         The plane sweep of ``views="all"`` (:class:`~prismstereo.multiview.prism.SweepParams`).
     coarse_to_fine : {"auto", "on", "off"}
@@ -192,7 +193,7 @@ class DepthConfig:
     refine_min_texture: float = 0.01
     refine_max_lr_gap: float | None = 0.45
     refine_prefilter: float | None = 0.7
-    refine_fill: bool = True
+    refine_fill: bool = False
     sweep: SweepParams = field(default_factory=SweepParams)
     coarse_to_fine: str = "auto"
     max_memory: int | None = None
