@@ -244,7 +244,9 @@ def main() -> None:
                     rows.append(row)
                     done.add(_key(row))
                     print(_fmt(row), flush=True)
-                    res_file.write_text(json.dumps({"rows": rows, "load_start": load0}, indent=1, default=str))
+                    tmp = res_file.with_suffix(".json.tmp")
+                    tmp.write_text(json.dumps({"rows": rows, "load_start": load0}, indent=1, default=str))
+                    tmp.replace(res_file)
     print("\n" + summary(rows))
     print(f"\nload average at start {load0[0]:.1f}, at end {os.getloadavg()[0]:.1f} ({os.cpu_count()} CPUs)")
 
