@@ -45,6 +45,7 @@ from scipy.optimize import least_squares
 from prismstereo.calibration.boards import to_gray
 from prismstereo.calibration.prism import PARAMETERS, free_items, prism_values, with_prism_values
 from prismstereo.config import Rig
+from prismstereo.depth.apex_band import apex_band_real
 from prismstereo.errors import ConfigError, GeometryError, ImageError
 from prismstereo.optics import face_map, rays_from_pixels, trace_pixels, trace_rays
 from prismstereo.optics.distortion import undistort_points
@@ -235,8 +236,6 @@ def _undistorted_px(rig: Rig, px: np.ndarray) -> np.ndarray:
 def _face_masks(rig: Rig, band_px: int) -> list[np.ndarray]:
     """Each face's pixels less ``band_px`` around its edges and, where the camera gives its f-number and focus
     distance, less the apex band where the lens sees through two faces (:mod:`prismstereo.depth.apex_band`)."""
-    from prismstereo.depth.apex_band import apex_band_real
-
     fm = face_map(rig)
     kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * band_px + 1, 2 * band_px + 1))
     masks = [cv2.erode((fm == k).astype(np.uint8), kernel) > 0 for k in range(rig.prism.faces)]

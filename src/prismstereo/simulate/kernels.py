@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
+from prismstereo.simulate.rgbd import surface_mesh
 from prismstereo.simulate.scene import (
     Box,
     CheckerTexture,
@@ -135,8 +136,6 @@ def compile_scene(scene: Scene) -> CompiledScene:
     offset = 0
     for obj_id, obj in enumerate(scene.objects):
         if isinstance(obj, RGBDSurface):
-            from prismstereo.simulate.rgbd import surface_mesh  # rgbd imports the scene model, not the kernels
-
             w, h = obj.size
             texture: Texture = ImageTexture(image=obj.image, size=(float(w), float(h)))
             trow, offset = _tex_row(texture, chunks, offset)

@@ -79,6 +79,7 @@ import tomli_w
 from prismstereo.config import Rig, read_toml, rig_from_dict
 from prismstereo.errors import ConfigError, ImageError
 from prismstereo.io import read_image
+from prismstereo.simulate.rgbd import depth_from_disparity, middlebury_rgbd, read_depth_map, read_disparity_map
 from prismstereo.simulate.scene import (
     BAYER_PATTERNS,
     DEMOSAIC_METHODS,
@@ -252,8 +253,6 @@ def _rotation(where: str, o: Mapping[str, Any]) -> Vec3:
 
 def _rgbd_object(where: str, o: Mapping[str, Any], name: str, base_dir: Path) -> RGBDSurface:
     """An ``rgbd`` object: colour + depth (or disparity + calibration), intrinsics, pose and scale."""
-    from prismstereo.simulate.rgbd import depth_from_disparity, middlebury_rgbd, read_depth_map, read_disparity_map
-
     jump = _num(where, "jump", o.get("jump", 0.02), positive=True)
     placed = "center_depth" in o
     if placed == ("origin" in o):

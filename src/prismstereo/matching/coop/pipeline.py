@@ -65,6 +65,7 @@ from prismstereo.matching.coop.steps import (
 )
 from prismstereo.matching.local import selection
 from prismstereo.matching.local.matchers import BPASWMatcher
+from prismstereo.matching.local.sgm import SGMMatcher
 from prismstereo.matching.registry import MatchResult, register_matcher
 from prismstereo.matching.segments.planes import (
     PlaneParams,
@@ -539,8 +540,6 @@ class _PairEvidence:
 
     def _sgm_map(self) -> tuple[F32, npt.NDArray[np.bool_]]:
         # the ``sgm`` matcher (census cost, 8 paths) with its defaults: its dense map and its checked pixels
-        from prismstereo.matching.local.sgm import SGMMatcher
-
         res = SGMMatcher().compute(self.image, self.right, max_disp=self.max_disp, min_disp=self.min_disp)
         return np.asarray(res.disparity, np.float32), np.asarray(res.valid, bool)
 
