@@ -415,9 +415,9 @@ def _data(j: int, pl: F64, dt: PixelData, prm: KernelParams, z1: F64, o1: I64, z
 
 
 @njit(cache=True)
-def _smooth(j: int, i: int, edge: int, plj: F64, pli: F64, g: GraphArrays, w: int, thr: float) -> float:
+def _smooth(j: int, i: int, edge: int, plj: F64, pli: F64, pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64,
+            bw: F64, w: int, thr: float) -> float:
     """Σ over the boundary of (j, i) of exp(-β ΔI²) [|d_j(p) - d_i(q)| ≥ thr] (Eq. 6.24 without γ)."""
-    pairs, bstart, bp_lo, bp_hi, bw = g.pairs, g.bstart, g.bp_lo, g.bp_hi, g.bw
     s = 0.0
     jlo = pairs[edge, 0] == j
     inv_w = 1.0 / w
@@ -441,12 +441,13 @@ def _smooth(j: int, i: int, edge: int, plj: F64, pli: F64, g: GraphArrays, w: in
 def _add_smoothness(e: float, assign: I32, planes: F64, g: GraphArrays, w: int, gamma: float, thr: float) -> float:
     """``e`` plus the smoothness term of every boundary between differently labelled segments, added one
     boundary at a time (Eq. 6.24; each boundary appears in both segments' energies, Eq. 6.18)."""
-    pairs = g.pairs
+    pairs, bstart, bp_lo, bp_hi, bw = g.pairs, g.bstart, g.bp_lo, g.bp_hi, g.bw
     for ed in range(pairs.shape[0]):
         lo = pairs[ed, 0]
         hi = pairs[ed, 1]
         if assign[lo] != assign[hi]:
-            e += 2.0 * gamma * _smooth(lo, hi, ed, planes[assign[lo]], planes[assign[hi]], g, w, thr)
+            e += 2.0 * gamma * _smooth(lo, hi, ed, planes[assign[lo]], planes[assign[hi]], pairs, bstart, bp_lo,
+                                       bp_hi, bw, w, thr)
     return e
 
 
@@ -455,7 +456,7 @@ def _add_smoothness_cached(e: float, assign: I32, planes: F64, g: GraphArrays, w
                            elab: I64, es: F64) -> float:
     """:func:`_add_smoothness` with each boundary's term remembered for the planes it was last computed for
     (``elab[e]``, ``es[e]``): the same terms, added in the same order."""
-    pairs = g.pairs
+    pairs, bstart, bp_lo, bp_hi, bw = g.pairs, g.bstart, g.bp_lo, g.bp_hi, g.bw
     for ed in range(pairs.shape[0]):
         lo = pairs[ed, 0]
         hi = pairs[ed, 1]
@@ -463,7 +464,8 @@ def _add_smoothness_cached(e: float, assign: I32, planes: F64, g: GraphArrays, w
             if elab[ed, 0] == assign[lo] and elab[ed, 1] == assign[hi]:
                 sm = es[ed]
             else:
-                sm = _smooth(lo, hi, ed, planes[assign[lo]], planes[assign[hi]], g, w, thr)
+                sm = _smooth(lo, hi, ed, planes[assign[lo]], planes[assign[hi]], pairs, bstart, bp_lo, bp_hi, bw, w,
+                             thr)
                 elab[ed, 0] = assign[lo]
                 elab[ed, 1] = assign[hi]
                 es[ed] = sm
@@ -500,10 +502,8 @@ def _vis_flips(j: int, pl: F64, dt: PixelData, cache: SweepCache, margin: float,
     ``order[srun[r, 1]:srun[r + 1, 1]]`` for ``r`` in ``sstart[j]:sstart[j + 1]``, each in row ``srun[r, 0]`` and
     columns ``srun[r, 2]..srun[r, 3]``. The same arithmetic as :func:`_data`, so that no answer means the same
     sum."""
-    order, starts, w, cost, min_disp, reliable = dt
-    nd = cost.shape[2]
-    (zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval, cn, clean, afor, rstart, rp, rseg, sstart, srun, elab,
-     es) = cache
+    order, w, nd, min_disp = dt.order, dt.w, dt.cost.shape[2], dt.min_disp  # only what it reads: a hot call
+    sstart, srun, zc1, oc1, zc2 = cache.sstart, cache.srun, cache.zc1, cache.oc1, cache.zc2
     a, b, c = pl[0], pl[1], pl[2]
     for r in range(sstart[j], sstart[j + 1]):
         y = srun[r, 0]
@@ -660,10 +660,9 @@ def _zbuffer_cached(a: I32, planes: F64, dt: PixelData, cache: SweepCache, prm: 
 
 @njit(cache=True)
 def _data_cached(j: int, lab: int, planes: F64, dt: PixelData, prm: KernelParams, z1: F64, o1: I64, z2: F64,
-                 cache: SweepCache) -> float:
+                 clab: I64, cval: F64, cn: I64) -> float:
     """:func:`_data` (Eqs. 6.21-6.22) of segment ``j`` under plane ``lab``, remembered until the z-buffer changes
     under it."""
-    clab, cval, cn = cache.clab, cache.cval, cache.cn
     for t in range(cn[j]):
         if clab[j, t] == lab:
             return cval[j, t]
@@ -682,7 +681,7 @@ def _energy_cached(assign: I32, planes: F64, dt: PixelData, g: GraphArrays, prm:
     """:func:`_energy` (E of Eq. 6.18) with the data terms (and, with ``es`` of one entry per boundary, the
     smoothness terms) remembered across calls (the same value)."""
     order, starts, w, cost, min_disp, reliable = dt
-    elab, es = cache.elab, cache.es
+    clab, cval, cn, elab, es = cache.clab, cache.cval, cache.cn, cache.elab, cache.es
     k = starts.size - 1
     z1, o1, z2 = _zbuffer_cached(assign, planes, dt, cache, prm)
     gamma = prm.gamma
@@ -691,7 +690,7 @@ def _energy_cached(assign: I32, planes: F64, dt: PixelData, g: GraphArrays, prm:
     # same sum as one serial loop
     dj = np.empty(k)
     for j in prange(k):
-        dj[j] = _data_cached(j, assign[j], planes, dt, prm, z1, o1, z2, cache)
+        dj[j] = _data_cached(j, assign[j], planes, dt, prm, z1, o1, z2, clab, cval, cn)
     e = 0.0
     for j in range(k):
         e += dj[j]
@@ -796,12 +795,12 @@ def _sweep(a: I32, own: I64, planes: F64, dt: PixelData, g: GraphArrays, prm: Ke
             for u in range(ncj):
                 lab = cj[u]
                 plab[j, u] = lab
-                _data_cached(j, lab, planes, dt, prm, z1, o1, z2, cache)
+                _data_cached(j, lab, planes, dt, prm, z1, o1, z2, clab, cval, cn)
                 for t in range(nstart[j], nstart[j + 1]):
                     i = nbr[t]
                     if a[i] != lab:
                         psm[64 * nstart[j] + u * deg + t - nstart[j]] = gamma * _smooth(
-                            j, i, nedge[t], planes[lab], planes[a[i]], g, w, thr)
+                            j, i, nedge[t], planes[lab], planes[a[i]], pairs, bstart, bp_lo, bp_hi, bw, w, thr)
     cand = np.empty(64, np.int64)
     changes = 0
     for j in range(k):
@@ -817,7 +816,7 @@ def _sweep(a: I32, own: I64, planes: F64, dt: PixelData, g: GraphArrays, prm: Ke
         deg = nstart[j + 1] - nstart[j]
         for u in range(nc):
             lab = cand[u]
-            dj = _data_cached(j, lab, planes, dt, prm, z1, o1, z2, cache)
+            dj = _data_cached(j, lab, planes, dt, prm, z1, o1, z2, clab, cval, cn)
             pu = -1
             for v in range(64):
                 if plab[j, v] == lab:
@@ -834,7 +833,8 @@ def _sweep(a: I32, own: I64, planes: F64, dt: PixelData, g: GraphArrays, prm: Ke
                 if pu >= 0 and a[i] == a0[i]:
                     s = psm[64 * nstart[j] + pu * deg + t - nstart[j]]
                 else:
-                    s = gamma * _smooth(j, i, nedge[t], planes[lab], planes[a[i]], g, w, thr)
+                    s = gamma * _smooth(j, i, nedge[t], planes[lab], planes[a[i]], pairs, bstart, bp_lo, bp_hi, bw, w,
+                                        thr)
                 sm += s
                 sm_f += (1.0 - kappa + kappa * mu) * s
             f = (1.0 - kappa) * dj + sm_f  # Eq. 6.19 as a function of l_j
@@ -869,7 +869,7 @@ def _local_f(j: int, pl: F64, a: I32, planes: F64, dt: PixelData, g: GraphArrays
     sm = 0.0
     for t in range(nstart[j], nstart[j + 1]):
         i = nbr[t]
-        sm += gamma * _smooth(j, i, nedge[t], pl, planes[a[i]], g, w, thr)
+        sm += gamma * _smooth(j, i, nedge[t], pl, planes[a[i]], pairs, bstart, bp_lo, bp_hi, bw, w, thr)
     return (1.0 - kappa) * dj + (1.0 - kappa + kappa * mu) * sm, dj + 2.0 * sm
 
 
@@ -1281,8 +1281,8 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, dt: Pix
             s = seeds[t]
             if a[s] != lab and not seen[s]:
                 seen[s] = True
-                dn = _data_cached(s, lab, planes, dt, prm, z1, o1, z2, cache)
-                do = _data_cached(s, a[s], planes, dt, prm, z1, o1, z2, cache)
+                dn = _data_cached(s, lab, planes, dt, prm, z1, o1, z2, clab, cval, cn)
+                do = _data_cached(s, a[s], planes, dt, prm, z1, o1, z2, clab, cval, cn)
                 if dn <= do:
                     region[n] = s
                     dnew[n] = dn
@@ -1297,8 +1297,8 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, dt: Pix
                 if seen[i] or a[i] == lab:
                     continue
                 seen[i] = True
-                dn = _data_cached(i, lab, planes, dt, prm, z1, o1, z2, cache)
-                do = _data_cached(i, a[i], planes, dt, prm, z1, o1, z2, cache)
+                dn = _data_cached(i, lab, planes, dt, prm, z1, o1, z2, clab, cval, cn)
+                do = _data_cached(i, a[i], planes, dt, prm, z1, o1, z2, clab, cval, cn)
                 if dn <= do and n < max_region:
                     region[n] = i
                     dnew[n] = dn
@@ -1313,13 +1313,14 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, dt: Pix
                 i = nbr[t]
                 before = 0.0
                 if a[i] != a[j]:
-                    before = _smooth(j, i, nedge[t], planes[a[j]], planes[a[i]], g, w, thr)
+                    before = _smooth(j, i, nedge[t], planes[a[j]], planes[a[i]], pairs, bstart, bp_lo, bp_hi, bw, w,
+                                     thr)
                 if in_s[i]:
                     de -= gamma * before  # visited from both sides: 2 γ S in E (Eq. 6.18)
                 else:
                     after = 0.0
                     if a[i] != lab:
-                        after = _smooth(j, i, nedge[t], pl, planes[a[i]], g, w, thr)
+                        after = _smooth(j, i, nedge[t], pl, planes[a[i]], pairs, bstart, bp_lo, bp_hi, bw, w, thr)
                     de += 2.0 * gamma * (after - before)
         if n > 0 and de < -1e-9:
             rows[:] = False
