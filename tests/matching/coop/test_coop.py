@@ -106,15 +106,16 @@ def test_cached_energy_is_the_fresh_energy_to_the_bit() -> None:
 
     idx, pset, rel, graph, cost = _optimisation_inputs(4)
     prm = co._prm(CoopParams())
-    common = (idx.order, idx.starts, idx.shape[1], co._flat_cost(cost, None), 0, rel.ravel(), graph.pairs,
-              graph.bstart, graph.bp_lo, graph.bp_hi, graph.bw)
-    cache = co._new_cache(idx, idx.n_segments)
-    rng = np.random.default_rng(5)
-    a = rng.integers(0, len(pset), size=idx.n_segments).astype(np.int32)
-    for _ in range(6):
-        assert co._energy_cached(a, pset, *common, prm, *cache) == co._energy(a, pset, *common, prm)
-        moved = rng.choice(idx.n_segments, size=max(1, idx.n_segments // 5), replace=False)
-        a[moved] = rng.integers(0, len(pset), size=moved.size)
+    dt = co._pixel_data(idx, cost, rel, None, 0)
+    g = co._graph_arrays(graph)
+    # without and with the smoothness terms remembered
+    for cache in (co._new_cache(idx, idx.n_segments), co._take_cache(None, idx, graph, cost, rel, prm, 0, pset)):
+        rng = np.random.default_rng(5)
+        a = rng.integers(0, len(pset), size=idx.n_segments).astype(np.int32)
+        for _ in range(6):
+            assert co._energy_cached(a, pset, dt, g, prm, cache) == co._energy(a, pset, dt, g, prm)
+            moved = rng.choice(idx.n_segments, size=max(1, idx.n_segments // 5), replace=False)
+            a[moved] = rng.integers(0, len(pset), size=moved.size)
 
 
 def test_powell_refinement_lowers_energy_and_keeps_it_monotone() -> None:
@@ -346,12 +347,12 @@ def test_memo_across_calls_gives_the_results_of_fresh_calls() -> None:
         from prismstereo.matching.coop import cooperative as co
 
         cache = memo.take(idx, c, r, co._prm(CoopParams()), 0, planes)
-        clab, cval, cn = cache[6], cache[7], cache[8]
+        clab, cval, cn = cache.clab, cache.cval, cache.cn
         z = co._zbuffer(a, planes, idx.order, idx.starts, *idx.shape)
         for j in range(k):
             for t in range(cn[j]):
-                fresh = co._data(j, planes[clab[j, t]], idx.order, idx.starts, idx.shape[1], co._flat_cost(c, None),
-                                 0, r.ravel(), co._prm(CoopParams()), *z)
+                fresh = co._data(j, planes[clab[j, t]], co._pixel_data(idx, c, r, None, 0), co._prm(CoopParams()),
+                                 *z)
                 assert cval[j, t] == fresh
         memo.keep(idx, c, r, co._prm(CoopParams()), 0, planes, cache)
         return int(cn.sum())

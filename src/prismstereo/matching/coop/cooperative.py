@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -108,6 +108,114 @@ class CoopParams:
                             "smooth_threshold": (0.0, None), "unreliable_weight": (0.0, None), "max_iter": (0, 10_000),
                             "occ_margin": (0.0, None), "refine_rounds": (0, 100), "omega_border": (0.0, None),
                             "powell_cycles": (0, 100), "refine_min_size": (0, None)}, positive=("data_trunc",))
+
+
+class KernelParams(NamedTuple):
+    """:class:`CoopParams` as the numba kernels read them (:func:`_prm`): the energy's weights as float64, the
+    flags as bool, and the vertical slopes of the cost volumes (a plane's data term reads the volume of the
+    slope nearest its ``b``; ``[0.0]`` for one volume). Attributes as in :class:`CoopParams`."""
+
+    kappa: float
+    mu: float
+    omega_occ: float
+    data_trunc: float
+    unreliable_weight: float
+    gamma: float
+    smooth_threshold: float
+    occ_margin: float
+    visibility: bool
+    omega_border: float
+    neighbour_own_planes: bool
+    slopes: F64
+
+
+class PixelData(NamedTuple):
+    """The pixels of the segments and their matching costs, as the kernels read them (:func:`_pixel_data`).
+
+    Attributes
+    ----------
+    order, starts : (H*W,), (K+1,) int64
+        Flat pixel indices of segment ``j`` are ``order[starts[j]:starts[j+1]]`` (:class:`SegmentIndex`).
+    w : int
+        Image width.
+    cost : (S, H*W, D) float32
+        Pixel cost per slope volume, slice k = disparity ``min_disp + k`` (:func:`_flat_cost`).
+    min_disp : int
+    reliable : (H*W,) bool
+        Cross-check mask (Eq. 6.7).
+    """
+
+    order: I64
+    starts: I64
+    w: int
+    cost: F32
+    min_disp: int
+    reliable: npt.NDArray[np.bool_]
+
+
+class GraphArrays(NamedTuple):
+    """:class:`SegmentGraph`'s arrays as the kernels read them (:func:`_graph_arrays`); fields as there."""
+
+    pairs: I32
+    bstart: I64
+    bp_lo: I64
+    bp_hi: I64
+    bw: F64
+    nstart: I64
+    nbr: I64
+    nedge: I64
+
+
+class SweepCache(NamedTuple):
+    """What :func:`_sweep`, :func:`_energy_cached` and :func:`_expand` remember across calls (:func:`_new_cache`);
+    the arrays are updated in place.
+
+    Attributes
+    ----------
+    zc1, oc1, zc2 : (H*W,) float64, int64, float64
+        The right-view z-buffer last computed (:func:`_zbuffer`): largest disparity, its segment, and the
+        largest disparity of any other segment at each right-view pixel.
+    zvalid : (1,) bool
+        Whether ``zc1, oc1, zc2`` hold a z-buffer at all.
+    zfor : (K,) int32
+        The assignment the z-buffer is of.
+    bbox : (K, 4) int64
+        Each segment's x_min, x_max, y_min, y_max (:func:`_segment_bbox`).
+    clab, cval : (K, 64) int64, float64
+        Per segment, the planes whose data terms (Eqs. 6.21-6.22) are remembered and the terms.
+    cn : (K,) int64
+        How many of them are held.
+    clean : (K,) bool
+        Segments whose last sweep decision still holds (:func:`_sweep`).
+    afor : (K,) int32
+        The assignment ``clean`` is of.
+    rstart, rp, rseg : (H+1,), (H*W,), (H*W,) int64
+        The image's pixels by row and their segments (:func:`_zbuffer_rows`).
+    sstart, srun : (K+1,), (R+1, 4) int64
+        Each segment's runs of pixels of one row (:func:`_vis_flips`).
+    elab, es : (P, 2) int64, (P,) float64
+        Per boundary, the planes its smoothness term (Eq. 6.24) was last computed for, and the term; empty
+        (0 entries) when not remembered (:func:`_take_cache` adds them for one call).
+    """
+
+    zc1: F64
+    oc1: I64
+    zc2: F64
+    zvalid: npt.NDArray[np.bool_]
+    zfor: I32
+    bbox: I64
+    clab: I64
+    cval: F64
+    cn: I64
+    clean: npt.NDArray[np.bool_]
+    afor: I32
+    rstart: I64
+    rp: I64
+    rseg: I64
+    sstart: I64
+    srun: I64
+    elab: I64
+    es: F64
 
 
 @dataclass(frozen=True)
@@ -271,23 +379,23 @@ def interpolated_cost(cost: F32, lev: int, p: int, k: float, trunc: float) -> fl
 
 
 @njit(cache=True)
-def _data(j: int, pl: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
-          reliable: npt.NDArray[np.bool_], prm: F64, z1: F64, o1: I64, z2: F64) -> float:
+def _data(j: int, pl: F64, dt: PixelData, prm: KernelParams, z1: F64, o1: I64, z2: F64) -> float:
     """E_data + E_occ of segment j under plane pl (Eqs. 6.21-6.22).
 
     A pixel is occluded when its plane disparity sends it outside the right image or the search range, or
     (visibility on) when another segment lands on the same right pixel with a disparity larger by more than
     ``occ_margin``; it then costs ``ω_occ`` instead of its matching cost.
     """
-    omega_occ = prm[2]
-    trunc = prm[3]
-    wu = prm[4]
-    margin = prm[7]
-    vis = prm[8] > 0.5
+    order, starts, w, cost, min_disp, reliable = dt
+    omega_occ = prm.omega_occ
+    trunc = prm.data_trunc
+    wu = prm.unreliable_weight
+    margin = prm.occ_margin
+    vis = prm.visibility
     nd = cost.shape[2]
     e = 0.0
     a, b, c = pl[0], pl[1], pl[2]
-    lev = slope_level(prm[12:12 + int(prm[11])], b)  # the cost volume of the slope nearest the plane's
+    lev = slope_level(prm.slopes, b)  # the cost volume of the slope nearest the plane's
     inv_w = 1.0 / w
     for t in range(starts[j], starts[j + 1]):
         p = order[t]
@@ -298,7 +406,7 @@ def _data(j: int, pl: F64, order: I64, starts: I64, w: int, cost: F32, min_disp:
             e += omega_occ
             continue
         if x - d < -0.5:
-            e += prm[9]  # outside the right image: no evidence either way
+            e += prm.omega_border  # outside the right image: no evidence either way
             continue
         if vis:
             xr = int(np.floor(x - d + 0.5))
@@ -337,24 +445,25 @@ def _smooth(j: int, i: int, edge: int, plj: F64, pli: F64, pairs: I32, bstart: I
 
 
 @njit(cache=True)
-def _add_smoothness(e: float, assign: I32, planes: F64, pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64,
-                    bw: F64, w: int, gamma: float, thr: float) -> float:
+def _add_smoothness(e: float, assign: I32, planes: F64, g: GraphArrays, w: int, gamma: float, thr: float) -> float:
     """``e`` plus the smoothness term of every boundary between differently labelled segments, added one
     boundary at a time (Eq. 6.24; each boundary appears in both segments' energies, Eq. 6.18)."""
+    pairs, bstart, bp_lo, bp_hi, bw = g.pairs, g.bstart, g.bp_lo, g.bp_hi, g.bw
     for ed in range(pairs.shape[0]):
         lo = pairs[ed, 0]
         hi = pairs[ed, 1]
         if assign[lo] != assign[hi]:
-            e += 2.0 * gamma * _smooth(lo, hi, ed, planes[assign[lo]], planes[assign[hi]], pairs, bstart,
-                                       bp_lo, bp_hi, bw, w, thr)
+            e += 2.0 * gamma * _smooth(lo, hi, ed, planes[assign[lo]], planes[assign[hi]], pairs, bstart, bp_lo,
+                                       bp_hi, bw, w, thr)
     return e
 
 
 @njit(cache=True)
-def _add_smoothness_cached(e: float, assign: I32, planes: F64, pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64,
-                           bw: F64, w: int, gamma: float, thr: float, elab: I64, es: F64) -> float:
+def _add_smoothness_cached(e: float, assign: I32, planes: F64, g: GraphArrays, w: int, gamma: float, thr: float,
+                           elab: I64, es: F64) -> float:
     """:func:`_add_smoothness` with each boundary's term remembered for the planes it was last computed for
     (``elab[e]``, ``es[e]``): the same terms, added in the same order."""
+    pairs, bstart, bp_lo, bp_hi, bw = g.pairs, g.bstart, g.bp_lo, g.bp_hi, g.bw
     for ed in range(pairs.shape[0]):
         lo = pairs[ed, 0]
         hi = pairs[ed, 1]
@@ -362,8 +471,8 @@ def _add_smoothness_cached(e: float, assign: I32, planes: F64, pairs: I32, bstar
             if elab[ed, 0] == assign[lo] and elab[ed, 1] == assign[hi]:
                 sm = es[ed]
             else:
-                sm = _smooth(lo, hi, ed, planes[assign[lo]], planes[assign[hi]], pairs, bstart, bp_lo, bp_hi, bw,
-                             w, thr)
+                sm = _smooth(lo, hi, ed, planes[assign[lo]], planes[assign[hi]], pairs, bstart, bp_lo, bp_hi, bw, w,
+                             thr)
                 elab[ed, 0] = assign[lo]
                 elab[ed, 1] = assign[hi]
                 es[ed] = sm
@@ -372,33 +481,36 @@ def _add_smoothness_cached(e: float, assign: I32, planes: F64, pairs: I32, bstar
 
 
 @njit(cache=True)
-def _energy(assign: I32, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
-            reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
-            prm: F64) -> float:
+def _energy(assign: I32, planes: F64, dt: PixelData, g: GraphArrays, prm: KernelParams) -> float:
+    """Total energy E (Eq. 6.18) of the assignment ``assign``: each segment's data and occlusion terms
+    (Eqs. 6.21-6.22) under the assignment's right-view z-buffer, plus the smoothness terms (Eq. 6.24)."""
+    order, starts, w, cost, min_disp, reliable = dt
     k = starts.size - 1
     h = cost.shape[1] // w
     z1, o1, z2 = _zbuffer(assign, planes, order, starts, h, w)
-    gamma = prm[5]
-    thr = prm[6]
+    gamma = prm.gamma
+    thr = prm.smooth_threshold
     e = 0.0
     for j in range(k):
-        e += _data(j, planes[assign[j]], order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2)
-    return _add_smoothness(e, assign, planes, pairs, bstart, bp_lo, bp_hi, bw, w, gamma, thr)
+        e += _data(j, planes[assign[j]], dt, prm, z1, o1, z2)
+    return _add_smoothness(e, assign, planes, g, w, gamma, thr)
 
 
 _CACHE = 64  # data terms remembered per segment (its candidates of the last sweeps)
 
 
 @njit(cache=True)
-def _vis_flips(j: int, pl: F64, order: I64, sstart: I64, srun: I64, w: int, nd: int, min_disp: int, margin: float,
-               chg: npt.NDArray[np.bool_], pre: I64, rcnt: I64, z1: F64, o1: I64, z2: F64, zc1: F64, oc1: I64,
-               zc2: F64) -> bool:
-    """Whether the visibility test of :func:`_data` (segment ``j``, plane ``pl``) gives another answer for some
-    pixel under the new z-buffer ``z1, o1, z2`` than under the old ``zc1, oc1, zc2``. ``chg`` flags the
-    right-view pixels where they differ, ``pre[y]`` counts them along row ``y`` and ``rcnt`` over the rows
-    above (:func:`_cache_refresh`); the segment's pixels are the runs ``order[srun[r, 1]:srun[r + 1, 1]]``
-    for ``r`` in ``sstart[j]:sstart[j + 1]``, each in row ``srun[r, 0]`` and columns ``srun[r, 2]..srun[r, 3]``.
-    The same arithmetic as :func:`_data`, so that no answer means the same sum."""
+def _vis_flips(j: int, pl: F64, dt: PixelData, cache: SweepCache, margin: float, chg: npt.NDArray[np.bool_],
+               pre: I64, rcnt: I64, z1: F64, o1: I64, z2: F64) -> bool:
+    """Whether the visibility test of :func:`_data` (the occlusion term of Eq. 6.22; segment ``j``, plane ``pl``)
+    gives another answer for some pixel under the new z-buffer ``z1, o1, z2`` than under the old ``zc1, oc1, zc2``
+    (``cache``'s). ``chg`` flags the right-view pixels where they differ, ``pre[y]`` counts them along row ``y``
+    and ``rcnt`` over the rows above (:func:`_cache_refresh`); the segment's pixels are the runs
+    ``order[srun[r, 1]:srun[r + 1, 1]]`` for ``r`` in ``sstart[j]:sstart[j + 1]``, each in row ``srun[r, 0]`` and
+    columns ``srun[r, 2]..srun[r, 3]``. The same arithmetic as :func:`_data`, so that no answer means the same
+    sum."""
+    order, w, nd, min_disp = dt.order, dt.w, dt.cost.shape[2], dt.min_disp  # only what it reads: a hot call
+    sstart, srun, zc1, oc1, zc2 = cache.sstart, cache.srun, cache.zc1, cache.oc1, cache.zc2
     a, b, c = pl[0], pl[1], pl[2]
     for r in range(sstart[j], sstart[j + 1]):
         y = srun[r, 0]
@@ -437,12 +549,14 @@ def _vis_flips(j: int, pl: F64, order: I64, sstart: I64, srun: I64, w: int, nd: 
 
 
 @njit(cache=True, parallel=True)
-def _zbuffer_rows(a: I32, planes: F64, rstart: I64, rp: I64, rseg: I64, w: int, rows: npt.NDArray[np.bool_],
-                  z1: F64, o1: I64, z2: F64) -> None:
-    """:func:`_zbuffer` of ``a`` on the right-view rows flagged in ``rows``, written into ``z1, o1, z2`` (other
-    rows untouched). A right-view pixel is reached only from its own row, and each row's pixels are taken in
-    the order :func:`_zbuffer` takes them (``rstart, rp, rseg``: the pixels of row ``y`` and their segments are
-    ``rp[rstart[y]:rstart[y + 1]]``, ``rseg[...]``), so the rows are the same as :func:`_zbuffer`'s."""
+def _zbuffer_rows(a: I32, planes: F64, cache: SweepCache, w: int, rows: npt.NDArray[np.bool_], z1: F64, o1: I64,
+                  z2: F64) -> None:
+    """:func:`_zbuffer` (the visibility of Eq. 6.22) of ``a`` on the right-view rows flagged in ``rows``, written
+    into ``z1, o1, z2`` (other rows untouched). A right-view pixel is reached only from its own row, and each
+    row's pixels are taken in the order :func:`_zbuffer` takes them (``cache.rstart, rp, rseg``: the pixels of
+    row ``y`` and their segments are ``rp[rstart[y]:rstart[y + 1]]``, ``rseg[...]``), so the rows are the same
+    as :func:`_zbuffer`'s."""
+    rstart, rp, rseg = cache.rstart, cache.rp, cache.rseg
     for y in prange(rows.size):
         if not rows[y]:
             continue
@@ -462,10 +576,8 @@ def _zbuffer_rows(a: I32, planes: F64, rstart: I64, rp: I64, rseg: I64, w: int, 
 
 
 @njit(cache=True, parallel=True)
-def _cache_refresh(z1: F64, o1: I64, z2: F64, rows: npt.NDArray[np.bool_], zc1: F64, oc1: I64, zc2: F64,
-                   zvalid: npt.NDArray[np.bool_], bbox: I64, planes: F64, clab: I64, cval: F64, cn: I64,
-                   clean: npt.NDArray[np.bool_], w: int, order: I64, sstart: I64, srun: I64, nd: int,
-                   min_disp: int, prm: F64) -> None:
+def _cache_refresh(z1: F64, o1: I64, z2: F64, rows: npt.NDArray[np.bool_], cache: SweepCache, planes: F64,
+                   dt: PixelData, prm: KernelParams) -> None:
     """Moves the cache to the right-view z-buffer ``z1, o1, z2`` (which differs from the cache's at most on the
     flagged ``rows``, and is read only there) and drops the remembered data terms (Eqs. 6.21-6.22) it changes.
 
@@ -473,14 +585,17 @@ def _cache_refresh(z1: F64, o1: I64, z2: F64, rows: npt.NDArray[np.bool_], zc1: 
     another answer under the new z-buffer (:func:`_vis_flips`); otherwise every pixel contributes what it did,
     in the same order, so a remembered value is always the one :func:`_data` would return now. A segment that
     loses an entry is no longer ``clean`` (:func:`_sweep`)."""
+    order, starts, w, cost, min_disp, reliable = dt
+    (zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval, cn, clean, afor, rstart, rp, rseg, sstart, srun, elab,
+     es) = cache
     n = z1.size
     h = n // w
     k = cn.size
     if not zvalid[0]:
         cn[:] = 0
         clean[:] = False
-    elif prm[8] > 0.5:  # without the visibility test no data term reads the z-buffer
-        margin = prm[7]
+    elif prm.visibility:  # without the visibility test no data term reads the z-buffer
+        margin = prm.occ_margin
         chg = np.zeros(n, np.bool_)
         # per row, the running count of the changed right-view pixels (rows with none are not filled)
         pre = np.empty((h, w + 1), np.int64)
@@ -505,8 +620,7 @@ def _cache_refresh(z1: F64, o1: I64, z2: F64, rows: npt.NDArray[np.bool_], zc1: 
                     continue
                 t = 0
                 while t < cn[j]:
-                    if _vis_flips(j, planes[clab[j, t]], order, sstart, srun, w, nd, min_disp, margin, chg, pre,
-                                  rcnt, z1, o1, z2, zc1, oc1, zc2):
+                    if _vis_flips(j, planes[clab[j, t]], dt, cache, margin, chg, pre, rcnt, z1, o1, z2):
                         cn[j] -= 1
                         clab[j, t] = clab[j, cn[j]]
                         cval[j, t] = cval[j, cn[j]]
@@ -523,13 +637,14 @@ def _cache_refresh(z1: F64, o1: I64, z2: F64, rows: npt.NDArray[np.bool_], zc1: 
 
 
 @njit(cache=True)
-def _zbuffer_cached(a: I32, planes: F64, h: int, w: int, zc1: F64, oc1: I64, zc2: F64,
-                    zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64, clab: I64, cval: F64, cn: I64,
-                    clean: npt.NDArray[np.bool_], rstart: I64, rp: I64, rseg: I64, sstart: I64, srun: I64,
-                    order: I64, nd: int, min_disp: int, prm: F64) -> tuple[F64, I64, F64]:
-    """:func:`_zbuffer` of ``a``, the cache's own, with the remembered data terms refreshed to it
+def _zbuffer_cached(a: I32, planes: F64, dt: PixelData, cache: SweepCache, prm: KernelParams) -> tuple[F64, I64, F64]:
+    """:func:`_zbuffer` (Eq. 6.22) of ``a``, the cache's own, with the remembered data terms refreshed to it
     (:func:`_cache_refresh`): only the rows of the segments whose plane changed since it was computed for
     ``zfor`` are computed again. The caller must not keep it past the next refresh."""
+    order, starts, w, cost, min_disp, reliable = dt
+    h = cost.shape[1] // w
+    (zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval, cn, clean, afor, rstart, rp, rseg, sstart, srun, elab,
+     es) = cache
     rows = np.zeros(h, np.bool_)
     if zvalid[0]:
         same = True
@@ -544,22 +659,21 @@ def _zbuffer_cached(a: I32, planes: F64, h: int, w: int, zc1: F64, oc1: I64, zc2
     z1 = np.empty(h * w)
     o1 = np.empty(h * w, np.int64)
     z2 = np.empty(h * w)
-    _zbuffer_rows(a, planes, rstart, rp, rseg, w, rows, z1, o1, z2)
-    _cache_refresh(z1, o1, z2, rows, zc1, oc1, zc2, zvalid, bbox, planes, clab, cval, cn, clean, w, order, sstart,
-                   srun, nd, min_disp, prm)
+    _zbuffer_rows(a, planes, cache, w, rows, z1, o1, z2)
+    _cache_refresh(z1, o1, z2, rows, cache, planes, dt, prm)
     zfor[:] = a
     return zc1, oc1, zc2
 
 
 @njit(cache=True)
-def _data_cached(j: int, lab: int, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
-                 reliable: npt.NDArray[np.bool_], prm: F64, z1: F64, o1: I64, z2: F64, clab: I64, cval: F64,
-                 cn: I64) -> float:
-    """:func:`_data` of segment ``j`` under plane ``lab``, remembered until the z-buffer changes under it."""
+def _data_cached(j: int, lab: int, planes: F64, dt: PixelData, prm: KernelParams, z1: F64, o1: I64, z2: F64,
+                 clab: I64, cval: F64, cn: I64) -> float:
+    """:func:`_data` (Eqs. 6.21-6.22) of segment ``j`` under plane ``lab``, remembered until the z-buffer changes
+    under it."""
     for t in range(cn[j]):
         if clab[j, t] == lab:
             return cval[j, t]
-    v = _data(j, planes[lab], order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2)
+    v = _data(j, planes[lab], dt, prm, z1, o1, z2)
     if cn[j] >= clab.shape[1]:
         cn[j] = 0
     clab[j, cn[j]] = lab
@@ -569,31 +683,27 @@ def _data_cached(j: int, lab: int, planes: F64, order: I64, starts: I64, w: int,
 
 
 @njit(cache=True, parallel=True)
-def _energy_cached(assign: I32, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
-                   reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
-                   prm: F64, zc1: F64, oc1: I64, zc2: F64, zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64,
-                   clab: I64, cval: F64, cn: I64, clean: npt.NDArray[np.bool_], afor: I32, rstart: I64, rp: I64,
-                   rseg: I64, sstart: I64, srun: I64, elab: I64, es: F64) -> float:
-    """:func:`_energy` with the data terms (and, with ``es`` of one entry per boundary, the smoothness terms)
-    remembered across calls (the same value)."""
+def _energy_cached(assign: I32, planes: F64, dt: PixelData, g: GraphArrays, prm: KernelParams,
+                   cache: SweepCache) -> float:
+    """:func:`_energy` (E of Eq. 6.18) with the data terms (and, with ``es`` of one entry per boundary, the
+    smoothness terms) remembered across calls (the same value)."""
+    order, starts, w, cost, min_disp, reliable = dt
+    clab, cval, cn, elab, es = cache.clab, cache.cval, cache.cn, cache.elab, cache.es
     k = starts.size - 1
-    h = cost.shape[1] // w
-    z1, o1, z2 = _zbuffer_cached(assign, planes, h, w, zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval, cn, clean,
-                                 rstart, rp, rseg, sstart, srun, order, cost.shape[2], min_disp, prm)
-    gamma = prm[5]
-    thr = prm[6]
+    z1, o1, z2 = _zbuffer_cached(assign, planes, dt, cache, prm)
+    gamma = prm.gamma
+    thr = prm.smooth_threshold
     # the data terms in parallel (each segment's cache rows are written by one thread), summed in order: the
     # same sum as one serial loop
     dj = np.empty(k)
     for j in prange(k):
-        dj[j] = _data_cached(j, assign[j], planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
-                             clab, cval, cn)
+        dj[j] = _data_cached(j, assign[j], planes, dt, prm, z1, o1, z2, clab, cval, cn)
     e = 0.0
     for j in range(k):
         e += dj[j]
-    if es.size == pairs.shape[0]:
-        return _add_smoothness_cached(e, assign, planes, pairs, bstart, bp_lo, bp_hi, bw, w, gamma, thr, elab, es)
-    return _add_smoothness(e, assign, planes, pairs, bstart, bp_lo, bp_hi, bw, w, gamma, thr)
+    if es.size == g.pairs.shape[0]:
+        return _add_smoothness_cached(e, assign, planes, g, w, gamma, thr, elab, es)
+    return _add_smoothness(e, assign, planes, g, w, gamma, thr)
 
 
 @njit(cache=True)
@@ -636,41 +746,40 @@ def _add_candidate(cand: I64, nc: int, lab: int) -> int:
 
 
 @njit(cache=True)
-def _candidates(j: int, a: I32, own: I64, nstart: I64, nbr: I64, prm: F64, cand: I64) -> int:
-    """Candidate planes of segment j into ``cand``: current, own fitted/merged planes, neighbours' current
-    planes (and with ``neighbour_own_planes`` theirs); returns their number (at most 64)."""
+def _candidates(j: int, a: I32, own: I64, nstart: I64, nbr: I64, prm: KernelParams, cand: I64) -> int:
+    """Candidate planes of segment j into ``cand`` (the labels the minimiser of Eq. 6.19 tries, thesis §6.2):
+    current, own fitted/merged planes, neighbours' current planes (and with ``neighbour_own_planes`` theirs);
+    returns their number (at most 64)."""
     nc = 0
     cand[nc] = a[j]
     nc += 1
     for extra in (own[2 * j], own[2 * j + 1]):
         nc = _add_candidate(cand, nc, extra)
     for t in range(nstart[j], nstart[j + 1]):
-        for m in range(3 if prm[10] > 0.5 else 1):
+        for m in range(3 if prm.neighbour_own_planes else 1):
             nc = _add_candidate(cand, nc, a[nbr[t]] if m == 0 else own[2 * nbr[t] + m - 1])
     return nc
 
 
 @njit(cache=True, parallel=True)
-def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
-           reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
-           nstart: I64, nbr: I64, nedge: I64, prm: F64, active: npt.NDArray[np.bool_], zc1: F64, oc1: I64,
-           zc2: F64, zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64, clab: I64, cval: F64, cn: I64,
-           clean: npt.NDArray[np.bool_], afor: I32, rstart: I64, rp: I64, rseg: I64, sstart: I64,
-           srun: I64, elab: I64, es: F64) -> int:
+def _sweep(a: I32, own: I64, planes: F64, dt: PixelData, g: GraphArrays, prm: KernelParams,
+           active: npt.NDArray[np.bool_], cache: SweepCache) -> int:
     """One cooperative sweep over the active segments (Eq. 6.19), in place; returns the number of changes.
     The data terms are remembered across sweeps (:func:`_data_cached`).
 
     A segment's decision depends only on its plane, its neighbours' planes at its turn and its candidates' data
     terms; a segment that kept its plane at its last turn is ``clean`` until one of them changes (a neighbour
     moves, a remembered data term is dropped), and its turn is skipped: it would keep its plane again."""
+    order, starts, w, cost, min_disp, reliable = dt
+    pairs, bstart, bp_lo, bp_hi, bw, nstart, nbr, nedge = g
+    (zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval, cn, clean, afor, rstart, rp, rseg, sstart, srun, elab,
+     es) = cache
     k = starts.size - 1
-    h = cost.shape[1] // w
-    kappa = prm[0]
-    mu = prm[1]
-    gamma = prm[5]
-    thr = prm[6]
-    z1, o1, z2 = _zbuffer_cached(a, planes, h, w, zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval, cn, clean, rstart,
-                                 rp, rseg, sstart, srun, order, cost.shape[2], min_disp, prm)
+    kappa = prm.kappa
+    mu = prm.mu
+    gamma = prm.gamma
+    thr = prm.smooth_threshold
+    z1, o1, z2 = _zbuffer_cached(a, planes, dt, cache, prm)
     # a segment or a neighbour moved outside the sweeps (an undone sweep, a group move): decide again
     for j in range(k):
         if a[j] != afor[j]:
@@ -693,8 +802,7 @@ def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost:
             for u in range(ncj):
                 lab = cj[u]
                 plab[j, u] = lab
-                _data_cached(j, lab, planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
-                             clab, cval, cn)
+                _data_cached(j, lab, planes, dt, prm, z1, o1, z2, clab, cval, cn)
                 for t in range(nstart[j], nstart[j + 1]):
                     i = nbr[t]
                     if a[i] != lab:
@@ -715,8 +823,7 @@ def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost:
         deg = nstart[j + 1] - nstart[j]
         for u in range(nc):
             lab = cand[u]
-            dj = _data_cached(j, lab, planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
-                              clab, cval, cn)
+            dj = _data_cached(j, lab, planes, dt, prm, z1, o1, z2, clab, cval, cn)
             pu = -1
             for v in range(64):
                 if plab[j, v] == lab:
@@ -733,8 +840,8 @@ def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost:
                 if pu >= 0 and a[i] == a0[i]:
                     s = psm[64 * nstart[j] + pu * deg + t - nstart[j]]
                 else:
-                    s = gamma * _smooth(j, i, nedge[t], planes[lab], planes[a[i]], pairs, bstart, bp_lo, bp_hi,
-                                        bw, w, thr)
+                    s = gamma * _smooth(j, i, nedge[t], planes[lab], planes[a[i]], pairs, bstart, bp_lo, bp_hi, bw, w,
+                                        thr)
                 sm += s
                 sm_f += (1.0 - kappa + kappa * mu) * s
             f = (1.0 - kappa) * dj + sm_f  # Eq. 6.19 as a function of l_j
@@ -756,15 +863,16 @@ def _sweep(a: I32, own: I64, planes: F64, order: I64, starts: I64, w: int, cost:
 
 
 @njit(cache=True)
-def _local_f(j: int, pl: F64, a: I32, planes: F64, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
-             reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
-             nstart: I64, nbr: I64, nedge: I64, prm: F64, z1: F64, o1: I64, z2: F64) -> tuple[float, float]:
+def _local_f(j: int, pl: F64, a: I32, planes: F64, dt: PixelData, g: GraphArrays, prm: KernelParams, z1: F64, o1: I64,
+             z2: F64) -> tuple[float, float]:
     """Cooperative objective (Eq. 6.19) and local part of E (Eq. 6.18) of segment j under plane pl."""
-    kappa = prm[0]
-    mu = prm[1]
-    gamma = prm[5]
-    thr = prm[6]
-    dj = _data(j, pl, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2)
+    w = dt.w
+    pairs, bstart, bp_lo, bp_hi, bw, nstart, nbr, nedge = g
+    kappa = prm.kappa
+    mu = prm.mu
+    gamma = prm.gamma
+    thr = prm.smooth_threshold
+    dj = _data(j, pl, dt, prm, z1, o1, z2)
     sm = 0.0
     for t in range(nstart[j], nstart[j + 1]):
         i = nbr[t]
@@ -773,12 +881,11 @@ def _local_f(j: int, pl: F64, a: I32, planes: F64, order: I64, starts: I64, w: i
 
 
 @njit(cache=True)
-def _powell(j: int, a: I32, planes: F64, n_used: int, order: I64, starts: I64, w: int, cost: F32,
-            min_disp: int, reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64,
-            bw: F64, nstart: I64, nbr: I64, nedge: I64, prm: F64, z1: F64, o1: I64, z2: F64,
-            cycles: int) -> tuple[F64, float, float]:
+def _powell(j: int, a: I32, planes: F64, n_used: int, dt: PixelData, g: GraphArrays, prm: KernelParams, z1: F64,
+            o1: I64, z2: F64, cycles: int) -> tuple[F64, float, float]:
     """Powell's direction-set minimisation (thesis Appendix E) of segment j's cooperative objective over its
     plane (a, b, c), starting from its current plane; line minimisations by golden-section search."""
+    order, starts, w, cost, min_disp, reliable = dt
     s0 = starts[j]
     s1 = starts[j + 1]
     cx = 0.0
@@ -809,8 +916,7 @@ def _powell(j: int, a: I32, planes: F64, n_used: int, order: I64, starts: I64, w
         out[2] = v[2] - v[0] * cx - v[1] * cy
 
     to_plane(u, pl)
-    f0, e0 = _local_f(j, pl, a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo, bp_hi,
-                      bw, nstart, nbr, nedge, prm, z1, o1, z2)
+    f0, e0 = _local_f(j, pl, a, planes, dt, g, prm, z1, o1, z2)
     fbest = f0
     gr = 0.6180339887498949
     for _c in range(cycles):
@@ -821,11 +927,9 @@ def _powell(j: int, a: I32, planes: F64, n_used: int, order: I64, starts: I64, w
             x1 = hi - gr * (hi - lo)
             x2 = lo + gr * (hi - lo)
             to_plane(u + x1 * dirs[k], pl)
-            f1, _ = _local_f(j, pl, a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo,
-                             bp_hi, bw, nstart, nbr, nedge, prm, z1, o1, z2)
+            f1, _ = _local_f(j, pl, a, planes, dt, g, prm, z1, o1, z2)
             to_plane(u + x2 * dirs[k], pl)
-            f2, _ = _local_f(j, pl, a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo,
-                             bp_hi, bw, nstart, nbr, nedge, prm, z1, o1, z2)
+            f2, _ = _local_f(j, pl, a, planes, dt, g, prm, z1, o1, z2)
             for _it in range(10):
                 if f1 < f2:
                     hi = x2
@@ -833,16 +937,14 @@ def _powell(j: int, a: I32, planes: F64, n_used: int, order: I64, starts: I64, w
                     f2 = f1
                     x1 = hi - gr * (hi - lo)
                     to_plane(u + x1 * dirs[k], pl)
-                    f1, _ = _local_f(j, pl, a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart,
-                                     bp_lo, bp_hi, bw, nstart, nbr, nedge, prm, z1, o1, z2)
+                    f1, _ = _local_f(j, pl, a, planes, dt, g, prm, z1, o1, z2)
                 else:
                     lo = x1
                     x1 = x2
                     f1 = f2
                     x2 = lo + gr * (hi - lo)
                     to_plane(u + x2 * dirs[k], pl)
-                    f2, _ = _local_f(j, pl, a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart,
-                                     bp_lo, bp_hi, bw, nstart, nbr, nedge, prm, z1, o1, z2)
+                    f2, _ = _local_f(j, pl, a, planes, dt, g, prm, z1, o1, z2)
             xm = x1 if f1 < f2 else x2
             fm = min(f1, f2)
             if fm < fbest:
@@ -857,17 +959,17 @@ def _powell(j: int, a: I32, planes: F64, n_used: int, order: I64, starts: I64, w
         dirs[1] = dirs[2]
         dirs[2] = disp
     to_plane(u, pl)
-    fb, eb = _local_f(j, pl, a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo, bp_hi,
-                      bw, nstart, nbr, nedge, prm, z1, o1, z2)
+    fb, eb = _local_f(j, pl, a, planes, dt, g, prm, z1, o1, z2)
     return pl.copy(), fb - f0, eb - e0
 
 
 @njit(cache=True)
-def _refine_pass(a: I32, planes: F64, n_used: int, order: I64, starts: I64, w: int, cost: F32, min_disp: int,
-                 reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64, bp_hi: I64, bw: F64,
-                 nstart: I64, nbr: I64, nedge: I64, prm: F64, cycles: int, min_size: int) -> tuple[int, int]:
-    """Continuous refinement of every segment's plane by Powell's method; new planes are appended to
-    ``planes`` (capacity permitting) so that neighbours can adopt them in the next discrete sweep."""
+def _refine_pass(a: I32, planes: F64, n_used: int, dt: PixelData, g: GraphArrays, prm: KernelParams, cycles: int,
+                 min_size: int) -> tuple[int, int]:
+    """Continuous refinement of every segment's plane by Powell's method (thesis Appendix E, objective Eq. 6.19);
+    new planes are appended to ``planes`` (capacity permitting) so that neighbours can adopt them in the next
+    discrete sweep."""
+    order, starts, w, cost, min_disp, reliable = dt
     k = starts.size - 1
     h = cost.shape[1] // w
     z1, o1, z2 = _zbuffer(a, planes, order, starts, h, w)
@@ -875,8 +977,7 @@ def _refine_pass(a: I32, planes: F64, n_used: int, order: I64, starts: I64, w: i
     for j in range(k):
         if starts[j + 1] - starts[j] < min_size or n_used >= planes.shape[0]:
             continue
-        pl, df, de = _powell(j, a, planes, n_used, order, starts, w, cost, min_disp, reliable, pairs, bstart,
-                             bp_lo, bp_hi, bw, nstart, nbr, nedge, prm, z1, o1, z2, cycles)
+        pl, df, de = _powell(j, a, planes, n_used, dt, g, prm, z1, o1, z2, cycles)
         if df < -1e-6 and de <= 1e-9:
             planes[n_used] = pl
             a[j] = n_used
@@ -885,7 +986,7 @@ def _refine_pass(a: I32, planes: F64, n_used: int, order: I64, starts: I64, w: i
     return n_used, changed
 
 
-def _new_cache(index: SegmentIndex, k: int) -> tuple[Any, ...]:
+def _new_cache(index: SegmentIndex, k: int) -> SweepCache:
     """Empty remembered data terms for :func:`_sweep` / :func:`_energy_cached` / :func:`_expand`: the z-buffer
     they hold (z1, o1, z2, valid, the assignment it is of), the segments' boxes, per segment up to ``_CACHE``
     (plane, value), the segments whose last sweep decision still holds (clean, the assignment it is of), and
@@ -911,10 +1012,11 @@ def _new_cache(index: SegmentIndex, k: int) -> tuple[Any, ...]:
         srun[:-1, 3] = np.maximum.reduceat(order - y * w, first)
     srun[-1, 1] = order.size
     sstart = np.searchsorted(first, np.asarray(index.starts, np.int64)).astype(np.int64)
-    return (np.empty(npx), np.empty(npx, np.int64), np.empty(npx), np.zeros(1, np.bool_), np.empty(k, np.int32),
-            _segment_bbox(index.order, index.starts, index.shape[1]), np.empty((k, _CACHE), np.int64),
-            np.empty((k, _CACHE)), np.zeros(k, np.int64), np.zeros(k, np.bool_), np.empty(k, np.int32), rstart,
-            order[by_row], seg[by_row], sstart, srun, np.zeros((0, 2), np.int64), np.zeros(0))
+    return SweepCache(zc1=np.empty(npx), oc1=np.empty(npx, np.int64), zc2=np.empty(npx), zvalid=np.zeros(1, np.bool_),
+                      zfor=np.empty(k, np.int32), bbox=_segment_bbox(index.order, index.starts, index.shape[1]),
+                      clab=np.empty((k, _CACHE), np.int64), cval=np.empty((k, _CACHE)), cn=np.zeros(k, np.int64),
+                      clean=np.zeros(k, np.bool_), afor=np.empty(k, np.int32), rstart=rstart, rp=order[by_row],
+                      rseg=seg[by_row], sstart=sstart, srun=srun, elab=np.zeros((0, 2), np.int64), es=np.zeros(0))
 
 
 @njit(cache=True)
@@ -942,14 +1044,14 @@ class CoopMemo:
 
     def __init__(self) -> None:
         self._key: tuple[Any, ...] | None = None
-        self._cache: tuple[Any, ...] | None = None
+        self._cache: SweepCache | None = None
         self._planes: F64 | None = None
 
-    def take(self, index: SegmentIndex, cost: F32, reliable: npt.NDArray[np.bool_], prm: F64, min_disp: int,
-             planes: F64) -> tuple[Any, ...]:
+    def take(self, index: SegmentIndex, cost: F32, reliable: npt.NDArray[np.bool_], prm: KernelParams, min_disp: int,
+             planes: F64) -> SweepCache:
         """The remembered cache if it applies to this call (with the entries of changed planes dropped), else
         a new one; the next call's cache either way (:meth:`keep`)."""
-        key = (index, cost, reliable, prm[_DATA_PRM].tobytes(), prm[12:].tobytes(), int(min_disp))
+        key = (index, cost, reliable, *_data_key(prm), int(min_disp))
         old, cache, opl = self._key, self._cache, self._planes
         self._key = self._cache = self._planes = None
         if (old is None or cache is None or opl is None or old[0] is not index or old[1] is not cost
@@ -958,26 +1060,29 @@ class CoopMemo:
         m = min(opl.shape[0], planes.shape[0])
         same = np.zeros(opl.shape[0], np.bool_)
         same[:m] = (opl[:m] == planes[:m]).all(axis=1)
-        zvalid, zfor, clean = cache[3], cache[4], cache[9]
-        if zvalid[0] and not same[zfor].all():
-            zvalid[0] = False  # the z-buffer is of planes that changed
-        _cache_keep(cache[6], cache[7], cache[8], same)
-        clean[:] = False  # the candidates are the new call's
+        if cache.zvalid[0] and not same[cache.zfor].all():
+            cache.zvalid[0] = False  # the z-buffer is of planes that changed
+        _cache_keep(cache.clab, cache.cval, cache.cn, same)
+        cache.clean[:] = False  # the candidates are the new call's
         return cache
 
-    def keep(self, index: SegmentIndex, cost: F32, reliable: npt.NDArray[np.bool_], prm: F64, min_disp: int,
-             planes: F64, cache: tuple[Any, ...]) -> None:
+    def keep(self, index: SegmentIndex, cost: F32, reliable: npt.NDArray[np.bool_], prm: KernelParams, min_disp: int,
+             planes: F64, cache: SweepCache) -> None:
         """Remember ``cache`` (computed with ``planes``) for the next call."""
-        self._key = (index, cost, reliable, prm[_DATA_PRM].tobytes(), prm[12:].tobytes(), int(min_disp))
+        self._key = (index, cost, reliable, *_data_key(prm), int(min_disp))
         self._cache = cache
         self._planes = planes.copy()
 
 
-_DATA_PRM = np.array([2, 3, 4, 7, 8, 9, 11])  # the entries of _prm that the data term reads (and the slopes)
+def _data_key(prm: KernelParams) -> tuple[Any, ...]:
+    """The parameters the data term (Eqs. 6.21-6.22, :func:`_data`) reads: a remembered data term is valid
+    for another call only when they are the same."""
+    return (prm.omega_occ, prm.data_trunc, prm.unreliable_weight, prm.occ_margin, prm.visibility,
+            prm.omega_border, prm.slopes.size, prm.slopes.tobytes())
 
 
 def _take_cache(memo: CoopMemo | None, index: SegmentIndex, graph: SegmentGraph, cost: F32,
-                reliable: npt.NDArray[np.bool_], prm: F64, min_disp: int, planes: F64) -> tuple[Any, ...]:
+                reliable: npt.NDArray[np.bool_], prm: KernelParams, min_disp: int, planes: F64) -> SweepCache:
     """The memo's cache or a new one, with an empty store of the smoothness terms of ``graph``'s boundaries
     (kept for one call only)."""
     if memo is None:
@@ -985,7 +1090,7 @@ def _take_cache(memo: CoopMemo | None, index: SegmentIndex, graph: SegmentGraph,
     else:
         cache = memo.take(index, cost, reliable, prm, min_disp, planes)
     npairs = int(graph.pairs.shape[0])
-    return (*cache[:-2], np.full((npairs, 2), -1, np.int64), np.empty(npairs))
+    return cache._replace(elab=np.full((npairs, 2), -1, np.int64), es=np.empty(npairs))
 
 
 def _flat_cost(cost: F32, slopes: tuple[float, ...] | None) -> F32:
@@ -1002,11 +1107,28 @@ def _flat_cost(cost: F32, slopes: tuple[float, ...] | None) -> F32:
     return np.ascontiguousarray(c.reshape(ns, h * w, d), dtype=np.float32)
 
 
-def _prm(p: CoopParams, slopes: tuple[float, ...] | None = None) -> F64:
+def _pixel_data(index: SegmentIndex, cost: F32, reliable: npt.NDArray[np.bool_], slopes: tuple[float, ...] | None,
+                min_disp: int) -> PixelData:
+    """The kernels' view of the segments' pixels, the cost volume(s) and the cross-check mask."""
+    return PixelData(order=index.order, starts=index.starts, w=index.shape[1], cost=_flat_cost(cost, slopes),
+                     min_disp=int(min_disp), reliable=np.asarray(reliable, np.bool_).ravel())
+
+
+def _graph_arrays(graph: SegmentGraph) -> GraphArrays:
+    """The kernels' view of ``graph``."""
+    return GraphArrays(pairs=graph.pairs, bstart=graph.bstart, bp_lo=graph.bp_lo, bp_hi=graph.bp_hi, bw=graph.bw,
+                       nstart=graph.nstart, nbr=graph.nbr, nedge=graph.nedge)
+
+
+def _prm(p: CoopParams, slopes: tuple[float, ...] | None = None) -> KernelParams:
+    """The kernels' view of ``p`` (floats as float64, flags as bool) and of the cost volumes' slopes."""
     lev = [0.0] if slopes is None else [float(b) for b in slopes]
-    return np.array([p.kappa, p.mu, p.omega_occ, p.data_trunc, p.unreliable_weight, p.gamma, p.smooth_threshold,
-                     p.occ_margin, 1.0 if p.visibility else 0.0, p.omega_border,
-                     1.0 if p.neighbour_own_planes else 0.0, float(len(lev)), *lev], np.float64)
+    return KernelParams(kappa=float(p.kappa), mu=float(p.mu), omega_occ=float(p.omega_occ),
+                        data_trunc=float(p.data_trunc), unreliable_weight=float(p.unreliable_weight),
+                        gamma=float(p.gamma), smooth_threshold=float(p.smooth_threshold),
+                        occ_margin=float(p.occ_margin), visibility=bool(p.visibility),
+                        omega_border=float(p.omega_border), neighbour_own_planes=bool(p.neighbour_own_planes),
+                        slopes=np.array(lev, np.float64))
 
 
 def total_energy(assign: npt.NDArray[np.integer], planes: F64, index: SegmentIndex, graph: SegmentGraph,
@@ -1024,10 +1146,8 @@ def total_energy(assign: npt.NDArray[np.integer], planes: F64, index: SegmentInd
     reliable : (H, W) bool cross-check mask (Eq. 6.7).
     """
     p = params or CoopParams()
-    return float(_energy(np.asarray(assign, np.int32), np.asarray(planes, np.float64), index.order,
-                         index.starts, index.shape[1], _flat_cost(cost, slopes), int(min_disp),
-                         np.asarray(reliable, np.bool_).ravel(), graph.pairs, graph.bstart, graph.bp_lo,
-                         graph.bp_hi, graph.bw, _prm(p, slopes)))
+    return float(_energy(np.asarray(assign, np.int32), np.asarray(planes, np.float64),
+                         _pixel_data(index, cost, reliable, slopes, min_disp), _graph_arrays(graph), _prm(p, slopes)))
 
 
 def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: SegmentIndex,
@@ -1083,18 +1203,16 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
     k = a.size
     own_arr = np.full((k, 2), -1, np.int64) if own is None else np.asarray(own, np.int64).reshape(k, 2)
     act = np.ones(k, np.bool_) if active is None else np.asarray(active, np.bool_).reshape(k)
-    fc = _flat_cost(cost, slopes)
-    rel = np.asarray(reliable, np.bool_).ravel()
     n_used = int(planes.shape[0])
     rounds = max(int(p.refine_rounds), 0)
     pl = np.zeros((n_used + rounds * k, 3), np.float64)
     pl[:n_used] = planes
     prm = _prm(p, slopes)
-    common = (index.order, index.starts, index.shape[1], fc, int(min_disp), rel, graph.pairs, graph.bstart,
-              graph.bp_lo, graph.bp_hi, graph.bw)
+    dt = _pixel_data(index, cost, reliable, slopes, min_disp)
+    g = _graph_arrays(graph)
     # remembered data terms of (segment, plane) and the z-buffer they were computed under
     cache = _take_cache(memo, index, graph, cost, reliable, prm, int(min_disp), pl)
-    e0 = _energy_cached(a, pl, *common, prm, *cache)
+    e0 = _energy_cached(a, pl, dt, g, prm, cache)
     e_cur = e0
     sweeps = 0
     changes = 0
@@ -1102,11 +1220,11 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
     for rnd in range(rounds + 1):
         for _ in range(p.max_iter):
             prev = a.copy()
-            n = _sweep(a, own_arr.ravel(), pl, *common, graph.nstart, graph.nbr, graph.nedge, prm, act, *cache)
+            n = _sweep(a, own_arr.ravel(), pl, dt, g, prm, act, cache)
             sweeps += 1
             if n == 0:
                 break
-            e_new = _energy_cached(a, pl, *common, prm, *cache)
+            e_new = _energy_cached(a, pl, dt, g, prm, cache)
             if e_new > e_cur:
                 a = prev
                 break
@@ -1116,11 +1234,11 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
             break
         prev = a.copy()
         n_prev = n_used
-        n_used, n = _refine_pass(a, pl, n_used, *common, graph.nstart, graph.nbr, graph.nedge, prm,
+        n_used, n = _refine_pass(a, pl, n_used, dt, g, prm,
                                  int(p.powell_cycles), int(p.refine_min_size))
-        cache[3][0] = False  # the refined planes were appended where rejected ones may have been
-        cache[-2][:] = -1
-        e_new = _energy(a, pl, *common, prm)
+        cache.zvalid[0] = False  # the refined planes were appended where rejected ones may have been
+        cache.elab[:] = -1
+        e_new = _energy(a, pl, dt, g, prm)
         if n == 0 or e_new > e_cur:
             a = prev
             n_used = n_prev
@@ -1136,30 +1254,27 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
 
 
 @njit(cache=True)
-def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: I64, starts: I64, w: int,
-            cost: F32, min_disp: int, reliable: npt.NDArray[np.bool_], pairs: I32, bstart: I64, bp_lo: I64,
-            bp_hi: I64, bw: F64, nstart: I64, nbr: I64, nedge: I64, prm: F64, max_region: int, zc1: F64,
-            oc1: I64, zc2: F64, zvalid: npt.NDArray[np.bool_], zfor: I32, bbox: I64, clab: I64, cval: F64,
-            cn: I64, clean: npt.NDArray[np.bool_], afor: I32, rstart: I64, rp: I64, rseg: I64, sstart: I64,
-            srun: I64, elab: I64, es: F64) -> int:
+def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, dt: PixelData, g: GraphArrays,
+            prm: KernelParams, max_region: int, cache: SweepCache) -> int:
     """Group moves, in place: for each candidate plane, the connected region of segments grown from its seeds
     through segments whose data term it does not raise moves to it at once when that lowers E (Eq. 6.18).
     Data terms are remembered (:func:`_data_cached`); the cache always holds the z-buffer ``z1, o1, z2``
     they are read under."""
+    order, starts, w, cost, min_disp, reliable = dt
+    pairs, bstart, bp_lo, bp_hi, bw, nstart, nbr, nedge = g
+    (zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval, cn, clean, afor, rstart, rp, rseg, sstart, srun, elab,
+     es) = cache
     k = starts.size - 1
     h = cost.shape[1] // w
-    gamma = prm[5]
-    thr = prm[6]
+    gamma = prm.gamma
+    thr = prm.smooth_threshold
     in_s = np.zeros(k, np.bool_)
     seen = np.zeros(k, np.bool_)
     region = np.empty(k, np.int64)
     dnew = np.empty(k, np.float64)
     dold = np.empty(k, np.float64)
     prev = np.empty(k, np.int32)
-    cache = (zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval, cn, clean, afor, rstart, rp, rseg, sstart, srun, elab,
-             es)
-    e_cur = _energy_cached(a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo, bp_hi, bw,
-                           prm, *cache)
+    e_cur = _energy_cached(a, planes, dt, g, prm, cache)
     # the z-buffer of the kept assignment: the cache's (it holds the last one computed)
     z1, o1, z2 = zc1.copy(), oc1.copy(), zc2.copy()
     rows = np.zeros(h, np.bool_)
@@ -1173,10 +1288,8 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
             s = seeds[t]
             if a[s] != lab and not seen[s]:
                 seen[s] = True
-                dn = _data_cached(s, lab, planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
-                                  clab, cval, cn)
-                do = _data_cached(s, a[s], planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
-                                  clab, cval, cn)
+                dn = _data_cached(s, lab, planes, dt, prm, z1, o1, z2, clab, cval, cn)
+                do = _data_cached(s, a[s], planes, dt, prm, z1, o1, z2, clab, cval, cn)
                 if dn <= do:
                     region[n] = s
                     dnew[n] = dn
@@ -1191,10 +1304,8 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
                 if seen[i] or a[i] == lab:
                     continue
                 seen[i] = True
-                dn = _data_cached(i, lab, planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
-                                  clab, cval, cn)
-                do = _data_cached(i, a[i], planes, order, starts, w, cost, min_disp, reliable, prm, z1, o1, z2,
-                                  clab, cval, cn)
+                dn = _data_cached(i, lab, planes, dt, prm, z1, o1, z2, clab, cval, cn)
+                do = _data_cached(i, a[i], planes, dt, prm, z1, o1, z2, clab, cval, cn)
                 if dn <= do and n < max_region:
                     region[n] = i
                     dnew[n] = dn
@@ -1209,8 +1320,8 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
                 i = nbr[t]
                 before = 0.0
                 if a[i] != a[j]:
-                    before = _smooth(j, i, nedge[t], planes[a[j]], planes[a[i]], pairs, bstart, bp_lo, bp_hi, bw,
-                                     w, thr)
+                    before = _smooth(j, i, nedge[t], planes[a[j]], planes[a[i]], pairs, bstart, bp_lo, bp_hi, bw, w,
+                                     thr)
                 if in_s[i]:
                     de -= gamma * before  # visited from both sides: 2 γ S in E (Eq. 6.18)
                 else:
@@ -1224,8 +1335,7 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
                 prev[r] = a[region[r]]
                 a[region[r]] = lab
                 rows[bbox[region[r], 2]:bbox[region[r], 3] + 1] = True
-            e_new = _energy_cached(a, planes, order, starts, w, cost, min_disp, reliable, pairs, bstart, bp_lo,
-                                   bp_hi, bw, prm, *cache)
+            e_new = _energy_cached(a, planes, dt, g, prm, cache)
             if e_new < e_cur - 1e-9:
                 e_cur = e_new
                 accepted += 1
@@ -1239,8 +1349,7 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, order: 
                 for r in range(n):
                     a[region[r]] = prev[r]
                 # back to the z-buffer of the kept assignment (the cache now holds the rejected one's)
-                _cache_refresh(z1, o1, z2, rows, zc1, oc1, zc2, zvalid, bbox, planes, clab, cval, cn, clean, w,
-                               order, sstart, srun, cost.shape[2], min_disp, prm)
+                _cache_refresh(z1, o1, z2, rows, cache, planes, dt, prm)
                 zfor[:] = a
         for r in range(n):
             in_s[region[r]] = False
@@ -1289,10 +1398,9 @@ def expand_planes(assign: npt.NDArray[np.integer], planes: F64, index: SegmentIn
     pl = np.asarray(planes, np.float64)
     prm = _prm(p, slopes)
     cache = _take_cache(memo, index, graph, cost, reliable, prm, int(min_disp), pl)
-    n = _expand(a, pl, uniq.astype(np.int64), seed_start, segs.astype(np.int64), index.order, index.starts,
-                index.shape[1], _flat_cost(cost, slopes), int(min_disp), np.asarray(reliable, np.bool_).ravel(),
-                graph.pairs, graph.bstart, graph.bp_lo, graph.bp_hi, graph.bw, graph.nstart, graph.nbr,
-                graph.nedge, prm, int(max_region), *cache)
+    n = _expand(a, pl, uniq.astype(np.int64), seed_start, segs.astype(np.int64),
+                _pixel_data(index, cost, reliable, slopes, min_disp), _graph_arrays(graph), prm, int(max_region),
+                cache)
     if memo is not None:
         memo.keep(index, cost, reliable, prm, int(min_disp), pl, cache)
     return a, {"group_moves": float(n)}
