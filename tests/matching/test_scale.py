@@ -164,7 +164,10 @@ match(left, right, max_disp={d} // 4, method={method!r})
 with open("/proc/self/statm") as fh:  # resident now (the warm-up's peak may lie above it)
     r0 = int(fh.read().split()[1]) * resource.getpagesize()
 match(left, right, max_disp={d}, method={method!r})
-r1 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+# the high-water mark of this process's own memory: ru_maxrss would start at the parent's resident size,
+# which Linux carries across fork and exec (a pytest process that ran coop's tests first: 1.7 GB)
+with open("/proc/self/status") as fh:
+    r1 = next(int(line.split()[1]) * 1024 for line in fh if line.startswith("VmHWM:"))
 print(json.dumps({{"before": r0, "peak": r1}}))
 """
 
