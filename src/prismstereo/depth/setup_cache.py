@@ -31,8 +31,9 @@ import logging
 import os
 import tempfile
 import zipfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
@@ -46,6 +47,7 @@ from prismstereo.rectify import RectifiedPair
 from prismstereo.rectify.epipolar import EpipolarTable
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 __all__ = ["cache_folder", "load_range", "load_rays", "load_setup", "save_range", "save_rays", "save_setup",
            "setup_key"]
@@ -160,18 +162,8 @@ def save_setup(rig: Rig, faces: tuple[int, int], calibration: str, views: Sequen
 def load_rays(rig: Rig, faces: tuple[int, int], calibration: str, *, shape: tuple[int, int]) -> RayTable | None:
     """The cached exact-ray table of a set-up (:class:`~prismstereo.depth.triangulation.RayTable`) whose
     rectified views are ``shape`` (h, w), or None (no entry, unreadable, another shape, disabled)."""
-    path = _path(rig, faces, calibration, "rays")
-    if path is None or not path.is_file():
-        return None
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            table = RayTable.from_arrays({k: z[k] for k in z.files})
-        if table.shape != tuple(shape):
-            raise ValueError(f"a table of {table.shape}, expected {tuple(shape)}")
-    except (OSError, ValueError, KeyError, TypeError, IndexError, EOFError, zipfile.BadZipFile) as exc:
-        log.info("ray table cache entry %s unreadable (%s): computing it again", path, exc)
-        return None
-    return table
+    return _load_entry(_path(rig, faces, calibration, "rays"), RayTable.from_arrays, lambda t: t.shape,
+                       shape=shape, what="ray table")
 
 
 def save_rays(rig: Rig, faces: tuple[int, int], calibration: str, table: RayTable) -> Path | None:
@@ -182,24 +174,30 @@ def save_rays(rig: Rig, faces: tuple[int, int], calibration: str, table: RayTabl
 
 def load_range(rig: Rig, faces: tuple[int, int], calibration: str, *, shape: tuple[int, int]) -> RigRange | None:
     """The cached rig-only search range of a set-up whose rectified views are ``shape`` (h, w), or None."""
-    path = _path(rig, faces, calibration, "range")
-    if path is None or not path.is_file():
-        return None
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            found = RigRange.from_arrays({k: z[k] for k in z.files})
-        if found.region.shape != tuple(shape):
-            raise ValueError(f"a region of {found.region.shape}, expected {tuple(shape)}")
-    except (OSError, ValueError, KeyError, TypeError, IndexError, EOFError, zipfile.BadZipFile) as exc:
-        log.info("search range cache entry %s unreadable (%s): computing it again", path, exc)
-        return None
-    return found
+    return _load_entry(_path(rig, faces, calibration, "range"), RigRange.from_arrays, lambda r: r.region.shape,
+                       shape=shape, what="search range")
 
 
 def save_range(rig: Rig, faces: tuple[int, int], calibration: str, found: RigRange) -> Path | None:
     """Store a set-up's rig-only search range (best effort, as :func:`save_setup`)."""
     path = _path(rig, faces, calibration, "range")
     return None if path is None else _write(path, found.to_arrays())
+
+
+def _load_entry(path: Path | None, from_arrays: Callable[[dict[str, np.ndarray]], T],
+                shape_of: Callable[[T], tuple[int, ...]], *, shape: tuple[int, int], what: str) -> T | None:
+    """An entry read back with ``from_arrays``, or None (no entry, unreadable, of another shape, disabled)."""
+    if path is None or not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            found = from_arrays({k: z[k] for k in z.files})
+        if tuple(shape_of(found)) != tuple(shape):
+            raise ValueError(f"of shape {tuple(shape_of(found))}, expected {tuple(shape)}")
+    except (OSError, ValueError, KeyError, TypeError, IndexError, EOFError, zipfile.BadZipFile) as exc:
+        log.info("%s cache entry %s unreadable (%s): computing it again", what, path, exc)
+        return None
+    return found
 
 
 def _write(path: Path, arrays: dict[str, np.ndarray]) -> Path | None:
