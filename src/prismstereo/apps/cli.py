@@ -17,6 +17,7 @@ import sys
 from collections.abc import Callable, Sequence
 
 from prismstereo import __version__
+from prismstereo.apps.cli_args import parse_pair
 from prismstereo.errors import ConfigError, PrismStereoError
 
 log = logging.getLogger("prismstereo")
@@ -33,14 +34,6 @@ def _parse_views(text: str | None) -> tuple[int, ...] | str | None:
         return tuple(int(v) for v in text.split(","))
     except ValueError:
         raise ConfigError(f"--views: expected face indices like 1,0 or 'all', got {text!r}") from None
-
-
-def _parse_pair(text: str, name: str) -> tuple[float, float]:
-    try:
-        a, b = (float(v) for v in text.split(","))
-    except ValueError:
-        raise ConfigError(f"{name}: expected two numbers like 800,5000, got {text!r}") from None
-    return a, b
 
 
 # --------------------------------------------------------------------------- simulate
@@ -327,7 +320,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     from prismstereo.matching.registry import resolve_preset
 
     views = _parse_views(args.views)
-    depth_range = None if args.depth_range is None else _parse_pair(args.depth_range, "--depth-range")
+    depth_range = None if args.depth_range is None else parse_pair(args.depth_range, "--depth-range")
     method, preset = (args.method, None) if args.preset is None and args.config is not None \
         else resolve_preset(args.preset, args.method)
     _first_run(args.command, method or "bpasw")
@@ -501,7 +494,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     from prismstereo.apps.batch_command import batch_command
     from prismstereo.matching.registry import resolve_preset
 
-    depth_range = None if args.depth_range is None else _parse_pair(args.depth_range, "--depth-range")
+    depth_range = None if args.depth_range is None else parse_pair(args.depth_range, "--depth-range")
     method, _ = resolve_preset(args.preset, args.method)
     return batch_command(args.rig, args.inputs, args.output, method=method, params=_parse_params(args.param),
                          min_confidence=args.min_confidence,
@@ -553,7 +546,7 @@ def _cmd_stream(args: argparse.Namespace) -> int:
     from prismstereo.apps.stream_command import stream_command
     from prismstereo.matching.registry import resolve_preset
 
-    depth_range = None if args.depth_range is None else _parse_pair(args.depth_range, "--depth-range")
+    depth_range = None if args.depth_range is None else parse_pair(args.depth_range, "--depth-range")
     method, _ = resolve_preset(args.preset, args.method, default="sgm")
     return stream_command(args.rig, args.source, args.output, method=method, params=_parse_params(args.param),
                           depth_range=depth_range, roi=_parse_roi(args.roi), views=_parse_views(args.views),

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 
+from prismstereo.apps.cli_args import parse_pair
 from prismstereo.errors import ConfigError
 
 __all__ = ["add_design", "parse_accuracy", "parse_faces"]
@@ -29,13 +30,7 @@ def parse_faces(text: str) -> tuple[int, ...]:
 
 
 def _pair(text: str | None, name: str) -> tuple[float, float] | None:
-    if text is None:
-        return None
-    try:
-        a, b = (float(v) for v in text.split(","))
-    except ValueError:
-        raise ConfigError(f"{name}: expected two numbers like 1200,1800, got {text!r}") from None
-    return a, b
+    return None if text is None else parse_pair(text, name, example="1200,1800")
 
 
 def add_design(sub: argparse._SubParsersAction) -> None:

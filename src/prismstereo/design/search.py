@@ -30,7 +30,7 @@ import functools
 import logging
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -355,6 +355,15 @@ def _rank_key(req: Request, c: Candidate) -> tuple[float, float]:
     return (c.prediction.worst_error, -c.prediction.min_field_share)
 
 
+def _extreme(cands: Sequence[Candidate], value: Callable[[Prediction], float], *, largest: bool
+             ) -> tuple[float, Candidate] | None:
+    """The candidate whose prediction has the largest (or smallest) ``value``, with that value; None if none."""
+    got = [(value(c.prediction), c) for c in cands if c.prediction is not None]
+    if not got:
+        return None
+    return (max if largest else min)(got, key=lambda t: t[0])
+
+
 def _no_solution(req: Request, cands: Sequence[Candidate]) -> GeometryError:
     stage = max((CHECKS.index(c.rejected) for c in cands if c.rejected is not None), default=0)
     name = CHECKS[stage]
@@ -372,28 +381,27 @@ def _no_solution(req: Request, cands: Sequence[Candidate]) -> GeometryError:
             s, c = min(sizes, key=lambda t: t[0])
             best = f"; the smallest glass needed is {s:.1f} mm (α {c.corner_angle:g}°, apex {c.apex_distance:g} mm)"
     elif name == "overlap":
-        got = [(c.prediction.min_field_share, c) for c in last if c.prediction is not None]
-        if got:
-            s, c = max(got, key=lambda t: t[0])
+        hit = _extreme(last, lambda p: p.min_field_share, largest=True)
+        if hit:
+            s, c = hit
             best = f"; the best shares {100 * s:.0f} % (α {c.corner_angle:g}°, apex {c.apex_distance:g} mm)"
     elif name == "field":
-        got = [(c.prediction.depths[-1].field_area_mm2, c) for c in last if c.prediction is not None]
-        if got:
-            _, c = max(got, key=lambda t: t[0])
+        hit = _extreme(last, lambda p: p.depths[-1].field_area_mm2, largest=True)
+        if hit:
+            c = hit[1]
             assert c.prediction is not None
             p = c.prediction.depths[-1]
             best = (f"; the largest common field at {req.far:g} mm is {p.field_width_mm:.0f} × "
                     f"{p.field_height_mm:.0f} mm "
                     f"(α {c.corner_angle:g}°, apex {c.apex_distance:g} mm)")
     elif name == "balance":
-        got = [(c.prediction.width_spread, c) for c in last if c.prediction is not None]
-        if got:
-            s, c = min(got, key=lambda t: t[0])
-            best = f"; the most even differs by {100 * s:.0f} %"
+        hit = _extreme(last, lambda p: p.width_spread, largest=False)
+        if hit:
+            best = f"; the most even differs by {100 * hit[0]:.0f} %"
     elif name == "accuracy":
-        got = [(c.prediction.depths[-1].relative_error, c) for c in last if c.prediction is not None]
-        if got:
-            e, c = min(got, key=lambda t: t[0])
+        hit = _extreme(last, lambda p: p.depths[-1].relative_error, largest=False)
+        if hit:
+            e, c = hit
             best = (f"; the best reaches {100 * e:.3g} % (α {c.corner_angle:g}°, apex {c.apex_distance:g} mm, "
                     f"glass {c.glass.name})")
     what = {"tir": "total internal reflection", "size": f"max_size {req.max_size:g} mm",

@@ -447,22 +447,19 @@ def _hit_field(prim: np.ndarray, fields: np.ndarray, flags: np.ndarray, ox: floa
         ya = (j - cy) / fy
         yb = (j + 1.0 - cy) / fy
         fl = flags[foff + j * (w - 1) + i]
-        t0, n0x, n0y, n0z = _triangle(lox, loy, loz, ldx, ldy, ldz, xa * z00, ya * z00, z00, xb * z10, ya * z10,
-                                      z10, xb * z11, yb * z11, z11)
-        if t0 > 1e-9 and t0 < best and t0 < t_max:
-            best = t0
-            bnx = n0x
-            bny = n0y
-            bnz = n0z
-            bunk = fl & 1
-        t1, n1x, n1y, n1z = _triangle(lox, loy, loz, ldx, ldy, ldz, xa * z00, ya * z00, z00, xb * z11, yb * z11,
-                                      z11, xa * z01, yb * z01, z01)
-        if t1 > 1e-9 and t1 < best and t1 < t_max:
-            best = t1
-            bnx = n1x
-            bny = n1y
-            bnz = n1z
-            bunk = (fl >> 1) & 1
+        for tri in range(2):  # the cell's two triangles: (00, 10, 11) and (00, 11, 01); flag bit `tri`
+            if tri == 0:
+                z_b, u_b, v_b, z_c, u_c, v_c = z10, xb, ya, z11, xb, yb
+            else:
+                z_b, u_b, v_b, z_c, u_c, v_c = z11, xb, yb, z01, xa, yb
+            t, nx, ny, nz = _triangle(lox, loy, loz, ldx, ldy, ldz, xa * z00, ya * z00, z00,
+                                      u_b * z_b, v_b * z_b, z_b, u_c * z_c, v_c * z_c, z_c)
+            if t > 1e-9 and t < best and t < t_max:
+                best = t
+                bnx = nx
+                bny = ny
+                bnz = nz
+                bunk = (fl >> tri) & 1
         if best < math.inf or min(tmu, tmv) > 1.0:
             break
         if tmu < tmv:
