@@ -34,9 +34,10 @@ class CostParams:
     Attributes
     ----------
     tau_color : float
-        Truncation of the mean absolute colour difference (0..255 scale).
+        Truncation of the mean absolute colour difference (0..255 scale); 0 switches the colour term off.
     tau_grad : float
-        Truncation of the absolute x-gradient difference (0..255 scale per pixel).
+        Truncation of the absolute x-gradient difference (0..255 scale per pixel); 0 switches it off (both 0:
+        census alone, as ``coop`` does when the views' colours disagree beyond an intensity mapping).
     lambda_census : float
         Scale of the census term ``1 - exp(-hamming / lambda_census)``.
     lambda_ad : float
@@ -59,8 +60,8 @@ class CostParams:
     eps: float = 1e-4
 
     def __post_init__(self) -> None:  # a census of (2 rx + 1)(2 ry + 1) - 1 <= 64 bits
-        check_fields(self, {"census_rx": (0, 7), "census_ry": (0, 7), "radius": (0, 100)},
-                     positive=("tau_color", "tau_grad", "lambda_census", "lambda_ad", "eps"))
+        check_fields(self, {"census_rx": (0, 7), "census_ry": (0, 7), "radius": (0, 100), "tau_color": (0, None),
+                            "tau_grad": (0, None)}, positive=("lambda_census", "lambda_ad", "eps"))
         if (2 * self.census_rx + 1) * (2 * self.census_ry + 1) > 65:
             raise ConfigError(f"CostParams.census_rx, census_ry: expected a census window of at most 65 pixels, "
                               f"got {2 * self.census_rx + 1}x{2 * self.census_ry + 1}")
