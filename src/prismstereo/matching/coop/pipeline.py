@@ -52,6 +52,7 @@ from prismstereo.matching.coop.cooperative import (
     build_segment_graph,
     cooperative_optimize,
 )
+from prismstereo.matching.coop.flatcost import flat_cost_segments, peak_ratio
 from prismstereo.matching.coop.radiometry import RadiometryParams, compensate_right
 from prismstereo.matching.coop.slanted import segment_plane_costs, segment_sweep_costs, slanted_pair
 from prismstereo.matching.coop.steps import (
@@ -526,6 +527,13 @@ class _PairEvidence:
         if len(maps) == 1:
             return np.where(local, maps[0], final)
         pick = segment_support_choice(s.labels, local, support, margin=p.margin)
+        if p.flat_ratio > 0 and {"bpasw", "sgm"} <= set(p.candidates):
+            # where BPASW's cost has no distinct minimum its map is a guess: sgm's, where its check holds
+            ib, isg = p.candidates.index("bpasw"), p.candidates.index("sgm")
+            flat = flat_cost_segments(s.labels, local, peak_ratio(self.bvol, self.bleft, local), support[isg],
+                                      support[ib], max_ratio=p.flat_ratio, min_support=p.flat_min_support,
+                                      support_margin=p.flat_support_margin)
+            pick = np.where(flat, isg, pick)
         out = final.copy()
         for i, m in enumerate(maps):
             sel = local & (pick == i)

@@ -219,7 +219,11 @@ class FallbackParams:
     segment may take (``"bpasw"``: the local matcher's, ``"sgm"``: the ``sgm`` matcher's, ``"plane"``: its own final
     map): it takes the first unless another's evidence (the pixels its matcher's left-right check keeps; for
     ``plane`` the evidence pixels within ``tol`` of it) covers a larger share of the segment's replaced pixels by
-    more than ``margin``; then the best-covered one."""
+    more than ``margin``; then the best-covered one. With both ``bpasw`` and ``sgm`` among them, a segment whose
+    BPASW cost is flat (median peak ratio of its replaced pixels below ``flat_ratio``,
+    :mod:`~prismstereo.matching.coop.flatcost`) takes ``sgm``'s map when ``sgm``'s check keeps at least
+    ``flat_min_support`` of those pixels and no less than BPASW's share minus ``flat_support_margin``
+    (``flat_ratio`` 0 = off)."""
 
     enabled: bool = True
     min_coverage: float = 0.4
@@ -232,8 +236,14 @@ class FallbackParams:
     tol: float = 1.0
     candidates: tuple[str, ...] = ("bpasw", "sgm")
     margin: float = 0.2
+    flat_ratio: float = 0.07
+    flat_min_support: float = 0.4
+    flat_support_margin: float = 0.3
 
     def __post_init__(self) -> None:
+        _need(self.flat_ratio >= 0 and 0.0 <= self.flat_min_support <= 1.0 and 0.0 <= self.flat_support_margin <= 1.0,
+              "fallback.flat_ratio >= 0, flat_min_support and flat_support_margin in [0, 1]",
+              (self.flat_ratio, self.flat_min_support, self.flat_support_margin))
         object.__setattr__(self, "candidates", tuple(str(c) for c in self.candidates))
         _need(len(self.candidates) > 0 and set(self.candidates) <= {"plane", "bpasw", "sgm"}
               and len(set(self.candidates)) == len(self.candidates),
