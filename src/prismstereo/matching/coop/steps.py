@@ -47,7 +47,12 @@ from prismstereo.matching.coop.cooperative import (
     neighbour_plane_candidates,
     slope_level,
 )
-from prismstereo.matching.coop.refine import boundary_pixel_planes, bpasw_candidate_rounds, refine_fine_segments
+from prismstereo.matching.coop.refine import (
+    DataTerm,
+    boundary_pixel_planes,
+    bpasw_candidate_rounds,
+    refine_fine_segments,
+)
 from prismstereo.matching.local.selection import weighted_median_filter
 from prismstereo.matching.segments.planes import PlaneParams, SegmentIndex, curved_segment_surfaces, render_planes
 from prismstereo.matching.segments.segmentation import SegmentationParams
@@ -598,9 +603,9 @@ def step_fine(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
     evidence, reference = evid
     for hr, min_region in p.fine.levels:
         seg = dataclasses.replace(ev.segmentation, hr=float(hr), min_region=int(min_region))
-        fs = refine_fine_segments(ev.image, s.labels, s.assign, s.planes, ev.data, ev.reliable, evidence,
-                                  reference, segmentation=seg, coop=ev.coop, min_disp=ev.min_disp,
-                                  check=p.fine.check, slopes=ev.slopes, fine=ev.segments(seg))
+        data = DataTerm(ev.data, ev.reliable, min_disp=ev.min_disp, slopes=ev.slopes)
+        fs = refine_fine_segments(ev.image, s.labels, s.assign, s.planes, data, evidence, reference,
+                                  segmentation=seg, coop=ev.coop, check=p.fine.check, fine=ev.segments(seg))
         s = dataclasses.replace(s, labels=fs.labels, index=fs.index, assign=fs.assign, planes=fs.planes,
                                 own=s.own[fs.parent], parent=s.parent[fs.parent],
                                 bfit_ids=None if s.bfit_ids is None else s.bfit_ids[fs.parent],
