@@ -391,3 +391,27 @@ def test_fallback_can_take_the_sgm_map() -> None:
     out = ev.fallback(state, wrong, FallbackParams(max_agreement=0.0, candidates=("bpasw", "sgm")))
     sgm = SGMMatcher().compute(left, right, max_disp=16).disparity
     np.testing.assert_array_equal(out, sgm)
+
+
+def test_fallback_takes_sgm_where_the_bpasw_cost_is_flat() -> None:
+    """A segment whose BPASW cost is flat (a guessed winner 3 px off, which BPASW's own check still keeps
+    everywhere) takes the ``sgm`` map, which the share rule alone would not give it; ``flat_ratio`` 0: BPASW's."""
+    from prismstereo.matching.coop.steps import FallbackParams
+    from prismstereo.matching.local.sgm import SGMMatcher
+
+    d_true = 6
+    h, w = 70, 100
+    left, right, _vol, _local = _fallback_pair(3, h, w)
+    flat = np.ones((h, w, 17), np.float32)
+    flat[:, :, d_true + 3] = 0.99  # peak ratio 0.01
+    state = _plane_state(np.zeros((h, w), np.int32), d_true + 3.0)
+    wrong = np.full((h, w), d_true + 3.0, np.float32)
+    evidence = np.zeros((h, w), bool)
+    evidence[:20] = True
+    kw = {"max_agreement": 0.0, "candidates": ("bpasw", "sgm")}
+    ev = _fallback_evidence(left, right, flat, wrong, evidence)
+    out = ev.fallback(state, wrong, FallbackParams(**kw))  # type: ignore[arg-type]
+    np.testing.assert_array_equal(out, SGMMatcher().compute(left, right, max_disp=16).disparity)
+    ev = _fallback_evidence(left, right, flat, wrong, evidence)
+    out = ev.fallback(state, wrong, FallbackParams(**kw, flat_ratio=0.0))  # type: ignore[arg-type]
+    assert np.mean(np.abs(out - (d_true + 3)) <= 1.0) > 0.9
