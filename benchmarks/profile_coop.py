@@ -9,7 +9,9 @@ Runs ``coop_match`` once to warm numba's cache (not counted), then once under :m
 ``time.process_time``: each function's seconds are the CPU seconds of all threads while it ran, so a parallel
 kernel is charged its whole CPU cost, and the table reads right on loaded, shared cores (wall time there
 does not). Prints the ``--top`` functions by own time and by cumulative time, a per-stage table (cumulative
-CPU seconds of the pipeline's pieces), the total CPU and wall seconds and the load average.
+CPU seconds of the pipeline's pieces), the total CPU and wall seconds and the load average; then runs
+``sgbm``, ``sgm`` and ``coop`` once each unprofiled (after a warm-up run each), timed the same way, and prints
+their CPU seconds and the ratios to OpenCV SGBM's.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import time
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from prismstereo.evaluation.middlebury import load_scene  # noqa: E402
+from prismstereo.matching import match  # noqa: E402
 from prismstereo.matching.coop import coop_match  # noqa: E402
 
 # the pieces of coop_match whose cumulative CPU seconds make the per-stage table (function name, label)
@@ -71,6 +74,16 @@ def main() -> None:
     print(f"\n{args.scene}: {cpu:.2f} s CPU, {wall:.2f} s wall (profiled); stages (wall s) "
           + ", ".join(f"{k} {v:.2f}" for k, v in res.timings.items())
           + f"; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    # unprofiled, in this process: coop against OpenCV SGBM and sgm (CPU seconds; ratios hold on a loaded host)
+    cpu_of = {}
+    for name in ("sgbm", "sgm", "coop"):
+        match(sc.left, sc.right, max_disp=sc.max_disp, min_disp=lo, method=name)  # warm (numba, OpenCV)
+        c = time.process_time()
+        match(sc.left, sc.right, max_disp=sc.max_disp, min_disp=lo, method=name)
+        cpu_of[name] = time.process_time() - c
+    print("unprofiled CPU s: " + ", ".join(f"{k} {v:.2f}" for k, v in cpu_of.items())
+          + f"; coop / sgbm {cpu_of['coop'] / cpu_of['sgbm']:.1f}x, sgm / sgbm {cpu_of['sgm'] / cpu_of['sgbm']:.1f}x"
+          + f"; load average {os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":

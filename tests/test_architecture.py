@@ -185,6 +185,54 @@ def test_the_private_import_check_can_fail() -> None:
     assert list(_private_names_imported(body)) == [(3, "prismstereo.calibration.prism._helper"), (5, ".planes._fit")]
 
 
+#: coop's optimiser must stay readable (issue 28): at most this many parameters per function, and tuples of at
+#: most this many values returned (more travel as a named structure: a NamedTuple in numba, a dataclass elsewhere)
+MAX_PARAMS, MAX_RETURNED = 12, 4
+READABLE = PACKAGE / "matching" / "coop"
+
+
+def _unreadable_functions(text: str) -> Iterator[tuple[int, str]]:
+    """``(line, why)`` of each function of ``text`` with more than :data:`MAX_PARAMS` parameters (``self`` and
+    ``cls`` not counted) or returning a tuple of more than :data:`MAX_RETURNED` values (a ``return`` of a tuple
+    display, or a ``tuple[...]`` return annotation)."""
+    for node in ast.walk(ast.parse(text)):
+        if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+            continue
+        a = node.args
+        names = [x.arg for x in (*a.posonlyargs, *a.args, *a.kwonlyargs, a.vararg, a.kwarg) if x is not None]
+        if names and names[0] in ("self", "cls"):
+            names = names[1:]
+        name = getattr(node, "name", "<lambda>")
+        if len(names) > MAX_PARAMS:
+            yield node.lineno, f"{name} takes {len(names)} parameters"
+        returned = [len(r.value.elts) for r in ast.walk(node) if isinstance(r, ast.Return)
+                    and isinstance(r.value, ast.Tuple) and not any(isinstance(e, ast.Starred) for e in r.value.elts)]
+        ann = getattr(node, "returns", None)
+        if (isinstance(ann, ast.Subscript) and isinstance(ann.value, ast.Name) and ann.value.id == "tuple"
+                and isinstance(ann.slice, ast.Tuple) and not any(isinstance(e, ast.Constant) and e.value is ...
+                                                                 for e in ann.slice.elts)):
+            returned.append(len(ann.slice.elts))
+        if returned and max(returned) > MAX_RETURNED:
+            yield node.lineno, f"{name} returns a tuple of {max(returned)}"
+
+
+def test_coop_functions_are_small() -> None:
+    """No function of ``matching/coop/`` takes more than 12 parameters or returns a tuple of more than 4."""
+    found = [f"{path.relative_to(SRC)}:{line}: {why}" for path in sorted(READABLE.rglob("*.py"))
+             for line, why in _unreadable_functions(path.read_text(encoding="utf-8"))]
+    assert not found, "group these into named structures:\n" + "\n".join(found)
+
+
+def test_the_function_size_check_can_fail() -> None:
+    body = ("def f(a, b, c, d, e, f, g, h, i, j, k, l):\n    return a, b, c, d\n"
+            "def g(a, b, c, d, e, f, g, h, i, j, k, *, l, m):\n    return a\n"
+            "class C:\n    def m(self, a):\n        return (a, a, a, a, a)\n"
+            "def h(x) -> tuple[int, int, int, int, int]:\n    return x\n"
+            "def ok(x) -> tuple[int, ...]:\n    return (*x, 1, 2, 3, 4)\n")
+    assert sorted(_unreadable_functions(body)) == [(3, "g takes 13 parameters"), (6, "m returns a tuple of 5"),
+                                                 (8, "h returns a tuple of 5")]
+
+
 def test_importing_the_pipeline_loads_nothing_above_it() -> None:
     """``import prismstereo.depth.pipeline`` loads only its own layer and the layers below."""
     code = ("import sys, prismstereo.depth.pipeline\n"

@@ -147,10 +147,7 @@ def sweep_candidates(ref: np.ndarray, views: Sequence[np.ndarray], ratios: Seque
     w = ref.shape[1]
     md = int(min(w - 1, math.ceil(r * max_disp)))
     out, ids = segment_sweep_candidates(np.ascontiguousarray(ref, np.uint8), np.ascontiguousarray(views[i], np.uint8),
-                                 labels, index, assign, plane_set * r, min_disp=0, max_disp=md,
-                                 frac=params.frac, slopes=tuple(params.slopes),
-                                 keep=params.keep, min_px=params.min_px, step=params.step,
-                                 dilation=params.dilation)
+                                 labels, index, assign, plane_set * r, min_disp=0, max_disp=md, params=params)
     base = plane_set.shape[0]
     return np.concatenate([plane_set, out[base:] / r]), ids
 

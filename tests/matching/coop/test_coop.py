@@ -158,6 +158,7 @@ def test_middlebury_bounds(middlebury_dir: Path, scene: str, bounds: tuple[float
 def test_sweep_candidates_reach_a_steep_slant() -> None:
     """The global sweep offers a plane near a steep y-slant that a fronto-parallel current plane cannot reach."""
     from prismstereo.matching.coop.pipeline import segment_sweep_candidates
+    from prismstereo.matching.coop.steps import SweepParams
 
     rng = np.random.default_rng(3)
     h, w = 60, 80
@@ -174,8 +175,9 @@ def test_sweep_candidates_reach_a_steep_slant() -> None:
     index = build_segment_index(labels)
     planes = np.array([[0.0, 0.0, 11.0]])
     assign = np.zeros(2, np.int32)
-    out, ids = segment_sweep_candidates(left, right, labels, index, assign, planes, min_disp=0, max_disp=24, frac=1.0,
-                                 slopes=(-0.25, 0.0, 0.25), keep=2, min_px=10, step=2)
+    params = SweepParams(frac=1.0, slopes=(-0.25, 0.0, 0.25), keep=2, min_px=10, step=2, dilation=2)
+    out, ids = segment_sweep_candidates(left, right, labels, index, assign, planes, min_disp=0, max_disp=24,
+                                        params=params)
     assert out.shape[0] > 1
     assert (ids[:, 0] >= 0).all()
     best = out[ids[:, 0]]
@@ -201,12 +203,12 @@ def _straddling_scene() -> tuple[np.ndarray, ...]:
 
 
 def test_fine_segments_move_the_straddling_columns_to_their_plane() -> None:
-    from prismstereo.matching.coop.refine import refine_fine_segments
+    from prismstereo.matching.coop.refine import DataTerm, refine_fine_segments
     from prismstereo.matching.segments.segmentation import SegmentationParams
 
     img, labels, planes, cost, truth = _straddling_scene()
     ok = np.ones(labels.shape, bool)
-    fs = refine_fine_segments(img, labels, np.array([0, 1], np.int32), planes, cost, ok, ok, truth,
+    fs = refine_fine_segments(img, labels, np.array([0, 1], np.int32), planes, DataTerm(cost, ok), ok, truth,
                               segmentation=SegmentationParams(hr=3.0, min_region=10), coop=CoopParams())
     disp = fs.planes[fs.assign][fs.labels][..., 2]
     assert np.array_equal(fs.parent[fs.labels], labels)  # fine segments nest in the coarse ones
@@ -215,13 +217,13 @@ def test_fine_segments_move_the_straddling_columns_to_their_plane() -> None:
 
 
 def test_fine_segments_given_ahead_are_the_ones_computed_inside() -> None:
-    from prismstereo.matching.coop.refine import refine_fine_segments
+    from prismstereo.matching.coop.refine import DataTerm, refine_fine_segments
     from prismstereo.matching.segments.segmentation import SegmentationParams
 
     img, labels, planes, cost, truth = _straddling_scene()
     ok = np.ones(labels.shape, bool)
     seg = SegmentationParams(hr=3.0, min_region=10)
-    args = (img, labels, np.array([0, 1], np.int32), planes, cost, ok, ok, truth)
+    args = (img, labels, np.array([0, 1], np.int32), planes, DataTerm(cost, ok), ok, truth)
     inside = refine_fine_segments(*args, segmentation=seg, coop=CoopParams())
     ahead = refine_fine_segments(*args, segmentation=seg, coop=CoopParams(), fine=mean_shift_segment(img, params=seg))
     for name in ("labels", "assign", "planes", "parent"):
@@ -229,13 +231,13 @@ def test_fine_segments_given_ahead_are_the_ones_computed_inside() -> None:
 
 
 def test_fine_segments_keep_moves_only_with_evidence() -> None:
-    from prismstereo.matching.coop.refine import refine_fine_segments
+    from prismstereo.matching.coop.refine import DataTerm, refine_fine_segments
     from prismstereo.matching.segments.segmentation import SegmentationParams
 
     img, labels, planes, cost, truth = _straddling_scene()
     ok = np.ones(labels.shape, bool)
     wrong_ref = np.where(labels == 1, 4.0, 10.0).astype(np.float32)  # the trusted map sides with the old plane
-    fs = refine_fine_segments(img, labels, np.array([0, 1], np.int32), planes, cost, ok, ok, wrong_ref,
+    fs = refine_fine_segments(img, labels, np.array([0, 1], np.int32), planes, DataTerm(cost, ok), ok, wrong_ref,
                               segmentation=SegmentationParams(hr=3.0, min_region=10), coop=CoopParams())
     disp = fs.planes[fs.assign][fs.labels][..., 2]
     np.testing.assert_allclose(disp, np.where(labels == 1, 4.0, 10.0))
@@ -245,7 +247,7 @@ def test_fine_segments_keep_moves_only_with_evidence() -> None:
 def test_fine_segments_without_evidence_follow_the_data_term_only_when_check_vetoes() -> None:
     """A sliver no evidence pixel covers: the count rule (``check`` 1) cannot move it, the veto rule (``check``
     0: undone only where the evidence is against the move) leaves the move to the optimisation."""
-    from prismstereo.matching.coop.refine import refine_fine_segments
+    from prismstereo.matching.coop.refine import DataTerm, refine_fine_segments
     from prismstereo.matching.segments.segmentation import SegmentationParams
 
     img, labels, planes, cost, truth = _straddling_scene()
@@ -253,9 +255,9 @@ def test_fine_segments_without_evidence_follow_the_data_term_only_when_check_vet
     blind = ok & (np.abs(np.arange(labels.shape[1]) - 27.5)[None, :] > 3)  # no evidence on the straddling columns
     seg = SegmentationParams(hr=3.0, min_region=10)
     kw = {"segmentation": seg, "coop": CoopParams()}
-    count = refine_fine_segments(img, labels, np.array([0, 1], np.int32), planes, cost, ok, blind, truth,
+    count = refine_fine_segments(img, labels, np.array([0, 1], np.int32), planes, DataTerm(cost, ok), blind, truth,
                                  check=1, **kw)
-    veto = refine_fine_segments(img, labels, np.array([0, 1], np.int32), planes, cost, ok, blind, truth,
+    veto = refine_fine_segments(img, labels, np.array([0, 1], np.int32), planes, DataTerm(cost, ok), blind, truth,
                                 check=0, **kw)
     assert count.info["fine_moves"] == 0
     assert veto.info["fine_moves"] >= 1

@@ -153,12 +153,12 @@ def _fallback_evidence(left: np.ndarray, right: np.ndarray, vol: np.ndarray, ini
                        evidence: np.ndarray, max_disp: int = 16) -> Any:
     """The pair's evidence for the fallback step alone: ``evidence`` as every cross-checked mask, ``initial``
     as the initial and local maps."""
-    from prismstereo.matching.coop.pipeline import _PairEvidence
+    from prismstereo.matching.coop.pipeline import PairMaps, PairParams, _PairEvidence
 
-    return _PairEvidence(left, right, min_disp=0, max_disp=max_disp, data=np.zeros((1, 1, 1), np.float32),
-                         reliable=evidence, initial=initial, bvol=vol, bdisp=initial, brel=evidence,
-                         nonplanar=np.zeros(evidence.shape, bool), evidence=evidence,
-                         coop=None, segmentation=None, planes=None, cost=None, slopes=None)  # type: ignore[arg-type]
+    maps = PairMaps(data=np.zeros((1, 1, 1), np.float32), reliable=evidence, initial=initial, bvol=vol,
+                    bdisp=initial, brel=evidence, nonplanar=np.zeros(evidence.shape, bool), evidence=evidence)
+    params = PairParams(coop=None, segmentation=None, planes=None, cost=None, slopes=None)  # type: ignore[arg-type]
+    return _PairEvidence(left, right, min_disp=0, max_disp=max_disp, maps=maps, params=params)
 
 
 def test_large_segment_whose_plane_the_evidence_barely_covers_takes_the_local_map() -> None:
@@ -280,7 +280,7 @@ def _face_plane_after(step: str, seed: int, check: bool) -> float:
 
     from prismstereo.matching.coop.coopcost import CostParams, sheared_costs
     from prismstereo.matching.coop.cooperative import CoopParams, build_segment_graph
-    from prismstereo.matching.coop.pipeline import _bpasw_reliable, _PairEvidence, bpasw_volume
+    from prismstereo.matching.coop.pipeline import PairMaps, PairParams, _bpasw_reliable, _PairEvidence, bpasw_volume
     from prismstereo.matching.coop.steps import PlaneLabels, StepParams, step_group_moves, step_sweep
     from prismstereo.matching.local.selection import right_winner
     from prismstereo.matching.segments.segmentation import SegmentationParams
@@ -290,11 +290,12 @@ def _face_plane_after(step: str, seed: int, check: bool) -> float:
     bvol = bpasw_volume(left, right, max_disp=max_disp)
     bright = right_winner(bvol, min_disp=0)
     brel, bdisp = _bpasw_reliable(bvol, bright, 0)
-    ev = _PairEvidence(left, right, min_disp=0, max_disp=max_disp, bright=bright,
-                       data=sheared_costs(left, right, max_disp=max_disp, slopes=slopes, radius=1),
-                       reliable=np.ones(labels.shape, bool), initial=bdisp, bvol=bvol, bdisp=bdisp, brel=brel,
-                       nonplanar=np.zeros(labels.shape, bool), evidence=brel, coop=CoopParams(),
-                       segmentation=SegmentationParams(), planes=PlaneParams(), cost=CostParams(), slopes=slopes)
+    maps = PairMaps(data=sheared_costs(left, right, max_disp=max_disp, slopes=slopes, radius=1),
+                    reliable=np.ones(labels.shape, bool), initial=bdisp, bvol=bvol, bdisp=bdisp, brel=brel,
+                    nonplanar=np.zeros(labels.shape, bool), evidence=brel, bright=bright)
+    ev = _PairEvidence(left, right, min_disp=0, max_disp=max_disp, maps=maps,
+                       params=PairParams(coop=CoopParams(), segmentation=SegmentationParams(), planes=PlaneParams(),
+                                         cost=CostParams(), slopes=slopes))
     state = PlaneLabels(labels=labels, index=build_segment_index(labels), graph=build_segment_graph(labels, left),
                         assign=np.array([0, 1, 1, 1], np.int32), planes=np.array([[0.0, 0.0, 10.0], [0.0, 0.0, 18.0]]),
                         own=np.full((4, 2), -1, np.int64), parent=np.arange(4, dtype=np.int64),
@@ -390,3 +391,27 @@ def test_fallback_can_take_the_sgm_map() -> None:
     out = ev.fallback(state, wrong, FallbackParams(max_agreement=0.0, candidates=("bpasw", "sgm")))
     sgm = SGMMatcher().compute(left, right, max_disp=16).disparity
     np.testing.assert_array_equal(out, sgm)
+
+
+def test_fallback_takes_sgm_where_the_bpasw_cost_is_flat() -> None:
+    """A segment whose BPASW cost is flat (a guessed winner 3 px off, which BPASW's own check still keeps
+    everywhere) takes the ``sgm`` map, which the share rule alone would not give it; ``flat_ratio`` 0: BPASW's."""
+    from prismstereo.matching.coop.steps import FallbackParams
+    from prismstereo.matching.local.sgm import SGMMatcher
+
+    d_true = 6
+    h, w = 70, 100
+    left, right, _vol, _local = _fallback_pair(3, h, w)
+    flat = np.ones((h, w, 17), np.float32)
+    flat[:, :, d_true + 3] = 0.99  # peak ratio 0.01
+    state = _plane_state(np.zeros((h, w), np.int32), d_true + 3.0)
+    wrong = np.full((h, w), d_true + 3.0, np.float32)
+    evidence = np.zeros((h, w), bool)
+    evidence[:20] = True
+    kw = {"max_agreement": 0.0, "candidates": ("bpasw", "sgm")}
+    ev = _fallback_evidence(left, right, flat, wrong, evidence)
+    out = ev.fallback(state, wrong, FallbackParams(**kw))  # type: ignore[arg-type]
+    np.testing.assert_array_equal(out, SGMMatcher().compute(left, right, max_disp=16).disparity)
+    ev = _fallback_evidence(left, right, flat, wrong, evidence)
+    out = ev.fallback(state, wrong, FallbackParams(**kw, flat_ratio=0.0))  # type: ignore[arg-type]
+    assert np.mean(np.abs(out - (d_true + 3)) <= 1.0) > 0.9

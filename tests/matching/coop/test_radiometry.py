@@ -73,3 +73,24 @@ def test_coop_reads_radiometry_from_a_mapping() -> None:
     assert DataTermParams(radiometry={"min_gain": 5.0}).radiometry == RadiometryParams(min_gain=5.0)  # type: ignore[arg-type]
     with pytest.raises(ConfigError, match="radiometry"):
         DataTermParams(radiometry={"nope": 1})  # type: ignore[arg-type]
+
+
+def test_census_alone_accepts_zero_colour_truncations_and_rejects_negative_ones() -> None:
+    from prismstereo.matching.coop.coopcost import CostParams
+
+    CostParams(tau_color=0.0, tau_grad=0.0)  # the census-only cost coop switches to
+    with pytest.raises(ConfigError, match="tau_color"):
+        CostParams(tau_color=-1.0)
+
+
+def test_coop_matches_a_pair_lit_from_the_side_on_census_alone() -> None:
+    # the census-only path of coop_match (a change of light no intensity map undoes) runs to a map
+    from prismstereo.matching.coop.pipeline import coop_match
+
+    left, right = _pair(h=64, w=96)
+    gain = np.linspace(0.35, 1.6, right.shape[1], dtype=np.float32)[None, :, None]
+    lit = np.clip(np.rint(right.astype(np.float32) * gain), 0, 255).astype(np.uint8)
+    res = coop_match(left, lit, max_disp=12)
+    assert res.info["radiometry_census_only"] == 1.0
+    inner = res.disparity[8:-8, 20:-8]
+    assert np.mean(np.abs(inner - D) <= 1.0) > 0.9

@@ -40,7 +40,7 @@ def test_true_slanted_plane_beats_every_fronto_parallel_hypothesis() -> None:
 def test_sweep_costs_equal_the_plane_costs_of_the_same_planes() -> None:
     """The sweep kernel (contiguous reads, shared border costs) gives segment_plane_costs' numbers for every
     plane of the sweep, including matches that leave the right image on either side."""
-    from prismstereo.matching.coop.slanted import segment_plane_costs, segment_sweep_costs
+    from prismstereo.matching.coop.slanted import SlantedWindow, segment_plane_costs, segment_sweep_costs
 
     left, right = _pair(40, 60)
     labels = np.zeros((40, 60), np.int32)
@@ -53,8 +53,9 @@ def test_sweep_costs_equal_the_plane_costs_of_the_same_planes() -> None:
     slopes = (-0.5, 0.0, 0.5)
     lo, hi = -3, 12
     for census in (0.5, 0.0):
+        win = SlantedWindow(step=2, census=census)
         got = segment_sweep_costs(left, right, labels, active, avals, centres, slopes, min_disp=lo, max_disp=hi,
-                                  step=2, census=census)
+                                  window=win)
         dcs = np.arange(lo, hi + 1, dtype=np.float64)
         nd = dcs.size
         assert got.shape == (4, 2 * len(slopes) * nd)
@@ -68,8 +69,8 @@ def test_sweep_costs_equal_the_plane_costs_of_the_same_planes() -> None:
                     j = (ia * len(slopes) + ib) * nd
                     cand[s, j:j + nd] = len(planes) + np.arange(nd)
                     planes += [(a, b, dc - a * centres[s, 0] - b * centres[s, 1]) for dc in dcs]
-        want = segment_plane_costs(left, right, labels, cand, np.asarray(planes), min_disp=lo, max_disp=hi, step=2,
-                                   census=census)
+        want = segment_plane_costs(left, right, labels, cand, np.asarray(planes), min_disp=lo, max_disp=hi,
+                                   window=win)
         assert np.array_equal(np.isinf(got), np.isinf(want))
         fin = np.isfinite(want)
         assert fin.sum() == 5 * len(slopes) * nd

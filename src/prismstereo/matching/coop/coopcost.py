@@ -11,6 +11,7 @@ combination of truncated colour AD, truncated x-gradient difference and census H
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -34,9 +35,10 @@ class CostParams:
     Attributes
     ----------
     tau_color : float
-        Truncation of the mean absolute colour difference (0..255 scale).
+        Truncation of the mean absolute colour difference (0..255 scale); 0 switches the colour term off.
     tau_grad : float
-        Truncation of the absolute x-gradient difference (0..255 scale per pixel).
+        Truncation of the absolute x-gradient difference (0..255 scale per pixel); 0 switches it off (both 0:
+        census alone, as ``coop`` does when the views' colours disagree beyond an intensity mapping).
     lambda_census : float
         Scale of the census term ``1 - exp(-hamming / lambda_census)``.
     lambda_ad : float
@@ -59,8 +61,8 @@ class CostParams:
     eps: float = 1e-4
 
     def __post_init__(self) -> None:  # a census of (2 rx + 1)(2 ry + 1) - 1 <= 64 bits
-        check_fields(self, {"census_rx": (0, 7), "census_ry": (0, 7), "radius": (0, 100)},
-                     positive=("tau_color", "tau_grad", "lambda_census", "lambda_ad", "eps"))
+        check_fields(self, {"census_rx": (0, 7), "census_ry": (0, 7), "radius": (0, 100), "tau_color": (0, None),
+                            "tau_grad": (0, None)}, positive=("lambda_census", "lambda_ad", "eps"))
         if (2 * self.census_rx + 1) * (2 * self.census_ry + 1) > 65:
             raise ConfigError(f"CostParams.census_rx, census_ry: expected a census window of at most 65 pixels, "
                               f"got {2 * self.census_rx + 1}x{2 * self.census_ry + 1}")
@@ -191,15 +193,29 @@ def _census_row_box(ad: npt.NDArray[np.float64], cl: npt.NDArray[np.uint64], cr:
         _row_box_mean(raw, mask[y], r, inv, np.empty(ndisp), out[y])
 
 
+class _RowBox(NamedTuple):
+    """What :func:`_census_row_boxes_at` computes besides its arrays: disparities ``min_disp .. min_disp + ndisp
+    - 1``, the pixel cost's ``τ_c``, ``τ_g``, ``λ_ad``, ``λ_census`` (:class:`CostParams`), the box radius ``r``."""
+
+    min_disp: int
+    ndisp: int
+    tau_c: float
+    tau_g: float
+    lam_ad: float
+    lam_c: float
+    r: int
+
+
 @njit(cache=True, parallel=True, nogil=True)
 def _census_row_boxes_at(left: F32, right: F32, gl: F32, gr: F32, cl: npt.NDArray[np.uint64],
-                         cr: npt.NDArray[np.uint64], min_disp: int, ndisp: int, tau_c: float, tau_g: float,
-                         lam_ad: float, lam_c: float, r: int, mask: npt.NDArray[np.bool_], out: F32,
+                         cr: npt.NDArray[np.uint64], box: _RowBox, mask: npt.NDArray[np.bool_], out: F32,
                          fill: F32) -> None:
     """:func:`_census_row_box` of every sheared right census ``cr`` (S, H, W) into ``out`` (S, H, W, D), with the
     colour + gradient term (:func:`_ad_term`'s float64 values) evaluated once, at the pixels the row boxes of
     ``mask`` read only, instead of read from a whole-image volume; ``out`` is ``fill`` elsewhere (when ``fill``
-    has ``out``'s shape; untouched otherwise)."""
+    has ``out``'s shape; untouched otherwise). Eqs. 6.21-6.22 with the box along the row only."""
+    min_disp, ndisp, r = box.min_disp, box.ndisp, box.r
+    tau_c, tau_g, lam_ad, lam_c = box.tau_c, box.tau_g, box.lam_ad, box.lam_c
     h, w = left.shape[:2]
     tab = _census_table(lam_c)
     inv = 1.0 / (2 * r + 1)
@@ -507,8 +523,20 @@ def _gf_slices(vol: F32, img: F32, mean_i: F32, inv: F32, r: int, group: int, ou
                     out[y, x, k0 + c] = q
 
 
-def _cost_inputs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic]) -> tuple[F32, ...]:
-    """Contiguous float RGB of both views (grey repeated), their grey images and x-gradients (Sobel / 4)."""
+class _CostInputs(NamedTuple):
+    """A pair's pixel-cost inputs (:func:`_cost_inputs`): contiguous (H, W, 3) float32 RGB of both views (grey
+    repeated), their (H, W) float32 grey images and x-gradients (Sobel / 4)."""
+
+    left: F32
+    right: F32
+    gray_left: F32
+    gray_right: F32
+    grad_left: F32
+    grad_right: F32
+
+
+def _cost_inputs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic]) -> _CostInputs:
+    """The :class:`_CostInputs` of a pair."""
     lf = np.asarray(left, dtype=np.float32)
     rf = np.asarray(right, dtype=np.float32)
     if lf.ndim == 2:
@@ -518,7 +546,7 @@ def _cost_inputs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic]) 
     gray_r = np.asarray(cv2.cvtColor(rf, cv2.COLOR_RGB2GRAY), dtype=np.float32)
     gxl = np.asarray(cv2.Sobel(gray_l, cv2.CV_32F, 1, 0, ksize=3) / 4.0, dtype=np.float32)
     gxr = np.asarray(cv2.Sobel(gray_r, cv2.CV_32F, 1, 0, ksize=3) / 4.0, dtype=np.float32)
-    return np.ascontiguousarray(lf), np.ascontiguousarray(rf), gray_l, gray_r, gxl, gxr
+    return _CostInputs(np.ascontiguousarray(lf), np.ascontiguousarray(rf), gray_l, gray_r, gxl, gxr)
 
 
 def raw_cost(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, max_disp: int,
@@ -529,12 +557,12 @@ def raw_cost(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, m
     d = min_disp + k; pixels with x - d < 0 get the maximum 2.
     """
     p = params or CostParams()
-    lf, rf, gray_l, gray_r, gxl, gxr = _cost_inputs(left, right)
-    cl = census_bits(gray_l, p.census_ry, p.census_rx)
-    cr = census_bits(gray_r, p.census_ry, p.census_rx)
+    ci = _cost_inputs(left, right)
+    cl = census_bits(ci.gray_left, p.census_ry, p.census_rx)
+    cr = census_bits(ci.gray_right, p.census_ry, p.census_rx)
     nd = max_disp - min_disp + 1
-    return _raw_cost(lf, rf, gxl, gxr, cl, cr, int(min_disp), nd, p.tau_color, p.tau_grad, p.lambda_ad,
-                     p.lambda_census)
+    return _raw_cost(ci.left, ci.right, ci.grad_left, ci.grad_right, cl, cr, int(min_disp), nd, p.tau_color,
+                     p.tau_grad, p.lambda_ad, p.lambda_census)
 
 
 def aggregated_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, max_disp: int,
@@ -652,12 +680,12 @@ def sheared_inputs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic]
                    params: CostParams | None = None, slopes: tuple[float, ...] = (0.0,)) -> ShearedInputs:
     """The :class:`ShearedInputs` of a rectified pair ((H, W, 3) uint8 RGB or (H, W) grey) for ``slopes``."""
     p = params or CostParams()
-    lf, rf, gray_l, gray_r, gxl, gxr = _cost_inputs(left, right)
-    cl = census_bits(gray_l, p.census_ry, p.census_rx)
-    cr = np.empty((len(slopes), *gray_r.shape), np.uint64)
+    ci = _cost_inputs(left, right)
+    cl = census_bits(ci.gray_left, p.census_ry, p.census_rx)
+    cr = np.empty((len(slopes), *ci.gray_right.shape), np.uint64)
     for i, b in enumerate(slopes):
-        cr[i] = _census_sheared(gray_r, p.census_ry, p.census_rx, float(b))
-    return ShearedInputs(lf, rf, gxl, gxr, cl, cr, tuple(float(b) for b in slopes), p)
+        cr[i] = _census_sheared(ci.gray_right, p.census_ry, p.census_rx, float(b))
+    return ShearedInputs(ci.left, ci.right, ci.grad_left, ci.grad_right, cl, cr, tuple(float(b) for b in slopes), p)
 
 
 def _check_inputs(inputs: ShearedInputs, shape: tuple[int, ...], p: CostParams, slopes: tuple[float, ...]) -> None:
@@ -747,7 +775,6 @@ def sheared_row_costs_at(left: npt.NDArray[np.generic], right: npt.NDArray[np.ge
     if fill is not None and fill.shape != out.shape:
         raise MatchingError(f"expected fill of shape {out.shape}, got {fill.shape}")
     mask = np.ascontiguousarray(selected, dtype=np.bool_)
-    _census_row_boxes_at(si.left, si.right, si.grad_left, si.grad_right, si.census_left, si.census_right,
-                         int(min_disp), nd, p.tau_color, p.tau_grad, p.lambda_ad, p.lambda_census,
-                         max(int(radius), 0), mask, out,
-                         np.zeros((1, 1, 1, 1), np.float32) if fill is None else fill)
+    box = _RowBox(int(min_disp), nd, p.tau_color, p.tau_grad, p.lambda_ad, p.lambda_census, max(int(radius), 0))
+    _census_row_boxes_at(si.left, si.right, si.grad_left, si.grad_right, si.census_left, si.census_right, box,
+                         mask, out, np.zeros((1, 1, 1, 1), np.float32) if fill is None else fill)

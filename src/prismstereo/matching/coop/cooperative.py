@@ -1074,11 +1074,24 @@ class CoopMemo:
         self._planes = planes.copy()
 
 
-def _data_key(prm: KernelParams) -> tuple[Any, ...]:
+class _DataKey(NamedTuple):
+    """The parameters the data term (Eqs. 6.21-6.22, :func:`_data`) reads (:func:`_data_key`)."""
+
+    omega_occ: float
+    data_trunc: float
+    unreliable_weight: float
+    occ_margin: float
+    visibility: bool
+    omega_border: float
+    n_slopes: int
+    slopes: bytes
+
+
+def _data_key(prm: KernelParams) -> _DataKey:
     """The parameters the data term (Eqs. 6.21-6.22, :func:`_data`) reads: a remembered data term is valid
     for another call only when they are the same."""
-    return (prm.omega_occ, prm.data_trunc, prm.unreliable_weight, prm.occ_margin, prm.visibility,
-            prm.omega_border, prm.slopes.size, prm.slopes.tobytes())
+    return _DataKey(prm.omega_occ, prm.data_trunc, prm.unreliable_weight, prm.occ_margin, prm.visibility,
+                    prm.omega_border, prm.slopes.size, prm.slopes.tobytes())
 
 
 def _take_cache(memo: CoopMemo | None, index: SegmentIndex, graph: SegmentGraph, cost: F32,

@@ -52,8 +52,9 @@ from prismstereo.matching.coop.cooperative import (
     build_segment_graph,
     cooperative_optimize,
 )
+from prismstereo.matching.coop.flatcost import flat_cost_segments, peak_ratio
 from prismstereo.matching.coop.radiometry import RadiometryParams, compensate_right
-from prismstereo.matching.coop.slanted import segment_plane_costs, segment_sweep_costs, slanted_pair
+from prismstereo.matching.coop.slanted import SlantedWindow, segment_plane_costs, segment_sweep_costs, slanted_pair
 from prismstereo.matching.coop.steps import (
     FallbackParams,
     OcclusionParams,
@@ -79,7 +80,7 @@ from prismstereo.matching.segments.segmentation import SegmentationParams, mean_
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CoopMatcher", "CoopResult", "DataTermParams", "coop_match", "initial_disparity",
+__all__ = ["CoopMatcher", "CoopResult", "DataTermParams", "PairMaps", "PairParams", "coop_match", "initial_disparity",
            "occlusion_background_fill", "segment_sweep_candidates"]
 
 F32 = npt.NDArray[np.float32]
@@ -295,21 +296,23 @@ def occlusion_background_fill(disp: F32, seg: npt.NDArray[np.int32], assign: npt
 
 def segment_sweep_candidates(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uint8], labels: npt.NDArray[np.int32],
                       index: Any, assign: npt.NDArray[np.int32], plane_set: npt.NDArray[np.float64], *,
-                      min_disp: int, max_disp: int, frac: float, slopes: tuple[float, ...], keep: int,
-                      min_px: int, step: int, dilation: int = 2,
+                      min_disp: int, max_disp: int, params: SweepParams,
                       ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
     """Candidate planes from a global sweep for the segments of highest mean slanted-window cost.
 
-    The ``frac`` of segments (with at least ``min_px`` pixels) whose current plane has the highest mean slanted
-    cost (:mod:`slanted`) get planes swept over the centre disparity (integer steps over the whole range) and
-    the slopes ``b`` in ``slopes`` (``a`` = 0 and the current ``a``); the ``keep`` cheapest (at least 2 px
-    apart in centre disparity or differing in slope) are returned as new planes and a (K, keep) index array
-    into the extended plane set (-1 = none)."""
+    The ``params.frac`` of segments (with at least ``params.min_px`` pixels) whose current plane has the highest
+    mean slanted cost (:mod:`slanted`, sampled every ``params.step`` px, its window every ``params.dilation``
+    px) get planes swept over the centre disparity (integer steps over the whole range) and the slopes ``b`` in
+    ``params.slopes`` (``a`` = 0 and the current ``a``); the ``params.keep`` cheapest (at least 2 px apart in
+    centre disparity or differing in slope) are returned as new planes and a (K, keep) index array into the
+    extended plane set (-1 = none). The other fields of ``params`` are not read here."""
+    frac, slopes, keep, min_px = params.frac, params.slopes, params.keep, params.min_px
+    window = SlantedWindow(step=params.step, dilation=params.dilation)
     k = assign.shape[0]
     h, w = labels.shape
     pair = slanted_pair(lft, rgt)
     cur = segment_plane_costs(lft, rgt, labels, assign.astype(np.int64)[:, None], plane_set,
-                              min_disp=min_disp, max_disp=max_disp, step=step, dilation=dilation, pair=pair)[:, 0]
+                              min_disp=min_disp, max_disp=max_disp, window=window, pair=pair)[:, 0]
     sizes = np.diff(index.starts)
     ok = np.isfinite(cur) & (sizes >= min_px)
     out_ids = np.full((k, keep), -1, np.int64)
@@ -334,7 +337,7 @@ def segment_sweep_candidates(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uin
     avals = np.stack([np.zeros(k), np.where(a_cur == 0.0, np.nan, a_cur)], axis=1)
     avals[~active] = np.nan
     cost = segment_sweep_costs(lft, rgt, labels, active, avals, centres, slopes, min_disp=min_disp,
-                               max_disp=max_disp, step=step, dilation=dilation, pair=pair)
+                               max_disp=max_disp, window=window, pair=pair)
     twin = np.isnan(avals[:, 1]) & active
     cost[twin, ng:] = cost[twin, :ng]
     avals[twin, 1] = 0.0
@@ -404,31 +407,70 @@ class DataTermParams:
         object.__setattr__(self, "slopes", tuple(float(b) for b in self.slopes))
 
 
+@dataclass(frozen=True, kw_only=True)
+class PairMaps:
+    """The front end's maps of a pair, read by the steps (:class:`_PairEvidence`).
+
+    Attributes
+    ----------
+    data : (H, W, D) or (S, H, W, D) float32   the data term's pixel cost (Eqs. 6.21-6.22).
+    reliable : (H, W) bool      the initial map's cross-check (Eq. 6.7).
+    initial : (H, W) float32    the initial map (§5.2).
+    bvol : (H, W, D) float32    the ``bpasw`` matcher's cost volume of the pair.
+    bdisp : (H, W) float32      its cross-checked subpixel map; ``brel`` (H, W) bool its cross-check.
+    nonplanar : (H, W) bool     pixels of the segments that failed the plane support test.
+    evidence : (H, W) bool      both cross-checked initial maps agree.
+    bright, bleft : (H, W) int64 or None   the right and left view's winners of ``bvol`` (computed when None).
+    sheared : ShearedInputs or None        the data term's pixel inputs, reused by the row-only volume.
+    """
+
+    data: F32
+    reliable: npt.NDArray[np.bool_]
+    initial: F32
+    bvol: F32
+    bdisp: F32
+    brel: npt.NDArray[np.bool_]
+    nonplanar: npt.NDArray[np.bool_]
+    evidence: npt.NDArray[np.bool_]
+    bright: npt.NDArray[np.int64] | None = None
+    bleft: npt.NDArray[np.int64] | None = None
+    sheared: ShearedInputs | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class PairParams:
+    """The parameters the steps read from the pair's evidence (:class:`_PairEvidence`): the optimiser's, the
+    segmentation's (the fine step derives its own from it), the plane fit's, the pixel cost's and the data
+    term's slopes (None = one unsheared volume)."""
+
+    coop: CoopParams
+    segmentation: SegmentationParams
+    planes: PlaneParams
+    cost: CostParams
+    slopes: tuple[float, ...] | None
+
+
 class _PairEvidence:
     """The two-view evidence of the steps (:class:`~prismstereo.matching.coop.steps.Evidence`): the pair's
     data term, the ``bpasw`` matcher's volume of the pair and its cross-checked map, the initial map."""
 
     def __init__(self, lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uint8], *, min_disp: int, max_disp: int,
-                 data: F32, reliable: npt.NDArray[np.bool_], initial: F32, bvol: F32, bdisp: F32,
-                 brel: npt.NDArray[np.bool_], nonplanar: npt.NDArray[np.bool_],
-                 evidence: npt.NDArray[np.bool_], coop: CoopParams,
-                 segmentation: SegmentationParams, planes: PlaneParams, cost: CostParams,
-                 slopes: tuple[float, ...] | None, bright: npt.NDArray[np.int64] | None = None,
-                 segments: dict[SegmentationParams, Future[npt.NDArray[np.int32]]] | None = None,
-                 sheared: ShearedInputs | None = None, bleft: npt.NDArray[np.int64] | None = None):
+                 maps: PairMaps, params: PairParams,
+                 segments: dict[SegmentationParams, Future[npt.NDArray[np.int32]]] | None = None):
         self.image, self.right = lft, rgt
-        self._sheared = sheared  # the data term's census transforms etc., reused by the row-only volume
+        self._sheared = maps.sheared  # the data term's census transforms etc., reused by the row-only volume
         self._segments = dict(segments or {})  # segmentations of the image computed ahead (the fine step's)
+        bvol = maps.bvol
         # the right view's winners of the BPASW volume (read by the occlusion and fallback steps)
-        self.bright = selection.right_winner(bvol, min_disp=min_disp) if bright is None else bright
-        self.bleft = bvol.argmin(axis=2) if bleft is None else bleft  # the left view's (the volume is finite)
+        self.bright = selection.right_winner(bvol, min_disp=min_disp) if maps.bright is None else maps.bright
+        self.bleft = bvol.argmin(axis=2) if maps.bleft is None else maps.bleft  # the left view's (it is finite)
         self.min_disp, self.max_disp = int(min_disp), int(max_disp)
-        self.data, self.reliable, self.initial = data, reliable, initial
-        self.check_data = data
-        self.bvol, self.bdisp, self.brel, self.nonplanar = bvol, bdisp, brel, nonplanar
-        self.coop, self.segmentation, self.plane_params, self.cost = coop, segmentation, planes, cost
-        self.slopes = slopes
-        self.evidence = evidence
+        self.data, self.reliable, self.initial = maps.data, maps.reliable, maps.initial
+        self.check_data = maps.data
+        self.bvol, self.bdisp, self.brel, self.nonplanar = bvol, maps.bdisp, maps.brel, maps.nonplanar
+        self.coop, self.segmentation, self.plane_params = params.coop, params.segmentation, params.planes
+        self.cost, self.slopes = params.cost, params.slopes
+        self.evidence = maps.evidence
         self.fallback_pixels = 0
         self.memo = CoopMemo()
 
@@ -449,9 +491,7 @@ class _PairEvidence:
 
     def sweep(self, s: PlaneLabels, p: SweepParams) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
         return segment_sweep_candidates(self.image, self.right, s.labels, s.index, s.assign, s.planes,
-                                        min_disp=self.min_disp, max_disp=self.max_disp, frac=p.frac,
-                                        slopes=p.slopes, keep=p.keep, min_px=p.min_px, step=p.step,
-                                        dilation=p.dilation)
+                                        min_disp=self.min_disp, max_disp=self.max_disp, params=p)
 
     def row_box(self, selected: npt.NDArray[np.bool_], p: SweepParams) -> None:
         kw = {"max_disp": self.max_disp, "min_disp": self.min_disp, "params": self.cost}
@@ -526,6 +566,13 @@ class _PairEvidence:
         if len(maps) == 1:
             return np.where(local, maps[0], final)
         pick = segment_support_choice(s.labels, local, support, margin=p.margin)
+        if p.flat_ratio > 0 and {"bpasw", "sgm"} <= set(p.candidates):
+            # where BPASW's cost has no distinct minimum its map is a guess: sgm's, where its check holds
+            ib, isg = p.candidates.index("bpasw"), p.candidates.index("sgm")
+            flat = flat_cost_segments(s.labels, local, peak_ratio(self.bvol, self.bleft, local), support[isg],
+                                      support[ib], max_ratio=p.flat_ratio, min_support=p.flat_min_support,
+                                      support_margin=p.flat_support_margin)
+            pick = np.where(flat, isg, pick)
         out = final.copy()
         for i, m in enumerate(maps):
             sel = local & (pick == i)
@@ -709,11 +756,11 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     t = time.perf_counter()
     graph = build_segment_graph(labels, lft)
     dcost, sheared = fut_data.result()
-    ev = _PairEvidence(lft, rgt, min_disp=min_disp, max_disp=max_disp, data=dcost, reliable=reliable,
-                       initial=initial, bvol=bvol, bdisp=bdisp0, brel=brel0, nonplanar=nonplanar,
-                       evidence=evidence, coop=op,
-                       segmentation=sp, planes=pp, cost=dp.cost or cp, slopes=dp.slopes or None,
-                       bright=bright, segments=ahead, sheared=sheared, bleft=bleft)
+    maps = PairMaps(data=dcost, reliable=reliable, initial=initial, bvol=bvol, bdisp=bdisp0, brel=brel0,
+                    nonplanar=nonplanar, evidence=evidence, bright=bright, bleft=bleft, sheared=sheared)
+    ev = _PairEvidence(lft, rgt, min_disp=min_disp, max_disp=max_disp, maps=maps,
+                       params=PairParams(coop=op, segmentation=sp, planes=pp, cost=dp.cost or cp,
+                                         slopes=dp.slopes or None), segments=ahead)
     state = PlaneLabels(labels=labels, index=index, graph=graph, assign=assign0, planes=plane_set, own=own,
                         parent=np.arange(k, dtype=np.int64), pairs=pairs,
                         info={"split_pieces": float(split.size)})

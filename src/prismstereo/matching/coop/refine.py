@@ -27,7 +27,8 @@ from prismstereo.matching.segments.planes import (
 )
 from prismstereo.matching.segments.segmentation import SegmentationParams, mean_shift_segment
 
-__all__ = ["FineSegments", "Optimise", "boundary_pixel_planes", "bpasw_candidate_rounds", "refine_fine_segments"]
+__all__ = ["DataTerm", "FineSegments", "Optimise", "boundary_pixel_planes", "bpasw_candidate_rounds",
+           "refine_fine_segments"]
 
 F32 = npt.NDArray[np.float32]
 
@@ -199,6 +200,26 @@ def bpasw_candidate_rounds(assign: npt.NDArray[np.int32], plane_set: npt.NDArray
 
 
 @dataclass(frozen=True)
+class DataTerm:
+    """The data term a cooperative optimisation reads (Eqs. 6.21-6.22; :func:`cooperative_optimize`'s ``cost``,
+    ``reliable``, ``min_disp`` and ``slopes``).
+
+    Attributes
+    ----------
+    cost : (H, W, D) or (S, H, W, D) float32   pixel cost, slice ``k`` at disparity ``min_disp + k`` (one volume
+        per vertical slope of ``slopes`` when 4-D).
+    reliable : (H, W) bool                     cross-check mask of the data term.
+    min_disp : int                              disparity of slice 0.
+    slopes : tuple of float or None            the slopes of a 4-D ``cost`` (None: one volume).
+    """
+
+    cost: F32
+    reliable: npt.NDArray[np.bool_]
+    min_disp: int = 0
+    slopes: tuple[float, ...] | None = None
+
+
+@dataclass(frozen=True)
 class FineSegments:
     """Result of :func:`refine_fine_segments`.
 
@@ -221,17 +242,15 @@ class FineSegments:
 
 
 def refine_fine_segments(image: npt.NDArray[np.uint8], labels: npt.NDArray[np.int32],
-                         assign: npt.NDArray[np.int32], planes: npt.NDArray[np.float64], cost: F32,
-                         reliable: npt.NDArray[np.bool_], evidence: npt.NDArray[np.bool_], reference: F32, *,
-                         segmentation: SegmentationParams, coop: CoopParams, min_disp: int = 0,
-                         beta_scale: float = 1.0, check: int | None = 1,
-                         slopes: tuple[float, ...] | None = None,
-                         fine: npt.NDArray[np.int32] | None = None) -> FineSegments:
+                         assign: npt.NDArray[np.int32], planes: npt.NDArray[np.float64], data: DataTerm,
+                         evidence: npt.NDArray[np.bool_], reference: F32, *,
+                         segmentation: SegmentationParams, coop: CoopParams, beta_scale: float = 1.0,
+                         check: int | None = 1, fine: npt.NDArray[np.int32] | None = None) -> FineSegments:
     """Finer segments along plane boundaries resume the cooperative optimisation (an addition to §6.2).
 
     The image is segmented again with ``segmentation`` (a smaller range radius) and intersected with
     ``labels``; each fine segment starts from its segment's plane, and those touching a fine segment on
-    another plane may take a neighbour's plane by the cooperative scheme (Eq. 6.19) on ``cost``. A move is
+    another plane may take a neighbour's plane by the cooperative scheme (Eq. 6.19) on ``data``. A move is
     kept only when at least ``check`` more of the fine segment's ``evidence`` pixels lie within 1 px of
     ``reference`` under the new plane than under the old (0: not fewer; None = keep every move).
 
@@ -239,9 +258,7 @@ def refine_fine_segments(image: npt.NDArray[np.uint8], labels: npt.NDArray[np.in
     ----------
     image : (H, W, 3) uint8 reference image.
     labels : (H, W) int32 segments; assign : (K,) plane per segment; planes : (L, 3).
-    cost : (H, W, D) or (S, H, W, D) float32 data-term pixel cost (as :func:`cooperative_optimize`, with
-        ``slopes``).
-    reliable : (H, W) bool cross-check mask of the data term.
+    data : DataTerm the data term's cost volume(s), cross-check mask, first disparity and slopes.
     evidence : (H, W) bool pixels whose ``reference`` disparity is trusted.
     reference : (H, W) float32 disparity map the moves are checked against.
     fine : (H, W) int32, optional
@@ -263,8 +280,8 @@ def refine_fine_segments(image: npt.NDArray[np.uint8], labels: npt.NDArray[np.in
     active = np.zeros(parent.size, bool)
     active[fgraph.pairs[diff, 0]] = True
     active[fgraph.pairs[diff, 1]] = True
-    new, planes_out, info = cooperative_optimize(fa, planes, findex, fgraph, cost, reliable, own=fown,
-                                                 min_disp=min_disp, active=active, slopes=slopes,
+    new, planes_out, info = cooperative_optimize(fa, planes, findex, fgraph, data.cost, data.reliable, own=fown,
+                                                 min_disp=data.min_disp, active=active, slopes=data.slopes,
                                                  params=dataclasses.replace(coop, neighbour_own_planes=False))
     moved = np.flatnonzero(new != fa)
     if check is not None and moved.size:

@@ -21,19 +21,89 @@ refinements built on it were measured worse than ``coop`` without them and were 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 from numba import njit, prange
 
+from prismstereo.errors import ConfigError
 from prismstereo.matching.coop.coopcost import census_bits
 from prismstereo.matching.local.costs import popcount64
 
-__all__ = ["SlantedPair", "add_unique", "plane_cost", "segment_plane_costs", "segment_sweep_costs", "slanted_inputs",
-           "slanted_pair"]
+__all__ = ["SlantedPair", "SlantedWindow", "add_unique", "plane_cost", "segment_plane_costs", "segment_sweep_costs",
+           "slanted_inputs", "slanted_pair"]
 
 F32 = npt.NDArray[np.float32]
+
+
+@dataclass(frozen=True, kw_only=True)
+class SlantedWindow:
+    """The slanted-window cost's parameters (module docstring).
+
+    Attributes
+    ----------
+    step : int          the segment costs sample every ``step``-th pixel of a segment (a diagonal grid).
+    radius : int        half size of the support window ``W(p)``.
+    dilation : int      the window is read every ``dilation`` pixels.
+    gamma : float       colour scale ``γ`` of the support weight ``w(p, q)``.
+    alpha : float       share ``α`` of the gradient term in ``ρ``.
+    tau_col, tau_grad : float   truncations ``τ_col``, ``τ_grad`` of the colour and gradient terms.
+    census : float      weight of the 7×9 census distance added to ``ρ`` (0 = none); a :class:`SlantedPair` given
+        to a cost function brings its own.
+    """
+
+    step: int = 2
+    radius: int = 15
+    dilation: int = 2
+    gamma: float = 20.0
+    alpha: float = 0.5
+    tau_col: float = 30.0
+    tau_grad: float = 6.0
+    census: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.step < 1 or self.dilation < 1 or self.radius < 0:
+            raise ConfigError(f"expected SlantedWindow.step, dilation >= 1 and radius >= 0, got {self.step!r}, "
+                              f"{self.dilation!r}, {self.radius!r}")
+        if not self.gamma > 0 or not 0.0 <= self.alpha <= 1.0:
+            raise ConfigError(f"expected SlantedWindow.gamma > 0 and alpha in [0, 1], got {self.gamma!r}, "
+                              f"{self.alpha!r}")
+        if self.tau_col < 0 or self.tau_grad < 0 or self.census < 0:
+            raise ConfigError(f"expected SlantedWindow.tau_col, tau_grad, census >= 0, got {self.tau_col!r}, "
+                              f"{self.tau_grad!r}, {self.census!r}")
+
+
+class _Window(NamedTuple):
+    """A :class:`SlantedWindow` as the kernels read it (``lam_cen``: the census weight of the pair's inputs)."""
+
+    radius: int
+    dil: int
+    gamma: float
+    alpha: float
+    tau_col: float
+    tau_grad: float
+    lam_cen: float
+
+
+def _kernel_window(window: SlantedWindow, census: float) -> _Window:
+    return _Window(int(window.radius), int(window.dilation), float(window.gamma), float(window.alpha),
+                   float(window.tau_col), float(window.tau_grad), float(census))
+
+
+class _SweepPlanes(NamedTuple):
+    """The planes of a sweep (:func:`_sweep_costs`): ``d = a x + b y + (d0 + i) - a cx - b cy`` with ``a`` in
+    ``avals[s, :na[s]]`` (K, 2) float64, ``b`` in ``slopes`` (B,) float64, ``(cx, cy)`` = ``cx[s]``, ``cy[s]``
+    (K,) float64 and ``i`` < ``nd``."""
+
+    avals: npt.NDArray[np.float64]
+    na: npt.NDArray[np.int64]
+    cx: npt.NDArray[np.float64]
+    cy: npt.NDArray[np.float64]
+    slopes: npt.NDArray[np.float64]
+    d0: float
+    nd: int
 
 
 def slanted_inputs(image: npt.NDArray[np.uint8]) -> F32:
@@ -131,9 +201,11 @@ def add_unique(cand: npt.NDArray[np.int64], nc: int, label: int) -> int:  # prag
 
 
 @njit(cache=True, fastmath=True)
-def _cost(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint64], lam_cen: float, n: int,
-          wy: npt.NDArray[np.int64], wx: npt.NDArray[np.int64], ww: F32,
-          a: float, b: float, c: float, alpha: float, tau_col: float, tau_grad: float) -> float:  # pragma: no cover
+def _cost(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint64], n: int,
+          wy: npt.NDArray[np.int64], wx: npt.NDArray[np.int64], ww: F32, a: float, b: float, c: float,
+          win: _Window) -> float:  # pragma: no cover - numba
+    """``C(p; plane)`` of the module docstring over the ``n`` window samples ``(wy, wx)`` of weights ``ww``."""
+    lam_cen, alpha, tau_col, tau_grad = win.lam_cen, win.alpha, win.tau_col, win.tau_grad
     num = 0.0
     den = 0.0
     for k in range(n):
@@ -155,8 +227,9 @@ def _cost(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint6
 
 @njit(cache=True, parallel=True, fastmath=True, nogil=True)
 def _plane_cost_map(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint64],
-                    lam_cen: float, plane: npt.NDArray[np.float64], radius: int, dil: int, gamma: float,
-                    alpha: float, tau_col: float, tau_grad: float) -> F32:  # pragma: no cover - numba
+                    plane: npt.NDArray[np.float64], win: _Window) -> F32:  # pragma: no cover - numba
+    """:func:`_cost` of one plane at every pixel."""
+    radius, dil, gamma = win.radius, win.dil, win.gamma
     h, w = fl.shape[0], fl.shape[1]
     out = np.empty((h, w), np.float32)
     m = (2 * radius // dil + 1) ** 2
@@ -166,22 +239,21 @@ def _plane_cost_map(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArra
         ww = np.empty(m, np.float32)
         for x in range(w):
             n = _window(fl, y, x, radius, dil, gamma, wy, wx, ww)
-            out[y, x] = _cost(fl, fr, cl, cr, lam_cen, n, wy, wx, ww, plane[0], plane[1], plane[2], alpha,
-                              tau_col, tau_grad)
+            out[y, x] = _cost(fl, fr, cl, cr, n, wy, wx, ww, plane[0], plane[1], plane[2], win)
     return out
 
 
 def plane_cost(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], plane: tuple[float, float, float], *,
-               radius: int = 15, dilation: int = 2, gamma: float = 20.0, alpha: float = 0.5,
-               tau_col: float = 30.0, tau_grad: float = 6.0, census: float = 0.5) -> F32:
+               window: SlantedWindow | None = None) -> F32:
     """Slanted-window cost of one plane ``d = a x + b y + c`` at every pixel (module docstring), (H, W) float32.
 
-    A fronto-parallel window is the special case ``a = b = 0`` with ``c`` the pixel's disparity.
+    A fronto-parallel window is the special case ``a = b = 0`` with ``c`` the pixel's disparity. ``window``:
+    the cost's parameters (its ``step`` is not read here).
     """
-    cl, cr = _census_pair(left, right, census)
-    return _plane_cost_map(slanted_inputs(left), slanted_inputs(right), cl, cr, float(census),
-                           np.asarray(plane, np.float64),
-                           int(radius), int(dilation), float(gamma), float(alpha), float(tau_col), float(tau_grad))
+    win = window or SlantedWindow()
+    cl, cr = _census_pair(left, right, win.census)
+    return _plane_cost_map(slanted_inputs(left), slanted_inputs(right), cl, cr, np.asarray(plane, np.float64),
+                           _kernel_window(win, win.census))
 
 
 @njit(cache=True)
@@ -255,15 +327,16 @@ def _segment_sums(val: npt.NDArray[np.float64], pix: npt.NDArray[np.int64], nper
 
 
 @njit(cache=True, parallel=True, fastmath=True, nogil=True)
-def _segment_costs(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint64], lam_cen: float,
+def _segment_costs(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint64],
                    seg: npt.NDArray[np.int32], cand: npt.NDArray[np.int64], planes: npt.NDArray[np.float64],
-                   step: int, radius: int, dil: int, gamma: float, alpha: float, tau_col: float, tau_grad: float,
-                   dmin: float, dmax: float,
+                   step: int, dmin: float, dmax: float, win: _Window,
                    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:  # pragma: no cover - numba
     """Sums of the slanted cost of each segment's candidate planes over its pixels on a ``step`` grid.
 
     Every sampled pixel is one parallel task (balanced however the segments' sizes differ); the sums are then
     taken row by row in row-major order, so the totals do not depend on the number of threads."""
+    lam_cen, radius, dil, gamma = win.lam_cen, win.radius, win.dil, win.gamma
+    alpha, tau_col, tau_grad = win.alpha, win.tau_col, win.tau_grad
     h, w = seg.shape
     k, m = cand.shape
     nper, pix, cnt = _sample_pixels(seg, cand, step)
@@ -336,22 +409,22 @@ def _segment_costs(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray
 
 def segment_plane_costs(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], labels: npt.NDArray[np.int32],
                         candidates: npt.NDArray[np.int64], planes: npt.NDArray[np.float64], *, min_disp: float,
-                        max_disp: float, step: int = 2, radius: int = 15, dilation: int = 2, gamma: float = 20.0,
-                        alpha: float = 0.5, tau_col: float = 30.0, tau_grad: float = 6.0,
-                        census: float = 0.5, pair: SlantedPair | None = None) -> npt.NDArray[np.float64]:
-    """Mean slanted-window cost of each segment's candidate planes over its pixels (a ``step`` grid).
+                        max_disp: float, window: SlantedWindow | None = None,
+                        pair: SlantedPair | None = None) -> npt.NDArray[np.float64]:
+    """Mean slanted-window cost of each segment's candidate planes over its pixels (a ``window.step`` grid).
 
-    ``candidates`` (K, M) holds plane indices per segment (-1 = none). ``pair``: the pair's
-    :func:`slanted_pair` when already made (then ``census`` is its own). Returns (K, M); ``inf`` for missing
-    candidates and for segments without a sampled pixel.
+    ``candidates`` (K, M) holds plane indices per segment (-1 = none). ``window``: the cost's parameters
+    (default :class:`SlantedWindow`). ``pair``: the pair's :func:`slanted_pair` when already made (then the
+    census weight is its own). Returns (K, M); ``inf`` for missing candidates and for segments without a
+    sampled pixel.
     """
-    sp = slanted_pair(left, right, census=census) if pair is None else pair
+    win = window or SlantedWindow()
+    sp = slanted_pair(left, right, census=win.census) if pair is None else pair
     cand = np.ascontiguousarray(candidates, np.int64)
-    acc, cnt = _segment_costs(sp.left, sp.right, sp.census_left, sp.census_right, sp.census,
+    acc, cnt = _segment_costs(sp.left, sp.right, sp.census_left, sp.census_right,
                               np.ascontiguousarray(labels, np.int32), cand,
-                              np.ascontiguousarray(planes, np.float64), int(step), int(radius), int(dilation),
-                              float(gamma), float(alpha), float(tau_col), float(tau_grad), float(min_disp),
-                              float(max_disp))
+                              np.ascontiguousarray(planes, np.float64), int(win.step), float(min_disp),
+                              float(max_disp), _kernel_window(win, sp.census))
     out = np.where(cnt[:, None] > 0, acc / np.maximum(cnt[:, None], 1.0), np.inf)
     out[cand < 0] = np.inf
     return out
@@ -359,8 +432,10 @@ def segment_plane_costs(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8
 
 @njit(cache=True, fastmath=True, inline="always")
 def _rho_at(l0: float, l1: float, l2: float, l3: float, rv: F32, qy: int, x: int, crq: np.uint64,
-            clq: np.uint64, lam_cen: float, alpha: float, tau_col: float,
-            tau_grad: float) -> float:  # pragma: no cover - numba
+            clq: np.uint64, win: _Window) -> float:  # pragma: no cover - numba
+    """``ρ`` of the module docstring between left values ``l0..l3`` (census ``clq``) and mirrored right column
+    ``x`` of row ``qy`` (census ``crq``)."""
+    lam_cen, alpha, tau_col, tau_grad = win.lam_cen, win.alpha, win.tau_col, win.tau_grad
     col = abs(l0 - rv[qy, 0, x]) + abs(l1 - rv[qy, 1, x]) + abs(l2 - rv[qy, 2, x])
     rho = (1.0 - alpha) * min(col, tau_col) + alpha * min(abs(l3 - rv[qy, 3, x]), tau_grad)
     if lam_cen > 0.0:
@@ -369,19 +444,21 @@ def _rho_at(l0: float, l1: float, l2: float, l3: float, rv: F32, qy: int, x: int
 
 
 @njit(cache=True, parallel=True, fastmath=True, nogil=True)
-def _sweep_costs(fl: F32, rv: F32, cl: npt.NDArray[np.uint64], crv: npt.NDArray[np.uint64], lam_cen: float,
-                 seg: npt.NDArray[np.int32], active: npt.NDArray[np.bool_], avals: npt.NDArray[np.float64],
-                 na: npt.NDArray[np.int64], cx: npt.NDArray[np.float64], cy: npt.NDArray[np.float64],
-                 slopes: npt.NDArray[np.float64], d0: float, nd: int, step: int, radius: int, dil: int,
-                 gamma: float, alpha: float, tau_col: float, tau_grad: float, dmin: float, dmax: float,
+def _sweep_costs(fl: F32, rv: F32, cl: npt.NDArray[np.uint64], crv: npt.NDArray[np.uint64],
+                 seg: npt.NDArray[np.int32], active: npt.NDArray[np.bool_], sweep: _SweepPlanes, step: int,
+                 dmin: float, dmax: float, win: _Window,
                  ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:  # pragma: no cover - numba
     """:func:`_segment_costs` of the sweep's planes ``d = a x + b y + (d0 + i) - a cx - b cy`` (``a`` in
-    ``avals[s, :na[s]]``, ``b`` in ``slopes``, ``i`` < ``nd``), column ``(ia * nb + ib) * nd + i``.
+    ``avals[s, :na[s]]``, ``b`` in ``slopes``, ``i`` < ``nd``: :class:`_SweepPlanes`), column
+    ``(ia * nb + ib) * nd + i``.
 
     Along ``i`` a window sample's match moves left by exactly one pixel at a constant subpixel fraction, so the
     right image, mirrored and channel-planar (``rv[y, ch, W - 1 - x]``, ``crv[y, W - 1 - x]`` its census), is
     read contiguously forwards, and the samples whose match leaves the image (clamped to its border column)
     share one cost."""
+    avals, na, cx, cy, slopes, d0, nd = sweep.avals, sweep.na, sweep.cx, sweep.cy, sweep.slopes, sweep.d0, sweep.nd
+    lam_cen, radius, dil, gamma = win.lam_cen, win.radius, win.dil, win.gamma
+    alpha, tau_col, tau_grad = win.alpha, win.tau_col, win.tau_grad
     h, w = seg.shape
     nb = slopes.shape[0]
     ng = nb * nd
@@ -428,9 +505,8 @@ def _sweep_costs(fl: F32, rv: F32, cl: npt.NDArray[np.uint64], crv: npt.NDArray[
             den += wq
             # the match beyond the left / right border reads the border column (the clamp of _segment_costs)
             rho_l = wq * _rho_at(l0, l1, l2, l3, rv, qy, wr - 1, crv[qy, wr - 1] if lam_cen > 0.0 else np.uint64(0),
-                                 clq, lam_cen, alpha, tau_col, tau_grad)
-            rho_r = wq * _rho_at(l0, l1, l2, l3, rv, qy, 0, crv[qy, 0] if lam_cen > 0.0 else np.uint64(0), clq,
-                                 lam_cen, alpha, tau_col, tau_grad)
+                                 clq, win)
+            rho_r = wq * _rho_at(l0, l1, l2, l3, rv, qy, 0, crv[qy, 0] if lam_cen > 0.0 else np.uint64(0), clq, win)
             for blk in range(nas * nb):
                 xr0 = qx - (ca[blk] * qx + cb[blk] * qy + c0[blk])
                 base = blk * nd
@@ -484,9 +560,7 @@ def _sweep_costs(fl: F32, rv: F32, cl: npt.NDArray[np.uint64], crv: npt.NDArray[
 
 def segment_sweep_costs(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], labels: npt.NDArray[np.int32],
                         active: npt.NDArray[np.bool_], avals: npt.NDArray[np.float64], centres: npt.NDArray[np.float64],
-                        slopes: tuple[float, ...], *, min_disp: int, max_disp: int, step: int = 2, radius: int = 15,
-                        dilation: int = 2, gamma: float = 20.0, alpha: float = 0.5, tau_col: float = 30.0,
-                        tau_grad: float = 6.0, census: float = 0.5,
+                        slopes: tuple[float, ...], *, min_disp: int, max_disp: int, window: SlantedWindow | None = None,
                         pair: SlantedPair | None = None) -> npt.NDArray[np.float64]:
     """:func:`segment_plane_costs` of a sweep's planes: for each ``active`` segment, the planes through its centre
     ``centres[s] = (cx, cy)`` at every integer centre disparity ``min_disp..max_disp`` with each slope ``a`` of
@@ -494,9 +568,10 @@ def segment_sweep_costs(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8
 
     Returns (K, 2 x len(slopes) x D) float64, column ``(ia * len(slopes) + ib) * D + (dc - min_disp)`` for the
     plane ``a = avals[s, ia]``, ``b = slopes[ib]``, ``c = dc - a cx - b cy``; ``inf`` for missing ``a`` and for
-    segments without a sampled pixel. ``pair`` as in :func:`segment_plane_costs`.
+    segments without a sampled pixel. ``window`` and ``pair`` as in :func:`segment_plane_costs`.
     """
-    sp = slanted_pair(left, right, census=census) if pair is None else pair
+    win = window or SlantedWindow()
+    sp = slanted_pair(left, right, census=win.census) if pair is None else pair
     # the right rows mirrored: a sweep's matches move left as its disparity grows, so they run forwards there
     rv = np.ascontiguousarray(sp.right.transpose(0, 2, 1)[:, :, ::-1])
     crv = np.ascontiguousarray(sp.census_right[:, ::-1])
@@ -504,12 +579,11 @@ def segment_sweep_costs(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8
     na = np.where(np.isnan(avals[:, 1]), 1, 2).astype(np.int64)
     nd = int(max_disp) - int(min_disp) + 1
     sl = np.asarray(slopes, np.float64)
-    acc, cnt = _sweep_costs(sp.left, rv, sp.census_left, crv, sp.census, np.ascontiguousarray(labels, np.int32),
-                            np.ascontiguousarray(active, np.bool_), av, na,
-                            np.ascontiguousarray(centres[:, 0], np.float64),
-                            np.ascontiguousarray(centres[:, 1], np.float64), sl, float(min_disp), nd, int(step),
-                            int(radius), int(dilation), float(gamma), float(alpha), float(tau_col), float(tau_grad),
-                            float(min_disp), float(max_disp))
+    sweep = _SweepPlanes(av, na, np.ascontiguousarray(centres[:, 0], np.float64),
+                         np.ascontiguousarray(centres[:, 1], np.float64), sl, float(min_disp), nd)
+    acc, cnt = _sweep_costs(sp.left, rv, sp.census_left, crv, np.ascontiguousarray(labels, np.int32),
+                            np.ascontiguousarray(active, np.bool_), sweep, int(win.step), float(min_disp),
+                            float(max_disp), _kernel_window(win, sp.census))
     out = np.where(cnt[:, None] > 0, acc / np.maximum(cnt[:, None], 1.0), np.inf)
     out[~np.asarray(active, bool)] = np.inf
     out[na == 1, sl.size * nd:] = np.inf

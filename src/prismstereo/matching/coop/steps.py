@@ -47,7 +47,12 @@ from prismstereo.matching.coop.cooperative import (
     neighbour_plane_candidates,
     slope_level,
 )
-from prismstereo.matching.coop.refine import boundary_pixel_planes, bpasw_candidate_rounds, refine_fine_segments
+from prismstereo.matching.coop.refine import (
+    DataTerm,
+    boundary_pixel_planes,
+    bpasw_candidate_rounds,
+    refine_fine_segments,
+)
 from prismstereo.matching.local.selection import weighted_median_filter
 from prismstereo.matching.segments.planes import PlaneParams, SegmentIndex, curved_segment_surfaces, render_planes
 from prismstereo.matching.segments.segmentation import SegmentationParams
@@ -219,7 +224,11 @@ class FallbackParams:
     segment may take (``"bpasw"``: the local matcher's, ``"sgm"``: the ``sgm`` matcher's, ``"plane"``: its own final
     map): it takes the first unless another's evidence (the pixels its matcher's left-right check keeps; for
     ``plane`` the evidence pixels within ``tol`` of it) covers a larger share of the segment's replaced pixels by
-    more than ``margin``; then the best-covered one."""
+    more than ``margin``; then the best-covered one. With both ``bpasw`` and ``sgm`` among them, a segment whose
+    BPASW cost is flat (median peak ratio of its replaced pixels below ``flat_ratio``,
+    :mod:`~prismstereo.matching.coop.flatcost`) takes ``sgm``'s map when ``sgm``'s check keeps at least
+    ``flat_min_support`` of those pixels and no less than BPASW's share minus ``flat_support_margin``
+    (``flat_ratio`` 0 = off)."""
 
     enabled: bool = True
     min_coverage: float = 0.4
@@ -232,8 +241,14 @@ class FallbackParams:
     tol: float = 1.0
     candidates: tuple[str, ...] = ("bpasw", "sgm")
     margin: float = 0.2
+    flat_ratio: float = 0.07
+    flat_min_support: float = 0.4
+    flat_support_margin: float = 0.3
 
     def __post_init__(self) -> None:
+        _need(self.flat_ratio >= 0 and 0.0 <= self.flat_min_support <= 1.0 and 0.0 <= self.flat_support_margin <= 1.0,
+              "fallback.flat_ratio >= 0, flat_min_support and flat_support_margin in [0, 1]",
+              (self.flat_ratio, self.flat_min_support, self.flat_support_margin))
         object.__setattr__(self, "candidates", tuple(str(c) for c in self.candidates))
         _need(len(self.candidates) > 0 and set(self.candidates) <= {"plane", "bpasw", "sgm"}
               and len(set(self.candidates)) == len(self.candidates),
@@ -588,9 +603,9 @@ def step_fine(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
     evidence, reference = evid
     for hr, min_region in p.fine.levels:
         seg = dataclasses.replace(ev.segmentation, hr=float(hr), min_region=int(min_region))
-        fs = refine_fine_segments(ev.image, s.labels, s.assign, s.planes, ev.data, ev.reliable, evidence,
-                                  reference, segmentation=seg, coop=ev.coop, min_disp=ev.min_disp,
-                                  check=p.fine.check, slopes=ev.slopes, fine=ev.segments(seg))
+        data = DataTerm(ev.data, ev.reliable, min_disp=ev.min_disp, slopes=ev.slopes)
+        fs = refine_fine_segments(ev.image, s.labels, s.assign, s.planes, data, evidence, reference,
+                                  segmentation=seg, coop=ev.coop, check=p.fine.check, fine=ev.segments(seg))
         s = dataclasses.replace(s, labels=fs.labels, index=fs.index, assign=fs.assign, planes=fs.planes,
                                 own=s.own[fs.parent], parent=s.parent[fs.parent],
                                 bfit_ids=None if s.bfit_ids is None else s.bfit_ids[fs.parent],

@@ -1,0 +1,109 @@
+"""Where the local matcher's cost has no distinct minimum: the fallback step's evidence for ``sgm``'s map.
+
+A segment that fails the plane support test falls back to a local map (an addition to thesis §6.1). On a wide,
+weakly textured surface (a wall, the body of a piano) the ``bpasw`` matcher's aggregated cost (§5.2) is nearly
+flat over the disparities: its winner is a guess, and its left-right check passes anyway, because both views read
+the same flat volume. The ``sgm`` matcher propagates costs along eight paths across the whole image, so the
+disparity of the surface's textured border reaches its inside; where its own check then keeps a fair share of the
+segment, its map is the one with evidence.
+
+The flatness of a pixel's cost is the peak ratio ``(c2 - c1) / c1`` of the best cost ``c1`` and the best cost
+``c2`` farther than one level from the winner (0: a second minimum as low as the first).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+from numba import njit
+
+__all__ = ["flat_cost_segments", "peak_ratio"]
+
+F32 = npt.NDArray[np.float32]
+B = npt.NDArray[np.bool_]
+
+
+@njit(cache=True, nogil=True)
+def _peak_ratio(vol: F32, winner: npt.NDArray[np.int64], where: B) -> F32:
+    h, w, nd = vol.shape
+    out = np.full((h, w), np.inf, np.float32)
+    for y in range(h):
+        for x in range(w):
+            if not where[y, x]:
+                continue
+            k = winner[y, x]
+            c1 = vol[y, x, k]
+            # the levels next to the winner are its own peak, not a second minimum (clipped as np.clip)
+            lo = max(0, min(k - 1, nd - 1))
+            hi = max(0, min(k + 1, nd - 1))
+            c2 = np.inf
+            for d in range(nd):
+                if d < lo or d > hi:
+                    c2 = min(c2, vol[y, x, d])
+            out[y, x] = np.float32((c2 - c1) / max(c1, np.float32(1e-6)))
+    return out
+
+
+def peak_ratio(vol: F32, winner: npt.NDArray[np.int64], where: B) -> F32:
+    """Peak ratio of an aggregated cost volume at its winners (see the module docstring).
+
+    Parameters
+    ----------
+    vol : (H, W, D) float32  aggregated cost (lower is better).
+    winner : (H, W) int64  ``vol.argmin(axis=2)``.
+    where : (H, W) bool  pixels wanted.
+
+    Returns
+    -------
+    (H, W) float32, ``(c2 - c1) / max(c1, 1e-6)`` at ``where`` (inf elsewhere, and where no level lies farther
+    than one from the winner).
+    """
+    return np.asarray(_peak_ratio(np.ascontiguousarray(vol, np.float32), np.ascontiguousarray(winner, np.int64),
+                                  np.ascontiguousarray(where, np.bool_)), np.float32)
+
+
+def _segment_medians(lab: npt.NDArray[np.int64], values: npt.NDArray[np.float64], n: int) -> npt.NDArray[np.float64]:
+    """Median of ``values`` per label 0..n-1 (NaN for an absent label), as :func:`numpy.median`."""
+    order = np.lexsort((values, lab))
+    ls, vs = lab[order], values[order]
+    starts = np.searchsorted(ls, np.arange(n))
+    ends = np.searchsorted(ls, np.arange(n), side="right")
+    cnt = ends - starts
+    out = np.full(n, np.nan)
+    ok = cnt > 0
+    lo = starts[ok] + (cnt[ok] - 1) // 2
+    hi = starts[ok] + cnt[ok] // 2
+    out[ok] = 0.5 * (vs[lo] + vs[hi])
+    return out
+
+
+def flat_cost_segments(labels: npt.NDArray[np.int32], where: B, ratio: F32, sgm_support: B, bpasw_support: B, *,
+                       max_ratio: float, min_support: float, support_margin: float) -> B:
+    """The segments whose ``where`` pixels should take ``sgm``'s map because ``bpasw``'s cost is flat there.
+
+    Parameters
+    ----------
+    labels : (H, W) int32  segments.
+    where : (H, W) bool  the pixels being replaced.
+    ratio : (H, W) float32  :func:`peak_ratio` of the ``bpasw`` volume (read at ``where``).
+    sgm_support, bpasw_support : (H, W) bool  pixels each matcher's own left-right check keeps.
+    max_ratio : float, keyword-only
+        A segment qualifies when the median peak ratio of its ``where`` pixels is below this (0: never)...
+    min_support, support_margin : float, keyword-only
+        ... and ``sgm``'s check keeps at least ``min_support`` of them and no less than ``bpasw``'s share minus
+        ``support_margin``.
+
+    Returns
+    -------
+    (H, W) bool, the ``where`` pixels of the qualifying segments.
+    """
+    if max_ratio <= 0 or not where.any():
+        return np.zeros(labels.shape, np.bool_)
+    lab = labels[where].astype(np.int64)
+    n = int(labels.max()) + 1
+    cnt = np.maximum(np.bincount(lab, minlength=n), 1).astype(np.float64)
+    s_sgm = np.bincount(lab, weights=sgm_support[where].astype(np.float64), minlength=n) / cnt
+    s_bp = np.bincount(lab, weights=bpasw_support[where].astype(np.float64), minlength=n) / cnt
+    med = _segment_medians(lab, ratio[where].astype(np.float64), n)
+    take = (med < max_ratio) & (s_sgm >= min_support) & (s_sgm >= s_bp - support_margin)
+    return np.asarray(where & take[labels], np.bool_)

@@ -1,0 +1,51 @@
+"""The fallback's evidence for ``sgm``'s map: where BPASW's aggregated cost has no distinct minimum."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from prismstereo.errors import ConfigError
+from prismstereo.matching.coop.flatcost import flat_cost_segments, peak_ratio
+from prismstereo.matching.coop.steps import FallbackParams
+
+
+def test_peak_ratio_is_the_second_minimum_beyond_the_winners_neighbours() -> None:
+    vol = np.array([[[4.0, 2.0, 1.0, 1.5, 3.0], [1.0, 1.1, 5.0, 5.0, 1.05]]], np.float32)  # (1, 2, 5)
+    winner = vol.argmin(axis=2)
+    r = peak_ratio(vol, winner, np.ones((1, 2), bool))
+    # pixel 0: winner 2 (cost 1), levels 1..3 its own peak, next best 3.0; pixel 1: winner 0, next best 1.05
+    np.testing.assert_allclose(r, [[2.0, 0.05]], rtol=1e-6)
+    assert np.isinf(peak_ratio(vol, winner, np.array([[True, False]]))[0, 1])
+
+
+def test_flat_segments_take_sgm_only_where_its_check_holds() -> None:
+    labels = np.zeros((4, 30), np.int32)
+    labels[:, 10:] = 1
+    labels[:, 20:] = 2
+    ratio = np.full((4, 30), 0.5, np.float32)
+    ratio[:, 10:] = 0.01  # segments 1 and 2: a flat cost
+    sgm = np.ones((4, 30), bool)
+    sgm[:3, 20:] = False  # segment 2: sgm's check keeps a quarter
+    bp = np.ones((4, 30), bool)
+    where = np.ones((4, 30), bool)
+    kw = {"max_ratio": 0.07, "min_support": 0.4, "support_margin": 0.3}
+    flat = flat_cost_segments(labels, where, ratio, sgm, bp, **kw)
+    assert not flat[labels == 0].any() and flat[labels == 1].all() and not flat[labels == 2].any()
+    # sgm's share below BPASW's by more than the margin: BPASW's map stays
+    bp2 = bp.copy()
+    sgm2 = sgm.copy()
+    sgm2[:2, 10:20] = False  # segment 1: sgm 0.5 against BPASW 1.0
+    assert not flat_cost_segments(labels, where, ratio, sgm2, bp2, **kw)[labels == 1].any()
+    assert not flat_cost_segments(labels, where, ratio, sgm, bp, **{**kw, "max_ratio": 0.0}).any()
+    # only the replaced pixels count and are returned
+    part = where.copy()
+    part[:, 15:20] = False
+    flat = flat_cost_segments(labels, part, ratio, sgm, bp, **kw)
+    assert flat[:, 10:15].all() and not flat[:, 15:20].any()
+
+
+@pytest.mark.parametrize("kw", [{"flat_ratio": -0.1}, {"flat_min_support": 1.5}, {"flat_support_margin": -0.2}])
+def test_bad_flat_parameters_name_the_fallback(kw: dict) -> None:
+    with pytest.raises(ConfigError, match="fallback"):
+        FallbackParams(**kw)
