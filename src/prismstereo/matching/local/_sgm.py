@@ -191,24 +191,30 @@ def select_kernel(fwd: np.ndarray, bwd: np.ndarray, min_disp: int, uniqueness: i
         rbest = np.full(w, 1 << 30, dtype=np.int32)
         rarg = np.zeros(w, dtype=np.int32)
         for x in range(w):
-            best = 1 << 30
-            bi = 0
+            # the sum, its minimum and the first disparity that reaches it, in passes without branches (SIMD)
+            best = np.int32(1 << 30)
             for i in range(nd):
-                v = int(fwd[y, x, i]) + int(bwd[y, x, i])
+                v = np.int32(np.int32(fwd[y, x, i]) + np.int32(bwd[y, x, i]))
                 srow[i] = v
-                if v < best:
-                    best = v
-                    bi = i
+                best = min(best, v)
+            bi = 0
+            while srow[bi] != best:
+                bi += 1
+            # the right view's WTA along the diagonal (right pixel x - min_disp - i): the first x wins a tie
+            for i in range(min(nd, x - min_disp + 1)):
                 xr = x - min_disp - i
-                if xr >= 0 and v < rbest[xr]:
-                    rbest[xr] = v
-                    rarg[xr] = i
+                v = srow[i]
+                take = v < rbest[xr]
+                rbest[xr] = min(v, rbest[xr])
+                rarg[xr] = i if take else rarg[xr]
             win[y, x] = bi
             if uniqueness > 0:
+                lim = np.int64(best) * 100
+                fail = False
                 for i in range(nd):
-                    if (i < bi - 1 or i > bi + 1) and srow[i] * (100 - uniqueness) < best * 100:
-                        code[y, x] = 1
-                        break
+                    fail |= ((i < bi - 1) | (i > bi + 1)) & (np.int64(srow[i]) * (100 - uniqueness) < lim)
+                if fail:
+                    code[y, x] = 1
             d = float(bi)
             if subpixel and 0 < bi < nd - 1:
                 cm, cp = srow[bi - 1], srow[bi + 1]
