@@ -210,9 +210,9 @@ def select_kernel(fwd: np.ndarray, bwd: np.ndarray, min_disp: int, uniqueness: i
             win[y, x] = bi
             if uniqueness > 0:
                 lim = np.int64(best) * 100
-                fail = False
+                fail = 0
                 for i in range(nd):
-                    fail |= ((i < bi - 1) | (i > bi + 1)) & (np.int64(srow[i]) * (100 - uniqueness) < lim)
+                    fail |= int(((i < bi - 1) | (i > bi + 1)) & (np.int64(srow[i]) * (100 - uniqueness) < lim))
                 if fail:
                     code[y, x] = 1
             d = float(bi)
