@@ -22,7 +22,8 @@ megapixel, peak RSS, accuracy, the load average when the child ended. ``--c2f on
 coarse-to-fine forced on and off (one child each) and prints, per preset and size, the on − off differences
 of median depth error and coverage (the issue's "accuracy does not pay": within 0.02 points and 2 points).
 ``--stream`` adds a streaming run (:func:`prismstereo.batch.stream.run_stream`, ``fast``) over a lossless
-video of ``--stream-frames`` renders at the first size, depth range :data:`STREAM_RANGE_MM` given: frames/s.
+video of ``--stream-frames`` renders at the first size, once with the depth range :data:`STREAM_RANGE_MM`
+given and once without (the stream narrows the rig's range with the first frame): frames/s.
 
     NUMBA_CACHE_DIR=.numba_cache PYTHONPATH=src .venv/bin/python benchmarks/bench_scale.py \\
         --sizes 1024,2048 --presets fast,balanced --scenes robot [--stream] [--json out.json]
@@ -134,8 +135,9 @@ def _depth_child(folder: Path, what: str) -> dict[str, Any]:
             "load": open("/proc/loadavg").read().split()[0]}
 
 
-def _stream_child(folder: Path, frames: int) -> dict[str, Any]:
-    """A fast stream over a lossless video of ``frames`` copies of the capture (a child process)."""
+def _stream_child(folder: Path, frames: int, given: bool = True) -> dict[str, Any]:
+    """A fast stream over a lossless video of ``frames`` copies of the capture (a child process); ``given``:
+    with :data:`STREAM_RANGE_MM`, else the stream narrows the rig's range with the first frame."""
     import cv2
 
     from prismstereo.batch.stream import run_stream
@@ -153,10 +155,13 @@ def _stream_child(folder: Path, frames: int) -> dict[str, Any]:
             vw.write(bgr)
         vw.release()
         # warm: numba's kernels loaded and the set-up cached, on the first frame
-        cfg = DepthConfig(method="sgm", depth_range=STREAM_RANGE_MM)
+        cfg = DepthConfig(method="sgm", depth_range=STREAM_RANGE_MM if given else None)
         run_stream(rig, str(video), Path(tmp) / "warm", config=cfg, max_frames=1)
         s = run_stream(rig, str(video), Path(tmp) / "out", config=cfg)
+        info = json.loads((Path(tmp) / "out" / "stream.json").read_text())
     return {"frames": s.frames, "frames_per_s": round(s.frames_per_s, 3), "stage_s": s.stage_s,
+            "range": "given" if given else "narrowed by the first frame",
+            "disparity_range": info["disparity_range"], "range_searches": info.get("range_searches", 0),
             "setup_s": round(s.setup_s, 3), "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20}
 
 
@@ -229,7 +234,8 @@ def main() -> None:
         elif kind == "depth":
             print(json.dumps(_depth_child(Path(folder), what)))
         else:
-            print(json.dumps(_stream_child(Path(folder), int(what))))
+            frames, _, rng = what.partition(":")
+            print(json.dumps(_stream_child(Path(folder), int(frames), given=rng != "auto")))
         return
     if args.table is not None:
         rows = json.loads(Path(args.table).read_text())
@@ -267,17 +273,19 @@ def main() -> None:
                     r = _child(["--child", "depth", str(folder), f"{preset}:{mode}" if mode else preset])
                     results.append({"scene": scene, "width": width, "preset": preset, "mode": mode, **r})
                     print(_row(scene, width, preset, r), flush=True)
-    if args.stream:
+    for rng in ("given", "auto") if args.stream else ():
         folder = work / f"{scenes[0]}-{sizes[0]}"
-        r = _child(["--child", "stream", str(folder), str(args.stream_frames)])
+        r = _child(["--child", "stream", str(folder), f"{args.stream_frames}:{rng}"])
         results.append({"scene": scenes[0], "width": sizes[0], "stream": True, **r})
         if "error" in r:
             print(f"stream: failed: {r['error']}")
         else:
             s = r["stage_s"]
-            print(f"stream ({scenes[0]}, {sizes[0]}×{sizes[0] * 3 // 4}, fast, {r['frames']} frames): "
+            print(f"stream ({scenes[0]}, {sizes[0]}×{sizes[0] * 3 // 4}, fast, {r['frames']} frames, depth range "
+                  f"{r['range']}: {r['disparity_range']} px, {r['range_searches']} searches): "
                   f"{r['frames_per_s']:.2f} frames/s (per frame: read {s['read']:.3f} s, depth {s['depth']:.3f} s, "
-                  f"write {s['write']:.3f} s, overlapped), peak RSS {r['peak_rss_gb']:.2f} GB")
+                  f"write {s['write']:.3f} s, overlapped), peak RSS {r['peak_rss_gb']:.2f} GB, "
+                  f"load {open('/proc/loadavg').read().split()[0]}", flush=True)
     lines = _c2f_rows(results)
     if lines:
         print("\n| scene | capture | preset | median depth err on − off (points) | coverage on − off (points) | "
