@@ -66,7 +66,7 @@ from prismstereo.depth.pipeline import (
     search_region,
     validate_image,
 )
-from prismstereo.errors import ConfigError, ImageError
+from prismstereo.errors import ConfigError, GeometryError, ImageError
 from prismstereo.io import read_image, write_json
 from prismstereo.io.atomic import check_output_dir
 from prismstereo.matching.diagnostics import LIMIT_SHARE, limit_shares
@@ -503,7 +503,12 @@ def _narrowed(setup: DepthSetup, image: np.ndarray) -> DepthSetup:
     """``setup`` (the rig's whole range) with its search region narrowed by one frame's images
     (:func:`~prismstereo.depth.pipeline.search_region`, the rig-only part from the set-up)."""
     left, right = rectify_capture(setup.pair, validate_image(setup.rig, image))
-    region = search_region(setup.rig, setup.pair, setup.config, left, right, known=setup.rig_range)
+    try:
+        region = search_region(setup.rig, setup.pair, setup.config, left, right, known=setup.rig_range)
+    except GeometryError as exc:  # the rig's range then (and the next frame tries again)
+        log.warning("stream: the frame's images could not narrow the depth range (%s): searching the rig's range",
+                    _line(exc))
+        return setup
     return dataclasses.replace(setup, region=region)
 
 
