@@ -17,13 +17,18 @@ misses numpy's and numba's allocations):
 
 Printed: seconds per frame (the pipeline's own total), its stages, the per-frame work outside matching as
 a share of the frame (wall, and in CPU seconds of the process, which a loaded machine distorts less),
-× SGBM, seconds per megapixel, peak RSS, accuracy. ``--stream`` adds a streaming run
-(:func:`prismstereo.batch.stream.run_stream`, ``fast``) over a lossless video of ``--stream-frames``
-renders at the first size, depth range :data:`STREAM_RANGE_MM` given: frames/s.
+× SGBM (the whole frame, and the match step alone, against SGBM's time in the same process), seconds per
+megapixel, peak RSS, accuracy, the load average when the child ended. ``--c2f on,off`` runs each preset with
+coarse-to-fine forced on and off (one child each) and prints, per preset and size, the on − off differences
+of median depth error and coverage (the issue's "accuracy does not pay": within 0.02 points and 2 points).
+``--stream`` adds a streaming run (:func:`prismstereo.batch.stream.run_stream`, ``fast``) over a lossless
+video of ``--stream-frames`` renders at the first size, once with the depth range :data:`STREAM_RANGE_MM`
+given and once without (the stream narrows the rig's range with the first frame): frames/s.
 
     NUMBA_CACHE_DIR=.numba_cache PYTHONPATH=src .venv/bin/python benchmarks/bench_scale.py \\
         --sizes 1024,2048 --presets fast,balanced --scenes robot [--stream] [--json out.json]
     ... --sizes 4096 --presets fast          # 12 MP: several GB per run; run one at a time
+    ... --sizes 1024 --presets fast --c2f on,off   # coarse-to-fine against the full search
 
 Each run is a fresh process: numba's compiled kernels come from its disk cache (``prismstereo warmup``
 first, or the first run pays the compile, which the warm-up run absorbs).
@@ -96,8 +101,9 @@ def _sgbm_seconds(left: Any, right: Any, lo: int, hi: int, repeat: int = 3) -> f
     return best
 
 
-def _depth_child(folder: Path, preset: str) -> dict[str, Any]:
-    """One preset on one capture (a child process): the measured second run, SGBM, accuracy, peak RSS."""
+def _depth_child(folder: Path, what: str) -> dict[str, Any]:
+    """One preset (``preset`` or ``preset:c2f-mode``) on one capture (a child process): the measured second
+    run, SGBM, accuracy, peak RSS."""
     import numpy as np
 
     from prismstereo.config import load_rig
@@ -109,7 +115,8 @@ def _depth_child(folder: Path, preset: str) -> dict[str, Any]:
     rig = load_rig(folder / "rig.toml")
     img = read_image(folder / "capture.png")
     gt = read_depth_gt(folder / "depth_gt.pfm", rig)
-    cfg = DepthConfig(method=TABLE[preset])
+    preset, _, mode = what.partition(":")
+    cfg = DepthConfig(method=TABLE[preset], coarse_to_fine=mode or "auto")
     t = time.perf_counter()
     run_depth(rig, img, config=cfg, progress=False)
     first = time.perf_counter() - t
@@ -123,11 +130,14 @@ def _depth_child(folder: Path, preset: str) -> dict[str, Any]:
             "first_run_s": round(first, 3), "sgbm_s": round(sgbm, 4), "disparity_range": [lo, hi],
             "rectified": list(res.left.shape[:2]),
             "median_rel": acc["median_rel"], "within_1pct": acc["within_1pct"], "coverage": acc["coverage"],
-            "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20}
+            "c2f": bool(res.match_info.get("coarse_to_fine", False)),
+            "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20,
+            "load": open("/proc/loadavg").read().split()[0]}
 
 
-def _stream_child(folder: Path, frames: int) -> dict[str, Any]:
-    """A fast stream over a lossless video of ``frames`` copies of the capture (a child process)."""
+def _stream_child(folder: Path, frames: int, given: bool = True) -> dict[str, Any]:
+    """A fast stream over a lossless video of ``frames`` copies of the capture (a child process); ``given``:
+    with :data:`STREAM_RANGE_MM`, else the stream narrows the rig's range with the first frame."""
     import cv2
 
     from prismstereo.batch.stream import run_stream
@@ -145,10 +155,13 @@ def _stream_child(folder: Path, frames: int) -> dict[str, Any]:
             vw.write(bgr)
         vw.release()
         # warm: numba's kernels loaded and the set-up cached, on the first frame
-        cfg = DepthConfig(method="sgm", depth_range=STREAM_RANGE_MM)
+        cfg = DepthConfig(method="sgm", depth_range=STREAM_RANGE_MM if given else None)
         run_stream(rig, str(video), Path(tmp) / "warm", config=cfg, max_frames=1)
         s = run_stream(rig, str(video), Path(tmp) / "out", config=cfg)
+        info = json.loads((Path(tmp) / "out" / "stream.json").read_text())
     return {"frames": s.frames, "frames_per_s": round(s.frames_per_s, 3), "stage_s": s.stage_s,
+            "range": "given" if given else "narrowed by the first frame",
+            "disparity_range": info["disparity_range"], "range_searches": info.get("range_searches", 0),
             "setup_s": round(s.setup_s, 3), "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20}
 
 
@@ -175,9 +188,26 @@ def _row(scene: str, width: int, preset: str, r: dict[str, Any]) -> str:
     cpu_out = cpu_total - cpu.get("match", 0.0)
     return (f"| {scene} | {width}×{width * 3 // 4} | {preset} | {total:.2f} | {100 * outside / total:.0f} % | "
             f"{cpu_total:.2f} | {100 * cpu_out / max(cpu_total, 1e-9):.0f} % | "
-            f"{total / r['sgbm_s']:.0f}× ({r['sgbm_s']:.3f} s) | {total / mp:.2f} | {r['peak_rss_gb']:.2f} | "
+            f"{total / r['sgbm_s']:.0f}× ({r['sgbm_s']:.3f} s) | {t.get('match', 0.0) / r['sgbm_s']:.0f}× | "
+            f"{total / mp:.2f} | {r['peak_rss_gb']:.2f} | "
             f"{100 * r['median_rel']:.3f} % | {100 * r['within_1pct']:.1f} % | {100 * r['coverage']:.1f} % | "
-            f"{stages} |")
+            f"{'on' if r.get('c2f') else 'off'} | {r.get('load', '')} | {stages} |")
+
+
+def _c2f_rows(results: list[dict[str, Any]]) -> list[str]:
+    """Coarse-to-fine on − off, per scene, size and preset, where both ran."""
+    out = []
+    by = {(r["scene"], r["width"], r["preset"], r.get("mode")): r for r in results if "error" not in r
+          and not r.get("stream")}
+    for (scene, width, preset, mode), on in by.items():
+        off = by.get((scene, width, preset, "off"))
+        if mode != "on" or off is None:
+            continue
+        out.append(f"| {scene} | {width}×{width * 3 // 4} | {preset} | "
+                   f"{100 * (on['median_rel'] - off['median_rel']):+.4f} | "
+                   f"{100 * (on['coverage'] - off['coverage']):+.2f} | "
+                   f"{on['timings']['match'] / off['timings']['match']:.2f} |")
+    return out
 
 
 def main() -> None:
@@ -188,6 +218,8 @@ def main() -> None:
     ap.add_argument("--scenes", default="robot", help=f"among {','.join(SCENES)}")
     ap.add_argument("--stream", action="store_true", help="also a fast stream at the first size: frames/s")
     ap.add_argument("--stream-frames", type=int, default=12)
+    ap.add_argument("--c2f", default=None, metavar="MODES",
+                    help="coarse-to-fine modes to run each preset with (auto,on,off; default: auto only)")
     ap.add_argument("--json", default=None, help="write the measurements here")
     ap.add_argument("--work", default=None, help="folder for the renders (default: a temporary one)")
     ap.add_argument("--child", nargs=3, default=None, help=argparse.SUPPRESS)
@@ -202,25 +234,32 @@ def main() -> None:
         elif kind == "depth":
             print(json.dumps(_depth_child(Path(folder), what)))
         else:
-            print(json.dumps(_stream_child(Path(folder), int(what))))
+            frames, _, rng = what.partition(":")
+            print(json.dumps(_stream_child(Path(folder), int(frames), given=rng != "auto")))
         return
     if args.table is not None:
-        for r in json.loads(Path(args.table).read_text()):
+        rows = json.loads(Path(args.table).read_text())
+        for r in rows:
             if not r.get("stream"):
                 print(_row(r["scene"], r["width"], r["preset"], r))
+        for line in _c2f_rows(rows):
+            print(line)
         return
     sizes = [int(s) for s in args.sizes.split(",")]
     presets = [p.strip() for p in args.presets.split(",")]
     scenes = [s.strip() for s in args.scenes.split(",")]
-    bad = [p for p in presets if p not in PRESETS] + [s for s in scenes if s not in SCENES]
+    modes = [m.strip() for m in args.c2f.split(",")] if args.c2f else [""]
+    bad = ([p for p in presets if p not in PRESETS] + [s for s in scenes if s not in SCENES]
+           + [m for m in modes if m not in ("", "auto", "on", "off")])
     if bad:
         raise SystemExit(f"expected presets among {PRESETS} and scenes among {SCENES}, got {bad}")
     work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="bench_scale-"))
     results: list[dict[str, Any]] = []
     print(f"load average {open('/proc/loadavg').read().split()[:3]}; renders in {work}")
     print("| scene | capture | preset | s per frame | outside match | CPU s | CPU outside match | × SGBM-3WAY | "
-          "s per MP | peak RSS GB | median depth err | within 1 % | coverage | stages (s) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "match × SGBM | s per MP | peak RSS GB | median depth err | within 1 % | coverage | c2f | load | "
+          "stages (s) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for scene in scenes:
         for width in sizes:
             folder = work / f"{scene}-{width}"
@@ -230,20 +269,30 @@ def main() -> None:
                     print(f"| {scene} | {width} | render failed: {r['error']} |")
                     continue
             for preset in presets:
-                r = _child(["--child", "depth", str(folder), preset])
-                results.append({"scene": scene, "width": width, "preset": preset, **r})
-                print(_row(scene, width, preset, r), flush=True)
-    if args.stream:
+                for mode in modes:
+                    r = _child(["--child", "depth", str(folder), f"{preset}:{mode}" if mode else preset])
+                    results.append({"scene": scene, "width": width, "preset": preset, "mode": mode, **r})
+                    print(_row(scene, width, preset, r), flush=True)
+    for rng in ("given", "auto") if args.stream else ():
         folder = work / f"{scenes[0]}-{sizes[0]}"
-        r = _child(["--child", "stream", str(folder), str(args.stream_frames)])
+        r = _child(["--child", "stream", str(folder), f"{args.stream_frames}:{rng}"])
         results.append({"scene": scenes[0], "width": sizes[0], "stream": True, **r})
         if "error" in r:
             print(f"stream: failed: {r['error']}")
         else:
             s = r["stage_s"]
-            print(f"stream ({scenes[0]}, {sizes[0]}×{sizes[0] * 3 // 4}, fast, {r['frames']} frames): "
+            print(f"stream ({scenes[0]}, {sizes[0]}×{sizes[0] * 3 // 4}, fast, {r['frames']} frames, depth range "
+                  f"{r['range']}: {r['disparity_range']} px, {r['range_searches']} searches): "
                   f"{r['frames_per_s']:.2f} frames/s (per frame: read {s['read']:.3f} s, depth {s['depth']:.3f} s, "
-                  f"write {s['write']:.3f} s, overlapped), peak RSS {r['peak_rss_gb']:.2f} GB")
+                  f"write {s['write']:.3f} s, overlapped), peak RSS {r['peak_rss_gb']:.2f} GB, "
+                  f"load {open('/proc/loadavg').read().split()[0]}", flush=True)
+    lines = _c2f_rows(results)
+    if lines:
+        print("\n| scene | capture | preset | median depth err on − off (points) | coverage on − off (points) | "
+              "match s on / off |")
+        print("|---|---|---|---|---|---|")
+        for line in lines:
+            print(line)
     print(f"load average {open('/proc/loadavg').read().split()[:3]}")
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1))

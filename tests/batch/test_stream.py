@@ -3,6 +3,7 @@ before any frame with one clear error."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import threading
@@ -14,7 +15,7 @@ import pytest
 
 from prismstereo.apps.demo import demo_rig, plane_scene
 from prismstereo.batch.stream import open_source, run_stream, source_kind
-from prismstereo.depth import DepthConfig
+from prismstereo.depth import DepthConfig, prepare_depth
 from prismstereo.errors import ConfigError, ImageError
 from prismstereo.evaluation.depth_metrics import evaluate_depth
 from prismstereo.io import write_image
@@ -153,3 +154,20 @@ def test_ctrl_c_keeps_the_finished_frames(tmp_path: Path, captures) -> None:  # 
     for n in done:
         assert {f.name for f in (out / "frames" / n).iterdir()} == {"disparity.pfm", "depth.png", "frame.json"}
     assert len(done) < 6
+
+
+def test_stream_narrows_the_rig_range_and_searches_again_when_the_scene_leaves_it(  # type: ignore[no-untyped-def]
+        tmp_path: Path, captures) -> None:
+    rig, scenes, images = captures
+    # far plane first, then the near one: the first frame's band does not hold the second
+    src = _video(tmp_path / "caps.avi", [images[2], images[0]])
+    got: list = []
+    cfg = DepthConfig(method="sgm")
+    summary = run_stream(rig, str(src), tmp_path / "out", config=cfg, on_frame=lambda n, r: got.append(r))
+    assert summary.frames == 2 and not summary.failed
+    info = json.loads((tmp_path / "out" / "stream.json").read_text())
+    assert info["depth_range_source"] == "rig+images" and info["range_searches"] == 2
+    rig_lo, rig_hi = prepare_depth(rig, config=cfg).disparity_range
+    first, second = (r.disparity_range for r in got)
+    assert rig_hi - rig_lo > 2 * (first[1] - first[0]) and second != first
+    _accurate(got, [scenes[2], scenes[0]])

@@ -16,6 +16,8 @@ matched and written at once (three threads with short queues); frames/s is print
 Outputs: OUT/frames/<name>/ per frame (--outputs, default disparity.pfm and depth.png: 16-bit Z in mm, 0 = none),
 written complete or not at all; --video PATH also writes a colourised depth video; OUT/stream.json (configuration,
 totals). Ctrl-C ends the stream and keeps every finished frame.
+Without --depth-range the first frame's images narrow the rig's range (as depth does for one capture) and the
+stream keeps that band, searching again on a frame whose matches sit at its limits (the scene moved).
 Exit codes: 0 done; 2 bad arguments or a source that cannot be opened (before any frame); 3 some frames failed
 (folder sources: unreadable or wrong-size images; the others are written); 130 interrupted."""
 

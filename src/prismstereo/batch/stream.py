@@ -26,10 +26,19 @@ frame in progress: the reader stops, the writer finishes the frames whose depth 
 comes back with ``interrupted`` set; no frame folder is left half-written. A second Ctrl-C interrupts at once.
 A frame of the wrong size from a camera or video is an error before the first depth (the whole stream
 would be); in a folder it is that frame's failure (logged, counted) and the stream goes on.
+
+Without a configured depth range (``narrow_range``, default on) the first frame's images narrow the
+rig's range as :func:`~prismstereo.depth.pipeline.run_depth` does for one capture (the rig's whole range
+is ~5× the disparities of a room-sized scene: 394 against 75 px on the 1024×768 robot rig), and the
+stream keeps that band. A frame whose consistent matches sit at a limit of the band that the rig's range
+does not share (more than :data:`~prismstereo.matching.diagnostics.LIMIT_SHARE` of them: the scene came
+nearer or went farther) searches the range again on its own images and is matched again; so does every
+frame while the images could not narrow it (the rig's range is searched meanwhile).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import queue
@@ -47,10 +56,20 @@ import numpy as np
 from prismstereo.batch.frames import IMAGE_SUFFIXES, VIDEO_SUFFIXES
 from prismstereo.batch.outputs import parse_outputs, remove_partial, write_frame_folder
 from prismstereo.config import Rig
-from prismstereo.depth.pipeline import DepthConfig, DepthResult, prepare_depth, run_depth_frame
-from prismstereo.errors import ConfigError, ImageError
+from prismstereo.depth.pipeline import (
+    DepthConfig,
+    DepthResult,
+    DepthSetup,
+    prepare_depth,
+    rectify_capture,
+    run_depth_frame,
+    search_region,
+    validate_image,
+)
+from prismstereo.errors import ConfigError, GeometryError, ImageError
 from prismstereo.io import read_image, write_json
 from prismstereo.io.atomic import check_output_dir
+from prismstereo.matching.diagnostics import LIMIT_SHARE, limit_shares
 from prismstereo.viz.colorize import colorize_depth
 
 log = logging.getLogger(__name__)
@@ -290,7 +309,8 @@ def run_stream(rig: Rig, source: str, out: str | os.PathLike[str], *, config: De
                outputs: str | Sequence[str] | None = STREAM_OUTPUTS, video: str | os.PathLike[str] | None = None,
                video_fps: float = 10.0, idle_timeout: float = 10.0, poll_s: float = 0.2, queue_size: int = 2,
                max_frames: int | None = None, on_frame: Callable[[str, DepthResult], None] | None = None,
-               echo: Callable[[str], None] | None = None, report_every: float = 2.0) -> StreamSummary:
+               echo: Callable[[str], None] | None = None, report_every: float = 2.0,
+               narrow_range: bool = True) -> StreamSummary:
     """Depth of every frame of ``source`` as it arrives, into ``out/frames/<name>/`` (module docstring).
 
     Parameters
@@ -316,6 +336,9 @@ def run_stream(rig: Rig, source: str, out: str | os.PathLike[str], *, config: De
         Called with (name, result) of each finished frame, in the writer thread.
     echo : callable, optional
         Receives a frames/s line every ``report_every`` seconds.
+    narrow_range : bool
+        Without a configured depth range, narrow the rig's range with the frames' images (module
+        docstring); False: every frame searches the rig's whole range.
 
     Returns
     -------
@@ -361,6 +384,8 @@ def run_stream(rig: Rig, source: str, out: str | os.PathLike[str], *, config: De
     out_q: queue.Queue[Any] = queue.Queue(maxsize=queue_size)
     sums = {"read": 0.0, "depth": 0.0, "write": 0.0}
     errors: list[BaseException] = []
+    narrow = narrow_range and setup.config.depth_range is None
+    current, searches = setup, 0
 
     def reader() -> None:
         n = 0
@@ -416,7 +441,14 @@ def run_stream(rig: Rig, source: str, out: str | os.PathLike[str], *, config: De
             sums["read"] += item.t_read
             t0 = time.perf_counter()
             try:
-                res = run_depth_frame(setup, item.image)
+                if narrow and current.region.source != "rig+images":
+                    current = _narrowed(setup, item.image)
+                    searches += 1
+                res = run_depth_frame(current, item.image)
+                if narrow and _left_band(res, current, setup):
+                    current = _narrowed(setup, item.image)
+                    searches += 1
+                    res = run_depth_frame(current, item.image)
             except (ImageError, ConfigError) as exc:
                 summary.failed.append((item.name, _line(exc)))
                 log.warning("frame %s: %s", item.name, _line(exc))
@@ -452,7 +484,10 @@ def run_stream(rig: Rig, source: str, out: str | os.PathLike[str], *, config: De
     summary.stage_s = {k: v / n for k, v in sums.items()}
     write_json(out_dir / "stream.json", {"command": "stream", "source": str(source), "kind": kind,
                                          "config": setup.config.to_dict(), "outputs": list(chosen),
-                                         "disparity_range": list(setup.disparity_range),
+                                         "disparity_range": list(current.disparity_range),
+                                         "depth_range_mm": [round(z, 1) for z in current.depth_range],
+                                         "depth_range_source": current.region.source,
+                                         "range_searches": searches,
                                          "setup_s": round(summary.setup_s, 4), "frames": summary.frames,
                                          "failed": [list(f) for f in summary.failed],
                                          "wall_s": round(summary.wall_s, 4),
@@ -462,6 +497,30 @@ def run_stream(rig: Rig, source: str, out: str | os.PathLike[str], *, config: De
     if errors and not summary.interrupted:
         raise errors[0]
     return summary
+
+
+def _narrowed(setup: DepthSetup, image: np.ndarray) -> DepthSetup:
+    """``setup`` (the rig's whole range) with its search region narrowed by one frame's images
+    (:func:`~prismstereo.depth.pipeline.search_region`, the rig-only part from the set-up)."""
+    left, right = rectify_capture(setup.pair, validate_image(setup.rig, image))
+    try:
+        region = search_region(setup.rig, setup.pair, setup.config, left, right, known=setup.rig_range)
+    except GeometryError as exc:  # the rig's range then (and the next frame tries again)
+        log.warning("stream: the frame's images could not narrow the depth range (%s): searching the rig's range",
+                    _line(exc))
+        return setup
+    return dataclasses.replace(setup, region=region)
+
+
+def _left_band(res: DepthResult, current: DepthSetup, rig_setup: DepthSetup) -> bool:
+    """Whether a frame's consistent matches sit at a limit of the narrowed band that the rig's range does
+    not share (the scene left the band)."""
+    if current.region.source != "rig+images" or res.raw_disparity is None:
+        return False
+    lo, hi = current.disparity_range
+    rig_lo, rig_hi = rig_setup.disparity_range
+    at_lo, at_hi, n = limit_shares(res.raw_disparity, None, min_disp=lo, max_disp=hi)
+    return n > 0 and ((at_hi > LIMIT_SHARE and hi < rig_hi) or (at_lo > LIMIT_SHARE and lo > rig_lo))
 
 
 def _catch_interrupt(stop: threading.Event, summary: StreamSummary) -> Any:

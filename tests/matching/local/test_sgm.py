@@ -84,9 +84,11 @@ def _reference_paths(cost: np.ndarray, p1: int, p2: int) -> np.ndarray:
     return total
 
 
-def test_aggregation_matches_literal_recursion() -> None:
+@pytest.mark.parametrize(("top", "nd"), [(40, 6), (40, 1), (40, 2), (40, 19), (6000, 6)])
+def test_aggregation_matches_literal_recursion(top: int, nd: int) -> None:
+    # 6000: path costs beyond the int16 work type (int32 then); 1, 2, 19 disparities: padded to whole vectors
     rng = np.random.default_rng(3)
-    cost = rng.integers(0, 40, size=(5, 7, 6)).astype(np.uint16)
+    cost = rng.integers(0, top, size=(5, 7, nd)).astype(np.uint16)
     gray = rng.uniform(0, 255, size=(5, 7)).astype(np.float32)
     fwd, bwd = sgm_aggregate(cost, gray, p1=3, p2=11)
     assert fwd.dtype == np.uint16

@@ -51,43 +51,40 @@ def census_kernel(cl: np.ndarray, cr: np.ndarray, gl: np.ndarray, gr: np.ndarray
 
 
 @njit(cache=True, inline="always")
-def _path_update(c: np.ndarray, prev: np.ndarray, pmin: int, p1: int, p2: int, dst: np.ndarray,
-                 acc: np.ndarray) -> int:  # pragma: no cover - numba
-    """One step of the path recursion for all disparities; adds the result to ``acc``; returns its min."""
+def _path_update(c: np.ndarray, prev: np.ndarray, pk: int, px: int, pmin: int, p1: int, p2: int, dst: np.ndarray,
+                 dk: int, dx: int, acc: np.ndarray) -> int:  # pragma: no cover - numba
+    """One step of the path recursion for all disparities, from ``prev[pk, px]`` into ``dst[dk, dx]``; adds
+    the result to ``acc``; returns its min. Indices rather than row views: a view per call costs a reference
+    count update, and this runs four times per pixel."""
     nd = c.shape[0]
-    # int32 throughout: twice the SIMD lanes of numba's default int64
-    m = np.int32(pmin)
-    q1 = np.int32(p1)
-    jump = np.int32(pmin + p2)
-    if nd == 1:
-        v = np.int32(c[0])
-        dst[0] = v
-        acc[0] += v
-        return int(v)
-    # the ends of the range apart, so that the loop over the inner disparities has no branches (SIMD)
-    # the minimum is taken in the same pass (a vectorised min reduction; the same value as a second pass)
-    v = min(min(prev[0], prev[1] + q1), jump) - m + np.int32(c[0])
-    dst[0] = v
+    t = acc.dtype.type  # the work type (int16: twice the SIMD lanes of int32)
+    m = t(pmin)
+    q1 = t(p1)
+    jump = t(pmin + p2)
+    # the ends of the range apart, so that the loop over the inner disparities has no branches (SIMD);
+    # the minimum is taken in the same pass (a vectorised min reduction)
+    v = t(min(min(prev[pk, px, 0], prev[pk, px, 1] + q1), jump) - m + c[0])
+    dst[dk, dx, 0] = v
     acc[0] += v
-    best = np.int32(v)
+    best = v
     for d in range(1, nd - 1):
-        v = min(min(prev[d], prev[d - 1] + q1), min(prev[d + 1] + q1, jump)) - m + np.int32(c[d])
-        dst[d] = v
+        v = t(min(min(prev[pk, px, d], prev[pk, px, d - 1] + q1), min(prev[pk, px, d + 1] + q1, jump)) - m + c[d])
+        dst[dk, dx, d] = v
         acc[d] += v
-        best = min(best, np.int32(v))
-    v = min(min(prev[nd - 1], prev[nd - 2] + q1), jump) - m + np.int32(c[nd - 1])
-    dst[nd - 1] = v
+        best = min(best, v)
+    v = t(min(min(prev[pk, px, nd - 1], prev[pk, px, nd - 2] + q1), jump) - m + c[nd - 1])
+    dst[dk, dx, nd - 1] = v
     acc[nd - 1] += v
-    best = min(best, np.int32(v))
+    best = min(best, v)
     return int(best)
 
 
 @njit(cache=True, inline="always")
-def _path_start(c: np.ndarray, dst: np.ndarray, acc: np.ndarray) -> int:  # pragma: no cover - numba
-    best = np.int32(c[0])
+def _path_start(c: np.ndarray, dst: np.ndarray, dk: int, dx: int, acc: np.ndarray) -> int:  # pragma: no cover
+    best = c[0]
     for d in range(c.shape[0]):
-        v = np.int32(c[d])
-        dst[d] = v
+        v = c[d]
+        dst[dk, dx, d] = v
         acc[d] += v
         best = min(best, v)
     return int(best)
@@ -102,45 +99,52 @@ def _p2(gray: np.ndarray, y: int, x: int, y0: int, x0: int, p1: int, p2: int, ga
 
 @njit(cache=True)
 def _sgm_scan(cost: np.ndarray, gray: np.ndarray, p1: int, p2: int, gamma: float, forward: bool,
-              out: np.ndarray) -> None:  # pragma: no cover - numba
-    """Four of the eight paths in one raster scan (forward or backward); sums them into ``out``."""
-    h, w, nd = cost.shape
+              out: np.ndarray, work: np.ndarray, pad: int) -> None:  # pragma: no cover - numba
+    """Four of the eight paths in one raster scan (forward or backward); sums them into ``out``.
+
+    The path costs are held with ``work``'s length and dtype (:func:`sgm_kernel`): the disparities beyond
+    the volume's are padding whose cost ``pad`` is too large to be anyone's minimum, so every path update
+    runs whole SIMD vectors (the volume's 75 disparities would leave a scalar tail of 11 per path)."""
+    h, w, nd0 = cost.shape
+    nd = work.shape[0]
     s = 1 if forward else -1
-    prev = np.zeros((3, w, nd), dtype=np.int32)  # path costs of the previous row: diag-behind, vertical, diag-ahead
-    cur = np.zeros((3, w, nd), dtype=np.int32)
+    c = np.full(nd, pad, dtype=work.dtype)  # the pixel's cost, padded
+    prev = np.zeros((3, w, nd), dtype=work.dtype)  # path costs of the previous row: diag-behind, vertical, diag-ahead
+    cur = np.zeros((3, w, nd), dtype=work.dtype)
     prev_min = np.zeros((3, w), dtype=np.int32)
     cur_min = np.zeros((3, w), dtype=np.int32)
-    hor = np.zeros((2, nd), dtype=np.int32)
-    acc = np.zeros(nd, dtype=np.int32)
+    hor = np.zeros((2, 1, nd), dtype=work.dtype)
+    acc = np.zeros(nd, dtype=work.dtype)
     for yi in range(h):
         y = yi if forward else h - 1 - yi
         hmin = 0
         for xi in range(w):
             x = xi if forward else w - 1 - xi
-            c = cost[y, x]
+            for d in range(nd0):
+                c[d] = cost[y, x, d]
             acc[:] = 0
             # horizontal path (from x - s)
-            hs, hd = hor[xi % 2], hor[(xi + 1) % 2]
+            hs = xi % 2
             if xi == 0:
-                hmin = _path_start(c, hd, acc)
+                hmin = _path_start(c, hor, 1 - hs, 0, acc)
             else:
-                hmin = _path_update(c, hs, hmin, p1, _p2(gray, y, x, y, x - s, p1, p2, gamma), hd, acc)
+                hmin = _path_update(c, hor, hs, 0, hmin, p1, _p2(gray, y, x, y, x - s, p1, p2, gamma), hor, 1 - hs,
+                                    0, acc)
             if yi == 0:
                 for k in range(3):
-                    cur_min[k, x] = _path_start(c, cur[k, x], acc)
+                    cur_min[k, x] = _path_start(c, cur, k, x, acc)
             else:
                 yp = y - s
                 # diagonal from behind (x - s), vertical (x), diagonal from ahead (x + s)
                 for k in range(3):
                     xp = x + (k - 1) * s
                     if xp < 0 or xp >= w:
-                        cur_min[k, x] = _path_start(c, cur[k, x], acc)
+                        cur_min[k, x] = _path_start(c, cur, k, x, acc)
                     else:
-                        cur_min[k, x] = _path_update(c, prev[k, xp], prev_min[k, xp], p1,
-                                                     _p2(gray, y, x, yp, xp, p1, p2, gamma), cur[k, x], acc)
-            o = out[y, x]
-            for d in range(nd):
-                o[d] = acc[d]
+                        cur_min[k, x] = _path_update(c, prev, k, xp, prev_min[k, xp], p1,
+                                                     _p2(gray, y, x, yp, xp, p1, p2, gamma), cur, k, x, acc)
+            for d in range(nd0):
+                out[y, x, d] = acc[d]
         prev, cur = cur, prev
         prev_min, cur_min = cur_min, prev_min
 
@@ -148,14 +152,25 @@ def _sgm_scan(cost: np.ndarray, gray: np.ndarray, p1: int, p2: int, gamma: float
 @njit(cache=True, parallel=True)
 def sgm_kernel(cost: np.ndarray, gray: np.ndarray, p1: int, p2: int,
                gamma: float) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - numba
+    """The two raster scans of :func:`_sgm_scan`, one thread each: (forward, backward) uint16 path sums.
+
+    A path cost is at most max cost + P2 (``top``); padding disparities cost ``2·top + 1``, so that a padded
+    neighbour plus P1 never beats the jump ``min + P2``; int16 work while four padded path costs fit it,
+    else int32 (the same values)."""
     h, w, nd = cost.shape
+    top = int(cost.max()) + p2 if cost.size else p2
+    pad = 2 * top + 1
+    ndp = max(nd, 3)
+    while (ndp - 2) % 16 != 0:  # the inner loop of a path update in whole vectors of 16
+        ndp += 1
     fwd = np.empty((h, w, nd), dtype=np.uint16)
     bwd = np.empty((h, w, nd), dtype=np.uint16)
+    small = 4 * (pad + p2) <= 32767
     for k in prange(2):  # the two scans are independent: one thread each
-        if k == 0:
-            _sgm_scan(cost, gray, p1, p2, gamma, True, fwd)
+        if small:
+            _sgm_scan(cost, gray, p1, p2, gamma, k == 0, fwd if k == 0 else bwd, np.zeros(ndp, np.int16), pad)
         else:
-            _sgm_scan(cost, gray, p1, p2, gamma, False, bwd)
+            _sgm_scan(cost, gray, p1, p2, gamma, k == 0, fwd if k == 0 else bwd, np.zeros(ndp, np.int32), pad)
     return fwd, bwd
 
 
@@ -176,24 +191,30 @@ def select_kernel(fwd: np.ndarray, bwd: np.ndarray, min_disp: int, uniqueness: i
         rbest = np.full(w, 1 << 30, dtype=np.int32)
         rarg = np.zeros(w, dtype=np.int32)
         for x in range(w):
-            best = 1 << 30
-            bi = 0
+            # the sum, its minimum and the first disparity that reaches it, in passes without branches (SIMD)
+            best = np.int32(1 << 30)
             for i in range(nd):
-                v = int(fwd[y, x, i]) + int(bwd[y, x, i])
+                v = np.int32(np.int32(fwd[y, x, i]) + np.int32(bwd[y, x, i]))
                 srow[i] = v
-                if v < best:
-                    best = v
-                    bi = i
+                best = min(best, v)
+            bi = 0
+            while srow[bi] != best:
+                bi += 1
+            # the right view's WTA along the diagonal (right pixel x - min_disp - i): the first x wins a tie
+            for i in range(min(nd, x - min_disp + 1)):
                 xr = x - min_disp - i
-                if xr >= 0 and v < rbest[xr]:
-                    rbest[xr] = v
-                    rarg[xr] = i
+                v = srow[i]
+                take = v < rbest[xr]
+                rbest[xr] = min(v, rbest[xr])
+                rarg[xr] = i if take else rarg[xr]
             win[y, x] = bi
             if uniqueness > 0:
+                lim = np.int64(best) * 100
+                fail = 0
                 for i in range(nd):
-                    if (i < bi - 1 or i > bi + 1) and srow[i] * (100 - uniqueness) < best * 100:
-                        code[y, x] = 1
-                        break
+                    fail |= int(((i < bi - 1) | (i > bi + 1)) & (np.int64(srow[i]) * (100 - uniqueness) < lim))
+                if fail:
+                    code[y, x] = 1
             d = float(bi)
             if subpixel and 0 < bi < nd - 1:
                 cm, cp = srow[bi - 1], srow[bi + 1]
