@@ -256,6 +256,10 @@ def test_importing_the_package_loads_only_the_bottom_layer() -> None:
     assert out[1].strip() == "True"
 
 
+#: a module of the bottom layer whose only calls upward are the callbacks a caller passed it
+CALLBACK_ONLY = "prismstereo.numba_cache"
+
+
 @pytest.mark.slow
 def test_depth_command_data_path_goes_downward(capture_folder: Path, tmp_path: Path) -> None:
     """Every call made while ``prismstereo depth`` runs goes to the caller's layer or below (no climbs back up)."""
@@ -277,7 +281,8 @@ def test_depth_command_data_path_goes_downward(capture_folder: Path, tmp_path: P
         if callee is None or caller is None:
             return
         packages_seen.add(callee)
-        if RANK[callee] > RANK[caller]:
+        # numba_cache calls back only the notice it was handed (the CLI's "compiling" line on a cold cache)
+        if RANK[callee] > RANK[caller] and getattr(caller_frame, "f_globals", {}).get("__name__") != CALLBACK_ONLY:
             code = getattr(frame, "f_code", None)
             climbs.add(f"{caller} -> {callee}.{getattr(code, 'co_name', '?')}")
 
