@@ -47,7 +47,7 @@ import numpy as np
 from prismstereo.batch.frames import IMAGE_SUFFIXES, VIDEO_SUFFIXES
 from prismstereo.batch.outputs import parse_outputs, remove_partial, write_frame_folder
 from prismstereo.config import Rig
-from prismstereo.depth.pipeline import DepthConfig, DepthResult, prepare_depth, run_depth_frame
+from prismstereo.depth.pipeline import DepthConfig, DepthRun, prepare_depth, run_depth_frame
 from prismstereo.errors import ConfigError, ImageError
 from prismstereo.io import read_image, write_json
 from prismstereo.io.atomic import check_output_dir
@@ -289,7 +289,7 @@ class _VideoOut:
 def run_stream(rig: Rig, source: str, out: str | os.PathLike[str], *, config: DepthConfig | None = None,
                outputs: str | Sequence[str] | None = STREAM_OUTPUTS, video: str | os.PathLike[str] | None = None,
                video_fps: float = 10.0, idle_timeout: float = 10.0, poll_s: float = 0.2, queue_size: int = 2,
-               max_frames: int | None = None, on_frame: Callable[[str, DepthResult], None] | None = None,
+               max_frames: int | None = None, on_frame: Callable[[str, DepthRun], None] | None = None,
                echo: Callable[[str], None] | None = None, report_every: float = 2.0) -> StreamSummary:
     """Depth of every frame of ``source`` as it arrives, into ``out/frames/<name>/`` (module docstring).
 
