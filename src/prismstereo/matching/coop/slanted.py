@@ -152,6 +152,8 @@ def _census_pair(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8],
 
 @njit(cache=True, fastmath=True, inline="always")
 def _sample(fr: F32, y: int, xf: float, ch: int) -> float:  # pragma: no cover - numba
+    """Channel ``ch`` of row ``y`` of ``fr`` at column ``xf``, linearly interpolated (the match ``q'`` of the module
+    docstring's ``ρ``), clamped to the border columns."""
     w = fr.shape[1]
     if xf <= 0.0:
         return fr[y, 0, ch]
@@ -165,6 +167,9 @@ def _sample(fr: F32, y: int, xf: float, ch: int) -> float:  # pragma: no cover -
 @njit(cache=True, fastmath=True)
 def _window(fl: F32, y: int, x: int, radius: int, dil: int, gamma: float, wy: npt.NDArray[np.int64],
             wx: npt.NDArray[np.int64], ww: F32) -> int:  # pragma: no cover - numba
+    """The support window ``W(p)`` of pixel ``(y, x)`` (every ``dil`` px within ``radius``, inside the image) into
+    ``wy, wx`` and its weights ``w(p, q) = exp(-‖I_p − I_q‖₁ / γ)`` into ``ww`` (module docstring; PatchMatch
+    Stereo's, an addition to the thesis); returns the number of samples."""
     h, w = fl.shape[0], fl.shape[1]
     n = 0
     for dy in range(-radius, radius + 1, dil):
