@@ -74,7 +74,7 @@ def correspondence_row(name: str, rig: Rig, true: Rig, capture) -> dict:
     pick = np.arange(0, vv.size, max(1, vv.size // 4000))
     pl = np.stack([uu[pick], vv[pick]], axis=1).astype(np.float64)
     X = capture.points[vv[pick], uu[pick]]
-    pr, ok = project_exact(X, true, right, tolerance_px=1e-9)
+    pr, ok = project_exact(true, X, face=right, tolerance_px=1e-9)
     ok &= (pr[:, 0] >= 0) & (pr[:, 0] <= true.camera.width - 1) & (pr[:, 1] >= 0) & (pr[:, 1] <= true.camera.height - 1)
     pl, pr, X = pl[ok], pr[ok], X[ok]
     tri = triangulate_exact(rig, pl, pr)

@@ -60,7 +60,7 @@ def correspondence_row(rig: Rig, true: Rig, capture, left: int = 1, right: int =
     pick = np.arange(0, vv.size, max(1, vv.size // 4000))
     pl = np.stack([uu[pick], vv[pick]], axis=1).astype(np.float64)
     X = capture.points[vv[pick], uu[pick]]
-    pr, ok = project_exact(X, true, right, tolerance_px=1e-9)
+    pr, ok = project_exact(true, X, face=right, tolerance_px=1e-9)
     w, h = true.camera.width, true.camera.height
     ok &= (pr[:, 0] >= 0) & (pr[:, 0] <= w - 1) & (pr[:, 1] >= 0) & (pr[:, 1] <= h - 1)
     tri = triangulate_exact(rig, pl[ok], pr[ok])

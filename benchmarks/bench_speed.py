@@ -143,7 +143,7 @@ def stereo(scenes: list[Scene], methods: list[str], repeat: int, slow: set[str])
 
 
 def depth_fps(presets: list[str], frames: int) -> None:
-    # CPU seconds per step (all threads, DepthResult.cpu_timings): on idle cores a serial step takes about its
+    # CPU seconds per step (all threads, DepthRun.cpu_timings): on idle cores a serial step takes about its
     # CPU time and a parallel one less, so 1 / (CPU s of the per-frame steps) estimates frames/s when the
     # cores are shared
     cpu: dict[str, float] = {}

@@ -43,11 +43,11 @@ def test_depth_options(capture_folder, tmp_path, capsys):
     out = tmp_path / "out"
     code, _, err = _run(["depth", str(capture_folder / "rig.toml"), str(capture_folder / "capture.png"),
                          "-o", str(out), "--method", "sad", "--triangulation", "q", "--depth-range", "1000,3000",
-                         "--roi", "40,40,120,120", "--views", "1,0", "-p", "radius=3", "--min-confidence", "0"],
-                        capsys)
+                         "--roi", "40,40,120,120", "--views", "1,0", "-p", "radius=3", "--min-confidence", "0",
+                         "--refine-fill"], capsys)
     assert code == 0, err
     run = json.loads((out / "run.json").read_text())
-    assert run["config"]["min_confidence"] == 0.0
+    assert run["config"]["min_confidence"] == 0.0 and run["config"]["refine_fill"] is True
     assert run["config"]["roi"] == [40, 40, 120, 120] and run["config"]["matcher_params"]["radius"] == 3
     # the resolved configuration: every matcher parameter with its default
     assert run["config"]["matcher_params"]["cross_check"] is True and "subpixel" in run["config"]["matcher_params"]

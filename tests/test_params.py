@@ -73,7 +73,7 @@ def test_every_params_dataclass_rejects_an_out_of_range_value(cls: type) -> None
 
 #: the dataclasses that check every field (issue 28)
 FULLY_CHECKED = ("CoopParams", "CostParams", "PlaneParams", "SegmentationParams", "DepthConfig", "PostParams",
-                 "LocalMultiViewParams", "GlobalMultiViewParams")
+                 "LocalMultiViewParams", "GlobalMultiViewParams", "SlantedParams")
 
 
 @pytest.mark.parametrize("cls", [c for c in CLASSES if c.__name__ in FULLY_CHECKED], ids=lambda c: c.__name__)

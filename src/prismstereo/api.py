@@ -29,8 +29,7 @@ from prismstereo.calibration.report import residual_figure
 from prismstereo.calibration.scene_uncertainty import uncertainty_warnings, unobserved_depth_error
 from prismstereo.config import Rig, load_rig
 from prismstereo.depth.outputs import write_depth_outputs
-from prismstereo.depth.pipeline import DepthConfig, run_depth, validate_config, validate_image
-from prismstereo.depth.pipeline import DepthResult as PipelineResult
+from prismstereo.depth.pipeline import DepthConfig, DepthRun, run_depth, validate_config, validate_image
 from prismstereo.errors import ConfigError, ImageError
 from prismstereo.evaluation.depth_metrics import evaluate_depth, read_depth_gt
 from prismstereo.io import (
@@ -110,7 +109,7 @@ class DepthResult:
 
     Attributes
     ----------
-    run : prismstereo.depth.pipeline.DepthResult
+    run : prismstereo.depth.pipeline.DepthRun
         The pipeline's full record: every intermediate map (rectified views, raw and filled disparity),
         the rectification, timings, counts and warnings.
     inputs : dict
@@ -125,7 +124,7 @@ class DepthResult:
         (:func:`~prismstereo.calibration.scene_uncertainty.unobserved_depth_error`), in ``run.json``.
     """
 
-    run: PipelineResult
+    run: DepthRun
     inputs: dict[str, str | None] = field(default_factory=dict)
     preset: str | None = None
     refined_rig: Rig | None = None

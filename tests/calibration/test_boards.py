@@ -94,6 +94,6 @@ def test_refined_corners_through_the_prism_match_the_exact_projection(board_capt
     errs = []
     for pose, img in list(zip(poses, images, strict=True))[2:4]:
         for face, c in enumerate(detect_in_subimages(img, start, Board(8, 6, 5.0))):
-            truth, _ = project_exact(pose.corners, small_true, face)
+            truth, _ = project_exact(small_true, pose.corners, face=face)
             errs.append(min(np.sqrt(np.mean((c - truth) ** 2)), np.sqrt(np.mean((c[::-1] - truth) ** 2))))
     assert max(errs) < 0.05  # the detector's own corners: 0.10–0.15 px RMS on these boards

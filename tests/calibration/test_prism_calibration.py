@@ -18,7 +18,7 @@ def test_corners_found_in_every_sub_image_with_consistent_labels(board_captures,
     # both views label the corners alike (one of the board's two 180°-symmetric orders, the same in both)
     flips = []
     for face, c in enumerate(found):
-        truth, _ = project_exact(poses[0].corners, small_true, face)
+        truth, _ = project_exact(small_true, poses[0].corners, face=face)
         direct, turned = np.abs(c - truth).max(), np.abs(c[::-1] - truth).max()
         assert min(direct, turned) < 0.3
         flips.append(turned < direct)

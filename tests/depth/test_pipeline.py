@@ -48,7 +48,7 @@ def test_exact_triangulation_with_true_disparities_is_exact(plane_run, plane_gt)
     sel = slice(None, None, 97)
     ys, xs = ys[sel], xs[sel]
     X = gt.points[ys, xs]
-    pr, ok = project_exact(X, res.rig, res.pair.right_face, tolerance_px=1e-9)
+    pr, ok = project_exact(res.rig, X, face=res.pair.right_face, tolerance_px=1e-9)
     rr = res.pair.real_to_rectified(pr, "right")
     d = xs - rr[:, 0]
     tri = triangulate_matches(res.rig, res.pair, ys, xs, d, method="exact", views=res.views)

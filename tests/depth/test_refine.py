@@ -90,7 +90,7 @@ def test_rendered_triprism_refines_closer_to_exact_correspondences() -> None:
     ys, xs = np.nonzero(vl)
     px = np.stack([xs, ys], axis=1).astype(np.float64)
     rays = trace_pixels(rig, pair.rectified_to_real(px, "left"), face=int(pair.left_face), bounded=False)
-    pr, ok = project_exact(rays.point_at_depth(z), rig, int(pair.right_face))
+    pr, ok = project_exact(rig, rays.point_at_depth(z), face=int(pair.right_face))
     r = pair.real_to_rectified(pr, "right")
     h, w = vl.shape
     ri, ci = np.rint(r[:, 1]).astype(np.int64), np.rint(r[:, 0]).astype(np.int64)

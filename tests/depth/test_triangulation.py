@@ -31,8 +31,8 @@ def _points(n: int, seed: int = 0) -> np.ndarray:
                                        (pyramid_rig(4), (0, 2))])
 def test_exact_triangulation_recovers_points(rig, faces):
     _, pts = sample_points(rig, faces[0], n=1500, depth_range=(800.0, 3000.0))
-    pa, va = project_exact(pts, rig, faces[0], tolerance_px=1e-9)
-    pb, vb = project_exact(pts, rig, faces[1], tolerance_px=1e-9)
+    pa, va = project_exact(rig, pts, face=faces[0], tolerance_px=1e-9)
+    pb, vb = project_exact(rig, pts, face=faces[1], tolerance_px=1e-9)
     ok = va & vb
     assert ok.sum() > 20
     tri = triangulate_exact(rig, pa[ok], pb[ok], faces=faces)
@@ -45,8 +45,8 @@ def test_exact_triangulation_recovers_points(rig, faces):
 def test_exact_triangulation_rejects_wrong_face_and_nan():
     rig = thesis_biprism()
     pts = _points(5)
-    pa, _ = project_exact(pts, rig, 1)
-    pb, _ = project_exact(pts, rig, 0)
+    pa, _ = project_exact(rig, pts, face=1)
+    pb, _ = project_exact(rig, pts, face=0)
     tri = triangulate_exact(rig, pb, pa, faces=(1, 0))  # swapped: faces do not match
     assert not tri.valid.any()
     pa[0] = np.nan

@@ -104,7 +104,7 @@ def test_posed_pyramid_round_trip(faces, rotation, tx, ty, dx, dy, k1, seed):
         sel = b.face == f
         if not sel.any():
             continue
-        q, ok = project_exact(X[sel], rig, f)
+        q, ok = project_exact(rig, X[sel], face=f)
         assert ok.all()
         np.testing.assert_allclose(q, px[sel], atol=1e-5)
 

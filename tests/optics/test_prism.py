@@ -80,7 +80,7 @@ def test_project_exact_round_trips_with_tracing(u, v, z):
     px = np.array([[u, v]])
     b = trace_pixels(rig, px)
     point = b.point_at_depth(z)
-    found, valid = project_exact(point, rig, int(b.face[0]))
+    found, valid = project_exact(rig, point, face=int(b.face[0]))
     assert valid[0]
     np.testing.assert_allclose(found, px, atol=1e-4)
 
@@ -91,20 +91,34 @@ def test_project_exact_through_every_face_of_a_pyramid(pyramid4):
     pts = b.point_at_depth(1500.0)
     for k in range(4):
         sel = b.face == k
-        found, valid = project_exact(pts[sel], pyramid4, k)
+        found, valid = project_exact(pyramid4, pts[sel], face=k)
         assert valid.all()
         np.testing.assert_allclose(found, grid[sel], atol=1e-4)
+
+
+def test_project_exact_takes_the_order_of_0_1_with_a_warning(biprism):
+    """``project_exact(points, rig, face)`` (0.1.0) gives the pixels of ``project_exact(rig, points, face=)``."""
+    point = np.array([[20.0, -10.0, 1500.0]])
+    new = project_exact(biprism, point, face=0)
+    with pytest.warns(DeprecationWarning, match="project_exact"):
+        old = project_exact(point, biprism, 0)  # type: ignore[arg-type]
+    np.testing.assert_array_equal(old[0], new[0])
+    np.testing.assert_array_equal(old[1], new[1])
+    with pytest.raises(TypeError, match="face"):
+        project_exact(biprism, point, 0)
+    with pytest.raises(TypeError, match="face"):
+        project_exact(biprism, point)
 
 
 def test_project_exact_reports_points_not_seen_through_a_face(biprism):
     # A point far to the right, seen through face 1 would need a ray through the wrong half.
     point = np.array([[3000.0, 0.0, 1500.0]])
-    _, valid = project_exact(point, biprism, 1)
+    _, valid = project_exact(biprism, point, face=1)
     assert not valid[0]
-    _, valid = project_exact(np.array([[0.0, 0.0, 100.0]]), biprism, 0)  # in front of the prism
+    _, valid = project_exact(biprism, np.array([[0.0, 0.0, 100.0]]), face=0)  # in front of the prism
     assert not valid[0]
     with pytest.raises(GeometryError):
-        project_exact(point, biprism, 2)
+        project_exact(biprism, point, face=2)
 
 
 def test_tracing_is_fast(biprism):

@@ -31,7 +31,7 @@ def _exact_matches(pair, n: int, seed: int):  # type: ignore[no-untyped-def]
     px = np.stack([xs[pick] + rng.random(n), ys[pick] + rng.random(n)], axis=1)
     z = rng.uniform(800.0, 2500.0, n)
     rays = trace_pixels(pair.rig, pair.rectified_to_real(px, "left"), face=int(pair.left_face), bounded=False)
-    pr, ok = project_exact(rays.point_at_depth(z), pair.rig, int(pair.right_face))
+    pr, ok = project_exact(pair.rig, rays.point_at_depth(z), face=int(pair.right_face))
     r = pair.real_to_rectified(pr, "right")
     h, w = vr.shape
     ri, ci = np.rint(r[:, 1]).astype(np.int64), np.rint(r[:, 0]).astype(np.int64)

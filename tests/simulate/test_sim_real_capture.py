@@ -35,7 +35,7 @@ def test_ground_truth_follows_the_posed_prism_and_the_lens(real_rig):
     vv, uu = np.mgrid[0:real_rig.camera.height, 0:real_rig.camera.width]
     for face in range(2):
         idx = np.flatnonzero((cap.faces == face).ravel() & np.isfinite(cap.depth).ravel())[::5]
-        px, ok = project_exact(cap.points.reshape(-1, 3)[idx], real_rig, face, tolerance_px=1e-9)
+        px, ok = project_exact(real_rig, cap.points.reshape(-1, 3)[idx], face=face, tolerance_px=1e-9)
         assert ok.all()
         np.testing.assert_allclose(px, np.stack([uu.ravel()[idx], vv.ravel()[idx]], axis=1), atol=1e-6)
 
@@ -85,7 +85,7 @@ def test_checkerboards_render_through_a_posed_prism(real_rig):
         crop = np.where(mask > 0, grey, 115).astype(np.uint8)
         found, corners = cv2.findChessboardCornersSB(crop, (8, 6))
         assert found
-        truth, ok = project_exact(pose.corners, rig, face)
+        truth, ok = project_exact(rig, pose.corners, face=face)
         assert ok.all()
         # OpenCV may start at either end of the symmetric board
         corners = corners.reshape(-1, 2)

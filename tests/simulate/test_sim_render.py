@@ -169,6 +169,6 @@ def test_ground_truth_points_project_back_to_their_pixels(small_biprism: Rig) ->
     for face in (0, 1):
         vs, us = np.nonzero((cap.faces == face) & np.isfinite(cap.depth))
         pick = rng.choice(len(us), 40, replace=False)
-        px, ok = project_exact(cap.points[vs[pick], us[pick]], small_biprism, face)
+        px, ok = project_exact(small_biprism, cap.points[vs[pick], us[pick]], face=face)
         assert ok.all()
         np.testing.assert_allclose(px, np.stack([us[pick], vs[pick]], axis=1), atol=1e-3)

@@ -299,6 +299,10 @@ def _add_depth(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--gt", default=None, metavar="DEPTH_GT.pfm",
                    help="ground-truth depth per real pixel (simulate's depth_gt.pfm): adds accuracy to run.json")
     p.add_argument("--no-refine", action="store_true", help="skip the sub-pixel disparity refinement")
+    p.add_argument("--refine-fill", action=argparse.BooleanOptionalAction, default=None,
+                   help="where no cross-checked match was kept, refine from the matcher's dense map and keep what "
+                        "the sub-pixel left-right check and --min-confidence confirm: more points on weak texture, "
+                        "less precise ones (default off: DepthConfig.refine_fill)")
     p.add_argument("--self-calibrate", action="store_true",
                    help="first refine the prism's rotation and tilt from feature matches in this capture "
                         "(calibrate-prism --from-scene); the refined rig is written as rig_refined.toml")
@@ -328,8 +332,9 @@ def _cmd_depth(args: argparse.Namespace) -> int:
                         params=_parse_params(args.param),
                         depth_range=depth_range, roi=_parse_roi(args.roi), views=views,
                         triangulation=args.triangulation, calibration=args.calibration, gt=args.gt,
-                        refine=False if args.no_refine else None, config_path=args.config,
-                        self_calibrate=args.self_calibrate, min_confidence=args.min_confidence,
+                        refine=False if args.no_refine else None, refine_fill=args.refine_fill,
+                        config_path=args.config, self_calibrate=args.self_calibrate,
+                        min_confidence=args.min_confidence,
                         coarse_to_fine=args.coarse_to_fine, max_memory=_parse_memory(args.max_memory)))
     return 0
 
@@ -346,7 +351,7 @@ def _first_run(command: str, method: str) -> None:
     from prismstereo.matching import available_matchers
 
     _compiling(command)
-    warmup([method] if method.lower() in available_matchers() else [], parts=("depth",))
+    warmup([method] if method.lower() in available_matchers() else [], parts=("pipeline",))
 
 
 def _add_demo(sub: argparse._SubParsersAction) -> None:
@@ -431,8 +436,8 @@ def _add_warmup(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("warmup", help="compile the numba kernels once into numba's disk cache (first-run cost)")
     p.add_argument("--methods", default=None, help="comma-separated matchers to warm (default: all)")
     p.add_argument("--parts", default=None, metavar="depth,multiview",
-                   help="also warm the depth pipeline (with the first of --methods) and/or multi-view matching "
-                        "(default both; 'none' for neither)")
+                   help="also warm the depth pipeline with the renderer (depth), without it (pipeline) and/or "
+                        "multi-view matching (default depth,multiview; 'none' for neither)")
     p.add_argument("--jobs", type=int, default=None,
                    help="processes compiling at the same time (default: one per core)")
     p.set_defaults(handler=_cmd_warmup)

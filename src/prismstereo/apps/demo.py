@@ -22,7 +22,7 @@ from typing import Any
 
 from prismstereo.config import Rig, thesis_biprism
 from prismstereo.depth.outputs import write_depth_outputs
-from prismstereo.depth.pipeline import DepthConfig, DepthResult, run_depth
+from prismstereo.depth.pipeline import DepthConfig, DepthRun, run_depth
 from prismstereo.evaluation.depth_metrics import evaluate_depth, format_accuracy
 from prismstereo.io import write_image, write_pfm
 from prismstereo.progress import progress_bar
@@ -111,7 +111,7 @@ def plane_scene(distance_mm: float = 1500.0, *, tilt_deg: float = 30.0, seed: in
 class DemoResult:
     """What the demo did: the depth run (with ``accuracy``), the render, timings and output paths."""
 
-    result: DepthResult
+    result: DepthRun
     accuracy: dict[str, Any]
     outputs: dict[str, Path]
     seconds: dict[str, float]

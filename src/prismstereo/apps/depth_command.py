@@ -40,7 +40,8 @@ def depth_command(rig_path: str | None, image_path: str | None, out_dir: str, *,
                   triangulation: str | None = None, calibration: str | None = None, gt: str | None = None,
                   refine: bool | None = None, preset: str | None = None, config_path: str | None = None,
                   self_calibrate: bool = False, min_confidence: float | None = None,
-                  coarse_to_fine: str | None = None, max_memory: int | None = None) -> str:
+                  coarse_to_fine: str | None = None, max_memory: int | None = None,
+                  refine_fill: bool | None = None) -> str:
     """Run ``prismstereo depth`` (:func:`prismstereo.api.depth`, then its ``save``) and return the lines to
     print (``preset``: its name, for the report; ``self_calibrate``: refine the prism's pose from the capture's
     own feature matches first; the refined rig is the one recorded in run.json, so a replay does not
@@ -48,7 +49,7 @@ def depth_command(rig_path: str | None, image_path: str | None, out_dir: str, *,
     opts = replay_options(config_path, rig_path, image_path, method=method, params=params, depth_range=depth_range,
                           roi=roi, views=_resolve_views(views), triangulation=triangulation, calibration=calibration,
                           gt=gt, refine=refine, preset=preset, min_confidence=min_confidence,
-                          coarse_to_fine=coarse_to_fine, max_memory=max_memory)
+                          coarse_to_fine=coarse_to_fine, max_memory=max_memory, refine_fill=refine_fill)
     check_output_dir(out_dir)
     found = api.depth(opts.rig, opts.image_path, config=opts.config, ground_truth=opts.gt,
                       self_calibrate=self_calibrate)
@@ -78,7 +79,7 @@ def depth_command(rig_path: str | None, image_path: str | None, out_dir: str, *,
 
 
 def _share(res: Any) -> str:
-    """The points' share of the common view, in words (:attr:`DepthResult.coverage`)."""
+    """The points' share of the common view, in words (:attr:`DepthRun.coverage`)."""
     c = res.counts()
     if res.coverage is None:
         return f"{100.0 * c['points'] / max(c['region_pixels'], 1):.1f} % of the view"

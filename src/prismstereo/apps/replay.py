@@ -74,7 +74,8 @@ def replay_options(config_path: str | None, rig_path: str | None, image_path: st
                    views: tuple[int, int] | str | None = None, triangulation: str | None = None,
                    calibration: str | None = None, gt: str | None = None, refine: bool | None = None,
                    preset: str | None = None, min_confidence: float | None = None,
-                   coarse_to_fine: str | None = None, max_memory: int | None = None) -> DepthOptions:
+                   coarse_to_fine: str | None = None, max_memory: int | None = None,
+                   refine_fill: bool | None = None) -> DepthOptions:
     """The options of a depth run: those given (not None) over the recorded run's (``config_path``), over the
     defaults of :class:`~prismstereo.depth.pipeline.DepthConfig`.
 
@@ -116,7 +117,7 @@ def replay_options(config_path: str | None, rig_path: str | None, image_path: st
         changes["matcher_params"] = {**changes.get("matcher_params", base.matcher_params), **params}
     for key, value in (("depth_range", depth_range), ("roi", roi), ("triangulation", triangulation),
                        ("calibration", calibration), ("refine", refine), ("min_confidence", min_confidence),
-                       ("coarse_to_fine", coarse_to_fine), ("max_memory", max_memory)):
+                       ("coarse_to_fine", coarse_to_fine), ("max_memory", max_memory), ("refine_fill", refine_fill)):
         if value is not None:
             changes[key] = value
     if views is not None:

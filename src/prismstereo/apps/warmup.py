@@ -33,8 +33,11 @@ log = logging.getLogger(__name__)
 
 __all__ = ["WarmupReport", "numba_cache_location", "warmup"]
 
-#: parts of the package warmed besides the matchers
+#: parts of the package warmed besides the matchers (by default)
 PARTS: tuple[str, ...] = ("depth", "multiview")
+#: every part :func:`warmup` knows: also ``"pipeline"``, the depth pipeline without the renderer (what a command
+#: that reads a capture compiles; ``"depth"`` includes it)
+ALL_PARTS: tuple[str, ...] = (*PARTS, "pipeline")
 
 
 @dataclass(frozen=True)
@@ -71,7 +74,8 @@ def _pair(h: int = 48, w: int = 72, shift: int = 4) -> tuple[np.ndarray, np.ndar
 
 
 def _warm_item(item: tuple[str, str]) -> float:
-    """Run one warm-up item (``("match", method)``, ``("depth", "")``, ``("multiview", "")``); its seconds."""
+    """Run one warm-up item (``("match", method)``, ``("depth", "")``, ``("pipeline", "")``, ``("multiview",
+    "")``); its seconds."""
     kind, name = item
     t = time.perf_counter()
     if kind == "match":
@@ -84,6 +88,12 @@ def _warm_item(item: tuple[str, str]) -> float:
         rig = scaled_rig(demo_rig(), 4)
         cap = render_capture(rig, plane_scene(1600.0, tilt_deg=-20.0, seed=5))
         run_depth(rig, cap.image, config=DepthConfig(method="sgbm"), progress=False)
+    elif kind == "pipeline":
+        # the same run on a capture-sized random texture instead of a render: the renderer's kernels are not
+        # compiled (a first ``depth`` reads its capture; it needs the pipeline's kernels only)
+        rig = scaled_rig(demo_rig(), 4)
+        left, _ = _pair(rig.camera.height, rig.camera.width, 0)
+        run_depth(rig, left, config=DepthConfig(method="sgbm"), progress=False)
     else:
         left, right = _pair()
         far = _pair(shift=8)[1]
@@ -104,8 +114,9 @@ def warmup(methods: Sequence[str] | None = None, *, parts: Sequence[str] = PARTS
         Matchers to warm (default: every registered one).
     parts : sequence of str
         Also warm ``"depth"`` (a 128×96 rendered capture through the depth pipeline, with OpenCV's SGBM: the
-        renderer's and the pipeline's kernels; the matchers' are the methods') and ``"multiview"`` (local
-        and global matching of three views).
+        renderer's and the pipeline's kernels; the matchers' are the methods'), ``"pipeline"`` (the same
+        without the renderer: a random texture of the capture's size) and ``"multiview"`` (local and global
+        matching of three views).
     jobs : int, optional
         Processes compiling at the same time (numba compiles on one core per process; every process writes
         the shared disk cache). Default: one per core, at most one per item; 1: in this process.
@@ -125,12 +136,12 @@ def warmup(methods: Sequence[str] | None = None, *, parts: Sequence[str] = PARTS
     unknown = sorted(set(names) - set(available_matchers()))
     if unknown:
         raise ConfigError(f"methods: expected methods among {', '.join(available_matchers())}, got {unknown}")
-    bad_parts = sorted(set(parts) - set(PARTS))
+    bad_parts = sorted(set(parts) - set(ALL_PARTS))
     if bad_parts:
-        raise ConfigError(f"parts: expected warmup parts among {', '.join(PARTS)}, got {bad_parts}")
+        raise ConfigError(f"parts: expected warmup parts among {', '.join(ALL_PARTS)}, got {bad_parts}")
     if jobs is not None and (isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1):
         raise ConfigError(f"jobs: expected a positive integer, got {jobs!r}")
-    items = [("match", n) for n in names] + [(p, "") for p in PARTS if p in parts]
+    items = [("match", n) for n in names] + [(p, "") for p in ALL_PARTS if p in parts]
     labels = [f"match {n}" if k == "match" else k for k, n in items]
     workers = min(len(items), jobs if jobs is not None else (os.cpu_count() or 1))
     if workers <= 1:

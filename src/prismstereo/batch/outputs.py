@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from prismstereo.depth.outputs import OUTPUT_FILES, write_depth_files
-from prismstereo.depth.pipeline import DepthResult
+from prismstereo.depth.pipeline import DepthRun
 from prismstereo.errors import ConfigError
 from prismstereo.io import atomic_write_text, write_image, write_json
 
@@ -64,14 +64,14 @@ def depth_png(depth: np.ndarray) -> np.ndarray:
     return np.clip(z, 0, 65535).astype(np.uint16)
 
 
-def _write_files(result: DepthResult, stage: Path, outputs: Sequence[str], extra: dict[str, Any]) -> None:
+def _write_files(result: DepthRun, stage: Path, outputs: Sequence[str], extra: dict[str, Any]) -> None:
     assert result.depth is not None
     if "depth.png" in outputs:
         write_image(stage / "depth.png", depth_png(result.depth))
     write_depth_files(result, stage, [n for n in outputs if n in OUTPUT_FILES], {**result.summary(), **extra})
 
 
-def write_frame_folder(result: DepthResult, frames_dir: Path, name: str, outputs: Sequence[str], *,
+def write_frame_folder(result: DepthRun, frames_dir: Path, name: str, outputs: Sequence[str], *,
                        row: dict[str, Any], extra: dict[str, Any] | None = None) -> Path:
     """Write a frame's outputs and ``frame.json`` (``row``) to ``frames_dir/name`` all-or-nothing.
 

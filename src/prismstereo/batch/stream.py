@@ -58,7 +58,7 @@ from prismstereo.batch.outputs import parse_outputs, remove_partial, write_frame
 from prismstereo.config import Rig
 from prismstereo.depth.pipeline import (
     DepthConfig,
-    DepthResult,
+    DepthRun,
     DepthSetup,
     prepare_depth,
     rectify_capture,
@@ -308,7 +308,7 @@ class _VideoOut:
 def run_stream(rig: Rig, source: str, out: str | os.PathLike[str], *, config: DepthConfig | None = None,
                outputs: str | Sequence[str] | None = STREAM_OUTPUTS, video: str | os.PathLike[str] | None = None,
                video_fps: float = 10.0, idle_timeout: float = 10.0, poll_s: float = 0.2, queue_size: int = 2,
-               max_frames: int | None = None, on_frame: Callable[[str, DepthResult], None] | None = None,
+               max_frames: int | None = None, on_frame: Callable[[str, DepthRun], None] | None = None,
                echo: Callable[[str], None] | None = None, report_every: float = 2.0,
                narrow_range: bool = True) -> StreamSummary:
     """Depth of every frame of ``source`` as it arrives, into ``out/frames/<name>/`` (module docstring).
@@ -512,7 +512,7 @@ def _narrowed(setup: DepthSetup, image: np.ndarray) -> DepthSetup:
     return dataclasses.replace(setup, region=region)
 
 
-def _left_band(res: DepthResult, current: DepthSetup, rig_setup: DepthSetup) -> bool:
+def _left_band(res: DepthRun, current: DepthSetup, rig_setup: DepthSetup) -> bool:
     """Whether a frame's consistent matches sit at a limit of the narrowed band that the rig's range does
     not share (the scene left the band)."""
     if current.region.source != "rig+images" or res.raw_disparity is None:

@@ -375,7 +375,7 @@ def calibrate_prism(
         rays = camera_rays(r_rig) if camera_free else fixed_rays
         for k in range(n_faces):
             if exact:
-                px, _ = project_exact(X, r_rig, k, tolerance_px=1e-9, initial_pixels=obs_face[k])
+                px, _ = project_exact(r_rig, X, face=k, tolerance_px=1e-9, initial_pixels=obs_face[k])
                 res[k] = px - obs_face[k]
             else:
                 res[k] = project_near(r_rig, X, k, rays)

@@ -89,7 +89,7 @@ def _project_into_face(rig: Rig, pixels: np.ndarray, grid: RayBundle, face: int,
     D, N = X.shape[:2]
     mine = grid.face == face
     if mine.sum() < 20:
-        flat, ok = project_exact(X.reshape(-1, 3), rig, face, tolerance_px=tolerance_px)
+        flat, ok = project_exact(rig, X.reshape(-1, 3), face=face, tolerance_px=tolerance_px)
         return flat.reshape(D, N, 2), ok.reshape(D, N)
     Q = grid.point_at_depth(depths[:, None])[:, mine, :2]  # (D, Nb, 2)
     targets = pixels[mine]
@@ -129,7 +129,7 @@ def _project_into_face(rig: Rig, pixels: np.ndarray, grid: RayBundle, face: int,
         final = trace_pixels(rig, p[converged], bounded=True)
         valid[converged] = final.face == face
     if rest.size:
-        out[rest], valid[rest] = project_exact(Xf[rest], rig, face, tolerance_px=tolerance_px)
+        out[rest], valid[rest] = project_exact(rig, Xf[rest], face=face, tolerance_px=tolerance_px)
     return out.reshape(D, N, 2), valid.reshape(D, N)
 
 

@@ -72,7 +72,7 @@ class ExactCamera:
 
     def project(self, points_in_world: np.ndarray, face: int) -> tuple[np.ndarray, np.ndarray]:
         """(N, 3) world points → ((N, 2) real pixels seeing them through ``face``, (N,) valid)."""
-        return project_exact(points_in_world, self.rig, face)
+        return project_exact(self.rig, points_in_world, face=face)
 
 
 def sample_points(

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from prismstereo.depth.pipeline import (
     DepthConfig,
-    DepthResult,
+    DepthRun,
     DepthSetup,
     default_views,
     prepare_depth,
@@ -28,7 +28,7 @@ from prismstereo.depth.triangulation import (
 __all__ = [
     "TRIANGULATIONS",
     "DepthConfig",
-    "DepthResult",
+    "DepthRun",
     "DepthSetup",
     "Triangulation",
     "default_views",

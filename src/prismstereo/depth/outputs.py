@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from prismstereo.depth.pipeline import DepthResult
+from prismstereo.depth.pipeline import DepthRun
 from prismstereo.io import output_dir, write_image, write_json, write_pfm, write_ply
 from prismstereo.viz.colorize import colorize_depth, colorize_disparity
 from prismstereo.viz.report import write_depth_report
@@ -31,20 +31,20 @@ OUTPUT_FILES = ("disparity.pfm", "disparity.png", "depth.pfm", "confidence.pfm",
 ALL_VIEW_FILES = ("depth.pfm", "depth.png", "views.png", "points.ply", "run.json")
 
 
-def output_files(result: DepthResult, *, report: bool = True) -> list[str]:
+def output_files(result: DepthRun, *, report: bool = True) -> list[str]:
     """The names :func:`write_depth_outputs` writes for ``result``."""
     names = OUTPUT_FILES if result.pair is not None else ALL_VIEW_FILES
     return [n for n in names if report or n != "report.png"]
 
 
-def write_depth_outputs(result: DepthResult, out_dir: str | os.PathLike[str], *, report: bool = True,
+def write_depth_outputs(result: DepthRun, out_dir: str | os.PathLike[str], *, report: bool = True,
                         extra: dict[str, Any] | None = None,
                         also: Callable[[Path], None] | None = None) -> dict[str, Path]:
     """Write the outputs of ``result`` into ``out_dir`` (created if needed) all-or-nothing.
 
     Parameters
     ----------
-    result : DepthResult
+    result : DepthRun
     out_dir : folder
     report : bool
         Also render ``report.png`` (about a second).
@@ -70,7 +70,7 @@ def write_depth_outputs(result: DepthResult, out_dir: str | os.PathLike[str], *,
     return {n: target / n for n in names}
 
 
-def write_depth_files(result: DepthResult, folder: Path, names: Sequence[str], summary: dict[str, Any]) -> None:
+def write_depth_files(result: DepthRun, folder: Path, names: Sequence[str], summary: dict[str, Any]) -> None:
     """Write the files ``names`` (among :data:`OUTPUT_FILES` and :data:`ALL_VIEW_FILES`) of ``result`` into an
     existing ``folder``.
 

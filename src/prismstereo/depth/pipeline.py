@@ -1,6 +1,6 @@
 """The depth pipeline: capture → virtual cameras → rectify → match → refine → triangulate, as ordered steps.
 
-``run_depth(rig, image, config=DepthConfig(...))`` returns one :class:`DepthResult` for a pair of faces
+``run_depth(rig, image, config=DepthConfig(...))`` returns one :class:`DepthRun` for a pair of faces
 or for every face of an N-face prism (``views="all"``). Each step is a plain function that takes typed
 values and returns a small frozen dataclass, in this order:
 
@@ -76,7 +76,7 @@ __all__ = [
     "DEFAULT_DEPTH_RANGE_MM",
     "TRIANGULATIONS",
     "DepthConfig",
-    "DepthResult",
+    "DepthRun",
     "DepthSetup",
     "Disparities",
     "Points",
@@ -386,7 +386,7 @@ class DepthSetup:
 
 
 @dataclass(frozen=True, eq=False)
-class DepthResult:
+class DepthRun:
     """Everything a depth run produced.
 
     The grid of the arrays is the rectified LEFT view for a pair run (``pair`` set) and the REAL capture
@@ -820,7 +820,7 @@ def triangulate_disparity(rig: Rig, pair: RectifiedPair, views: Sequence[Virtual
     return Points(points=points, depth=depth, gaps=gaps, valid=valid)
 
 
-def coverage_of(result: DepthResult) -> Coverage | None:
+def coverage_of(result: DepthRun) -> Coverage | None:
     """The share of the common view at the depths found that got a point
     (:func:`~prismstereo.depth.search_range.scene_coverage`; pair runs, else None)."""
     if result.pair is None or result.disparity is None:
@@ -829,9 +829,9 @@ def coverage_of(result: DepthResult) -> Coverage | None:
                           np.asarray(result.pair.valid_masks()[1], dtype=bool))
 
 
-def diagnose(result: DepthResult) -> tuple[str, ...]:
+def diagnose(result: DepthRun) -> tuple[str, ...]:
     """One-line warnings about a finished run (:func:`~prismstereo.depth.search_range.depth_warnings`;
-    coverage of the common view at the depths found, :attr:`DepthResult.coverage`, where the run has it)."""
+    coverage of the common view at the depths found, :attr:`DepthRun.coverage`, where the run has it)."""
     c = result.counts()
     return tuple(depth_warnings(
         points=c["points"], region_pixels=c["region_pixels"], matched=c.get("matched", 0),
@@ -848,9 +848,9 @@ def search_region_all_views(rig: Rig, image: np.ndarray, config: DepthConfig) ->
 
 
 def sweep_all_views(rig: Rig, image: np.ndarray, config: DepthConfig, found: SearchRange,
-                    ) -> tuple[DepthResult, dict[str, float]]:
+                    ) -> tuple[DepthRun, dict[str, float]]:
     """Plane sweep over every face and multi-ray triangulation (:func:`~prismstereo.multiview.prism.
-    depth_all_views`), as a :class:`DepthResult` on the capture's grid; also the sweep's timings."""
+    depth_all_views`), as a :class:`DepthRun` on the capture's grid; also the sweep's timings."""
     res = depth_all_views(rig, image, depth_range=found.depth_mm, calibration=config.calibration,
                           params=config.sweep)
     h, w = res.depth.shape
@@ -858,7 +858,7 @@ def sweep_all_views(rig: Rig, image: np.ndarray, config: DepthConfig, found: Sea
     points[res.pixels[:, 1], res.pixels[:, 0]] = res.points
     region = res.region if res.region is not None else res.valid
     sweep = {"n": int(res.depths.size), "min_mm": float(res.depths.min()), "max_mm": float(res.depths.max())}
-    result = DepthResult(
+    result = DepthRun(
         config=config, rig=rig, image=image, views=(), pair=None, left=image, right=None, disparity=None,
         disparity_filled=None, raw_disparity=None, points=points, depth=res.depth, gaps=None, valid=res.valid,
         roi_mask=region, disparity_range=(0, 0), depth_range=found.depth_mm, depth_range_source=found.source,
@@ -898,7 +898,7 @@ _SETUP_STEPS = ("cameras", "rectify", "rays")
 _FRAME_STEPS = ("match", "refine", "speckles", "triangulate", "diagnose")
 
 
-def _finish(result: DepthResult, clock: _Clock, t0: float) -> DepthResult:
+def _finish(result: DepthRun, clock: _Clock, t0: float) -> DepthRun:
     with clock.step("diagnose"):
         result = dataclasses.replace(result, coverage=coverage_of(result))
         warnings = result.warnings + diagnose(result)
@@ -910,7 +910,7 @@ def _finish(result: DepthResult, clock: _Clock, t0: float) -> DepthResult:
 
 
 def _run_frame(setup: DepthSetup, image: np.ndarray, left: np.ndarray, right: np.ndarray, clock: _Clock,
-               t0: float) -> DepthResult:
+               t0: float) -> DepthRun:
     cfg, pair, region = setup.config, setup.pair, setup.region
     with clock.step("match"):
         matched = match_pair(left, right, pair, region, cfg)
@@ -927,7 +927,7 @@ def _run_frame(setup: DepthSetup, image: np.ndarray, left: np.ndarray, right: np
         counts["despeckled"] = int(np.isfinite(despeckled).sum())
     with clock.step("triangulate"):
         pts = triangulate_disparity(setup.rig, pair, setup.views, despeckled, cfg, rays=setup.rays)
-    result = DepthResult(
+    result = DepthRun(
         config=cfg, rig=setup.rig, image=image, views=setup.views, pair=pair, left=left, right=right,
         disparity=despeckled, disparity_filled=matched.filled, raw_disparity=matched.raw, points=pts.points,
         depth=pts.depth, gaps=pts.gaps, valid=pts.valid, roi_mask=region.mask,
@@ -974,7 +974,7 @@ def _geometry(rig: Rig, cfg: DepthConfig, clock: _Clock
 
 
 def run_depth(rig: Rig, image: Any, *, config: DepthConfig | None = None,
-              progress: bool | None = None) -> DepthResult:
+              progress: bool | None = None) -> DepthRun:
     """Recover depth from one prism capture (the steps of the module docstring).
 
     Parameters
@@ -988,7 +988,7 @@ def run_depth(rig: Rig, image: Any, *, config: DepthConfig | None = None,
 
     Returns
     -------
-    DepthResult
+    DepthRun
 
     Raises
     ------
@@ -1043,7 +1043,7 @@ def prepare_depth(rig: Rig, *, config: DepthConfig | None = None) -> DepthSetup:
                       rays=rays, rig_range=known, timings=dict(clock.timings))
 
 
-def run_depth_frame(setup: DepthSetup, image: Any, *, progress: bool | None = False) -> DepthResult:
+def run_depth_frame(setup: DepthSetup, image: Any, *, progress: bool | None = False) -> DepthRun:
     """Recover depth from one capture with a prepared set-up (:func:`prepare_depth`).
 
     Parameters
@@ -1056,7 +1056,7 @@ def run_depth_frame(setup: DepthSetup, image: Any, *, progress: bool | None = Fa
 
     Returns
     -------
-    DepthResult
+    DepthRun
         As :func:`run_depth`; the set-up steps cost (almost) nothing in its timings.
 
     Raises

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from prismstereo.config import Rig
-from prismstereo.depth.pipeline import DepthConfig, DepthResult, run_depth
+from prismstereo.depth.pipeline import DepthConfig, DepthRun, run_depth
 from prismstereo.design.precision import DEFAULT_PRESET, disparity_precision_of
 from prismstereo.design.predict import Prediction, predict
 from prismstereo.errors import ConfigError
@@ -117,7 +117,7 @@ def sensitivity(pair: RectifiedPair, points: np.ndarray) -> np.ndarray:
     return np.asarray((Z - pair.C_left[2]) * z / (Z * pair.focal_px * pair.baseline_mm))
 
 
-def disparity_errors(result: DepthResult, gt_points: np.ndarray, *, n: int = DISPARITY_SAMPLES, seed: int = 0
+def disparity_errors(result: DepthRun, gt_points: np.ndarray, *, n: int = DISPARITY_SAMPLES, seed: int = 0
                      ) -> tuple[np.ndarray, np.ndarray]:
     """Disparity errors δd (px) at up to ``n`` reconstructed pixels and those pixels' ground-truth points (M, 3)."""
     pair = result.pair
@@ -130,7 +130,7 @@ def disparity_errors(result: DepthResult, gt_points: np.ndarray, *, n: int = DIS
     pick = rng.choice(ys.size, size=min(n, ys.size), replace=False)
     ys, xs = ys[pick], xs[pick]
     X = gt_points[ys, xs]
-    real_r, ok = project_exact(X, result.rig, pair.right_face)
+    real_r, ok = project_exact(result.rig, X, face=pair.right_face)
     q = np.full((X.shape[0], 2), np.nan)
     if ok.any():
         q[ok] = _invert_map(pair, real_r[ok], "right")

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from prismstereo.config import Rig
-from prismstereo.depth.pipeline import DepthResult
+from prismstereo.depth.pipeline import DepthRun
 from prismstereo.errors import ConfigError
 from prismstereo.io import read_pfm
 from prismstereo.optics import project_exact, trace_pixels
@@ -123,13 +123,13 @@ def _gt_points(rig: Any, real_px: np.ndarray, *, scene: Any = None, depth_gt: np
     return pts
 
 
-def ground_truth_for_run(result: DepthResult, *, scene: Any = None, depth_gt: np.ndarray | None = None
+def ground_truth_for_run(result: DepthRun, *, scene: Any = None, depth_gt: np.ndarray | None = None
                          ) -> DepthGroundTruth:
-    """Ground truth of a finished :class:`~prismstereo.depth.DepthResult` on its grid.
+    """Ground truth of a finished :class:`~prismstereo.depth.DepthRun` on its grid.
 
     Parameters
     ----------
-    result : DepthResult
+    result : DepthRun
     scene : Scene, optional
         The simulated scene (exact ground truth).
     depth_gt : (H, W) array, optional
@@ -188,7 +188,7 @@ def ground_truth_for_run(result: DepthResult, *, scene: Any = None, depth_gt: np
 def _seen_through(rig: Rig, face: int, target: np.ndarray, *, scene: Any, depth_gt: np.ndarray | None
                   ) -> np.ndarray:
     """(N,) bool: the points are seen through ``face`` by a real pixel inside the image, unoccluded."""
-    pr, ok = project_exact(target, rig, face)
+    pr, ok = project_exact(rig, target, face=face)
     W, H = rig.camera.width, rig.camera.height
     ok &= (pr[:, 0] >= 0) & (pr[:, 0] <= W - 1) & (pr[:, 1] >= 0) & (pr[:, 1] <= H - 1)
     sub = np.flatnonzero(ok)
@@ -240,7 +240,7 @@ def depth_accuracy(depth: np.ndarray, valid: np.ndarray, gt: DepthGroundTruth) -
     }
 
 
-def evaluate_depth(result: DepthResult, *, scene: Any = None, depth_gt: np.ndarray | None = None,
+def evaluate_depth(result: DepthRun, *, scene: Any = None, depth_gt: np.ndarray | None = None,
                    gt: DepthGroundTruth | None = None) -> dict[str, Any]:
     """Accuracy of a finished run (pair or all views) against the simulator's ground truth.
 

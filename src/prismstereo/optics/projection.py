@@ -8,6 +8,9 @@ converges in a few iterations from the no-prism projection.
 
 from __future__ import annotations
 
+import warnings
+from typing import Any
+
 import numpy as np
 
 from prismstereo.config import Rig
@@ -26,22 +29,26 @@ def _residual(rig: Rig, pixels: np.ndarray, points: np.ndarray, face: int) -> np
 
 
 def project_exact(
-    points_in_world: np.ndarray,
     rig: Rig,
-    face: int,
-    *,
+    points_in_world: np.ndarray,
+    *legacy: Any,
+    face: int | None = None,
     tolerance_px: float = 1e-4,
     max_iterations: int = 30,
     initial_pixels: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Real-image pixels that see 3D points through one prism face (exact refraction).
 
+    The argument order is :func:`~prismstereo.optics.trace_pixels`'s: the rig first, ``face`` by keyword.
+    The order of releases up to 0.1.0, ``project_exact(points, rig, face)``, still works and warns
+    (DeprecationWarning).
+
     Parameters
     ----------
+    rig : Rig
     points_in_world : (N, 3) or (3,) array
         Points in the world frame, mm; they must lie beyond the back plane.
-    rig : Rig
-    face : int
+    face : int, keyword-only
         Face index, 0 ≤ face < rig.prism.faces.
     tolerance_px : float
         Newton stops when the last step is below this (px); points that do not get there fail.
@@ -63,6 +70,17 @@ def project_exact(
     GeometryError
         If ``face`` is not a face of the rig.
     """
+    if not isinstance(rig, Rig) and isinstance(points_in_world, Rig):
+        warnings.warn("project_exact(points, rig, face) is deprecated: call project_exact(rig, points, face=face) "
+                      "(the order of trace_pixels)", DeprecationWarning, stacklevel=2)
+        rig, points_in_world = points_in_world, rig
+        if legacy and face is None:
+            face, legacy = legacy[0], legacy[1:]
+    if legacy:
+        raise TypeError(f"face: expected it by keyword, project_exact(rig, points, face=...), got "
+                        f"{2 + len(legacy)} positional arguments")
+    if face is None:
+        raise TypeError("face: expected the face index, project_exact(rig, points, face=...), got none")
     if not 0 <= int(face) < rig.prism.faces:
         raise GeometryError(f"expected a face index in [0, {rig.prism.faces - 1}], got {face}")
     pts = np.atleast_2d(np.asarray(points_in_world, dtype=np.float64))

@@ -100,7 +100,7 @@ def detect_corners(
     for k, pose in enumerate(poses):
         truth = {}
         for f in faces:
-            px, ok = project_exact(pose.corners, rig, f)
+            px, ok = project_exact(rig, pose.corners, face=f)
             if not ok.all():
                 raise GeometryError(f"expected every corner of pose {k} to be seen through face {f}, got "
                                     f"{int((~ok).sum())} missing")
@@ -236,7 +236,7 @@ def exact_correspondence(rig: Rig, face_a: int, face_b: int, pixels_a: np.ndarra
     valid (N,))."""
     b = trace_pixels(rig, np.asarray(pixels_a, dtype=np.float64))
     X = b.point_at_depth(np.asarray(depth_z, dtype=np.float64))
-    pb, ok = project_exact(X, rig, face_b)
+    pb, ok = project_exact(rig, X, face=face_b)
     ok &= b.face == face_a
     return X, pb, ok
 
@@ -344,7 +344,7 @@ def triprism_experiment(
         pl = _random_pixels(regions[fl], n, rng)
         zz = np.broadcast_to(np.asarray(z, dtype=np.float64), (n,))
         X, pr, okr = exact_correspondence(rig, fl, fr, pl, zz)
-        pbt, okb = project_exact(X, rig, fb)
+        pbt, okb = project_exact(rig, X, face=fb)
         ok = okr & okb
         for f, p in ((fr, pr), (fb, pbt)):
             u = np.rint(np.nan_to_num(p[:, 0], nan=-1)).astype(int)

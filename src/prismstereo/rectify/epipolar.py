@@ -182,7 +182,7 @@ def epipolar_table(pair: RectifiedPair, *, step: int = 16, n_depths: int = 32, n
         rays = trace_pixels(rig, np.nan_to_num(real_l, nan=-1e6), face=int(pair.left_face), bounded=False)
         depths = 1.0 / np.linspace(1.0 / (rig.prism.back_distance * 1.02), 1.0 / _FAR_MM, n_depths)
         pts = rays.point_at_depth(depths[:, None]).reshape(-1, 3)  # (n_depths · n, 3)
-        real_r, _ = project_exact(pts, rig, int(pair.right_face))
+        real_r, _ = project_exact(rig, pts, face=int(pair.right_face))
         rect_r = _right_rectified(pair, real_r)
     d = (np.tile(px[:, 0], n_depths) - rect_r[:, 0]).reshape(n_depths, n)
     dy = (rect_r[:, 1] - np.tile(px[:, 1], n_depths)).reshape(n_depths, n)

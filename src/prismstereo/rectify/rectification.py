@@ -139,7 +139,7 @@ class _ViewMapper:
         with np.errstate(divide="ignore", invalid="ignore"):
             s = (self.reference_depth - self.C[2]) / d_world[:, 2]
         X = self.C + np.where(s > 0, s, np.nan)[:, None] * d_world
-        px, _ = project_exact(X, self.rig, self.view.face)
+        px, _ = project_exact(self.rig, X, face=self.view.face)
         return px
 
 

@@ -82,7 +82,7 @@ def true_correspondences(
     b = trace_pixels(rig, px)
     z = rng.uniform(depth_range[0], depth_range[1], size=n)
     X = b.point_at_depth(z)
-    pb, ok = project_exact(X, rig, face_b)
+    pb, ok = project_exact(rig, X, face=face_b)
     ok &= b.face == face_a
     ok &= _in_region(pb, regions[face_b])
     if not ok.any():

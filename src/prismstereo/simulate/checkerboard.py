@@ -120,7 +120,7 @@ def board_visible(rig: Rig, board: Rectangle, *, border_px: float = 4.0) -> bool
     pts = _check_points(board)
     W, H = rig.camera.width, rig.camera.height
     for face in range(rig.prism.faces):
-        px, ok = project_exact(pts, rig, face)
+        px, ok = project_exact(rig, pts, face=face)
         if not np.all(ok):
             return False
         u, v = px[:, 0], px[:, 1]

@@ -74,7 +74,7 @@ def epipolar_curves(rig: Rig, pixels: np.ndarray, face_b: int, *, depth_range: t
     out = []
     for i in range(b.origins.shape[0]):
         X = b.origins[i] + ((z - b.origins[i, 2]) / b.directions[i, 2])[:, None] * b.directions[i]
-        px, ok = project_exact(X, rig, face_b)
+        px, ok = project_exact(rig, X, face=face_b)
         px = px[ok]
         inside = (px[:, 0] >= 0) & (px[:, 0] <= rig.camera.width - 1) & (px[:, 1] >= 0) & (
             px[:, 1] <= rig.camera.height - 1)

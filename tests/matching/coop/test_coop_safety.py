@@ -153,11 +153,11 @@ def _fallback_evidence(left: np.ndarray, right: np.ndarray, vol: np.ndarray, ini
                        evidence: np.ndarray, max_disp: int = 16) -> Any:
     """The pair's evidence for the fallback step alone: ``evidence`` as every cross-checked mask, ``initial``
     as the initial and local maps."""
-    from prismstereo.matching.coop.pipeline import PairMaps, PairParams, _PairEvidence
+    from prismstereo.matching.coop.pipeline import PairMaps, PairSetup, _PairEvidence
 
     maps = PairMaps(data=np.zeros((1, 1, 1), np.float32), reliable=evidence, initial=initial, bvol=vol,
                     bdisp=initial, brel=evidence, nonplanar=np.zeros(evidence.shape, bool), evidence=evidence)
-    params = PairParams(coop=None, segmentation=None, planes=None, cost=None, slopes=None)  # type: ignore[arg-type]
+    params = PairSetup(coop=None, segmentation=None, planes=None, cost=None, slopes=None)  # type: ignore[arg-type]
     return _PairEvidence(left, right, min_disp=0, max_disp=max_disp, maps=maps, params=params)
 
 
@@ -280,7 +280,7 @@ def _face_plane_after(step: str, seed: int, check: bool) -> float:
 
     from prismstereo.matching.coop.coopcost import CostParams, sheared_costs
     from prismstereo.matching.coop.cooperative import CoopParams, build_segment_graph
-    from prismstereo.matching.coop.pipeline import PairMaps, PairParams, _bpasw_reliable, _PairEvidence, bpasw_volume
+    from prismstereo.matching.coop.pipeline import PairMaps, PairSetup, _bpasw_reliable, _PairEvidence, bpasw_volume
     from prismstereo.matching.coop.steps import PlaneLabels, StepParams, step_group_moves, step_sweep
     from prismstereo.matching.local.selection import right_winner
     from prismstereo.matching.segments.segmentation import SegmentationParams
@@ -294,7 +294,7 @@ def _face_plane_after(step: str, seed: int, check: bool) -> float:
                     reliable=np.ones(labels.shape, bool), initial=bdisp, bvol=bvol, bdisp=bdisp, brel=brel,
                     nonplanar=np.zeros(labels.shape, bool), evidence=brel, bright=bright)
     ev = _PairEvidence(left, right, min_disp=0, max_disp=max_disp, maps=maps,
-                       params=PairParams(coop=CoopParams(), segmentation=SegmentationParams(), planes=PlaneParams(),
+                       params=PairSetup(coop=CoopParams(), segmentation=SegmentationParams(), planes=PlaneParams(),
                                          cost=CostParams(), slopes=slopes))
     state = PlaneLabels(labels=labels, index=build_segment_index(labels), graph=build_segment_graph(labels, left),
                         assign=np.array([0, 1, 1, 1], np.int32), planes=np.array([[0.0, 0.0, 10.0], [0.0, 0.0, 18.0]]),

@@ -40,7 +40,7 @@ def test_true_slanted_plane_beats_every_fronto_parallel_hypothesis() -> None:
 def test_sweep_costs_equal_the_plane_costs_of_the_same_planes() -> None:
     """The sweep kernel (contiguous reads, shared border costs) gives segment_plane_costs' numbers for every
     plane of the sweep, including matches that leave the right image on either side."""
-    from prismstereo.matching.coop.slanted import SlantedWindow, segment_plane_costs, segment_sweep_costs
+    from prismstereo.matching.coop.slanted import SlantedParams, segment_plane_costs, segment_sweep_costs
 
     left, right = _pair(40, 60)
     labels = np.zeros((40, 60), np.int32)
@@ -53,7 +53,7 @@ def test_sweep_costs_equal_the_plane_costs_of_the_same_planes() -> None:
     slopes = (-0.5, 0.0, 0.5)
     lo, hi = -3, 12
     for census in (0.5, 0.0):
-        win = SlantedWindow(step=2, census=census)
+        win = SlantedParams(step=2, census=census)
         got = segment_sweep_costs(left, right, labels, active, avals, centres, slopes, min_disp=lo, max_disp=hi,
                                   window=win)
         dcs = np.arange(lo, hi + 1, dtype=np.float64)

@@ -75,7 +75,7 @@ def test_curved_step_follows_the_evidence_of_a_curved_segment_on_its_own_plane_p
     """The ``curved`` step on a fold of cloth (one segment, its plane up to 1.3 px off at the ends): with the
     step on, the segment takes the quadric of the evidence (the mean of both cross-checked initial maps where
     they agree) and is within 1 px everywhere; pixels another step set are kept; off, nothing changes."""
-    from prismstereo.matching.coop.pipeline import PairMaps, PairParams, _PairEvidence
+    from prismstereo.matching.coop.pipeline import PairMaps, PairSetup, _PairEvidence
     from prismstereo.matching.coop.steps import CurvedParams, PlaneLabels, step_curved
     from prismstereo.matching.segments.planes import build_segment_index, fit_planes
 
@@ -99,7 +99,7 @@ def test_curved_step_follows_the_evidence_of_a_curved_segment_on_its_own_plane_p
     maps = PairMaps(data=np.zeros((1, 1, 1), np.float32), reliable=ok, initial=initial,
                     bvol=np.zeros((1, 1, 1), np.float32), bdisp=bdisp, brel=ok, nonplanar=np.zeros((h, w), bool),
                     evidence=ok)
-    params = PairParams(coop=None, segmentation=None, planes=None, cost=None, slopes=None)  # type: ignore[arg-type]
+    params = PairSetup(coop=None, segmentation=None, planes=None, cost=None, slopes=None)  # type: ignore[arg-type]
     ev = _PairEvidence(np.zeros((h, w, 3), np.uint8), np.zeros((h, w, 3), np.uint8), min_disp=0, max_disp=64,
                        maps=maps, params=params)
     s = dataclasses.replace(state, disparity=final)

@@ -134,7 +134,7 @@ def measure(*, scale: int = 1, method: str = "bpasw") -> dict[str, Any]:
     samples = []
     for name, X in _front_points(scene):
         left_face = pairs["fit"].left_face
-        real, ok = project_exact(X[None], rig, left_face)
+        real, ok = project_exact(rig, X[None], face=left_face)
         row: dict[str, Any] = {"point": name, "actual_mm": float(X[2]),
                                "pixel": [round(float(real[0, 0]), 1), round(float(real[0, 1]), 1)]}
         for col in COLUMNS:

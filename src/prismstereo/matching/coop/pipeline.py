@@ -54,7 +54,7 @@ from prismstereo.matching.coop.cooperative import (
 )
 from prismstereo.matching.coop.flatcost import flat_cost_segments, peak_ratio
 from prismstereo.matching.coop.radiometry import RadiometryParams, compensate_right
-from prismstereo.matching.coop.slanted import SlantedWindow, segment_plane_costs, segment_sweep_costs, slanted_pair
+from prismstereo.matching.coop.slanted import SlantedParams, segment_plane_costs, segment_sweep_costs, slanted_pair
 from prismstereo.matching.coop.steps import (
     FallbackParams,
     OcclusionParams,
@@ -80,7 +80,7 @@ from prismstereo.matching.segments.segmentation import SegmentationParams, mean_
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CoopMatcher", "CoopResult", "DataTermParams", "PairMaps", "PairParams", "coop_match", "initial_disparity",
+__all__ = ["CoopMatcher", "CoopResult", "DataTermParams", "PairMaps", "PairSetup", "coop_match", "initial_disparity",
            "occlusion_background_fill", "segment_sweep_candidates"]
 
 F32 = npt.NDArray[np.float32]
@@ -307,7 +307,7 @@ def segment_sweep_candidates(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uin
     centre disparity or differing in slope) are returned as new planes and a (K, keep) index array into the
     extended plane set (-1 = none). The other fields of ``params`` are not read here."""
     frac, slopes, keep, min_px = params.frac, params.slopes, params.keep, params.min_px
-    window = SlantedWindow(step=params.step, dilation=params.dilation)
+    window = SlantedParams(step=params.step, dilation=params.dilation)
     k = assign.shape[0]
     h, w = labels.shape
     pair = slanted_pair(lft, rgt)
@@ -438,7 +438,7 @@ class PairMaps:
 
 
 @dataclass(frozen=True, kw_only=True)
-class PairParams:
+class PairSetup:
     """The parameters the steps read from the pair's evidence (:class:`_PairEvidence`): the optimiser's, the
     segmentation's (the fine step derives its own from it), the plane fit's, the pixel cost's and the data
     term's slopes (None = one unsheared volume)."""
@@ -455,7 +455,7 @@ class _PairEvidence:
     data term, the ``bpasw`` matcher's volume of the pair and its cross-checked map, the initial map."""
 
     def __init__(self, lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uint8], *, min_disp: int, max_disp: int,
-                 maps: PairMaps, params: PairParams,
+                 maps: PairMaps, params: PairSetup,
                  segments: dict[SegmentationParams, Future[npt.NDArray[np.int32]]] | None = None):
         self.image, self.right = lft, rgt
         self._sheared = maps.sheared  # the data term's census transforms etc., reused by the row-only volume
@@ -759,7 +759,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     maps = PairMaps(data=dcost, reliable=reliable, initial=initial, bvol=bvol, bdisp=bdisp0, brel=brel0,
                     nonplanar=nonplanar, evidence=evidence, bright=bright, bleft=bleft, sheared=sheared)
     ev = _PairEvidence(lft, rgt, min_disp=min_disp, max_disp=max_disp, maps=maps,
-                       params=PairParams(coop=op, segmentation=sp, planes=pp, cost=dp.cost or cp,
+                       params=PairSetup(coop=op, segmentation=sp, planes=pp, cost=dp.cost or cp,
                                          slopes=dp.slopes or None), segments=ahead)
     state = PlaneLabels(labels=labels, index=index, graph=graph, assign=assign0, planes=plane_set, own=own,
                         parent=np.arange(k, dtype=np.int64), pairs=pairs,

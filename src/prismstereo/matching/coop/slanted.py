@@ -28,18 +28,18 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit, prange
 
-from prismstereo.errors import ConfigError
+from prismstereo.checks import check_fields
 from prismstereo.matching.coop.coopcost import census_bits
 from prismstereo.matching.local.costs import popcount64
 
-__all__ = ["SlantedPair", "SlantedWindow", "add_unique", "plane_cost", "segment_plane_costs", "segment_sweep_costs",
+__all__ = ["SlantedPair", "SlantedParams", "add_unique", "plane_cost", "segment_plane_costs", "segment_sweep_costs",
            "slanted_inputs", "slanted_pair"]
 
 F32 = npt.NDArray[np.float32]
 
 
 @dataclass(frozen=True, kw_only=True)
-class SlantedWindow:
+class SlantedParams:
     """The slanted-window cost's parameters (module docstring).
 
     Attributes
@@ -64,19 +64,13 @@ class SlantedWindow:
     census: float = 0.5
 
     def __post_init__(self) -> None:
-        if self.step < 1 or self.dilation < 1 or self.radius < 0:
-            raise ConfigError(f"expected SlantedWindow.step, dilation >= 1 and radius >= 0, got {self.step!r}, "
-                              f"{self.dilation!r}, {self.radius!r}")
-        if not self.gamma > 0 or not 0.0 <= self.alpha <= 1.0:
-            raise ConfigError(f"expected SlantedWindow.gamma > 0 and alpha in [0, 1], got {self.gamma!r}, "
-                              f"{self.alpha!r}")
-        if self.tau_col < 0 or self.tau_grad < 0 or self.census < 0:
-            raise ConfigError(f"expected SlantedWindow.tau_col, tau_grad, census >= 0, got {self.tau_col!r}, "
-                              f"{self.tau_grad!r}, {self.census!r}")
+        check_fields(self, {"step": (1, None), "radius": (0, None), "dilation": (1, None), "alpha": (0.0, 1.0),
+                            "tau_col": (0.0, None), "tau_grad": (0.0, None), "census": (0.0, None)},
+                     positive=("gamma",))
 
 
 class _Window(NamedTuple):
-    """A :class:`SlantedWindow` as the kernels read it (``lam_cen``: the census weight of the pair's inputs)."""
+    """A :class:`SlantedParams` as the kernels read it (``lam_cen``: the census weight of the pair's inputs)."""
 
     radius: int
     dil: int
@@ -87,7 +81,7 @@ class _Window(NamedTuple):
     lam_cen: float
 
 
-def _kernel_window(window: SlantedWindow, census: float) -> _Window:
+def _kernel_window(window: SlantedParams, census: float) -> _Window:
     return _Window(int(window.radius), int(window.dilation), float(window.gamma), float(window.alpha),
                    float(window.tau_col), float(window.tau_grad), float(census))
 
@@ -158,6 +152,8 @@ def _census_pair(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8],
 
 @njit(cache=True, fastmath=True, inline="always")
 def _sample(fr: F32, y: int, xf: float, ch: int) -> float:  # pragma: no cover - numba
+    """Channel ``ch`` of row ``y`` of ``fr`` at column ``xf``, linearly interpolated (the match ``q'`` of the module
+    docstring's ``ρ``), clamped to the border columns."""
     w = fr.shape[1]
     if xf <= 0.0:
         return fr[y, 0, ch]
@@ -171,6 +167,9 @@ def _sample(fr: F32, y: int, xf: float, ch: int) -> float:  # pragma: no cover -
 @njit(cache=True, fastmath=True)
 def _window(fl: F32, y: int, x: int, radius: int, dil: int, gamma: float, wy: npt.NDArray[np.int64],
             wx: npt.NDArray[np.int64], ww: F32) -> int:  # pragma: no cover - numba
+    """The support window ``W(p)`` of pixel ``(y, x)`` (every ``dil`` px within ``radius``, inside the image) into
+    ``wy, wx`` and its weights ``w(p, q) = exp(-‖I_p − I_q‖₁ / γ)`` into ``ww`` (module docstring; PatchMatch
+    Stereo's, an addition to the thesis); returns the number of samples."""
     h, w = fl.shape[0], fl.shape[1]
     n = 0
     for dy in range(-radius, radius + 1, dil):
@@ -244,13 +243,13 @@ def _plane_cost_map(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArra
 
 
 def plane_cost(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], plane: tuple[float, float, float], *,
-               window: SlantedWindow | None = None) -> F32:
+               window: SlantedParams | None = None) -> F32:
     """Slanted-window cost of one plane ``d = a x + b y + c`` at every pixel (module docstring), (H, W) float32.
 
     A fronto-parallel window is the special case ``a = b = 0`` with ``c`` the pixel's disparity. ``window``:
     the cost's parameters (its ``step`` is not read here).
     """
-    win = window or SlantedWindow()
+    win = window or SlantedParams()
     cl, cr = _census_pair(left, right, win.census)
     return _plane_cost_map(slanted_inputs(left), slanted_inputs(right), cl, cr, np.asarray(plane, np.float64),
                            _kernel_window(win, win.census))
@@ -409,16 +408,16 @@ def _segment_costs(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray
 
 def segment_plane_costs(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], labels: npt.NDArray[np.int32],
                         candidates: npt.NDArray[np.int64], planes: npt.NDArray[np.float64], *, min_disp: float,
-                        max_disp: float, window: SlantedWindow | None = None,
+                        max_disp: float, window: SlantedParams | None = None,
                         pair: SlantedPair | None = None) -> npt.NDArray[np.float64]:
     """Mean slanted-window cost of each segment's candidate planes over its pixels (a ``window.step`` grid).
 
     ``candidates`` (K, M) holds plane indices per segment (-1 = none). ``window``: the cost's parameters
-    (default :class:`SlantedWindow`). ``pair``: the pair's :func:`slanted_pair` when already made (then the
+    (default :class:`SlantedParams`). ``pair``: the pair's :func:`slanted_pair` when already made (then the
     census weight is its own). Returns (K, M); ``inf`` for missing candidates and for segments without a
     sampled pixel.
     """
-    win = window or SlantedWindow()
+    win = window or SlantedParams()
     sp = slanted_pair(left, right, census=win.census) if pair is None else pair
     cand = np.ascontiguousarray(candidates, np.int64)
     acc, cnt = _segment_costs(sp.left, sp.right, sp.census_left, sp.census_right,
@@ -560,7 +559,7 @@ def _sweep_costs(fl: F32, rv: F32, cl: npt.NDArray[np.uint64], crv: npt.NDArray[
 
 def segment_sweep_costs(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], labels: npt.NDArray[np.int32],
                         active: npt.NDArray[np.bool_], avals: npt.NDArray[np.float64], centres: npt.NDArray[np.float64],
-                        slopes: tuple[float, ...], *, min_disp: int, max_disp: int, window: SlantedWindow | None = None,
+                        slopes: tuple[float, ...], *, min_disp: int, max_disp: int, window: SlantedParams | None = None,
                         pair: SlantedPair | None = None) -> npt.NDArray[np.float64]:
     """:func:`segment_plane_costs` of a sweep's planes: for each ``active`` segment, the planes through its centre
     ``centres[s] = (cx, cy)`` at every integer centre disparity ``min_disp..max_disp`` with each slope ``a`` of
@@ -570,7 +569,7 @@ def segment_sweep_costs(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8
     plane ``a = avals[s, ia]``, ``b = slopes[ib]``, ``c = dc - a cx - b cy``; ``inf`` for missing ``a`` and for
     segments without a sampled pixel. ``window`` and ``pair`` as in :func:`segment_plane_costs`.
     """
-    win = window or SlantedWindow()
+    win = window or SlantedParams()
     sp = slanted_pair(left, right, census=win.census) if pair is None else pair
     # the right rows mirrored: a sweep's matches move left as its disparity grows, so they run forwards there
     rv = np.ascontiguousarray(sp.right.transpose(0, 2, 1)[:, :, ::-1])

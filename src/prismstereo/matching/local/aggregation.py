@@ -183,7 +183,9 @@ def _weber_row(out: np.ndarray, lab3: np.ndarray, y: int, qy: int, dx: int, lo: 
         o[j] = np.float32(v * prox_k)
 
 
-@njit(cache=True, inline="always")
+# compiled once and called (not inlined into each of the kernels' four call sites: a first run compiles it once);
+# fastmath as in the kernels that call it, so that its products round as they did inlined there
+@njit(cache=True, fastmath=True, nogil=True)
 def _weight_row(tab: np.ndarray, slot: int, lab: np.ndarray, lab3: np.ndarray, y: int, dys: np.ndarray,
                 dxs: np.ndarray, prox: np.ndarray, mirror: np.ndarray, nrows: int, kernel: int, s0: float,
                 s_min: float, log_norm: float, reverse: bool, forward_only: bool,
@@ -213,7 +215,10 @@ def _weight_row(tab: np.ndarray, slot: int, lab: np.ndarray, lab3: np.ndarray, y
             src = tab[qy % nrows, mk]
             sh = -dx if reverse else dx
             a0, a1 = (w - hi, w - lo) if reverse else (lo, hi)
-            row[a0:a1] = src[a0 + sh:a1 + sh]
+            # element loops, not slice assignments: those compile a shape check whose error message alone
+            # takes seconds to compile
+            for x in range(a0, a1):
+                row[x] = src[x + sh]
             row[:a0] = 0.0
             row[a1:] = 0.0
             continue
@@ -230,7 +235,8 @@ def _weight_row(tab: np.ndarray, slot: int, lab: np.ndarray, lab3: np.ndarray, y
             for x in range(w):
                 row[w - 1 - x] = buf[x]
         else:
-            row[:] = buf
+            for x in range(w):
+                row[x] = buf[x]
 
 
 # fused multiply-adds as with fastmath=True, but no reassociation: the fused loop adds four terms to a sum per
@@ -329,32 +335,94 @@ def _disparity_major(cost: np.ndarray, pad: int) -> np.ndarray:  # pragma: no co
     return out
 
 
+@njit(cache=True, inline="always")
+def _kept_rows(dys: np.ndarray, mirror: np.ndarray) -> int:  # pragma: no cover - numba
+    """Rows of weights a row reads back (its mirrored offsets point at most this many rows up), plus itself."""
+    back = 0
+    for k in range(dys.shape[0]):
+        if mirror[k] >= 0:
+            back = max(back, -dys[k])
+    return back + 1
+
+
 @njit(cache=True, parallel=True, fastmath=True, nogil=True)
-def _bpasw_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, lab3_l: np.ndarray,
-                  lab3_r: np.ndarray, dys: np.ndarray,
-                  dxs: np.ndarray, prox: np.ndarray, min_disp: int, kernel: int, s0: float,
-                  s_min: float, prior: np.ndarray, use_prior: bool, cont_w: float,
-                  symmetric: bool, mirror: np.ndarray, nbands: int,
-                  ct: np.ndarray, pad: int) -> np.ndarray:  # pragma: no cover - numba
+def _bpasw_symmetric_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, lab3_l: np.ndarray,
+                            lab3_r: np.ndarray, dys: np.ndarray, dxs: np.ndarray, prox: np.ndarray, min_disp: int,
+                            kernel: int, s0: float, s_min: float, mirror: np.ndarray, nbands: int,
+                            ct: np.ndarray, pad: int) -> np.ndarray:  # pragma: no cover - numba
+    """Eq. 5.14 with symmetric weights and no continuity prior (the ``bpasw`` matcher's aggregation): the sums
+    run along the rows of the disparity-major volume ``ct`` (:func:`_accumulate_row`). The path of
+    :func:`_bpasw_kernel` for this case, compiled on its own: a first run compiles only what it calls."""
     h, w, nd = cost.shape
     nk = dys.shape[0]
     log_norm = 1.0 / np.log(s0 / s_min) if kernel == 0 else 1.0
     out = np.empty((h, w, nd), dtype=np.float32)
     # rows run in bands, each in order, so that a row's weights towards the rows above are read from the
     # weights those rows computed towards it (mirror); a band first computes the rows above it it reads
-    back = 0
-    for k in range(nk):
-        if mirror[k] >= 0:
-            back = max(back, -dys[k])
-    nrows = back + 1
+    nrows = _kept_rows(dys, mirror)
+    back = nrows - 1
+    band = (h + nbands - 1) // nbands
+    for bi in prange(nbands):
+        y0 = bi * band
+        y1 = min(h, y0 + band)
+        # weights of the rows kept, left and right image (the symmetric sums read the right weights forwards)
+        tl = np.zeros((nrows, nk, w), dtype=np.float32)
+        tr = np.zeros((nrows, nk, w), dtype=np.float32)
+        wbuf = np.empty(w, dtype=np.float32)
+        # (``y < y0``: the rows above the band need only their forward offsets; a run-time flag, so that
+        # _weight_row is compiled for one signature)
+        for y in range(max(0, y0 - back), y0):  # only their weights the band's rows read
+            _weight_row(tl, y % nrows, lab_l, lab3_l, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min,
+                        log_norm, False, y < y0, wbuf)
+            _weight_row(tr, y % nrows, lab_r, lab3_r, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min,
+                        log_norm, False, y < y0, wbuf)
+        num = np.empty(nd, dtype=np.float32)
+        den = np.empty(nd, dtype=np.float32)
+        numr = np.empty((nd, w), dtype=np.float32)
+        denr = np.empty((nd, w), dtype=np.float32)
+        for y in range(y0, y1):
+            slot = y % nrows
+            _weight_row(tl, slot, lab_l, lab3_l, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min, log_norm,
+                        False, y < y0, wbuf)
+            _weight_row(tr, slot, lab_r, lab3_r, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min,
+                        log_norm, False, y < y0, wbuf)
+            numr[:] = 0.0
+            denr[:] = 0.0
+            _accumulate_row(numr, denr, tl[slot], tr[slot], ct, y, dys, dxs, min_disp, pad)
+            for x in range(w):
+                nvalid = min(nd, x - min_disp + 1)
+                for i in range(nd):
+                    num[i] = numr[i, x]
+                    den[i] = denr[i, x]
+                for i in range(nd):
+                    if i < nvalid and den[i] > 0.0:
+                        out[y, x, i] = num[i] / den[i]
+                    else:
+                        out[y, x, i] = cost[y, x, i]
+    return out
+
+
+@njit(cache=True, parallel=True, fastmath=True, nogil=True)
+def _bpasw_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, lab3_l: np.ndarray,
+                  lab3_r: np.ndarray, dys: np.ndarray,
+                  dxs: np.ndarray, prox: np.ndarray, min_disp: int, kernel: int, s0: float,
+                  s_min: float, prior: np.ndarray, use_prior: bool, cont_w: float,
+                  symmetric: bool, mirror: np.ndarray, nbands: int) -> np.ndarray:  # pragma: no cover - numba
+    """Eq. 5.14 with a continuity prior (Eqs. 5.9, 5.12) or left weights only, pixel by pixel (the symmetric
+    case without a prior is :func:`_bpasw_symmetric_kernel`)."""
+    h, w, nd = cost.shape
+    nk = dys.shape[0]
+    log_norm = 1.0 / np.log(s0 / s_min) if kernel == 0 else 1.0
+    out = np.empty((h, w, nd), dtype=np.float32)
+    # rows run in bands as in _bpasw_symmetric_kernel
+    nrows = _kept_rows(dys, mirror)
+    back = nrows - 1
     band = (h + nbands - 1) // nbands
     for bi in prange(nbands):
         y0 = bi * band
         y1 = min(h, y0 + band)
         # weights of the rows kept, left and right image; the right one column-reversed, so that the inner loop
         # over disparities reads it forwards (SIMD)
-        # (with a disparity-major ``ct``, the symmetric sums run along rows and read the right weights forwards)
-        fast = symmetric and not use_prior and ct.shape[0] == h
         tl = np.zeros((nrows, nk, w), dtype=np.float32)
         tr = np.zeros((nrows if symmetric else 1, nk, w), dtype=np.float32)
         wbuf = np.empty(w, dtype=np.float32)
@@ -363,33 +431,16 @@ def _bpasw_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, lab3_l
                         log_norm, False, True, wbuf)
             if symmetric:
                 _weight_row(tr, y % nrows, lab_r, lab3_r, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min,
-                            log_norm, not fast, True, wbuf)
+                            log_norm, True, True, wbuf)
         num = np.empty(nd, dtype=np.float32)
         den = np.empty(nd, dtype=np.float32)
-        numr = np.empty((nd if fast else 0, w), dtype=np.float32)
-        denr = np.empty((nd if fast else 0, w), dtype=np.float32)
         for y in range(y0, y1):
             slot = y % nrows
             _weight_row(tl, slot, lab_l, lab3_l, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min, log_norm,
                         False, False, wbuf)
             if symmetric:
                 _weight_row(tr, slot, lab_r, lab3_r, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min,
-                            log_norm, not fast, False, wbuf)
-            if fast:
-                numr[:] = 0.0
-                denr[:] = 0.0
-                _accumulate_row(numr, denr, tl[slot], tr[slot], ct, y, dys, dxs, min_disp, pad)
-                for x in range(w):
-                    nvalid = min(nd, x - min_disp + 1)
-                    for i in range(nd):
-                        num[i] = numr[i, x]
-                        den[i] = denr[i, x]
-                    for i in range(nd):
-                        if i < nvalid and den[i] > 0.0:
-                            out[y, x, i] = num[i] / den[i]
-                        else:
-                            out[y, x, i] = cost[y, x, i]
-                continue
+                            log_norm, True, False, wbuf)
             for x in range(w):
                 num[:] = 0.0
                 den[:] = 0.0
@@ -519,8 +570,10 @@ def aggregate_bpasw(cost: np.ndarray, left: np.ndarray, right: np.ndarray | None
     # planar Lab for the weights' vectorised rows
     lab3_l = np.ascontiguousarray(lab_l.transpose(2, 0, 1))
     lab3_r = np.ascontiguousarray(lab_r.transpose(2, 0, 1)) if symmetric else lab3_l
-    pad = int(np.abs(dxs).max())
-    ct = _disparity_major(vol, pad) if symmetric and not use_prior else np.empty((0, 0, 0), np.float32)
+    if symmetric and not use_prior:
+        pad = int(np.abs(dxs).max())
+        return _bpasw_symmetric_kernel(vol, lab_l, lab_r, lab3_l, lab3_r, dys, dxs, prox.astype(np.float64),
+                                       int(min_disp), kid, s0, s_min, _mirrors(dys, dxs), nbands,
+                                       _disparity_major(vol, pad), pad)
     return _bpasw_kernel(vol, lab_l, lab_r, lab3_l, lab3_r, dys, dxs, prox.astype(np.float64), int(min_disp), kid,
-                         s0, s_min, pr, use_prior, float(continuity_weight), symmetric, _mirrors(dys, dxs), nbands,
-                         ct, pad)
+                         s0, s_min, pr, use_prior, float(continuity_weight), symmetric, _mirrors(dys, dxs), nbands)
