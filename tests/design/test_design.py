@@ -182,7 +182,8 @@ def test_no_solution_names_the_binding_constraint() -> None:
     assert "\n" not in str(e.value)
     with pytest.raises(GeometryError, match=r"accuracy 1e-05 % at 1800 mm binds.*the best reaches"):
         search(cam, near=1200.0, far=1800.0, accuracy=1e-7, max_apex_distance=120.0, disparity_precision=0.02)
-    with pytest.raises(GeometryError, match=r"field 5000 × 5000 mm at 1800 mm binds.*the largest common field at 1800 mm is"):
+    with pytest.raises(GeometryError,
+                       match=r"field 5000 × 5000 mm at 1800 mm binds.*the largest common field at 1800 mm is"):
         search(cam, near=1200.0, far=1800.0, field=(5000.0, 5000.0), max_apex_distance=120.0)
 
 
