@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from prismstereo.apps.cli import cli_warning
 from prismstereo.apps.demo import demo_rig
 from prismstereo.io import write_image
 
@@ -168,7 +169,7 @@ def test_match_writes_both_files_or_none(tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stderr
     warns = proc.stderr.splitlines()
     assert warns and all(w.startswith("prismstereo match: warning: ") for w in warns)
-    assert any("largest searched disparity 16" in w for w in warns)
+    assert any("largest searched disparity 16" in w and w.endswith("--min-disp/--max-disp)") for w in warns)
     assert _files(tmp_path) == {"l.png", "r.png", "d.pfm", "d.png"}
     # the right range: no warning
     proc = _run("match", str(tmp_path / "l.png"), str(tmp_path / "r.png"), "-o", str(tmp_path / "d.pfm"),
@@ -240,7 +241,8 @@ def test_depth_unreliable_results_warn(capture: Path, tmp_path: Path, image: str
     warns = proc.stderr.splitlines()
     assert warns and all(w.startswith("prismstereo depth: warning: ") for w in warns), proc.stderr
     run = json.loads((out / "run.json").read_text())
-    assert [f"prismstereo depth: warning: {w}" for w in run["warnings"]] == warns
+    # run.json keeps the library's words (DepthConfig.depth_range), stderr the command's (--depth-range)
+    assert [f"prismstereo depth: warning: {cli_warning('depth', w)}" for w in run["warnings"]] == warns
 
 
 # --------------------------------------------------------------------------- 4./5. early checks, one line

@@ -3,14 +3,18 @@
 from __future__ import annotations
 
 import ast
+import logging
 import re
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from prismstereo.apps.cli import build_parser, cli_message
+from prismstereo.apps.cli import _CliFormatter, build_parser, cli_message, cli_warning
 from prismstereo.cli import main
+from prismstereo.depth.search_range import depth_warnings
+from prismstereo.matching.diagnostics import limit_warnings
 
 PACKAGE = Path(__file__).resolve().parents[1] / "src" / "prismstereo"
 
@@ -58,6 +62,25 @@ def test_no_library_error_message_speaks_the_command_line() -> None:
 ])
 def test_the_cli_prints_its_flags(command: str, message: str, printed: str) -> None:
     assert cli_message(build_parser(), command, message) == printed
+
+
+def test_the_depth_warnings_name_the_parameter() -> None:
+    """The library's warnings say ``DepthConfig.depth_range``; the commands print their flag instead."""
+    saturated = np.full((8, 8), 30.0, np.float32)  # every match at the nearest searched disparity
+    lines = [*depth_warnings(points=0, region_pixels=64, matched=0, confident=None, disparity=None, valid=None,
+                             disparity_range=(2, 30), depth_range=(800.0, 1500.0)),
+             *depth_warnings(points=64, region_pixels=64, matched=64, confident=None, disparity=saturated,
+                             valid=None, disparity_range=(2, 30), depth_range=(800.0, 1500.0))]
+    assert len(lines) == 2 and all("DepthConfig.depth_range" in t and "--" not in t for t in lines), lines
+    assert cli_warning("depth", lines[1]).endswith("(widen --depth-range)")
+    assert cli_warning("batch", lines[0]).count("--depth-range") == 1
+    assert cli_warning("match", lines[1]) == lines[1]  # match has no --depth-range
+    assert cli_warning("depth", "DepthConfig.refine_iterations: no such flag") == (
+        "DepthConfig.refine_iterations: no such flag")
+    record = logging.LogRecord("prismstereo.depth", logging.WARNING, "", 0, "%s", (lines[1],), None)
+    assert _CliFormatter("depth").format(record) == f"prismstereo depth: warning: {cli_warning('depth', lines[1])}"
+    limits = limit_warnings(np.full((8, 8), np.nan, np.float32), None, min_disp=0, max_disp=16)
+    assert limits and "min_disp/max_disp" in limits[0] and "--" not in limits[0], limits
 
 
 def test_a_bad_option_is_one_line_naming_the_flag(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

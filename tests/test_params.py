@@ -1,5 +1,6 @@
 """Every parameter dataclass checks itself in ``__post_init__`` (issue 28): a value out of range is a
-ConfigError naming ``<Class>.<field>``, at construction, whoever builds it."""
+ConfigError naming ``<Class>.<field>``, at construction, whoever builds it. The matchers' dataclasses (the
+registry's ``sad`` … ``sgm``) are parameter dataclasses too."""
 
 from __future__ import annotations
 
@@ -13,10 +14,11 @@ import pytest
 import prismstereo
 from prismstereo.checks import check_fields
 from prismstereo.errors import ConfigError
+from prismstereo.matching import registry
 
 
 def _params_classes() -> list[type]:
-    """The frozen dataclasses of the package whose name ends in ``Params`` or ``Config``."""
+    """The frozen dataclasses of the package whose name ends in ``Params``, ``Config`` or ``Matcher``."""
     found: dict[str, type] = {}
     for info in pkgutil.walk_packages(prismstereo.__path__, "prismstereo."):
         if ".apps" in info.name or info.name.endswith("__main__"):
@@ -24,13 +26,16 @@ def _params_classes() -> list[type]:
         module = importlib.import_module(info.name)
         for obj in vars(module).values():
             if (isinstance(obj, type) and dataclasses.is_dataclass(obj) and obj.__module__ == module.__name__
-                    and obj.__name__.endswith(("Params", "Config"))
+                    and obj.__name__.endswith(("Params", "Config", "Matcher"))
                     and obj.__dataclass_params__.frozen):  # type: ignore[attr-defined]
                 found[f"{obj.__module__}.{obj.__qualname__}"] = obj
     return [found[k] for k in sorted(found)]
 
 
 CLASSES = _params_classes()
+#: the registered matchers that are dataclasses (the others, e.g. coop's, take the Params above)
+MATCHERS = sorted((f for f in (registry.get_matcher(n).__class__ for n in registry.available_matchers())
+                   if dataclasses.is_dataclass(f)), key=lambda c: c.__name__)
 
 
 def _bad_value(default: object) -> object | None:
@@ -54,11 +59,14 @@ def test_the_walk_finds_the_params() -> None:
     names = {c.__name__ for c in CLASSES}
     assert {"CoopParams", "PlaneParams", "SegmentationParams", "CostParams", "DepthConfig", "SweepParams",
             "PostParams", "LocalMultiViewParams", "GlobalMultiViewParams", "StepParams"} <= names, names
+    assert {"SADMatcher", "SSDMatcher", "NCCMatcher", "SHDMatcher", "BPASWMatcher", "SGBMMatcher",
+            "SGMMatcher"} <= {c.__name__ for c in MATCHERS}
+    assert set(MATCHERS) <= set(CLASSES), "a registered dataclass matcher is not walked"
 
 
 @pytest.mark.parametrize("cls", CLASSES, ids=lambda c: c.__name__)
 def test_every_params_dataclass_rejects_an_out_of_range_value(cls: type) -> None:
-    assert "__post_init__" in vars(cls), f"{cls.__name__} does not check itself"
+    assert any("__post_init__" in vars(k) for k in cls.__mro__[:-1]), f"{cls.__name__} does not check itself"
     cls()  # the defaults are valid
     rejected = []
     for name, default in _numeric_fields(cls).items():
@@ -71,9 +79,10 @@ def test_every_params_dataclass_rejects_an_out_of_range_value(cls: type) -> None
         assert rejected, f"{cls.__name__} accepts NaN / -1e9 / 'yes' in every field"
 
 
-#: the dataclasses that check every field (issue 28)
+#: the dataclasses that check every field (issue 28), and every registered dataclass matcher
 FULLY_CHECKED = ("CoopParams", "CostParams", "PlaneParams", "SegmentationParams", "DepthConfig", "PostParams",
-                 "LocalMultiViewParams", "GlobalMultiViewParams", "SlantedParams")
+                 "LocalMultiViewParams", "GlobalMultiViewParams", "SlantedParams",
+                 *(c.__name__ for c in MATCHERS))
 
 
 @pytest.mark.parametrize("cls", [c for c in CLASSES if c.__name__ in FULLY_CHECKED], ids=lambda c: c.__name__)
@@ -97,6 +106,17 @@ def test_every_field_is_checked(cls: type) -> None:
     ("PlaneParams", "gamma_segment", 1.5),
     ("SegmentationParams", "hr", 0.0),
     ("SegmentationParams", "max_level", 9),
+    ("BPASWMatcher", "omega", 1.5),
+    ("BPASWMatcher", "dilation", 0),
+    ("BPASWMatcher", "kernel", "gauss"),
+    ("SHDMatcher", "census_window", (7, 10)),
+    ("SGBMMatcher", "block_size", 4),
+    ("SGBMMatcher", "p2_factor", 8),
+    ("SGBMMatcher", "mode", "fast"),
+    ("SGMMatcher", "uniqueness", 100),
+    ("SGMMatcher", "p2", 4),
+    ("SGMMatcher", "census_window", (9, 9)),
+    ("SGMMatcher", "cost", "mi"),
 ])
 def test_targeted_ranges(cls_name: str, field: str, value: object) -> None:
     cls = next(c for c in CLASSES if c.__name__ == cls_name)

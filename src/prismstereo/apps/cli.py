@@ -186,7 +186,8 @@ def _cmd_match(args: argparse.Namespace) -> int:
                 **params)
     d = res.disparity
     region = np.asarray((left.reshape(left.shape[0], left.shape[1], -1) > 0).any(axis=2))  # not a black border
-    for line in limit_warnings(d, res.valid, min_disp=args.min_disp, max_disp=args.max_disp, region=region):
+    for line in limit_warnings(d, res.valid, min_disp=args.min_disp, max_disp=args.max_disp, region=region,
+                               hint="--min-disp/--max-disp"):
         log.warning("%s", line)
     with output_files([out, png]) as (tmp_pfm, tmp_png):
         write_pfm(tmp_pfm, d)
@@ -592,7 +593,7 @@ class _CliFormatter(logging.Formatter):
 
     def format(self, record: logging.LogRecord) -> str:
         if record.levelno >= logging.WARNING and record.name != "py.warnings":
-            return f"prismstereo {self.command}: warning: {record.getMessage()}"
+            return f"prismstereo {self.command}: warning: {cli_warning(self.command, record.getMessage())}"
         return super().format(record)
 
 
@@ -646,14 +647,27 @@ def cli_message(parser: argparse.ArgumentParser, command: str, message: str) -> 
     """A library error with the parameter it names first (``views: ...``, ``DepthConfig.min_confidence: ...``)
     as the command's flag (``--views: ...``) when the command has one; otherwise the message as it is."""
     m = re.match(r"(?:[A-Z]\w*\.)?([a-z_]\w*): ", message)
+    flag = None if m is None else _flag(parser, command, m.group(1))
+    return message if m is None or flag is None else flag + message[m.end(1):]
+
+
+def _flag(parser: argparse.ArgumentParser, command: str, name: str) -> str | None:
+    """The flag of ``command`` that sets the library parameter ``name``, or None when it has none."""
     subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
-    if m is None or not subs or command not in subs[0].choices:
-        return message
-    name = m.group(1)
+    if not subs or command not in subs[0].choices:
+        return None
     flag = _FLAG_OF.get(name, "--" + name.replace("_", "-"))
-    if flag in subs[0].choices[command]._option_string_actions:
-        return flag + message[m.end(1):]
-    return message
+    return flag if flag in subs[0].choices[command]._option_string_actions else None
+
+
+def cli_warning(command: str, message: str) -> str:
+    """A library warning with each ``<Class>.<parameter>`` it names (``widen DepthConfig.depth_range``) as the
+    command's flag (``widen --depth-range``) where the command has one; the rest as it is."""
+    if not re.search(r"\b[A-Z]\w*\.[a-z_]", message):
+        return message
+    parser = build_parser()
+    return re.sub(r"\b[A-Z]\w*\.([a-z_]\w*)\b", lambda m: _flag(parser, command, m.group(1)) or m.group(0),
+                  message)
 
 
 def _compiling(command: str) -> None:

@@ -292,7 +292,8 @@ def auto_search_range(pair: RectifiedPair, back_mm: float, left: np.ndarray, rig
     if est is None:
         msg = (f"could not find the scene's disparities in the images (only {100 * support:.1f} % of the common "
                f"view matched coarsely: too little texture, or not a capture of this prism): searching the whole "
-               f"range the rig allows, {zmin:.0f}–{zmax:.0f} mm; pass --depth-range MIN,MAX to narrow it")
+               f"range the rig allows, {zmin:.0f}–{zmax:.0f} mm; set DepthConfig.depth_range "
+               "(MIN, MAX mm) to narrow it")
         return SearchRange((zmin, zmax), (dlo, dhi), "rig", (msg,))
     lo, hi = est
     z_near = _depth_of(hi, depths, disp)
@@ -318,7 +319,7 @@ def depth_warnings(*, points: int, region_pixels: int, matched: int, confident: 
     """
     zr = f"{depth_range[0]:.0f}–{depth_range[1]:.0f} mm"
     if points == 0:
-        return [f"no depth recovered: nothing in the searched depth range {zr} matched (wrong --depth-range, "
+        return [f"no depth recovered: nothing in the searched depth range {zr} matched (wrong DepthConfig.depth_range, "
                 "or the image is not a capture of this prism rig)"]
     out: list[str] = []
     cov = coverage if coverage is not None else Coverage(points=points, pixels=region_pixels, of="searched")
@@ -333,10 +334,10 @@ def depth_warnings(*, points: int, region_pixels: int, matched: int, confident: 
         at_lo, at_hi, n = limit_shares(disparity, valid, min_disp=lo, max_disp=hi)
         if n and at_hi > LIMIT_SHARE:
             out.append(f"{100 * at_hi:.1f} % of the matches sit at the nearest searched depth ({hi} px): parts "
-                       f"of the scene are probably nearer than {zr} (widen --depth-range)")
+                       f"of the scene are probably nearer than {zr} (widen DepthConfig.depth_range)")
         if n and at_lo > LIMIT_SHARE and lo > 0:
             out.append(f"{100 * at_lo:.1f} % of the matches sit at the farthest searched depth ({lo} px): parts "
-                       f"of the scene are probably farther than {zr} (widen --depth-range)")
+                       f"of the scene are probably farther than {zr} (widen DepthConfig.depth_range)")
     return out
 
 

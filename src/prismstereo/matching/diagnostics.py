@@ -48,7 +48,7 @@ def limit_shares(disparity: np.ndarray, valid: np.ndarray | None, *, min_disp: f
 
 
 def limit_warnings(disparity: np.ndarray, valid: np.ndarray | None, *, min_disp: float, max_disp: float,
-                   region: np.ndarray | None = None, hint: str = "--min-disp/--max-disp") -> list[str]:
+                   region: np.ndarray | None = None, hint: str = "min_disp/max_disp") -> list[str]:
     """One-line warnings when the map looks cut by its search range or mostly inconsistent.
 
     ``region`` (bool, H×W) are the pixels that could match (e.g. not the black border of a rectified

@@ -299,7 +299,7 @@ def depth_all_views(rig: Rig, capture: Any, *, method: str = "sweep",
         return out.astype(np.float32), seen, uv
 
     # loop over depth hypotheses (planes), not pixels; a bar on a terminal only
-    for k in progress_bar(range(nk), desc="depth --views all: plane sweep", unit="plane", leave=False):
+    for k in progress_bar(range(nk), desc="all-view plane sweep", unit="plane", leave=False):
         pts = point_at(depths[k])
         acc = np.zeros((h, w), np.float32)
         n = np.zeros((h, w), np.float32)

@@ -223,7 +223,7 @@ def test_registry_lists_methods() -> None:
         get_matcher("sad", window_size=3)
     with pytest.raises(ConfigError, match="to be int"):
         get_matcher("sad", radius="abc")
-    with pytest.raises(ConfigError, match="radius >= 0"):
+    with pytest.raises(ConfigError, match=r"^BPASWMatcher.radius: expected an integer in \[0, 100\], got -1$"):
         get_matcher("bpasw", radius=-1)
     assert get_matcher("bpasw", similarity_s0=30).similarity_s0 == 30  # type: ignore[attr-defined]
 

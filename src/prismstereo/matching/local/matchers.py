@@ -10,11 +10,11 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 
-from prismstereo.errors import ConfigError
+from prismstereo.checks import Range, check_fields, fail
 from prismstereo.matching.local import aggregation, costs, selection
 from prismstereo.matching.registry import MatchResult, register_matcher
 
@@ -54,11 +54,12 @@ class LocalMatcher:
     final_median: bool = False
     keep_cost: bool = False
 
+    #: the ranges of the subclass's own fields, checked with ``tolerance``'s in ``__post_init__``
+    _RANGES: ClassVar[dict[str, Range]] = {}
+    _POSITIVE: ClassVar[tuple[str, ...]] = ()
+
     def __post_init__(self) -> None:
-        radius = getattr(self, "radius", 0)
-        if radius < 0 or self.tolerance < 0:
-            raise ConfigError(f"expected radius >= 0 and tolerance >= 0, got radius={radius}, "
-                              f"tolerance={self.tolerance}")
+        check_fields(self, {"tolerance": (0.0, None), **self._RANGES}, positive=self._POSITIVE)
 
     def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
                     min_disp: int) -> np.ndarray:  # pragma: no cover - abstract
@@ -93,12 +94,24 @@ class LocalMatcher:
         return MatchResult(raw, valid, None, timings, extras)
 
 
+def check_census_window(owner: object, window: object) -> None:
+    """Raise ConfigError ``<Class>.census_window: ...`` unless ``window`` is two odd integers ``(h, w)`` with
+    ``h·w - 1 <= 64`` (the census code's bits)."""
+    ok = isinstance(window, tuple | list) and len(window) == 2
+    ok = ok and all(isinstance(v, int | np.integer) and not isinstance(v, bool) and v >= 1 and v % 2 == 1
+                    for v in window)  # type: ignore[attr-defined]
+    if not ok or int(window[0]) * int(window[1]) - 1 > 64:  # type: ignore[index]
+        fail(owner, "census_window", "two odd integers (height, width) of at most 65 pixels", window)
+
+
 @register_matcher("sad")
 @dataclass(frozen=True, kw_only=True)
 class SADMatcher(LocalMatcher):
     """Sum of absolute differences over a ``(2·radius+1)²`` box window (thesis §2.6, Table 5.1)."""
 
     radius: int = 4
+
+    _RANGES: ClassVar[dict[str, Range]] = {"radius": (0, 100)}
 
     def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
                     min_disp: int) -> np.ndarray:
@@ -112,6 +125,8 @@ class SSDMatcher(LocalMatcher):
 
     radius: int = 4
 
+    _RANGES: ClassVar[dict[str, Range]] = {"radius": (0, 100)}
+
     def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
                     min_disp: int) -> np.ndarray:
         return costs.cost_ssd(left, right, max_disp=max_disp, min_disp=min_disp, radius=self.radius)
@@ -123,6 +138,8 @@ class NCCMatcher(LocalMatcher):
     """Zero-mean normalised cross-correlation over a box window, cost ``1 - ZNCC`` (Table 5.1)."""
 
     radius: int = 4
+
+    _RANGES: ClassVar[dict[str, Range]] = {"radius": (0, 100)}
 
     def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
                     min_disp: int) -> np.ndarray:
@@ -136,6 +153,12 @@ class SHDMatcher(LocalMatcher):
 
     radius: int = 4
     census_window: tuple[int, int] = (7, 9)
+
+    _RANGES: ClassVar[dict[str, Range]] = {"radius": (0, 100)}
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_census_window(self, self.census_window)
 
     def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
                     min_disp: int) -> np.ndarray:
@@ -176,6 +199,16 @@ class BPASWMatcher(LocalMatcher):
     gamma_proximity: float = 17.5
     continuity: bool = False
     continuity_weight: float = 0.2
+
+    _RANGES: ClassVar[dict[str, Range]] = {
+        "radius": (0, 100), "dilation": (1, 50), "omega": (0.0, 1.0), "tau_color": (0.0, None),
+        "tau_gradient": (0.0, None), "census_weight": (0.0, None), "continuity_weight": (0.0, None)}
+    _POSITIVE: ClassVar[tuple[str, ...]] = ("similarity_s0", "gamma_color", "gamma_proximity")
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.kernel not in ("weber", "exp"):
+            fail(self, "kernel", "'weber' or 'exp'", self.kernel)
 
     def pixel_cost(self, left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int) -> np.ndarray:
         """The per-pixel cost before aggregation, float32 ``(H, W, D)``: S_AD (thesis Eq. 5.6) plus

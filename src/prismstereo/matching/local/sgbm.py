@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from prismstereo.checks import check_fields, fail
 from prismstereo.io.images import as_image
 from prismstereo.matching.local import selection
 from prismstereo.matching.registry import MatchResult, register_matcher
@@ -20,6 +21,10 @@ def _as_uint8(image: np.ndarray) -> np.ndarray:
     if img.ndim == 3:
         img = cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_RGB2BGR)
     return np.ascontiguousarray(img)
+
+
+_MODES = {"hh": cv2.STEREO_SGBM_MODE_HH, "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
+          "3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY, "hh4": cv2.STEREO_SGBM_MODE_HH4}
 
 
 @register_matcher("sgbm")
@@ -44,6 +49,18 @@ class SGBMMatcher:
     mode: str = "hh"
     fill: bool = True
 
+    def __post_init__(self) -> None:
+        # OpenCV's own limits: an odd block, P1 < P2, uniqueness a percentage, disp12MaxDiff < 0 = off
+        check_fields(self, {"block_size": (1, 255), "p1_factor": (0, None), "p2_factor": (0, None),
+                            "uniqueness": (0, 100), "speckle_window": (0, None), "speckle_range": (0, None),
+                            "disp12_max_diff": (-1, None), "pre_filter_cap": (1, 255)})
+        if self.block_size % 2 == 0:
+            fail(self, "block_size", "an odd integer", self.block_size)
+        if self.p2_factor <= self.p1_factor:
+            fail(self, "p2_factor", f"an integer > p1_factor = {self.p1_factor}", self.p2_factor)
+        if self.mode not in _MODES:
+            fail(self, "mode", f"one of {', '.join(_MODES)}", self.mode)
+
     def compute(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
                 min_disp: int = 0) -> MatchResult:
         timings: dict[str, float] = {}
@@ -60,14 +77,12 @@ class SGBMMatcher:
             rt = cv2.copyMakeBorder(rt, 0, 0, pad_l, pad_r, cv2.BORDER_REPLICATE)
         cn = 1 if lt.ndim == 2 else lt.shape[2]
         b = self.block_size
-        modes = {"hh": cv2.STEREO_SGBM_MODE_HH, "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
-                 "3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY, "hh4": cv2.STEREO_SGBM_MODE_HH4}
         sgbm = cv2.StereoSGBM_create(  # type: ignore[attr-defined]
             minDisparity=int(min_disp), numDisparities=ndisp, blockSize=b,
             P1=self.p1_factor * cn * b * b, P2=self.p2_factor * cn * b * b,
             disp12MaxDiff=self.disp12_max_diff, preFilterCap=self.pre_filter_cap,
             uniquenessRatio=self.uniqueness, speckleWindowSize=self.speckle_window,
-            speckleRange=self.speckle_range, mode=modes.get(self.mode, cv2.STEREO_SGBM_MODE_HH))
+            speckleRange=self.speckle_range, mode=_MODES[self.mode])
         raw16 = sgbm.compute(lt, rt)
         raw16 = raw16[:, pad_l:pad_l + w]
         disp = raw16.astype(np.float32) / np.float32(16.0)

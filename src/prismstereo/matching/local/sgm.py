@@ -28,10 +28,11 @@ from typing import Literal
 import cv2
 import numpy as np
 
+from prismstereo.checks import check_fields, fail
 from prismstereo.errors import ConfigError
 from prismstereo.matching.local import costs, selection
 from prismstereo.matching.local._sgm import census_codes, census_kernel, select_kernel, sgm_kernel
-from prismstereo.matching.local.matchers import BPASWMatcher
+from prismstereo.matching.local.matchers import BPASWMatcher, check_census_window
 from prismstereo.matching.registry import MatchResult, register_matcher
 
 log = logging.getLogger(__name__)
@@ -199,17 +200,15 @@ class SGMMatcher:
     median_radius: int = 3
 
     def __post_init__(self) -> None:
+        check_fields(self, {"census_scale": (1, None), "grad_weight": (0.0, None), "grad_tau": (0.0, None),
+                            "p1": (0, None), "p2": (0, None), "p2_gamma": (0.0, None), "uniqueness": (0, 99),
+                            "tolerance": (0, None), "speckle_window": (0, None), "speckle_range": (0.0, None),
+                            "median_radius": (0, 100)}, positive=("bpasw_scale",))
         if self.cost not in ("census", "bpasw"):
-            raise ConfigError(f"expected cost 'census' or 'bpasw', got {self.cost!r}")
-        if not 0 <= self.p1 <= self.p2:
-            raise ConfigError(f"expected 0 <= p1 <= p2, got p1={self.p1}, p2={self.p2}")
-        if not 0 <= self.uniqueness < 100 or self.tolerance < 0 or self.speckle_window < 0:
-            raise ConfigError(f"expected 0 <= uniqueness < 100, tolerance >= 0, speckle_window >= 0, got "
-                              f"{self.uniqueness}, {self.tolerance}, {self.speckle_window}")
-        if self.census_scale < 1 or self.grad_weight < 0 or self.bpasw_scale <= 0 or self.median_radius < 0:
-            raise ConfigError(f"expected census_scale >= 1, grad_weight >= 0, bpasw_scale > 0, median_radius >= 0, "
-                              f"got {self.census_scale}, {self.grad_weight}, {self.bpasw_scale}, "
-                              f"{self.median_radius}")
+            fail(self, "cost", "'census' or 'bpasw'", self.cost)
+        if self.p2 < self.p1:
+            fail(self, "p2", f"an integer >= p1 = {self.p1}", self.p2)
+        check_census_window(self, self.census_window)
 
     def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int) -> np.ndarray:
         """The uint16 matching cost volume ``(H, W, D)`` before aggregation."""
