@@ -44,6 +44,7 @@ import numpy as np
 
 from prismstereo.calibration import Board, calibrate_prism
 from prismstereo.calibration.from_scene import calibrate_from_scene
+from prismstereo.calibration.scene_uncertainty import unobserved_depth_error
 from prismstereo.config import Rig, load_rig, thesis_biprism
 from prismstereo.depth import DepthConfig, run_depth
 from prismstereo.errors import PrismStereoError
@@ -231,6 +232,7 @@ def main() -> None:
                                     cal = calibrate_from_scene(nominal_rig(true), [image])
                                     self_rig = cal.rig
                                     self_info = {k: v for k, v in cal.report().items() if k != "rig"}
+                                    self_info["depth_error_unobserved"] = unobserved_depth_error(cal)
                                 except PrismStereoError as exc:
                                     self_err = f"self-calibration: {exc}"
                             if self_err:
