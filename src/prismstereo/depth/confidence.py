@@ -10,8 +10,11 @@ The pipeline's ``refine`` and ``speckles`` steps are these plain functions on ar
   disparity at x − d disagrees: a window pulled across a depth edge). Where the window is cut by the
   edge of a view, it is cut to the pixels both views have (``min_pixels`` of
   :func:`~prismstereo.depth.refine.refine_disparity`): near the edges of a small common view (a
-  tri-prism's) that is a large share of it. Matches below ``min_confidence`` are dropped;
-  ``min_confidence=None`` keeps them all with their confidence, for the user to filter.
+  tri-prism's) that is a large share of it. With ``retry_radius`` the matches whose window stayed below
+  ``retry_below`` (or were dropped) are refined and checked again with a wider window, whose result
+  replaces the first where it is confirmed: on weak texture a small window's sub-pixel value is noisy.
+  Matches below ``min_confidence`` are dropped; ``min_confidence=None`` keeps them all with their
+  confidence, for the user to filter.
 - :func:`remove_speckles` drops connected patches of disparity smaller than a share of the matched region.
 - :func:`confident_fill` tries again, from the matcher's dense (hole-filled, smoothed) map, where no
   cross-checked match was kept: on weak texture the integer cross-check and the refinement from the raw
