@@ -9,7 +9,8 @@ Run (from the repository root):
 Every scene is the left view of a Middlebury pair with its true depth (``simulate.middlebury_rgbd``: the five
 2005/2006 scenes of ``middlebury-extra``, the eight 2014 scenes of ``middlebury-2014``), a similar copy whose
 median depth is at ``--center-depth`` (1400 mm) and whose field there is ``--fill`` (1.3) times one half-sensor
-view wide, rendered as an RGB-D height field through the rig (s = 2 supersampling, sensor noise σ 1.5):
+view wide, rendered as an RGB-D height field through the rig (s = 2 supersampling, sensor noise σ 1.5, its seed
+the scene's place in the full list whatever ``--scenes`` holds):
 
 * rigs: ``biprism`` (the thesis bi-prism: 1024×768, f 25 mm, 4.65 µm, α 6.4°, n 1.5, apex 210, back 215.6),
   ``triprism`` (examples/rigs/triprism.toml, default views), ``misaligned`` (the bi-prism tilted (−0.9, 1.1)°,
@@ -43,6 +44,7 @@ import numpy as np
 
 from prismstereo.calibration import Board, calibrate_prism
 from prismstereo.calibration.from_scene import calibrate_from_scene
+from prismstereo.calibration.scene_uncertainty import unobserved_depth_error
 from prismstereo.config import Rig, load_rig, thesis_biprism
 from prismstereo.depth import DepthConfig, run_depth
 from prismstereo.errors import PrismStereoError
@@ -207,13 +209,13 @@ def main() -> None:
                 else:
                     used.append((c, nominal_rig(true) if c == "none" else None))
         for realism in realisms:
-            for si, name in enumerate(scenes):
+            for name in scenes:
                 todo = [(c, r, p) for c, r in used for p in presets
                         if (name, rig_name, realism, c, p) not in done]
                 if not todo:
                     continue
                 scene = make_scene(data, name, true, realism=realism, center_depth=args.center_depth,
-                                   fill=args.fill, seed=si)
+                                   fill=args.fill, seed=(EXTRA + MB2014).index(name))
                 t0 = time.perf_counter()
                 image = render_capture(true, scene).image
                 render_s = time.perf_counter() - t0
@@ -230,6 +232,7 @@ def main() -> None:
                                     cal = calibrate_from_scene(nominal_rig(true), [image])
                                     self_rig = cal.rig
                                     self_info = {k: v for k, v in cal.report().items() if k != "rig"}
+                                    self_info["depth_error_unobserved"] = unobserved_depth_error(cal)
                                 except PrismStereoError as exc:
                                     self_err = f"self-calibration: {exc}"
                             if self_err:

@@ -144,3 +144,38 @@ def test_the_depth_error_of_unobserved_parameters_is_quantified(start_rig, scene
     if rep["parameters"]:
         lines = uncertainty_warnings(rep, limit_pct=0.0)
         assert len(lines) == len(rep["parameters"]) and all("not observed" in line for line in lines)
+
+
+def test_dense_matches_are_correspondences_of_the_capture(start_rig, small_true, scene_capture):
+    """Optical-flow matches found in the nominal rig's warp are the true rig's correspondences: their rays
+    through the true prism meet (sub-pixel), through the nominal one they do not."""
+    from prismstereo.calibration.dense import dense_pair_matches
+    from prismstereo.calibration.from_scene import ray_residuals
+    from prismstereo.optics import rays_from_pixels
+
+    pa, pb = dense_pair_matches(scene_capture, start_rig, faces=(0, 1))
+    assert pa.shape[0] >= 100 and pa.shape == pb.shape
+    cam = small_true.camera
+    da, db = rays_from_pixels(pa, cam.K, cam.distortion), rays_from_pixels(pb, cam.K, cam.distortion)
+    n = pa.shape[0]
+    faces = (np.zeros(n, dtype=int), np.ones(n, dtype=int))
+    true_r, _ = ray_residuals(small_true, da, db, *faces)
+    nominal_r, _ = ray_residuals(start_rig, da, db, *faces)
+    assert np.nanmedian(np.abs(true_r)) < 0.2 and np.nanmedian(np.abs(nominal_r)) > 2.0
+    with pytest.raises(ConfigError, match="faces"):
+        dense_pair_matches(scene_capture, start_rig, faces=(1, 1))
+
+
+def test_an_unobserved_parameter_is_held_at_its_input_value(start_rig, small_true, scene_capture):
+    from prismstereo.calibration.from_scene import PRIOR_STD
+
+    cal = calibrate_from_scene(start_rig, [scene_capture], free="rotation,tilt,decenter", dense="never")
+    held = [k for k, seen in cal.observed.items() if not seen]
+    assert "decenter_x" in held and tuple(held) == cal.held  # the decenter moves rays by < 0.05 px per mm
+    for k in held:
+        assert cal.estimates[k] == cal.initial[k] and cal.std[k] == PRIOR_STD[k]
+        assert any(n.startswith(f"{k}: not observed") and "held at" in n for n in cal.notes)
+    assert abs(cal.estimates["rotation"] - 1.4) < 0.05
+    assert cal.report()["held"] == list(held)
+    with pytest.raises(ConfigError, match="dense"):
+        calibrate_from_scene(start_rig, [scene_capture], dense="sometimes")

@@ -303,3 +303,22 @@ def test_confident_fill_adds_the_filled_values_the_check_confirms_and_only_those
     assert np.array_equal(np.isfinite(d2), np.isfinite(c2))
     with pytest.raises(ConfigError, match="max_lr_gap"):
         confident_fill(left, right, d1, c1, filled, radius=5, max_lr_gap=None)
+
+
+def test_a_wider_window_retries_the_weak_matches_only_and_makes_them_precise():
+    strong_l, strong_r = _shifted_pair(7.3, seed=3, h=60, w=160)
+    rng = np.random.default_rng(4)
+    # weak texture under sensor noise on the left part, the strong texture itself on the right part
+    left = (0.08 * strong_l + rng.normal(0.0, 1.5, strong_l.shape)).astype(np.float32)
+    right = (0.08 * strong_r + rng.normal(0.0, 1.5, strong_r.shape)).astype(np.float32)
+    left[:, 100:], right[:, 100:] = strong_l[:, 100:], strong_r[:, 100:]
+    init = np.full(left.shape, 7.0, dtype=np.float32)
+    kw = dict(radius=5, min_confidence=0.5, max_lr_gap=0.45)
+    d5, c5 = confident_matches(left, right, init, **kw)
+    d_r, c_r = confident_matches(left, right, init, retry_radius=11, retry_below=0.95, **kw)
+    weak, strong = (slice(14, -14), slice(20, 85)), (slice(14, -14), slice(112, -20))
+    assert np.mean(np.isfinite(d_r[weak])) > np.mean(np.isfinite(d5[weak])) + 0.05
+    assert np.nanmedian(np.abs(d_r[weak] - 7.3)) < 0.7 * np.nanmedian(np.abs(d5[weak] - 7.3))
+    first = np.isfinite(c5) & (c5 >= 0.95)
+    assert first[strong].mean() > 0.9
+    assert np.array_equal(d_r[first], d5[first]) and np.array_equal(c_r[first], c5[first])  # not retried

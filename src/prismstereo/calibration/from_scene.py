@@ -43,6 +43,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from prismstereo.calibration.boards import to_gray
+from prismstereo.calibration.dense import dense_pair_matches
 from prismstereo.calibration.prism import PARAMETERS, free_items, prism_values, with_prism_values
 from prismstereo.config import Rig
 from prismstereo.depth.apex_band import apex_band_real
@@ -78,6 +79,10 @@ MIN_MATCHES = 60
 MIN_SPREAD = 0.25
 #: std limit (with priors) above which the fit is ill-conditioned
 STD_LIMIT = {"rotation": 0.05, "tilt_x": 1.5, "tilt_y": 1.5, "decenter_x": 1.0, "decenter_y": 1.0}
+#: ``dense="auto"``: optical-flow correspondences (:mod:`prismstereo.calibration.dense`) are added to a face
+#: pair whose SIFT matches are fewer than this
+DENSE_BELOW = 400
+DENSE_MODES = ("auto", "always", "never")
 
 
 @dataclass(frozen=True)
@@ -89,7 +94,8 @@ class FaceMatches:
     face_a, face_b : int
     pixels_a, pixels_b : (N, 2) float64  real-image pixels of the matched features.
     capture : int  index of the capture.
-    candidates : int  matches that passed the ratio test (before RANSAC).
+    candidates : int  matches that passed the ratio test (before RANSAC), plus the optical-flow ones tried.
+    dense : int  how many of the matches are optical-flow correspondences (:mod:`prismstereo.calibration.dense`).
     """
 
     face_a: int
@@ -98,6 +104,7 @@ class FaceMatches:
     pixels_b: np.ndarray
     capture: int = 0
     candidates: int = 0
+    dense: int = 0
 
     def __len__(self) -> int:
         return int(self.pixels_a.shape[0])
@@ -113,6 +120,7 @@ class SceneCalibration:
     estimates, initial : dict  fitted and starting value of every free parameter (deg, mm).
     std : dict  std of each estimate with the priors; ``std_data``: from the matches alone (inf: unobserved).
     observed : dict  whether the scene observed each parameter (``std_data`` < :data:`OBSERVED_SHARE` × prior).
+    held : tuple of str  the parameters the scene did not observe, held at their input values (std: the prior's).
     matches : list of FaceMatches  the matches used.
     residual_before, residual_after : dict  p50/p95/rms of |ray residual| (px) under the input and refined rigs.
     seconds, cpu_seconds : float
@@ -132,6 +140,7 @@ class SceneCalibration:
     cpu_seconds: float
     evaluations: int
     notes: tuple[str, ...] = field(default=())
+    held: tuple[str, ...] = field(default=())
 
     @property
     def n_matches(self) -> int:
@@ -141,7 +150,7 @@ class SceneCalibration:
         lines = [f"{'parameter':<12} {'initial':>9} {'fitted':>9} {'std':>8} {'std data':>9}  observed"]
         for k, v in self.estimates.items():
             lines.append(f"{k:<12} {self.initial[k]:>9.4f} {v:>9.4f} {self.std[k]:>8.4f} {self.std_data[k]:>9.4f}  "
-                         f"{'yes' if self.observed[k] else 'no (held by its prior)'}  {PARAMETERS[k][0]}")
+                         f"{'yes' if self.observed[k] else 'no (held at its input value)'}  {PARAMETERS[k][0]}")
         pairs = ", ".join(f"{m.face_a}-{m.face_b}: {len(m)}/{m.candidates}" for m in self.matches)
         b, a = self.residual_before, self.residual_after
         lines.append(f"matches used (RANSAC-consistent/ratio test) per face pair: {pairs}")
@@ -154,9 +163,10 @@ class SceneCalibration:
     def report(self) -> dict[str, object]:
         return {
             "estimates": self.estimates, "initial": self.initial, "std": self.std, "std_data": self.std_data,
-            "observed": self.observed, "units": {k: PARAMETERS[k][0] for k in self.estimates},
+            "observed": self.observed, "held": list(self.held),
+            "units": {k: PARAMETERS[k][0] for k in self.estimates},
             "matches": [{"faces": [m.face_a, m.face_b], "capture": m.capture, "used": len(m),
-                         "ratio_test": m.candidates} for m in self.matches],
+                         "ratio_test": m.candidates, "optical_flow": m.dense} for m in self.matches],
             "n_matches": self.n_matches, "residual_px": {"before": self.residual_before, "after": self.residual_after},
             "seconds": self.seconds, "cpu_seconds": self.cpu_seconds, "evaluations": self.evaluations,
             "notes": list(self.notes), "rig": self.rig.to_dict(),
@@ -246,6 +256,7 @@ def _face_masks(rig: Rig, band_px: int) -> list[np.ndarray]:
 def match_faces(
     image: np.ndarray, rig: Rig, *, capture: int = 0, ratio: float = RATIO, ransac_px: float = RANSAC_PX,
     max_features: int = MAX_FEATURES, band_px: int = EDGE_BAND_PX, pairs: Sequence[tuple[int, int]] | None = None,
+    dense: str = "auto", dense_below: int = DENSE_BELOW,
 ) -> list[FaceMatches]:
     """Feature matches between every pair of faces' sub-images of one capture.
 
@@ -254,11 +265,17 @@ def match_faces(
     image : (H, W) or (H, W, 3) capture of the rig's sensor size.
     rig : Rig  gives the sub-images (face map) and the lens model for the RANSAC test.
     pairs : face pairs to match (default every pair).
+    dense : ``"auto"`` (default), ``"always"`` or ``"never"``
+        Add the optical-flow correspondences of :func:`~prismstereo.calibration.dense.dense_pair_matches`
+        to a pair whose SIFT matches are fewer than ``dense_below`` (``"auto"``), to every pair, or never.
+        The two sets are tested against one fundamental matrix together.
 
     Returns
     -------
     list of FaceMatches, one per pair (possibly empty).
     """
+    if dense not in DENSE_MODES:
+        raise ConfigError(f"dense: expected one of {', '.join(DENSE_MODES)}, got {dense!r}")
     gray = to_gray(image)
     if gray.shape != (rig.camera.height, rig.camera.width):
         raise ImageError(f"expected captures of the rig's sensor size {rig.camera.width}×{rig.camera.height}, "
@@ -272,9 +289,25 @@ def match_faces(
         ok = consistent_matches(_undistorted_px(rig, pa), _undistorted_px(rig, pb), threshold_px=ransac_px)
         log.debug("faces %d-%d: %d features / %d, %d ratio-test matches, %d consistent", a, b, len(feats[a][0]),
                   len(feats[b][0]), idx.shape[0], int(ok.sum()))
+        n_sparse, n_dense, cand = int(ok.sum()), 0, int(idx.shape[0])
+        if dense == "always" or (dense == "auto" and n_sparse < dense_below):
+            da, db = dense_pair_matches(image, rig, faces=(a, b), band_px=band_px)
+            keep = masks[a][_px_index(da, masks[a].shape)] & masks[b][_px_index(db, masks[b].shape)]
+            pa, pb = np.concatenate([pa, da[keep]]), np.concatenate([pb, db[keep]])
+            ok = consistent_matches(_undistorted_px(rig, pa), _undistorted_px(rig, pb), threshold_px=ransac_px)
+            n_dense = int(ok[idx.shape[0]:].sum())
+            cand += int(keep.sum())
+            log.debug("faces %d-%d: %d SIFT + %d dense consistent matches", a, b, int(ok[:idx.shape[0]].sum()),
+                      n_dense)
         out.append(FaceMatches(face_a=a, face_b=b, pixels_a=pa[ok], pixels_b=pb[ok], capture=capture,
-                               candidates=int(idx.shape[0])))
+                               candidates=cand, dense=n_dense))
     return out
+
+
+def _px_index(px: np.ndarray, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column indices of the pixels ``px`` (rounded, clipped to ``shape``)."""
+    j = np.rint(px).astype(np.int64)
+    return np.clip(j[:, 1], 0, shape[0] - 1), np.clip(j[:, 0], 0, shape[1] - 1)
 
 
 def _spread_subset(px: np.ndarray, n: int) -> np.ndarray:
@@ -350,8 +383,15 @@ def calibrate_from_scene(
     min_matches: int = MIN_MATCHES,
     max_fit_matches: int = MAX_FIT_MATCHES,
     matches: Sequence[FaceMatches] | None = None,
+    dense: str = "auto",
 ) -> SceneCalibration:
     """Refine the prism's rotation and tilt (``free``) from feature matches in ordinary captures.
+
+    A parameter with a prior (:data:`PRIOR_STD`) that the matches do not observe (its data-only std at least
+    :data:`OBSERVED_SHARE` of the prior's) is held at its input value and the others are fitted again without
+    it: its std is then the prior's (how far the prism may be off that value), and the report says so
+    (``held``, ``notes``); :func:`~prismstereo.calibration.scene_uncertainty.unobserved_depth_error` turns it
+    into a depth error.
 
     Parameters
     ----------
@@ -364,6 +404,8 @@ def calibrate_from_scene(
     min_matches : fewest consistent matches to fit.
     max_fit_matches : matches kept per face pair and capture (spread over the image).
     matches : precomputed :func:`match_faces` results (``captures`` is then only used for nothing else).
+    dense : ``"auto"``, ``"always"`` or ``"never"``
+        Optical-flow correspondences where SIFT finds few (``dense`` of :func:`match_faces`).
 
     Returns
     -------
@@ -374,21 +416,24 @@ def calibrate_from_scene(
     ImageError
         Too few consistent matches or matches bunched in a small part of the image (too little texture).
     GeometryError
-        The fit is ill-conditioned (a parameter's std above :data:`STD_LIMIT`), or the refined prism shows a
-        matched feature through another face.
+        The fit is ill-conditioned (a fitted parameter's std above :data:`STD_LIMIT`), or the refined prism
+        shows a matched feature through another face.
     """
     t0, c0 = time.perf_counter(), time.process_time()
     free_params = parse_scene_free(free)
+    if dense not in DENSE_MODES:
+        raise ConfigError(f"dense: expected one of {', '.join(DENSE_MODES)}, got {dense!r}")
     if matches is None:
         if not captures:
             raise ImageError("expected at least one capture of a textured scene, got none")
-        found = [m for i, img in enumerate(captures) for m in match_faces(img, rig, capture=i)]
+        found = [m for i, img in enumerate(captures) for m in match_faces(img, rig, capture=i, dense=dense)]
     else:
         found = list(matches)
     used = []
     for m in found:
         keep = _spread_subset(m.pixels_a, max_fit_matches)
-        used.append(dataclasses.replace(m, pixels_a=m.pixels_a[keep], pixels_b=m.pixels_b[keep]))
+        n_dense = int(np.sum(keep >= len(m) - m.dense))
+        used.append(dataclasses.replace(m, pixels_a=m.pixels_a[keep], pixels_b=m.pixels_b[keep], dense=n_dense))
     used = [m for m in used if len(m) >= 8]
     total = sum(len(m) for m in used)
     cand = sum(m.candidates for m in found)
@@ -411,42 +456,57 @@ def calibrate_from_scene(
     dirs_b = rays_from_pixels(pb, cam.K, dist)
     init = prism_values(rig)
     r0, normals = ray_residuals(rig, dirs_a, dirs_b, fa, fb)
-    prior = [k for k in free_params if k in PRIOR_STD]
-    noise_px = loss_scale_px
 
-    def unpack(x: np.ndarray) -> Rig:
-        values = dict(init)
-        for i, k in enumerate(free_params):
-            values[k] = init[k] + x[i]
-        return with_prism_values(rig, values)
+    def fit(params: tuple[str, ...]) -> tuple[Rig, np.ndarray, np.ndarray, np.ndarray, int]:
+        """Fit ``params`` (the others at their input values): the rig, the residuals, the std with the
+        priors and from the data alone, the evaluations."""
+        prior = [k for k in params if k in PRIOR_STD]
 
-    def residuals(x: np.ndarray) -> np.ndarray:
-        try:
-            r_rig = unpack(x)
-        except ConfigError:
-            return np.full(total + len(prior), 1e3)
-        r, _ = ray_residuals(r_rig, dirs_a, dirs_b, fa, fb, normals=normals)
-        pri = [x[free_params.index(k)] / PRIOR_STD[k] * noise_px for k in prior]
-        return np.concatenate([np.nan_to_num(r, nan=1e3), np.asarray(pri)])
+        def unpack(x: np.ndarray) -> Rig:
+            values = dict(init)
+            for i, k in enumerate(params):
+                values[k] = init[k] + x[i]
+            return with_prism_values(rig, values)
 
-    x0 = np.zeros(len(free_params))
-    # a misaligned prism leaves systematic residuals, not outliers: plain least squares first, then the robust
-    # loss against the mismatches that passed RANSAC
-    s1 = least_squares(residuals, x0, method="trf", x_scale=1.0, diff_step=1e-4, max_nfev=50)
-    sol = least_squares(residuals, s1.x, method="trf", loss="soft_l1", f_scale=loss_scale_px, x_scale=1.0,
-                        diff_step=1e-4, max_nfev=50)
-    fitted = unpack(sol.x)
-    r1, _ = ray_residuals(fitted, dirs_a, dirs_b, fa, fb, normals=normals)
-    # covariance from the Jacobian of the plain residuals (robust scale of the final residuals)
-    J = np.asarray(sol.jac)
-    sigma = max(1.4826 * float(np.median(np.abs(r1[np.isfinite(r1)]))), 1e-3)
-    std_all = _std(J, sigma)
-    std_data = _std(J[:total], sigma)
-    estimates = {k: float(prism_values(fitted)[k]) for k in free_params}
-    std = {k: float(std_all[i]) for i, k in enumerate(free_params)}
+        def residuals(x: np.ndarray) -> np.ndarray:
+            try:
+                r_rig = unpack(x)
+            except ConfigError:
+                return np.full(total + len(prior), 1e3)
+            r, _ = ray_residuals(r_rig, dirs_a, dirs_b, fa, fb, normals=normals)
+            pri = [x[params.index(k)] / PRIOR_STD[k] * loss_scale_px for k in prior]
+            return np.concatenate([np.nan_to_num(r, nan=1e3), np.asarray(pri)])
+
+        # a misaligned prism leaves systematic residuals, not outliers: plain least squares first, then the
+        # robust loss against the mismatches that passed RANSAC
+        s1 = least_squares(residuals, np.zeros(len(params)), method="trf", x_scale=1.0, diff_step=1e-4,
+                           max_nfev=50)
+        sol = least_squares(residuals, s1.x, method="trf", loss="soft_l1", f_scale=loss_scale_px, x_scale=1.0,
+                            diff_step=1e-4, max_nfev=50)
+        fitted_rig = unpack(sol.x)
+        r_fit, _ = ray_residuals(fitted_rig, dirs_a, dirs_b, fa, fb, normals=normals)
+        # covariance from the Jacobian of the plain residuals (robust scale of the final residuals)
+        J = np.asarray(sol.jac)
+        sigma = max(1.4826 * float(np.median(np.abs(r_fit[np.isfinite(r_fit)]))), 1e-3)
+        return fitted_rig, r_fit, _std(J, sigma), _std(J[:total], sigma), int(s1.nfev + sol.nfev)
+
+    fitted, r1, std_all, std_data, nfev = fit(free_params)
     sdata = {k: float(std_data[i]) for i, k in enumerate(free_params)}
+    std = {k: float(std_all[i]) for i, k in enumerate(free_params)}
     observed = {k: k not in PRIOR_STD or sdata[k] < OBSERVED_SHARE * PRIOR_STD[k] for k in free_params}
-    bad = [k for k in free_params if not np.isfinite(std[k]) or std[k] > STD_LIMIT[k]]
+    held = tuple(k for k in free_params if not observed[k])
+    fitted_params = tuple(k for k in free_params if observed[k])
+    if held and fitted_params:
+        # what the scene cannot tell stays where the user put it; the rest is fitted without it
+        fitted, r1, std_all, _, n2 = fit(fitted_params)
+        nfev += n2
+        std = {k: float(std_all[fitted_params.index(k)]) if k in fitted_params else float(PRIOR_STD[k])
+               for k in free_params}
+    elif held:
+        fitted, r1 = rig, r0
+        std = {k: float(PRIOR_STD[k]) for k in free_params}
+    estimates = {k: float(prism_values(fitted)[k]) for k in free_params}
+    bad = [k for k in fitted_params if not np.isfinite(std[k]) or std[k] > STD_LIMIT[k]]
     if bad:
         detail = ", ".join(f"{k} ± {std[k]:.3g} {PARAMETERS[k][0]}".strip() for k in bad)
         raise GeometryError(f"expected a well-conditioned self-calibration, got {detail} from {total} matches; use "
@@ -457,15 +517,15 @@ def calibrate_from_scene(
             raise GeometryError(f"expected the refined prism to show every matched feature through the face it was "
                                 f"found in, got {int((~seen).sum())} of {seen.size} elsewhere; the fit is "
                                 "ill-conditioned (check the camera calibration, or fit only free=rotation)")
-    notes = tuple(f"{k}: not observed by this scene (data-only std {sdata[k]:.3g} {PARAMETERS[k][0]}), held near "
-                  f"its input value by a prior of ± {PRIOR_STD[k]:g}" for k in free_params if not observed[k])
+    notes = tuple(f"{k}: not observed by this scene (data-only std {sdata[k]:.3g} {PARAMETERS[k][0]}), held at "
+                  f"its input value {init[k]:g} (± {PRIOR_STD[k]:g} assumed)" for k in held)
     dt, dc = time.perf_counter() - t0, time.process_time() - c0
-    log.info("self-calibration: %d matches, ray residual p95 %.3f -> %.3f px, %.1f s", total,
-             _stats(r0)["p95"], _stats(r1)["p95"], dt)
+    log.info("self-calibration: %d matches (%d optical flow), ray residual p95 %.3f -> %.3f px, %.1f s", total,
+             sum(m.dense for m in used), _stats(r0)["p95"], _stats(r1)["p95"], dt)
     return SceneCalibration(
         rig=fitted, estimates=estimates, initial={k: float(init[k]) for k in free_params}, std=std, std_data=sdata,
         observed=observed, matches=used, residual_before=_stats(r0), residual_after=_stats(r1), seconds=dt,
-        cpu_seconds=dc, evaluations=int(s1.nfev + sol.nfev), notes=notes)
+        cpu_seconds=dc, evaluations=nfev, notes=notes, held=held)
 
 
 def _std(J: np.ndarray, sigma: float) -> np.ndarray:

@@ -10,8 +10,11 @@ The pipeline's ``refine`` and ``speckles`` steps are these plain functions on ar
   disparity at x − d disagrees: a window pulled across a depth edge). Where the window is cut by the
   edge of a view, it is cut to the pixels both views have (``min_pixels`` of
   :func:`~prismstereo.depth.refine.refine_disparity`): near the edges of a small common view (a
-  tri-prism's) that is a large share of it. Matches below ``min_confidence`` are dropped;
-  ``min_confidence=None`` keeps them all with their confidence, for the user to filter.
+  tri-prism's) that is a large share of it. With ``retry_radius`` the matches whose window stayed below
+  ``retry_below`` (or were dropped) are refined and checked again with a wider window, whose result
+  replaces the first where it is confirmed: on weak texture a small window's sub-pixel value is noisy.
+  Matches below ``min_confidence`` are dropped; ``min_confidence=None`` keeps them all with their
+  confidence, for the user to filter.
 - :func:`remove_speckles` drops connected patches of disparity smaller than a share of the matched region.
 - :func:`confident_fill` tries again, from the matcher's dense (hole-filled, smoothed) map, where no
   cross-checked match was kept: on weak texture the integer cross-check and the refinement from the raw
@@ -41,8 +44,17 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
                       valid_right: np.ndarray | None = None,
                       epipolar: EpipolarTable | None = None,
                       prefilter: float | None = 0.7,
-                      right_seeds: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                      right_seeds: np.ndarray | None = None,
+                      retry_radius: int | None = None,
+                      retry_below: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
     """Refine matches, rate them and keep the confident ones.
+
+    With ``retry_radius``, every match whose ``radius`` window did not reach a confidence of ``retry_below``
+    (dropped ones included) is refined and checked again with the wider window, and the wider window's
+    result replaces it where that one is confirmed (refined, within ``max_shift``, through the sub-pixel
+    check; its confidence is the wider window's ZNCC). A window's ZNCC is about its texture's share of
+    signal over sensor noise: a low one is a window too small for its texture, whose sub-pixel value is
+    noisy (or, at a depth edge, mixed: the check drops those), and four times the pixels halve the noise.
 
     Parameters
     ----------
@@ -79,6 +91,10 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
         The left view's disparities whose moves to x − d give the right view's matches of the sub-pixel
         check (default: ``disparity``); :func:`confident_fill` checks a few left pixels against the right
         view of a whole map.
+    retry_radius : int or None
+        Half-size of the second, wider window (see above); None: one window.
+    retry_below : float
+        Matches whose first confidence is below this (or that were dropped) get the wider window.
 
     Returns
     -------
@@ -88,6 +104,32 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
     confidence : (H, W) float32
         Confidence in [0, 1] of each remaining match, NaN where ``disparity`` is NaN.
     """
+    kw: dict[str, Any] = dict(iterations=iterations, max_shift=max_shift, min_texture=min_texture,
+                              border_radius=border_radius, max_lr_gap=max_lr_gap, valid_left=valid_left,
+                              valid_right=valid_right, epipolar=epipolar, prefilter=prefilter,
+                              right_seeds=disparity if right_seeds is None else right_seeds)
+    disp, conf = _rated(left, right, disparity, radius=radius, min_confidence=min_confidence, **kw)
+    if retry_radius is not None and retry_radius != radius:
+        d_in = np.asarray(disparity, dtype=np.float32)
+        retry = np.isfinite(d_in) & ~(conf >= retry_below)
+        if retry.any():
+            d2, c2 = _rated(left, right, np.where(retry, d_in, np.float32(np.nan)), radius=retry_radius,
+                            min_confidence=min_confidence, **kw)
+            take = retry & np.isfinite(d2) & (c2 > 0.0)
+            disp, conf = np.where(take, d2, disp), np.where(take, c2, conf)
+    keep = np.isfinite(disp) if min_confidence is None else np.isfinite(disp) & (conf >= min_confidence)
+    nan = np.float32(np.nan)
+    return np.where(keep, disp, nan).astype(np.float32), np.where(keep, conf, nan).astype(np.float32)
+
+
+def _rated(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, *, radius: int, iterations: int,
+           max_shift: float, min_texture: float, min_confidence: float | None, border_radius: int | None,
+           max_lr_gap: float | None, valid_left: np.ndarray | None, valid_right: np.ndarray | None,
+           epipolar: EpipolarTable | None, prefilter: float | None, right_seeds: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """One window: (H, W) float32 refined disparities (the input value where the refinement could not
+    confirm it, NaN where there is no match) and their confidence (0 where unconfirmed or failing the
+    check, NaN where there is no match); nothing dropped yet."""
     min_pixels = None if border_radius is None else (2 * border_radius + 1) ** 2
     rows = None if epipolar is None else epipolar.row_offset_map(disparity)
     disp, zncc = refine_disparity(left, right, disparity, radius=radius, iterations=iterations,
@@ -101,15 +143,13 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
         # on the mirrored pair, where the right view is the left one; only at the right pixels the check
         # reads (each pixel is refined on its own, so the others change nothing)
         asked = conf > 0.0 if min_confidence is None else conf >= max(min_confidence, np.nextafter(0.0, 1.0))
-        seen = _seen_from_right(disparity if right_seeds is None else right_seeds)
+        seen = _seen_from_right(right_seeds)
         disp_r = _right_refined(left, right, seen, disp, asked & matched, epipolar, radius=radius,
                                 iterations=iterations, max_shift=max_shift, min_texture=min_texture,
                                 min_pixels=min_pixels, valid_left=valid_left, valid_right=valid_right,
                                 prefilter=prefilter)
         conf[_lr_gap(disp, disp_r) > max_lr_gap] = 0.0
-    keep = matched if min_confidence is None else matched & (conf >= min_confidence)
-    nan = np.float32(np.nan)
-    return np.where(keep, disp, nan).astype(np.float32), np.where(keep, conf, nan).astype(np.float32)
+    return disp.astype(np.float32), np.where(matched, conf, np.float32(np.nan)).astype(np.float32)
 
 
 def confident_fill(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, confidence: np.ndarray,

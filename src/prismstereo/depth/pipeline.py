@@ -165,6 +165,14 @@ class DepthConfig:
         and the refinement from the raw values drop whole regions the matcher had right. Needs ``refine``
         and ``refine_max_lr_gap`` (without the check nothing tests the filled values: not used). Off by
         default: the points it adds are right but less precise (docs/EXPERIMENTS.md, issue 26).
+    refine_retry_radius : int or None
+        Half-size of a second refinement window for the matches whose ``refine_radius`` window did not
+        reach a confidence of ``refine_retry_below`` or was dropped (``retry_radius`` of
+        :func:`~prismstereo.depth.confidence.confident_matches`): weak texture needs more pixels for a
+        precise sub-pixel value, and the wider window's result replaces the first where the refinement and
+        the sub-pixel left–right check confirm it; None: one window.
+    refine_retry_below : float
+        See ``refine_retry_radius``.
     sweep : SweepParams
         The plane sweep of ``views="all"`` (:class:`~prismstereo.multiview.prism.SweepParams`).
     coarse_to_fine : {"auto", "on", "off"}
@@ -194,6 +202,8 @@ class DepthConfig:
     refine_max_lr_gap: float | None = 0.45
     refine_prefilter: float | None = 0.7
     refine_fill: bool = False
+    refine_retry_radius: int | None = 11
+    refine_retry_below: float = 0.95
     sweep: SweepParams = field(default_factory=SweepParams)
     coarse_to_fine: str = "auto"
     max_memory: int | None = None
@@ -203,7 +213,9 @@ class DepthConfig:
         check_fields(self, {"refine_radius": (1, 50), "min_confidence": (0.0, 1.0), "speckle_fraction": (0.0, 1.0),
                             "refine_iterations": (0, 100), "refine_max_shift": (None, 20.0),
                             "refine_min_texture": (0.0, None), "refine_max_lr_gap": (0.0, None),
-                            "refine_prefilter": (0.0, 5.0)}, positive=("max_gap_mm", "refine_max_shift"))
+                            "refine_prefilter": (0.0, 5.0),
+                            "refine_retry_radius": (1, 50), "refine_retry_below": (0.0, 1.0)},
+                     positive=("max_gap_mm", "refine_max_shift"))
         if not isinstance(self.method, str):
             fail(self, "method", "a matcher name", self.method)
         if not isinstance(self.matcher_params, Mapping):
@@ -781,7 +793,8 @@ def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, dis
                               max_shift=config.refine_max_shift,
                               min_texture=config.refine_min_texture, min_confidence=config.min_confidence,
                               max_lr_gap=config.refine_max_lr_gap, valid_left=vl, epipolar=epipolar,
-                              prefilter=config.refine_prefilter)
+                              prefilter=config.refine_prefilter, retry_radius=config.refine_retry_radius,
+                              retry_below=config.refine_retry_below)
     disp, conf = confident_matches(left, right, disparity, valid_right=vr, **kw)
     if filled is not None and config.refine_fill and config.refine_max_lr_gap is not None:
         vr_fill = vr if right_excluded is None else np.asarray(vr, dtype=bool) & ~right_excluded

@@ -207,7 +207,10 @@ def estimate_disparity_range(left: np.ndarray, right: np.ndarray, region: np.nda
         minDisparity=dmin, numDisparities=num, blockSize=block, P1=8 * block * block, P2=32 * block * block,
         disp12MaxDiff=1, uniquenessRatio=15, speckleWindowSize=50, speckleRange=2, mode=cv2.STEREO_SGBM_MODE_SGBM)
     d = sgbm.compute(cl_p, cr_p)[:, pad:].astype(np.float32) / 16.0
-    ok = cm & (d >= dmin) & (d <= dmin + num - 1)
+    # SGBM searches up to dmin + num − 1 (num rounded up to 16): what lands beyond the rig's own largest
+    # disparity, or on the last disparity searched (where a match from beyond the range piles up), is no
+    # match of the scene (5–10 % of the coarse matches of a tri-prism's thin common view sat there)
+    ok = cm & (d >= dmin) & (d <= hi / s) & (d < dmin + num - 1)
     support = float(ok.sum()) / max(int(cm.sum()), 1)
     if support < MIN_SUPPORT:
         return None, support
