@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-import threading
 from pathlib import Path
 
 import cv2
@@ -79,12 +78,15 @@ def test_folder_stream_takes_new_images_and_skips_bad_ones(tmp_path: Path, captu
     write_image(folder / "b.png", images[1])
     write_image(folder / "c_small.png", images[2][:100, :100])  # wrong size: that frame fails
     (folder / "d_corrupt.png").write_bytes(b"not a png at all")
-    late = threading.Timer(1.0, lambda: write_image(folder / "e_late.png", images[2]))  # arrives while running
-    late.start()
     got: list = []
-    summary = run_stream(rig, str(folder), tmp_path / "out", config=CONFIG, idle_timeout=2.0, poll_s=0.05,
-                         on_frame=lambda name, res: got.append((name, res)))
-    late.join()
+
+    def on_frame(name: str, res: object) -> None:
+        got.append((name, res))
+        if name == "a":  # a frame that arrives while the stream runs, after its first listing of the folder
+            write_image(folder / "e_late.png", images[2])
+
+    summary = run_stream(rig, str(folder), tmp_path / "out", config=CONFIG, idle_timeout=3.0, poll_s=0.05,
+                         on_frame=on_frame)
     assert [n for n, _ in got] == ["a", "b", "e_late"]
     assert sorted(n for n, _ in summary.failed) == ["c_small", "d_corrupt"]
     assert "512×384" in dict(summary.failed)["c_small"]
