@@ -121,8 +121,8 @@ def test_project_exact_reports_points_not_seen_through_a_face(biprism):
         project_exact(biprism, point, face=2)
 
 
-def test_tracing_is_fast(biprism):
-    # Not a timing test: just that a full frame is one vectorised call.
+def test_a_full_frame_traces_in_one_vectorised_call(biprism):
+    # every pixel of the thesis bi-prism meets a face (no gap at the apex), exit points on the back plane
     grid = pixel_grid(biprism.camera.width, biprism.camera.height)
     b = trace_pixels(biprism, grid)
     assert b.valid.mean() == 1.0
