@@ -22,12 +22,15 @@ branch h-mem).
 from __future__ import annotations
 
 import logging
+import resource
+import zipfile
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from prismstereo.config import Rig
+from prismstereo.depth.setup_cache import cache_folder, setup_key
 from prismstereo.errors import ConfigError, MatchingError
 from prismstereo.matching.scale import PROCESS_BASE, ScaleParams, default_memory_budget, planned_memory
 
@@ -104,8 +107,6 @@ def resident_bytes() -> int:
     try:
         with open("/proc/self/statm", encoding="ascii") as fh:
             pages = int(fh.read().split()[1])
-        import resource
-
         return pages * resource.getpagesize()
     except (OSError, ValueError, IndexError):
         return PROCESS_BASE
@@ -114,10 +115,6 @@ def resident_bytes() -> int:
 def _cached_size(rig: Rig, faces: tuple[int, int], calibration: str
                  ) -> tuple[tuple[int, int], tuple[int, int] | None] | None:
     """Rectified (h, w) and rig-only disparity range of a cached set-up, read without its tables."""
-    import zipfile
-
-    from prismstereo.depth.setup_cache import cache_folder, setup_key
-
     folder = cache_folder()
     if folder is None:
         return None

@@ -47,7 +47,7 @@ from prismstereo.config import DEFAULT_DEPTH_RANGE_MM, Rig
 from prismstereo.depth.apex_band import apex_band_info, apex_band_views
 from prismstereo.depth.confidence import confident_fill, confident_matches
 from prismstereo.depth.confidence import remove_speckles as drop_small_patches
-from prismstereo.depth.memory import check_depth_memory, resident_bytes
+from prismstereo.depth.memory import check_depth_memory, estimate_depth_memory, resident_bytes
 from prismstereo.depth.search_range import (
     Coverage,
     RigRange,
@@ -915,6 +915,11 @@ def _finish(result: DepthResult, clock: _Clock, t0: float) -> DepthResult:
 def _run_frame(setup: DepthSetup, image: np.ndarray, left: np.ndarray, right: np.ndarray, clock: _Clock,
                t0: float) -> DepthResult:
     cfg, pair, region = setup.config, setup.pair, setup.region
+    r0, r1, c0, c1 = _roi_box(region.mask)
+    lo, hi = region.disparity_range
+    # the plan again with the range the capture narrowed (the one before it was read bounds the rig's whole range)
+    plan = estimate_depth_memory(setup.rig, cfg, shape=(r1 - r0, c1 - max(0, c0 - hi)), disparity_range=(lo, hi))
+    log.info("depth: %s", plan.describe())
     with clock.step("match"):
         matched = match_pair(left, right, pair, region, cfg)
     counts = {"matched": int(np.isfinite(matched.disparity).sum())}
