@@ -62,7 +62,8 @@ _MEMORY_MODEL: dict[str, tuple[float, float]] = {
     "shd": (160.0, 9.0),
     "coop": (1500.0, 42.0),
 }
-#: matchers that ``auto`` does not run coarse-to-fine for memory alone (``auto_bytes``) below ``auto_pixels``:
+#: matchers that ``auto`` does not run coarse-to-fine below ``auto_pixels`` (for memory, ``auto_bytes`` or the
+#: budget, they run whole or in full-range strips):
 #: coop's segments and plane fits see only a tile and its context, which costs it accuracy on the scenes it
 #: is measured on (Middlebury v2, bad > 1 px nonocc 1.72 → 1.90 with 128 px tiles; more context helps
 #: Tsukuba and hurts Teddy); over the budget it runs in strips
@@ -210,14 +211,15 @@ class _Tile:
     full: bool  # the band fell back to the whole range
 
 
-def _use_c2f(p: ScaleParams, h: int, w: int, nd: int, over_budget: bool, method: str) -> bool:
+def _use_c2f(p: ScaleParams, h: int, w: int, nd: int, over_budget: bool, method: str, top: bool) -> bool:
     if p.coarse_to_fine == "off":
         return False
     small = min(h, w) < 4 * p.factor or nd < 4 * p.factor
     if p.coarse_to_fine == "on":
         return not small
-    heavy = (str(method).lower() not in _FULL_BELOW_AUTO_PIXELS
-             and estimate_memory(method, h, w, nd, base=False) > p.auto_bytes)
+    if top and h * w < p.auto_pixels and str(method).lower() in _FULL_BELOW_AUTO_PIXELS:
+        return False  # a coarse level only gives the bands: it may be coarse-to-fine again
+    heavy = estimate_memory(method, h, w, nd, base=False) > p.auto_bytes
     return not small and nd >= p.auto_range and (h * w >= p.auto_pixels or heavy or over_budget)
 
 
@@ -352,7 +354,7 @@ def _sub_params(p: ScaleParams) -> ScaleParams:
 
 
 def planned_memory(method: str, height: int, width: int, *, max_disp: int, min_disp: int = 0,
-                   scale: ScaleParams | None = None) -> int:
+                   scale: ScaleParams | None = None, _level: int = 0) -> int:
     """Peak resident memory (bytes) of :func:`match_scaled` on an ``height × width`` pair, from the sizes alone:
     the process's ``scale.base`` plus the largest of the untiled match (when it runs untiled), the coarse
     levels (each planned the same way), and the stitched maps with the largest tile. A tile's band is not
@@ -370,7 +372,7 @@ def planned_memory(method: str, height: int, width: int, *, max_disp: int, min_d
     nd = hi - lo + 1
     h, w = int(height), int(width)
     est_full = p.base + estimate_memory(method, h, w, nd, base=False)
-    if not _use_c2f(p, h, w, nd, est_full > budget, method):
+    if not _use_c2f(p, h, w, nd, est_full > budget, method, _level == 0):
         if est_full <= budget:
             return est_full
         tiles = _strip_tiles(method, h, w, lo, hi, budget, p.overlap, p.base)
@@ -379,7 +381,7 @@ def planned_memory(method: str, height: int, width: int, *, max_disp: int, min_d
     f = p.factor
     ch, cw = max(1, h // f), max(1, w // f)
     clo, chi = _coarse_range(lo, hi, f, cw)
-    coarse = planned_memory(method, ch, cw, max_disp=chi, min_disp=clo, scale=_sub_params(p))
+    coarse = planned_memory(method, ch, cw, max_disp=chi, min_disp=clo, scale=_sub_params(p), _level=_level + 1)
     stitch = p.base + int(_STITCH_PER_PIXEL * h * w)
     avail = budget - stitch
     ty, tx = (max(b - a for a, b in _grid(n, p.tile)) for n in (h, w))  # the grid's largest tile
@@ -439,7 +441,7 @@ def match_scaled(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp
     lo, hi = int(min_disp), int(max_disp)
     nd = hi - lo + 1
     est_full = p.base + estimate_memory(method, h, w, nd, base=False)
-    c2f = _use_c2f(p, h, w, nd, est_full > budget, method)
+    c2f = _use_c2f(p, h, w, nd, est_full > budget, method, _level == 0)
     info: dict[str, Any] = {"coarse_to_fine": c2f, "mode": p.coarse_to_fine, "levels": _level + 1,
                             "estimate_bytes": est_full, "budget_bytes": int(budget), "tiles": 1,
                             "band_mean": float(nd), "full_range_tiles": 0}
