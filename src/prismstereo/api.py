@@ -28,6 +28,7 @@ from prismstereo.calibration.from_scene import SceneCalibration, calibrate_from_
 from prismstereo.calibration.report import residual_figure
 from prismstereo.calibration.scene_uncertainty import uncertainty_warnings, unobserved_depth_error
 from prismstereo.config import Rig, load_rig
+from prismstereo.depth.memory import check_depth_memory
 from prismstereo.depth.outputs import write_depth_outputs
 from prismstereo.depth.pipeline import DepthConfig, DepthRun, run_depth, validate_config, validate_image
 from prismstereo.errors import ConfigError, ImageError
@@ -277,6 +278,8 @@ def depth(rig: Rig | PathLike, image: np.ndarray | PathLike, *, preset: str | No
     cfg = validate_config(rig_, depth_config(preset=preset, config=config, **options))
     if self_calibrate and cfg.views == "all":
         raise ConfigError("self_calibrate: expected a pair of faces (views=(i, j)), got views='all'")
+    if cfg.views != "all":  # planned before the capture is read; refused here if even a tiled run cannot fit
+        check_depth_memory(rig_, cfg)
     img = validate_image(rig_, _capture(rig_, image))
     depth_gt = None if ground_truth is None else _ground_truth(rig_, ground_truth)
     scene_cal = None

@@ -12,7 +12,14 @@ import pytest
 
 from prismstereo.errors import ConfigError, MatchingError
 from prismstereo.matching import get_matcher, match
-from prismstereo.matching.scale import ScaleParams, estimate_memory, match_scaled, parse_memory
+from prismstereo.matching.scale import (
+    PROCESS_BASE,
+    ScaleParams,
+    estimate_memory,
+    match_scaled,
+    parse_memory,
+    planned_memory,
+)
 
 
 def _scene(h: int = 200, w: int = 320, *, seed: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -115,6 +122,40 @@ def test_a_tiny_budget_tiles_and_gives_the_untiled_map(scene: tuple) -> None:
     assert auto.extras["scale"]["coarse_to_fine"]
     assert auto.extras["scale"]["estimate_bytes"] <= p.max_memory
     assert _bad(auto.disparity, gt) <= _bad(untiled.disparity, gt) + 1.0
+
+
+def test_the_plan_bounds_what_the_match_records_coarse_levels_and_what_the_caller_holds(scene: tuple) -> None:
+    left, right, _ = scene
+    h, w = left.shape[:2]
+    one = estimate_memory("sgm", h, w, 60)
+    runs = {"untiled": ScaleParams(), "strips": ScaleParams(coarse_to_fine="off", max_memory=one - 2 * 2**20),
+            "c2f": ScaleParams(coarse_to_fine="on", tile=64, overlap=16)}
+    for name, p in runs.items():
+        res = match(left, right, max_disp=63, min_disp=4, method="sgm", scale=p)
+        got = res.extras["scale"]["estimate_bytes"]
+        plan = planned_memory("sgm", h, w, max_disp=63, min_disp=4, scale=p)
+        if name == "c2f":  # the band of each tile is known only after the coarse match: the plan is a bound
+            coarse = planned_memory("sgm", h // 2, w // 2, max_disp=32, min_disp=2, scale=p)
+            assert coarse <= got <= plan, (coarse, got, plan)
+        else:
+            assert got == plan, (name, got, plan)
+    # what the caller holds counts against the budget: the same budget leaves the match less, so more strips
+    free = match(left, right, max_disp=63, min_disp=4, method="sgm", scale=runs["strips"])
+    p = ScaleParams(coarse_to_fine="off", max_memory=one - 2 * 2**20, held=PROCESS_BASE + 16 * 2**20)
+    held = match(left, right, max_disp=63, min_disp=4, method="sgm", scale=p)
+    assert held.extras["scale"]["tiles"] > free.extras["scale"]["tiles"]
+    assert held.extras["scale"]["estimate_bytes"] <= p.max_memory
+    with pytest.raises(ConfigError, match="held"):
+        ScaleParams(held=-1)
+
+
+def test_auto_turns_on_where_the_untiled_volumes_are_heavy(scene: tuple) -> None:
+    left, right, _ = scene
+    light = match(left, right, max_disp=63, method="sgm", scale=ScaleParams())
+    heavy = match(left, right, max_disp=63, method="sgm",
+                  scale=ScaleParams(auto_bytes=estimate_memory("sgm", *left.shape[:2], 64, base=False) // 2,
+                                    tile=64, overlap=16))
+    assert not light.extras["scale"]["coarse_to_fine"] and heavy.extras["scale"]["coarse_to_fine"]
 
 
 def test_no_tile_fits_is_refused(scene: tuple) -> None:

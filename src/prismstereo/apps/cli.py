@@ -144,8 +144,8 @@ def _add_scale_flags(p: argparse.ArgumentParser, *, default: str | None) -> None
                    help="match a half-size pair over the whole range, then the full size in a band around it "
                         "(auto: from 4 megapixels, or where the full search would exceed --max-memory; docs/cli.md)")
     p.add_argument("--max-memory", default=None, metavar="SIZE",
-                   help="peak-memory budget of the match, e.g. 6G (default: 80%% of the available memory); "
-                        "over it the match is tiled, refused only when no tile fits")
+                   help="peak-memory budget of the run, e.g. 6G (default: 80%% of the available memory); "
+                        "the match is tiled to fit what the rest leaves, refused only when no tile fits")
 
 
 def _cmd_match(args: argparse.Namespace) -> int:
@@ -158,7 +158,13 @@ def _cmd_match(args: argparse.Namespace) -> int:
     from prismstereo.io.memory import check_fits_in_memory
     from prismstereo.matching import get_matcher, match
     from prismstereo.matching.diagnostics import limit_warnings
-    from prismstereo.matching.scale import ScaleParams, default_memory_budget, estimate_memory, parse_memory
+    from prismstereo.matching.scale import (
+        ScaleParams,
+        default_memory_budget,
+        estimate_memory,
+        parse_memory,
+        planned_memory,
+    )
     from prismstereo.viz.colorize import colorize_disparity
 
     params = _parse_params(args.param)
@@ -176,9 +182,12 @@ def _cmd_match(args: argparse.Namespace) -> int:
     if size is not None:
         nd = args.max_disp - args.min_disp + 1
         budget = scale.max_memory if scale.max_memory is not None else default_memory_budget()
-        log.info("match %s %d×%d, %d disparities: untiled peak memory estimate %.2f GiB (budget %.2f GiB)",
-                 args.method, size[0], size[1], nd, estimate_memory(args.method, size[1], size[0], nd) / 2**30,
-                 budget / 2**30)
+        # the run as it will be tiled (coarse levels, stitched maps, largest tile); refused here if no tile fits
+        planned = planned_memory(args.method, size[1], size[0], max_disp=args.max_disp, min_disp=args.min_disp,
+                                 scale=scale)
+        log.info("match %s %d×%d, %d disparities: peak memory estimate %.2f GiB (budget %.2f GiB; untiled full "
+                 "search %.2f GiB)", args.method, size[0], size[1], nd, planned / 2**30, budget / 2**30,
+                 estimate_memory(args.method, size[1], size[0], nd) / 2**30)
         check_fits_in_memory(size[0] * size[1] * 64, what=f"a {size[0]}×{size[1]} pair and its maps",
                              hint="use smaller images", error=ConfigError)
     left, right = read_image(args.left), read_image(args.right)

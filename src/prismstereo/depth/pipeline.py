@@ -47,6 +47,7 @@ from prismstereo.config import DEFAULT_DEPTH_RANGE_MM, Rig
 from prismstereo.depth.apex_band import apex_band_info, apex_band_views
 from prismstereo.depth.confidence import confident_fill, confident_matches
 from prismstereo.depth.confidence import remove_speckles as drop_small_patches
+from prismstereo.depth.memory import check_depth_memory, estimate_depth_memory, resident_bytes
 from prismstereo.depth.search_range import (
     Coverage,
     RigRange,
@@ -746,8 +747,10 @@ def match_pair(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, region:
     sub_r = right[r0:r1, ca:c1]
     hi_eff = min(hi, sub_l.shape[1] - 1)
     lo_eff = min(lo, hi_eff)
+    # the budget is the run's: the match gets what the process does not hold already (set-up, capture, maps)
     res = match(sub_l, sub_r, max_disp=hi_eff, min_disp=lo_eff, method=config.method,
-                scale=ScaleParams(coarse_to_fine=config.coarse_to_fine, max_memory=config.max_memory),
+                scale=ScaleParams(coarse_to_fine=config.coarse_to_fine, max_memory=config.max_memory,
+                                  held=resident_bytes()),
                 **config.matcher_params)
     raw_sub = res.disparity_raw if res.disparity_raw is not None else np.where(res.valid, res.disparity, np.nan)
     h, w = left.shape[:2]
@@ -925,6 +928,11 @@ def _finish(result: DepthRun, clock: _Clock, t0: float) -> DepthRun:
 def _run_frame(setup: DepthSetup, image: np.ndarray, left: np.ndarray, right: np.ndarray, clock: _Clock,
                t0: float) -> DepthRun:
     cfg, pair, region = setup.config, setup.pair, setup.region
+    r0, r1, c0, c1 = _roi_box(region.mask)
+    lo, hi = region.disparity_range
+    # the plan again with the range the capture narrowed (the one before it was read bounds the rig's whole range)
+    plan = estimate_depth_memory(setup.rig, cfg, shape=(r1 - r0, c1 - max(0, c0 - hi)), disparity_range=(lo, hi))
+    log.info("depth: %s", plan.describe())
     with clock.step("match"):
         matched = match_pair(left, right, pair, region, cfg)
     counts = {"matched": int(np.isfinite(matched.disparity).sum())}
@@ -1048,6 +1056,7 @@ def prepare_depth(rig: Rig, *, config: DepthConfig | None = None) -> DepthSetup:
     if cfg.views == "all":
         raise ConfigError("DepthConfig.views: expected a pair (i, j) for a sequence, got 'all' (the all-view sweep is "
                           "depth-only)")
+    check_depth_memory(rig, cfg)
     clock = _Clock(_SETUP_STEPS, False)
     views, pair, epipolar, rays, known = _geometry(rig, cfg, clock)
     with clock.step("rectify"):

@@ -17,11 +17,13 @@ Every matcher builds an ``H × W × D`` cost volume, so its time and memory grow
    dropped, so aggregation windows, SGM paths and segments see the same neighbourhood on both sides of a
    seam.
 
-The same tiling bounds memory: :func:`estimate_memory` predicts a match's peak resident memory from the
-image size, the disparity count and the matcher (``bytes = base + a·H·W + b·H·W·D``, coefficients
-measured with ``ru_maxrss``, ``benchmarks/bench_memory.py``); a match over ``max_memory`` runs in
-horizontal strips (full-range search, row overlap) or smaller tiles, and raises :class:`MatchingError`
-only when no tile fits.
+The same tiling bounds memory: :func:`estimate_memory` predicts one untiled match's peak resident memory
+from the image size, the disparity count and the matcher (``bytes = base + a·H·W + b·H·W·D``, coefficients
+measured with ``ru_maxrss``); a match over ``max_memory`` runs in horizontal strips (full-range search, row
+overlap) or smaller tiles, and raises :class:`MatchingError` only when no tile fits. :func:`planned_memory`
+is the peak of the whole scaled match as :func:`match_scaled` will run it (its coarse levels, the stitched
+maps, its largest tile), known from the sizes alone, before any image is read; ``ScaleParams.held`` is what
+the caller's process holds besides the match (a depth run's set-up and maps), which the budget covers too.
 """
 
 from __future__ import annotations
@@ -43,7 +45,7 @@ from prismstereo.matching.registry import Matcher, MatchResult, get_matcher
 log = logging.getLogger(__name__)
 
 __all__ = ["C2F_MODES", "ScaleParams", "default_memory_budget", "estimate_memory", "match_scaled",
-           "parse_memory"]
+           "parse_memory", "planned_memory"]
 
 #: values of ``ScaleParams.coarse_to_fine``
 C2F_MODES = ("auto", "on", "off")
@@ -60,6 +62,12 @@ _MEMORY_MODEL: dict[str, tuple[float, float]] = {
     "shd": (160.0, 9.0),
     "coop": (1500.0, 42.0),
 }
+#: matchers that ``auto`` does not run coarse-to-fine below ``auto_pixels`` (for memory, ``auto_bytes`` or the
+#: budget, they run whole or in full-range strips):
+#: coop's segments and plane fits see only a tile and its context, which costs it accuracy on the scenes it
+#: is measured on (Middlebury v2, bad > 1 px nonocc 1.72 → 1.90 with 128 px tiles; more context helps
+#: Tsukuba and hurts Teddy); over the budget it runs in strips
+_FULL_BELOW_AUTO_PIXELS = frozenset({"coop"})
 #: a matcher without a measured model is assumed to be as heavy as the heaviest one
 _UNKNOWN_MODEL = (2500.0, 40.0)
 #: resident memory of the process before the match (interpreter, numpy, numba, OpenCV), bytes
@@ -75,11 +83,15 @@ class ScaleParams:
     Attributes
     ----------
     coarse_to_fine : {"auto", "on", "off"}
-        ``auto``: coarse-to-fine when the range has at least ``auto_range`` disparities and either the image
-        has at least ``auto_pixels`` pixels or the full search would exceed the memory budget (else the
-        full search, in strips when over budget); ``on`` / ``off`` force it.
+        ``auto``: coarse-to-fine when the range has at least ``auto_range`` disparities and the image has at
+        least ``auto_pixels`` pixels, or the full search's volumes would take more than ``auto_bytes``, or it
+        would exceed the memory budget (else the full search, in strips when over budget); ``on`` / ``off``
+        force it.
     auto_pixels, auto_range : int
         The automatic size (pixels, disparities).
+    auto_bytes : int
+        The automatic size in memory: the untiled match's own bytes (:func:`estimate_memory` without the
+        process base) above which ``auto`` matches coarse-to-fine.
     factor : int
         Downsampling factor of the coarse level (≥ 2).
     margin : int
@@ -92,18 +104,24 @@ class ScaleParams:
         Fraction of the region's coarse pixels that must have passed the coarse left–right check; below
         it the tile searches the whole range (the coarse map is not trusted there).
     max_memory : int or None
-        Peak-memory budget of a match in bytes; None: :func:`default_memory_budget`.
+        Peak-memory budget of the process in bytes (what it holds, ``held``, and the match); None:
+        :func:`default_memory_budget`.
+    held : int or None
+        Bytes the process holds besides the match (interpreter, libraries, the caller's arrays); None: a
+        process that holds nothing else (:data:`PROCESS_BASE`).
     """
 
     coarse_to_fine: str = "auto"
     auto_pixels: int = 4_000_000
     auto_range: int = 48
+    auto_bytes: int = 2 * 2**30
     factor: int = 2
     margin: int = 4
     tile: int = 256
     overlap: int = 32
     min_valid: float = 0.25
     max_memory: int | None = None
+    held: int | None = None
 
     def __post_init__(self) -> None:
         if self.coarse_to_fine not in C2F_MODES:
@@ -111,11 +129,18 @@ class ScaleParams:
         if self.factor < 2 or self.margin < 0 or self.tile < 16 or self.overlap < 0:
             raise ConfigError(f"expected factor >= 2, margin >= 0, tile >= 16 and overlap >= 0, got factor="
                               f"{self.factor}, margin={self.margin}, tile={self.tile}, overlap={self.overlap}")
-        if self.auto_pixels < 0 or self.auto_range < 0 or not 0.0 <= self.min_valid <= 1.0:
-            raise ConfigError(f"expected auto_pixels >= 0, auto_range >= 0 and 0 <= min_valid <= 1, got "
-                              f"{self.auto_pixels}, {self.auto_range}, {self.min_valid}")
+        if self.auto_pixels < 0 or self.auto_range < 0 or self.auto_bytes < 0 or not 0.0 <= self.min_valid <= 1.0:
+            raise ConfigError(f"expected auto_pixels >= 0, auto_range >= 0, auto_bytes >= 0 and 0 <= min_valid <= 1, "
+                              f"got {self.auto_pixels}, {self.auto_range}, {self.auto_bytes}, {self.min_valid}")
         if self.max_memory is not None and self.max_memory <= 0:
             raise ConfigError(f"expected max_memory > 0 bytes (or None for the machine's), got {self.max_memory}")
+        if self.held is not None and self.held < 0:
+            raise ConfigError(f"expected held >= 0 bytes (or None), got {self.held}")
+
+    @property
+    def base(self) -> int:
+        """Bytes held besides the match (``held``, else :data:`PROCESS_BASE`)."""
+        return PROCESS_BASE if self.held is None else int(self.held)
 
 
 def parse_memory(text: str | int | None) -> int | None:
@@ -186,13 +211,16 @@ class _Tile:
     full: bool  # the band fell back to the whole range
 
 
-def _use_c2f(p: ScaleParams, h: int, w: int, nd: int, over_budget: bool) -> bool:
+def _use_c2f(p: ScaleParams, h: int, w: int, nd: int, over_budget: bool, method: str, top: bool) -> bool:
     if p.coarse_to_fine == "off":
         return False
     small = min(h, w) < 4 * p.factor or nd < 4 * p.factor
     if p.coarse_to_fine == "on":
         return not small
-    return not small and nd >= p.auto_range and (h * w >= p.auto_pixels or over_budget)
+    if top and h * w < p.auto_pixels and str(method).lower() in _FULL_BELOW_AUTO_PIXELS:
+        return False  # a coarse level only gives the bands: it may be coarse-to-fine again
+    heavy = estimate_memory(method, h, w, nd, base=False) > p.auto_bytes
+    return not small and nd >= p.auto_range and (h * w >= p.auto_pixels or heavy or over_budget)
 
 
 def _grid(n: int, size: int) -> list[tuple[int, int]]:
@@ -252,9 +280,11 @@ def _run_tiles(matcher: Matcher, left: np.ndarray, right: np.ndarray, tiles: lis
     return disp, valid, raw, timings
 
 
-def _strip_tiles(method: str, h: int, w: int, lo: int, hi: int, budget: int, overlap: int) -> list[_Tile]:
-    """Full-range tiles (strips of rows, then columns too) whose estimate fits ``budget``."""
-    avail = budget - PROCESS_BASE - int(_STITCH_PER_PIXEL * h * w)
+def _strip_tiles(method: str, h: int, w: int, lo: int, hi: int, budget: int, overlap: int,
+                 base: int = PROCESS_BASE) -> list[_Tile]:
+    """Full-range tiles (strips of rows, then columns too) whose estimate fits ``budget`` (``base``: bytes
+    held besides the match)."""
+    avail = budget - base - int(_STITCH_PER_PIXEL * h * w)
     rows, cols = h, w
     while True:
         tiles = [_Tile(y0, y1, x0, x1, lo, hi, True) for y0, y1 in _grid(h, rows) for x0, x1 in _grid(w, cols)]
@@ -266,7 +296,7 @@ def _strip_tiles(method: str, h: int, w: int, lo: int, hi: int, budget: int, ove
         elif cols > max(16, overlap):
             cols = max(cols // 2, 16)
         else:
-            need = PROCESS_BASE + int(_STITCH_PER_PIXEL * h * w) + worst
+            need = base + int(_STITCH_PER_PIXEL * h * w) + worst
             raise MatchingError(f"expected a max_memory that fits one tile of the {w}×{h} pair over "
                                 f"{hi - lo + 1} disparities ({need / 2**30:.2f} GiB with method {method!r}), "
                                 f"got {budget / 2**30:.2f} GiB: raise max_memory or narrow the disparity range")
@@ -278,7 +308,7 @@ def _band_tiles(method: str, coarse: MatchResult, f: int, h: int, w: int, lo: in
     cd = coarse.disparity
     cv = coarse.valid
     ch, cw = cd.shape
-    avail = budget - PROCESS_BASE - int(_STITCH_PER_PIXEL * h * w)
+    avail = budget - p.base - int(_STITCH_PER_PIXEL * h * w)
 
     def band(y0: int, y1: int, x0: int, x1: int) -> _Tile:
         ry0, ry1 = max(y0 - p.overlap, 0) // f, min(-(-(y1 + p.overlap) // f), ch)
@@ -306,11 +336,72 @@ def _band_tiles(method: str, coarse: MatchResult, f: int, h: int, w: int, lo: in
             m = (x0 + x1) // 2
             stack += [(y0, y1, x0, m), (y0, y1, m, x1)]
         else:
-            need = PROCESS_BASE + int(_STITCH_PER_PIXEL * h * w) + _tile_estimate(method, t, h, w, p.overlap)
+            need = p.base + int(_STITCH_PER_PIXEL * h * w) + _tile_estimate(method, t, h, w, p.overlap)
             raise MatchingError(f"expected a max_memory that fits one {x1 - x0}×{y1 - y0} tile over "
                                 f"{t.hi - t.lo + 1} disparities ({need / 2**30:.2f} GiB with method {method!r}), "
                                 f"got {budget / 2**30:.2f} GiB: raise max_memory")
     return out
+
+
+def _coarse_range(lo: int, hi: int, f: int, cw: int) -> tuple[int, int]:
+    chi = min(-(-hi // f), cw - 1)
+    return min(lo // f, chi), chi
+
+
+def _sub_params(p: ScaleParams) -> ScaleParams:
+    """The parameters of a coarse level (``on`` forces the first level only)."""
+    return dataclasses.replace(p, coarse_to_fine="auto" if p.coarse_to_fine == "on" else p.coarse_to_fine)
+
+
+def planned_memory(method: str, height: int, width: int, *, max_disp: int, min_disp: int = 0,
+                   scale: ScaleParams | None = None, _level: int = 0) -> int:
+    """Peak resident memory (bytes) of :func:`match_scaled` on an ``height × width`` pair, from the sizes alone:
+    the process's ``scale.base`` plus the largest of the untiled match (when it runs untiled), the coarse
+    levels (each planned the same way), and the stitched maps with the largest tile. A tile's band is not
+    known before the coarse match; the plan takes the whole range (a tile whose coarse map is unreliable
+    searches it), at most what the budget leaves (larger tiles are split).
+
+    Raises
+    ------
+    MatchingError
+        No tile fits the budget (as :func:`match_scaled` would).
+    """
+    p = scale or ScaleParams()
+    budget = p.max_memory if p.max_memory is not None else default_memory_budget()
+    lo, hi = int(min_disp), int(max_disp)
+    nd = hi - lo + 1
+    h, w = int(height), int(width)
+    est_full = p.base + estimate_memory(method, h, w, nd, base=False)
+    if not _use_c2f(p, h, w, nd, est_full > budget, method, _level == 0):
+        if est_full <= budget:
+            return est_full
+        tiles = _strip_tiles(method, h, w, lo, hi, budget, p.overlap, p.base)
+        return p.base + int(_STITCH_PER_PIXEL * h * w) + max(_tile_estimate(method, t, h, w, p.overlap)
+                                                             for t in tiles)
+    f = p.factor
+    ch, cw = max(1, h // f), max(1, w // f)
+    clo, chi = _coarse_range(lo, hi, f, cw)
+    coarse = planned_memory(method, ch, cw, max_disp=chi, min_disp=clo, scale=_sub_params(p), _level=_level + 1)
+    stitch = p.base + int(_STITCH_PER_PIXEL * h * w)
+    avail = budget - stitch
+    ty, tx = (max(b - a for a, b in _grid(n, p.tile)) for n in (h, w))  # the grid's largest tile
+
+    def tile_bytes(ty: int, tx: int) -> int:  # an inner tile over the whole range, with its context
+        rows, cols = min(ty + 2 * p.overlap, h), min(tx + 2 * p.overlap + nd - 1, w)
+        return estimate_memory(method, rows, cols, nd, base=False)
+
+    while tile_bytes(ty, tx) > avail:  # split as _band_tiles would, down to 16 px; refused below that
+        if ty > 16:
+            ty = max(ty // 2, 1)
+        elif tx > 16:
+            tx = max(tx // 2, 1)
+        else:
+            need = stitch + tile_bytes(ty, tx)
+            raise MatchingError(f"expected a max_memory that fits one {tx}×{ty} tile over {nd} disparities "
+                                f"({need / 2**30:.2f} GiB with method {method!r}), got {budget / 2**30:.2f} GiB: "
+                                "raise max_memory")
+    worst = tile_bytes(ty, tx)
+    return max(coarse, stitch + worst)
 
 
 def match_scaled(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int = 0, method: str,
@@ -349,8 +440,8 @@ def match_scaled(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp
     h, w = left.shape[:2]
     lo, hi = int(min_disp), int(max_disp)
     nd = hi - lo + 1
-    est_full = estimate_memory(method, h, w, nd)
-    c2f = _use_c2f(p, h, w, nd, est_full > budget)
+    est_full = p.base + estimate_memory(method, h, w, nd, base=False)
+    c2f = _use_c2f(p, h, w, nd, est_full > budget, method, _level == 0)
     info: dict[str, Any] = {"coarse_to_fine": c2f, "mode": p.coarse_to_fine, "levels": _level + 1,
                             "estimate_bytes": est_full, "budget_bytes": int(budget), "tiles": 1,
                             "band_mean": float(nd), "full_range_tiles": 0}
@@ -361,23 +452,24 @@ def match_scaled(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp
                          method, w, h, nd, est_full / 2**30, budget / 2**30)
             res = matcher.compute(left, right, max_disp=hi, min_disp=lo)
             return dataclasses.replace(res, extras={**res.extras, "scale": info})
-        tiles = _strip_tiles(method, h, w, lo, hi, budget, p.overlap)
+        tiles = _strip_tiles(method, h, w, lo, hi, budget, p.overlap, p.base)
         coarse_s = 0.0
+        coarse_est = 0
     else:
         f = p.factor
         t0 = time.perf_counter()
         cl, cr = _downsample(left, f), _downsample(right, f)
-        chi = min(-(-hi // f), cl.shape[1] - 1)
-        clo = min(lo // f, chi)
-        sub = dataclasses.replace(p, coarse_to_fine="auto" if p.coarse_to_fine == "on" else p.coarse_to_fine)
-        coarse = match_scaled(cl, cr, max_disp=chi, min_disp=clo, method=method, params=prm, scale=sub,
+        clo, chi = _coarse_range(lo, hi, f, cl.shape[1])
+        coarse = match_scaled(cl, cr, max_disp=chi, min_disp=clo, method=method, params=prm, scale=_sub_params(p),
                               _level=_level + 1)
         coarse_s = time.perf_counter() - t0
         info["levels"] = int(coarse.extras.get("scale", {}).get("levels", _level + 2))
+        # the coarse levels ran first, in the same process: the run's peak is the larger of theirs and the tiles'
+        coarse_est = int(coarse.extras.get("scale", {}).get("estimate_bytes", 0))
         tiles = _band_tiles(method, coarse, f, h, w, lo, hi, p, budget)
         del coarse
-    est = PROCESS_BASE + int(_STITCH_PER_PIXEL * h * w) + max(_tile_estimate(method, t, h, w, p.overlap)
-                                                              for t in tiles)
+    est = max(coarse_est, p.base + int(_STITCH_PER_PIXEL * h * w) + max(_tile_estimate(method, t, h, w, p.overlap)
+                                                                        for t in tiles))
     if _level == 0:
         log.info("match %s %d×%d, %d disparities: %s, %d tiles, peak memory estimate %.2f GiB (budget %.2f "
                  "GiB; untiled full search %.2f GiB)", method, w, h, nd,
