@@ -180,6 +180,9 @@ def _cmd_match(args: argparse.Namespace) -> int:
     scale = ScaleParams(coarse_to_fine=args.coarse_to_fine, max_memory=parse_memory(args.max_memory))
     size = image_size(args.left)  # header only: refuse a match that cannot fit even tiled, before decoding
     if size is not None:
+        # the images themselves first: a pair that cannot be held is not a matter of the tiling budget
+        check_fits_in_memory(size[0] * size[1] * 64, what=f"a {size[0]}×{size[1]} pair and its maps",
+                             hint="use smaller images", error=ConfigError)
         nd = args.max_disp - args.min_disp + 1
         budget = scale.max_memory if scale.max_memory is not None else default_memory_budget()
         # the run as it will be tiled (coarse levels, stitched maps, largest tile); refused here if no tile fits
@@ -188,8 +191,6 @@ def _cmd_match(args: argparse.Namespace) -> int:
         log.info("match %s %d×%d, %d disparities: peak memory estimate %.2f GiB (budget %.2f GiB; untiled full "
                  "search %.2f GiB)", args.method, size[0], size[1], nd, planned / 2**30, budget / 2**30,
                  estimate_memory(args.method, size[1], size[0], nd) / 2**30)
-        check_fits_in_memory(size[0] * size[1] * 64, what=f"a {size[0]}×{size[1]} pair and its maps",
-                             hint="use smaller images", error=ConfigError)
     left, right = read_image(args.left), read_image(args.right)
     res = match(left, right, max_disp=args.max_disp, min_disp=args.min_disp, method=args.method, scale=scale,
                 **params)
