@@ -50,15 +50,17 @@ def _middlebury() -> Path | None:
 
 @pytest.mark.slow
 def test_readme_command_line_runs_as_written(tmp_path: Path) -> None:
-    middlebury_dir = _middlebury()  # without the data only `evaluate` is left out
+    middlebury_dir = _middlebury()  # without the data only `evaluate` and `reproduce` (Middlebury tables) are left out
     cmds = _readme_commands()
     assert [c[0] for c in cmds] == ["simulate", "calibrate", "rectify", "match", "depth", "evaluate", "reproduce"]
     (tmp_path / "examples").symlink_to(REPO / "examples")
     env = dict(os.environ)
     env["PYTHONPATH"] = str(REPO / "src") + os.pathsep + env.get("PYTHONPATH", "")
     env.setdefault("NUMBA_CACHE_DIR", str(REPO / ".numba_cache"))
+    if middlebury_dir is not None:  # `reproduce` finds the data the test found, whatever the working folder
+        env.setdefault("PRISMSTEREO_MIDDLEBURY", str(middlebury_dir))
     for args in cmds:
-        if args[0] == "evaluate" and middlebury_dir is None:
+        if args[0] in ("evaluate", "reproduce") and middlebury_dir is None:
             continue
         args = [("examples/biprism_demo.toml" if a == "examples/biprism_robot.toml" else
                  str(middlebury_dir) if a == "../shared/data/middlebury" else a) for a in args]
