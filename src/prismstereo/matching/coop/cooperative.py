@@ -104,6 +104,7 @@ class CoopParams:
     refine_min_size: int = 1
 
     def __post_init__(self) -> None:
+        """Validate the fields; implementation helper with no thesis equation of its own."""
         check_fields(self, {"kappa": (0.0, None), "mu": (0.0, None), "omega_occ": (0.0, None), "gamma": (0.0, None),
                             "smooth_threshold": (0.0, None), "unreliable_weight": (0.0, None), "max_iter": (0, 10_000),
                             "occ_margin": (0.0, None), "refine_rounds": (0, 100), "omega_border": (0.0, None),
@@ -301,7 +302,10 @@ def build_segment_graph(labels: npt.NDArray[np.integer], image: npt.NDArray[np.g
 @njit(cache=True, inline="always")
 def _xy(p: int, w: int, inv_w: float) -> tuple[int, int]:
     """``(p % w, p // w)`` of a pixel index ``p >= 0`` by a multiply and one correction instead of an integer
-    division (the hot loops' largest cost per pixel); exact: ``p · (1/w)`` is off by less than one row."""
+    division (the hot loops' largest cost per pixel); exact: ``p · (1/w)`` is off by less than one row.
+
+    Implementation helper (pixel-index arithmetic) with no thesis equation of its own.
+    """
     y = int(p * inv_w)
     x = p - y * w
     if x < 0:
@@ -315,7 +319,11 @@ def _xy(p: int, w: int, inv_w: float) -> tuple[int, int]:
 
 @njit(cache=True)
 def _zinsert(z1: F64, o1: I64, z2: F64, q: int, j: int, d: float) -> None:
-    """Enter disparity ``d`` of segment ``j`` at right-view pixel ``q`` of the z-buffer ``z1, o1, z2``."""
+    """Enter disparity ``d`` of segment ``j`` at right-view pixel ``q`` of the z-buffer ``z1, o1, z2``.
+
+    Implementation helper of :func:`_zbuffer`, the visibility test that counts ``N_occ`` of thesis Eq. 6.22; no equation
+    of its own.
+    """
     if o1[q] == j:
         if d > z1[q]:
             z1[q] = d
@@ -353,7 +361,10 @@ def _zbuffer(assign: I32, planes: F64, order: I64, starts: I64, h: int, w: int,
 @njit(cache=True)
 def slope_level(levels: F64, b: float) -> int:
     """Index of the vertical slope in ``levels`` (S,) nearest a plane's slope ``b``: the volume of a sheared
-    data term the plane reads (the first on ties; 0 for a single level)."""
+    data term the plane reads (the first on ties; 0 for a single level).
+
+    Implementation helper of the data term (thesis Eq. 6.21): it chooses the volume to read, no equation of its own.
+    """
     lev = 0
     if levels.size > 1:
         dmin = np.inf
@@ -462,7 +473,11 @@ def _add_smoothness(e: float, assign: I32, planes: F64, g: GraphArrays, w: int, 
 def _add_smoothness_cached(e: float, assign: I32, planes: F64, g: GraphArrays, w: int, gamma: float, thr: float,
                            elab: I64, es: F64) -> float:
     """:func:`_add_smoothness` with each boundary's term remembered for the planes it was last computed for
-    (``elab[e]``, ``es[e]``): the same terms, added in the same order."""
+    (``elab[e]``, ``es[e]``): the same terms, added in the same order.
+
+    Smoothness term, thesis Eqs. 6.23-6.24 (summed over the segments as in Eq. 6.18); the cache is an implementation
+    detail.
+    """
     pairs, bstart, bp_lo, bp_hi, bw = g.pairs, g.bstart, g.bp_lo, g.bp_hi, g.bw
     for ed in range(pairs.shape[0]):
         lo = pairs[ed, 0]
@@ -708,7 +723,10 @@ def _energy_cached(assign: I32, planes: F64, dt: PixelData, g: GraphArrays, prm:
 
 @njit(cache=True)
 def _segment_bbox(order: I64, starts: I64, w: int) -> I64:
-    """(K, 4) x_min, x_max, y_min, y_max of every segment."""
+    """(K, 4) x_min, x_max, y_min, y_max of every segment.
+
+    Implementation helper (segment bounding boxes for the caches) with no thesis equation of its own.
+    """
     k = starts.size - 1
     out = np.empty((k, 4), np.int64)
     for j in range(k):
@@ -733,7 +751,10 @@ def _segment_bbox(order: I64, starts: I64, w: int) -> I64:
 @njit(cache=True, inline="always")
 def _add_candidate(cand: I64, nc: int, lab: int) -> int:
     """Append plane ``lab`` to the first ``nc`` entries of ``cand`` unless it is there already, it is -1 (none)
-    or 64 are held; returns the new count."""
+    or 64 are held; returns the new count.
+
+    Implementation helper (the candidate label set of the minimiser of thesis Eq. 6.19) with no equation of its own.
+    """
     if lab < 0:
         return nc
     for u in range(nc):
@@ -884,7 +905,10 @@ def _local_f(j: int, pl: F64, a: I32, planes: F64, dt: PixelData, g: GraphArrays
 def _powell(j: int, a: I32, planes: F64, n_used: int, dt: PixelData, g: GraphArrays, prm: KernelParams, z1: F64,
             o1: I64, z2: F64, cycles: int) -> tuple[F64, float, float]:
     """Powell's direction-set minimisation (thesis Appendix E) of segment j's cooperative objective over its
-    plane (a, b, c), starting from its current plane; line minimisations by golden-section search."""
+    plane (a, b, c), starting from its current plane; line minimisations by golden-section search.
+
+    Minimises the cooperative objective of thesis Eq. 6.19 (energy Eq. 6.20) as in thesis §6.2.2.
+    """
     order, starts, w, cost, min_disp, reliable = dt
     s0 = starts[j]
     s1 = starts[j + 1]
@@ -911,6 +935,8 @@ def _powell(j: int, a: I32, planes: F64, n_used: int, dt: PixelData, g: GraphArr
     pl = np.empty(3)
 
     def to_plane(v: F64, out: F64) -> None:
+        """The plane ``d = a x + b y + c`` of thesis Eq. 6.1 from parameters centred on the segment; implementation
+        helper."""
         out[0] = v[0]
         out[1] = v[1]
         out[2] = v[2] - v[0] * cx - v[1] * cy
@@ -991,7 +1017,10 @@ def _new_cache(index: SegmentIndex, k: int) -> SweepCache:
     they hold (z1, o1, z2, valid, the assignment it is of), the segments' boxes, per segment up to ``_CACHE``
     (plane, value), the segments whose last sweep decision still holds (clean, the assignment it is of), and
     the image's pixels by row (:func:`_zbuffer_rows`) and each segment's by row (:func:`_vis_flips`); no
-    remembered smoothness terms (:func:`_take_cache` adds them for a graph)."""
+    remembered smoothness terms (:func:`_take_cache` adds them for a graph).
+
+    Implementation helper (cache set-up) with no thesis equation of its own.
+    """
     h, w = int(index.shape[0]), int(index.shape[1])
     npx = h * w
     order = np.asarray(index.order, np.int64)
@@ -1021,7 +1050,10 @@ def _new_cache(index: SegmentIndex, k: int) -> SweepCache:
 
 @njit(cache=True)
 def _cache_keep(clab: I64, cval: F64, cn: I64, same: npt.NDArray[np.bool_]) -> None:
-    """Drops the remembered data terms of the planes not flagged in ``same``."""
+    """Drops the remembered data terms of the planes not flagged in ``same``.
+
+    Implementation helper (cache refresh) with no thesis equation of its own.
+    """
     for j in range(cn.size):
         t = 0
         while t < cn[j]:
@@ -1043,6 +1075,7 @@ class CoopMemo:
     """
 
     def __init__(self) -> None:
+        """An empty memo; implementation helper with no thesis equation of its own."""
         self._key: tuple[Any, ...] | None = None
         self._cache: SweepCache | None = None
         self._planes: F64 | None = None
@@ -1050,7 +1083,10 @@ class CoopMemo:
     def take(self, index: SegmentIndex, cost: F32, reliable: npt.NDArray[np.bool_], prm: KernelParams, min_disp: int,
              planes: F64) -> SweepCache:
         """The remembered cache if it applies to this call (with the entries of changed planes dropped), else
-        a new one; the next call's cache either way (:meth:`keep`)."""
+        a new one; the next call's cache either way (:meth:`keep`).
+
+        Implementation helper (cache refresh) with no thesis equation of its own.
+        """
         key = (index, cost, reliable, *_data_key(prm), int(min_disp))
         old, cache, opl = self._key, self._cache, self._planes
         self._key = self._cache = self._planes = None
@@ -1068,7 +1104,10 @@ class CoopMemo:
 
     def keep(self, index: SegmentIndex, cost: F32, reliable: npt.NDArray[np.bool_], prm: KernelParams, min_disp: int,
              planes: F64, cache: SweepCache) -> None:
-        """Remember ``cache`` (computed with ``planes``) for the next call."""
+        """Remember ``cache`` (computed with ``planes``) for the next call.
+
+        Implementation helper (cache) with no thesis equation of its own.
+        """
         self._key = (index, cost, reliable, *_data_key(prm), int(min_disp))
         self._cache = cache
         self._planes = planes.copy()
@@ -1097,7 +1136,10 @@ def _data_key(prm: KernelParams) -> _DataKey:
 def _take_cache(memo: CoopMemo | None, index: SegmentIndex, graph: SegmentGraph, cost: F32,
                 reliable: npt.NDArray[np.bool_], prm: KernelParams, min_disp: int, planes: F64) -> SweepCache:
     """The memo's cache or a new one, with an empty store of the smoothness terms of ``graph``'s boundaries
-    (kept for one call only)."""
+    (kept for one call only).
+
+    Implementation helper (cache set-up) with no thesis equation of its own.
+    """
     if memo is None:
         cache = _new_cache(index, int(index.starts.size - 1))
     else:
@@ -1107,7 +1149,10 @@ def _take_cache(memo: CoopMemo | None, index: SegmentIndex, graph: SegmentGraph,
 
 
 def _flat_cost(cost: F32, slopes: tuple[float, ...] | None) -> F32:
-    """(S, H*W, D) view of an (H, W, D) volume or of (S, H, W, D) volumes, one per vertical slope."""
+    """(S, H*W, D) view of an (H, W, D) volume or of (S, H, W, D) volumes, one per vertical slope.
+
+    Implementation helper (array layout of the data-term volumes of thesis Eq. 6.21) with no equation of its own.
+    """
     c = np.asarray(cost)
     if c.ndim == 3:
         c = c[None]
@@ -1122,19 +1167,28 @@ def _flat_cost(cost: F32, slopes: tuple[float, ...] | None) -> F32:
 
 def _pixel_data(index: SegmentIndex, cost: F32, reliable: npt.NDArray[np.bool_], slopes: tuple[float, ...] | None,
                 min_disp: int) -> PixelData:
-    """The kernels' view of the segments' pixels, the cost volume(s) and the cross-check mask."""
+    """The kernels' view of the segments' pixels, the cost volume(s) and the cross-check mask.
+
+    Implementation helper (argument packing) with no thesis equation of its own.
+    """
     return PixelData(order=index.order, starts=index.starts, w=index.shape[1], cost=_flat_cost(cost, slopes),
                      min_disp=int(min_disp), reliable=np.asarray(reliable, np.bool_).ravel())
 
 
 def _graph_arrays(graph: SegmentGraph) -> GraphArrays:
-    """The kernels' view of ``graph``."""
+    """The kernels' view of ``graph``.
+
+    Implementation helper (argument packing) with no thesis equation of its own.
+    """
     return GraphArrays(pairs=graph.pairs, bstart=graph.bstart, bp_lo=graph.bp_lo, bp_hi=graph.bp_hi, bw=graph.bw,
                        nstart=graph.nstart, nbr=graph.nbr, nedge=graph.nedge)
 
 
 def _prm(p: CoopParams, slopes: tuple[float, ...] | None = None) -> KernelParams:
-    """The kernels' view of ``p`` (floats as float64, flags as bool) and of the cost volumes' slopes."""
+    """The kernels' view of ``p`` (floats as float64, flags as bool) and of the cost volumes' slopes.
+
+    Implementation helper (argument packing of the parameters of thesis Eqs. 6.19-6.24) with no equation of its own.
+    """
     lev = [0.0] if slopes is None else [float(b) for b in slopes]
     return KernelParams(kappa=float(p.kappa), mu=float(p.mu), omega_occ=float(p.omega_occ),
                         data_trunc=float(p.data_trunc), unreliable_weight=float(p.unreliable_weight),
@@ -1423,6 +1477,9 @@ def neighbour_plane_candidates(graph: SegmentGraph, assign: npt.NDArray[np.integ
     """The current planes across each segment's boundary, as a (K, T) candidate array for :func:`expand_planes`.
 
     Row ``j`` lists the distinct current planes of ``j``'s neighbours other than its own (-1 pads).
+
+    Implementation helper (candidate labels for the minimiser of thesis Eq. 6.19; the neighbours of Eq. 6.11) with no
+    equation of its own.
     """
     a = np.asarray(assign, np.int64)
     k = a.size
