@@ -72,6 +72,7 @@ STEP_NAMES = ("optimise", "refit", "bpasw_planes", "sweep", "group_moves", "fine
 
 
 def _need(ok: bool, what: str, value: object) -> None:
+    """Raise :class:`ConfigError` unless ``ok``; implementation helper with no thesis equation of its own."""
     if not ok:
         raise ConfigError(f"expected {what}, got {value!r}")
 
@@ -83,6 +84,7 @@ class RefitParams:
     rounds: int = 1
 
     def __post_init__(self) -> None:
+        """Validate the fields; implementation helper with no thesis equation of its own."""
         _need(isinstance(self.rounds, int) and self.rounds >= 0, "refit.rounds an integer >= 0", self.rounds)
 
 
@@ -94,6 +96,7 @@ class BpaswPlanesParams:
     rounds: int = 3
 
     def __post_init__(self) -> None:
+        """Validate the fields; implementation helper with no thesis equation of its own."""
         _need(isinstance(self.rounds, int) and 0 <= self.rounds <= 3, "bpasw_planes.rounds in 0..3", self.rounds)
 
 
@@ -119,6 +122,7 @@ class SweepParams:
     check_cover: float = 0.5
 
     def __post_init__(self) -> None:
+        """Validate the fields; implementation helper with no thesis equation of its own."""
         _need(0.0 <= float(self.frac) <= 1.0, "sweep.frac in [0, 1]", self.frac)
         _need(len(self.slopes) > 0, "sweep.slopes non-empty", self.slopes)
         _need(self.keep >= 1 and self.min_px >= 1 and self.step >= 1 and self.dilation >= 1,
@@ -140,6 +144,7 @@ class GroupMovesParams:
     check_cover: float = 0.5
 
     def __post_init__(self) -> None:
+        """Validate the fields; implementation helper with no thesis equation of its own."""
         _need(0.0 <= self.check_cover <= 1.0, "group_moves.check_cover in [0, 1]", self.check_cover)
 
 
@@ -154,6 +159,7 @@ class FineParams:
     check: int | None = 0
 
     def __post_init__(self) -> None:
+        """Validate the fields; implementation helper with no thesis equation of its own."""
         lv = tuple((float(h), int(m)) for h, m in self.levels)
         _need(all(h > 0 and m >= 1 for h, m in lv), "fine.levels of (hr > 0, min_region >= 1)", self.levels)
         _need(self.check is None or (isinstance(self.check, int) and self.check >= 0), "fine.check >= 0 or None",
@@ -176,6 +182,7 @@ class BoundaryParams:
     bplanes: int = 2
 
     def __post_init__(self) -> None:
+        """Validate the fields; implementation helper with no thesis equation of its own."""
         _need(self.radius >= 0 and self.tol >= 0 and self.agree in (0, 1, 2) and self.bplanes in (0, 1, 2),
               "boundary.radius >= 0, tol >= 0, agree and bplanes in 0..2",
               (self.radius, self.tol, self.agree, self.bplanes))
@@ -192,6 +199,7 @@ class OcclusionParams:
     rematch_radius: int = 5
 
     def __post_init__(self) -> None:
+        """Validate the fields; implementation helper with no thesis equation of its own."""
         _need(self.tol >= 0 and self.rematch_radius >= 0, "occlusion.tol, rematch_radius >= 0",
               (self.tol, self.rematch_radius))
 
@@ -204,6 +212,7 @@ class MedianParams:
     radius: int = 4
 
     def __post_init__(self) -> None:
+        """Validate the fields; implementation helper with no thesis equation of its own."""
         _need(self.radius >= 0, "median.radius >= 0", self.radius)
 
 
@@ -246,6 +255,7 @@ class FallbackParams:
     flat_support_margin: float = 0.3
 
     def __post_init__(self) -> None:
+        """Validate the fields; implementation helper with no thesis equation of its own."""
         _need(self.flat_ratio >= 0 and 0.0 <= self.flat_min_support <= 1.0 and 0.0 <= self.flat_support_margin <= 1.0,
               "fallback.flat_ratio >= 0, flat_min_support and flat_support_margin in [0, 1]",
               (self.flat_ratio, self.flat_min_support, self.flat_support_margin))
@@ -282,6 +292,7 @@ class CurvedParams:
     max_shift: float = 1.0
 
     def __post_init__(self) -> None:
+        """Validate the fields; implementation helper with no thesis equation of its own."""
         _need(self.min_evidence >= 6 and 0.0 <= self.min_coverage <= 1.0 and self.tol > 0
               and 0.0 < self.max_rms_ratio <= 1.0 and self.min_amplitude >= 0 and self.iterations >= 0
               and self.max_shift >= 0,
@@ -297,7 +308,10 @@ P = TypeVar("P")
 def coerce_params(cls: type[P], value: object, name: str, base: P | None = None) -> P:
     """``value`` as a ``cls``: None -> ``base`` (default: ``cls()``), a mapping -> ``base`` with those fields
     replaced (nested step mappings too, as the CLI's ``-p`` JSON gives them); anything else is a
-    :class:`~prismstereo.errors.ConfigError`."""
+    :class:`~prismstereo.errors.ConfigError`.
+
+    Implementation helper (configuration) with no thesis equation of its own.
+    """
     if value is None:
         return cls() if base is None else base
     if isinstance(value, cls):
@@ -338,12 +352,17 @@ class StepParams:
     curved: CurvedParams = field(default_factory=CurvedParams)
 
     def __post_init__(self) -> None:
+        """Coerce every field to its step parameters (:func:`coerce_params`); implementation helper with no thesis
+        equation."""
         for f in dataclasses.fields(self):
             object.__setattr__(self, f.name, coerce_params(_STEP_TYPES[f.name], getattr(self, f.name),
                                                            f"steps.{f.name}"))
 
     def without(self, *names: str) -> StepParams:
-        """These steps switched off (``optimise`` cannot be)."""
+        """These steps switched off (``optimise`` cannot be).
+
+        Implementation helper (configuration) with no thesis equation of its own.
+        """
         off: dict[str, Any] = {"refit": RefitParams(rounds=0), "bpasw_planes": BpaswPlanesParams(rounds=0),
                                "sweep": dataclasses.replace(self.sweep, frac=0.0),
                                "group_moves": GroupMovesParams(enabled=False), "fine": FineParams(levels=()),
@@ -396,6 +415,7 @@ class PlaneLabels:
     info: dict[str, float] = field(default_factory=dict)
 
     def render(self) -> F32:
+        """The (H, W) float32 disparity of the segments' planes ``d = a x + b y + c`` (thesis Eq. 6.1)."""
         return np.asarray(render_planes(self.index, self.planes, self.assign), np.float32)
 
 
@@ -437,15 +457,21 @@ class Evidence(Protocol):
 
 
 def _merge(s: PlaneLabels, info: Mapping[str, float]) -> dict[str, float]:
+    """The step's ``info`` merged into ``s.info``, keeping the first ``energy_before``; implementation helper, no thesis
+    equation."""
     return {**s.info, **info, "energy_before": s.info.get("energy_before", info.get("energy_before", 0.0))}
 
 
 def step_optimise(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
+    """The cooperative optimisation of thesis §6.2: segment-wise minimisation of Eq. 6.19 over the energy of Eqs.
+    6.18-6.25."""
     assign, planes, info = ev.optimise(s, s.assign, s.planes, s.own)
     return dataclasses.replace(s, assign=assign, planes=planes, info=_merge(s, info))
 
 
 def step_refit(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
+    """Refit one plane per group of segments sharing a plane (least squares of thesis Eqs. 6.2-6.5, after the merging of
+    §6.1.3), then resume the cooperative optimisation (§6.2, Eq. 6.19)."""
     for _ in range(p.refit.rounds):
         refit = ev.refit(s, s.assign, s.planes)
         if refit is None:
@@ -459,6 +485,8 @@ def step_refit(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
 
 
 def step_bpasw_planes(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
+    """Add candidate planes fitted (thesis §6.1, Eqs. 6.1-6.10) to the cross-checked (Eq. 6.7) BPASW map of §5.2 and
+    resume the cooperative optimisation (Eq. 6.19)."""
     bm = ev.bpasw_map()
     if bm is None or p.bpasw_planes.rounds <= 0:
         return s
@@ -509,7 +537,10 @@ def unsupported_moves(index: SegmentIndex, before: F64, after: F64, data: F32, *
 def _pixel_cost(flat: F32, lev: int, p: int, d: float, x: float, min_disp: float, trunc: float
                 ) -> tuple[float, bool]:
     """Truncated, linearly interpolated pixel cost at disparity ``d`` and whether ``d`` lies in the range and
-    the right view."""
+    the right view.
+
+    One pixel's ``c_data(x, y, d)`` of the data term, thesis Eq. 6.21.
+    """
     k = d - min_disp
     ok = k >= -0.5 and k <= flat.shape[2] - 0.5 and x - d >= -0.5
     return interpolated_cost(flat, lev, p, k, trunc), ok
@@ -518,7 +549,10 @@ def _pixel_cost(flat: F32, lev: int, p: int, d: float, x: float, min_disp: float
 @njit(cache=True, nogil=True)
 def _move_gains(order: I64, starts: I64, moved: I64, w: int, before: F64, after: F64, flat: F32,
                 min_disp: float, lv: F64, trunc: float) -> tuple[F64, F64]:
-    """Per moved segment, its pixels both planes send in range and the summed cost drop (pixel order)."""
+    """Per moved segment, its pixels both planes send in range and the summed cost drop (pixel order).
+
+    The change of the data term (thesis Eq. 6.21) of each moved segment.
+    """
     n = np.zeros(moved.size)
     gain = np.zeros(moved.size)
     for m in range(moved.size):
@@ -543,7 +577,10 @@ def _move_gains(order: I64, starts: I64, moved: I64, w: int, before: F64, after:
 
 def _checked(s: PlaneLabels, assign: I32, planes: F64, ev: Evidence, on: bool, min_cover: float
              ) -> tuple[I32, dict[str, float]]:
-    """``assign`` with the moves from ``s`` that the segments' own data term does not support undone."""
+    """``assign`` with the moves from ``s`` that the segments' own data term does not support undone.
+
+    A check of the moves against the data term of thesis Eq. 6.21; no equation of its own (an addition to the thesis).
+    """
     if not on:
         return assign, {}
     undo = unsupported_moves(s.index, s.planes[s.assign], planes[assign], ev.check_data, min_disp=ev.min_disp,
@@ -554,6 +591,8 @@ def _checked(s: PlaneLabels, assign: I32, planes: F64, ev: Evidence, on: bool, m
 
 
 def step_sweep(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
+    """Segment sweep over slanted planes: an addition to the thesis with no equation of its own; its planes become
+    candidates of the cooperative minimisation of Eq. 6.19 (§6.2)."""
     sp = p.sweep
     if sp.frac <= 0:
         return s
@@ -578,6 +617,8 @@ def step_sweep(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
 
 
 def step_group_moves(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
+    """Group moves (a plane taken over whole regions at once, accepted when the total energy of thesis Eq. 6.18 falls):
+    an addition to the thesis, then the cooperative optimisation of §6.2 (Eq. 6.19)."""
     if not p.group_moves.enabled:
         return s
     k = s.assign.shape[0]
@@ -594,6 +635,8 @@ def step_group_moves(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels
 
 
 def step_fine(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
+    """Finer mean-shift segments (thesis §5.1) along plane boundaries resume the cooperative optimisation (Eq. 6.19): an
+    addition to §6.2 with no equation of its own."""
     if not p.fine.levels:
         return s
     evid = ev.fine_evidence(p.boundary.tol)
@@ -615,6 +658,8 @@ def step_fine(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
 
 
 def step_boundary(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
+    """Per-pixel choice among neighbouring planes near segment boundaries: post-processing beyond the thesis, no thesis
+    equation; without evidence it renders the planes (Eq. 6.1)."""
     bp = p.boundary
     evid = ev.boundary_evidence(bp.tol) if bp.radius > 0 else None
     if evid is None:
@@ -636,6 +681,8 @@ def step_boundary(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
 
 
 def step_occlusion(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
+    """Occluded pixels take the background plane (:class:`OcclusionParams`): post-processing beyond the thesis with no
+    equation of its own."""
     if not p.occlusion.enabled:
         return s
     assert s.disparity is not None
@@ -643,6 +690,7 @@ def step_occlusion(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
 
 
 def step_median(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
+    """Weighted median filter of the final map: post-processing beyond the thesis with no equation of its own."""
     if p.median.radius <= 0:
         return s
     assert s.disparity is not None
@@ -653,6 +701,8 @@ def step_median(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
 
 
 def step_fallback(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
+    """Segments without support of their own take the local matcher's map (:class:`FallbackParams`): post-processing
+    beyond the thesis with no equation of its own."""
     if not p.fallback.enabled:
         return s
     assert s.disparity is not None
@@ -660,6 +710,8 @@ def step_fallback(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
 
 
 def step_curved(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
+    """Curved surfaces for segments off their plane: an extension of the planar model of thesis Eq. 6.1 with no equation
+    of its own."""
     cp = p.curved
     if not cp.enabled:
         return s
@@ -688,7 +740,10 @@ STEPS: dict[str, Callable[[PlaneLabels, Evidence, StepParams], PlaneLabels]] = {
 def run_steps(state: PlaneLabels, evidence: Evidence, params: StepParams, *,
               snapshot: Callable[[str, PlaneLabels], None] | None = None) -> PlaneLabels:
     """Run :data:`STEP_NAMES` in order on ``state``; ``snapshot(name, state)`` after each. Returns the final
-    state, whose ``disparity`` (H, W) float32 is clipped to the method's range."""
+    state, whose ``disparity`` (H, W) float32 is clipped to the method's range.
+
+    Implementation helper (step driver) with no thesis equation of its own.
+    """
     for name in STEP_NAMES:
         state = STEPS[name](state, evidence, params)
         if snapshot is not None:
