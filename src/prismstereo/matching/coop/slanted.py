@@ -64,6 +64,7 @@ class SlantedParams:
     census: float = 0.5
 
     def __post_init__(self) -> None:
+        """Validate the fields; implementation helper with no thesis equation of its own."""
         check_fields(self, {"step": (1, None), "radius": (0, None), "dilation": (1, None), "alpha": (0.0, 1.0),
                             "tau_col": (0.0, None), "tau_grad": (0.0, None), "census": (0.0, None)},
                      positive=("gamma",))
@@ -82,6 +83,7 @@ class _Window(NamedTuple):
 
 
 def _kernel_window(window: SlantedParams, census: float) -> _Window:
+    """The :class:`_Window` of ``window`` and ``census``; implementation helper with no thesis equation."""
     return _Window(int(window.radius), int(window.dilation), float(window.gamma), float(window.alpha),
                    float(window.tau_col), float(window.tau_grad), float(census))
 
@@ -101,7 +103,11 @@ class _SweepPlanes(NamedTuple):
 
 
 def slanted_inputs(image: npt.NDArray[np.uint8]) -> F32:
-    """(H, W, 4) float32: RGB (0..255) and the x-gradient of the grey image (central difference / 2)."""
+    """(H, W, 4) float32: RGB (0..255) and the x-gradient of the grey image (central difference / 2).
+
+    An addition to the thesis (module docstring, after PatchMatch Stereo) with no thesis equation of its own; the colour
+    and gradient channels are those of the dissimilarity of thesis Eq. 5.6 (x-gradient only).
+    """
     img = np.asarray(image, dtype=np.float32)
     if img.ndim == 2:
         img = np.repeat(img[:, :, None], 3, axis=2)
@@ -131,19 +137,27 @@ class SlantedPair:
 
 
 def slanted_pair(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, census: float = 0.5) -> SlantedPair:
-    """The :class:`SlantedPair` of a rectified pair ((H, W, 3) uint8 or (H, W) grey)."""
+    """The :class:`SlantedPair` of a rectified pair ((H, W, 3) uint8 or (H, W) grey).
+
+    Implementation helper (input preparation) with no thesis equation of its own.
+    """
     cl, cr = _census_pair(left, right, census)
     return SlantedPair(slanted_inputs(left), slanted_inputs(right), cl, cr, float(census))
 
 
 def _census_pair(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8],
                  weight: float) -> tuple[npt.NDArray[np.uint64], npt.NDArray[np.uint64]]:
-    """7×9 census transforms of the grey images (a dummy pair when the census weight is 0)."""
+    """7×9 census transforms of the grey images (a dummy pair when the census weight is 0).
+
+    An addition to the thesis (module docstring, after PatchMatch Stereo) with no thesis equation of its own (the
+    thesis's data term, §5.2.2, has no census).
+    """
     if weight <= 0:
         z = np.zeros((1, 1), np.uint64)
         return z, z
 
     def grey(im: npt.NDArray[np.uint8]) -> F32:
+        """Mean of the RGB channels as (H, W) float32; implementation helper with no thesis equation."""
         f = np.asarray(im, np.float32)
         return np.ascontiguousarray(f.mean(axis=2) if f.ndim == 3 else f, dtype=np.float32)
 
@@ -153,7 +167,10 @@ def _census_pair(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8],
 @njit(cache=True, fastmath=True, inline="always")
 def _sample(fr: F32, y: int, xf: float, ch: int) -> float:  # pragma: no cover - numba
     """Channel ``ch`` of row ``y`` of ``fr`` at column ``xf``, linearly interpolated (the match ``q'`` of the module
-    docstring's ``ρ``), clamped to the border columns."""
+    docstring's ``ρ``), clamped to the border columns.
+
+    Implementation helper (linear interpolation) with no thesis equation of its own.
+    """
     w = fr.shape[1]
     if xf <= 0.0:
         return fr[y, 0, ch]
@@ -169,7 +186,10 @@ def _window(fl: F32, y: int, x: int, radius: int, dil: int, gamma: float, wy: np
             wx: npt.NDArray[np.int64], ww: F32) -> int:  # pragma: no cover - numba
     """The support window ``W(p)`` of pixel ``(y, x)`` (every ``dil`` px within ``radius``, inside the image) into
     ``wy, wx`` and its weights ``w(p, q) = exp(-‖I_p − I_q‖₁ / γ)`` into ``ww`` (module docstring; PatchMatch
-    Stereo's, an addition to the thesis); returns the number of samples."""
+    Stereo's, an addition to the thesis); returns the number of samples.
+
+    An addition to the thesis (module docstring, after PatchMatch Stereo) with no thesis equation of its own.
+    """
     h, w = fl.shape[0], fl.shape[1]
     n = 0
     for dy in range(-radius, radius + 1, dil):
@@ -191,7 +211,10 @@ def _window(fl: F32, y: int, x: int, radius: int, dil: int, gamma: float, wy: np
 
 @njit(cache=True, inline="always")
 def add_unique(cand: npt.NDArray[np.int64], nc: int, label: int) -> int:  # pragma: no cover - numba
-    """Append ``label`` to ``cand[:nc]`` unless it is already there; returns the new count."""
+    """Append ``label`` to ``cand[:nc]`` unless it is already there; returns the new count.
+
+    Implementation helper (candidate list) with no thesis equation of its own.
+    """
     for t in range(nc):
         if cand[t] == label:
             return nc
@@ -203,7 +226,11 @@ def add_unique(cand: npt.NDArray[np.int64], nc: int, label: int) -> int:  # prag
 def _cost(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint64], n: int,
           wy: npt.NDArray[np.int64], wx: npt.NDArray[np.int64], ww: F32, a: float, b: float, c: float,
           win: _Window) -> float:  # pragma: no cover - numba
-    """``C(p; plane)`` of the module docstring over the ``n`` window samples ``(wy, wx)`` of weights ``ww``."""
+    """``C(p; plane)`` of the module docstring over the ``n`` window samples ``(wy, wx)`` of weights ``ww``.
+
+    An addition to the thesis (module docstring, after PatchMatch Stereo) with no thesis equation of its own; the plane
+    is that of thesis Eq. 6.1.
+    """
     lam_cen, alpha, tau_col, tau_grad = win.lam_cen, win.alpha, win.tau_col, win.tau_grad
     num = 0.0
     den = 0.0
@@ -227,7 +254,10 @@ def _cost(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint6
 @njit(cache=True, parallel=True, fastmath=True, nogil=True)
 def _plane_cost_map(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint64],
                     plane: npt.NDArray[np.float64], win: _Window) -> F32:  # pragma: no cover - numba
-    """:func:`_cost` of one plane at every pixel."""
+    """:func:`_cost` of one plane at every pixel.
+
+    An addition to the thesis (module docstring, after PatchMatch Stereo) with no thesis equation of its own.
+    """
     radius, dil, gamma = win.radius, win.dil, win.gamma
     h, w = fl.shape[0], fl.shape[1]
     out = np.empty((h, w), np.float32)
@@ -248,6 +278,9 @@ def plane_cost(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], plane:
 
     A fronto-parallel window is the special case ``a = b = 0`` with ``c`` the pixel's disparity. ``window``:
     the cost's parameters (its ``step`` is not read here).
+
+    An addition to the thesis (module docstring, after PatchMatch Stereo) with no thesis equation of its own; the plane
+    is that of thesis Eq. 6.1.
     """
     win = window or SlantedParams()
     cl, cr = _census_pair(left, right, win.census)
@@ -260,7 +293,10 @@ def _sample_pixels(seg: npt.NDArray[np.int32], cand: npt.NDArray[np.int64], step
                    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64],
                               npt.NDArray[np.float64]]:  # pragma: no cover - numba
     """The ``step``-grid pixels of the segments with candidates, grouped by segment in row-major order
-    (``pix[nper[s]:nper[s + 1]]``), and the sampled pixel count of every segment."""
+    (``pix[nper[s]:nper[s + 1]]``), and the sampled pixel count of every segment.
+
+    Implementation helper (pixel sampling) with no thesis equation of its own.
+    """
     k = cand.shape[0]
     has = np.zeros(k, np.bool_)
     for s in range(k):
@@ -275,7 +311,10 @@ def _sample_pixels(seg: npt.NDArray[np.int32], cand: npt.NDArray[np.int64], step
 def _sample_grid(seg: npt.NDArray[np.int32], has: npt.NDArray[np.bool_], step: int,
                  ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64],
                             npt.NDArray[np.float64]]:  # pragma: no cover - numba
-    """:func:`_sample_pixels` of the segments where ``has`` (K,) is set."""
+    """:func:`_sample_pixels` of the segments where ``has`` (K,) is set.
+
+    Implementation helper (pixel sampling) with no thesis equation of its own.
+    """
     h, w = seg.shape
     k = has.shape[0]
     cnt = np.zeros(k)
@@ -303,7 +342,10 @@ def _sample_grid(seg: npt.NDArray[np.int32], has: npt.NDArray[np.bool_], step: i
 def _segment_sums(val: npt.NDArray[np.float64], pix: npt.NDArray[np.int64], nper: npt.NDArray[np.int64],
                   w: int) -> npt.NDArray[np.float64]:  # pragma: no cover - numba
     """(K, M) sums over each segment's sampled pixels ``pix[nper[s]:nper[s + 1]]`` of their rows of ``val``,
-    taken row by row of the image in row-major order, so the totals do not depend on the number of threads."""
+    taken row by row of the image in row-major order, so the totals do not depend on the number of threads.
+
+    An addition to the thesis (module docstring, after PatchMatch Stereo) with no thesis equation of its own.
+    """
     k = nper.size - 1
     m = val.shape[1]
     acc = np.zeros((k, m))
@@ -333,7 +375,11 @@ def _segment_costs(fl: F32, fr: F32, cl: npt.NDArray[np.uint64], cr: npt.NDArray
     """Sums of the slanted cost of each segment's candidate planes over its pixels on a ``step`` grid.
 
     Every sampled pixel is one parallel task (balanced however the segments' sizes differ); the sums are then
-    taken row by row in row-major order, so the totals do not depend on the number of threads."""
+    taken row by row in row-major order, so the totals do not depend on the number of threads.
+
+    An addition to the thesis (module docstring, after PatchMatch Stereo) with no thesis equation of its own; a segment
+    sum like the data term of thesis Eq. 6.21, with the slanted cost in place of ``c_data``.
+    """
     lam_cen, radius, dil, gamma = win.lam_cen, win.radius, win.dil, win.gamma
     alpha, tau_col, tau_grad = win.alpha, win.tau_col, win.tau_grad
     h, w = seg.shape
@@ -416,6 +462,9 @@ def segment_plane_costs(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8
     (default :class:`SlantedParams`). ``pair``: the pair's :func:`slanted_pair` when already made (then the
     census weight is its own). Returns (K, M); ``inf`` for missing candidates and for segments without a
     sampled pixel.
+
+    An addition to the thesis (module docstring, after PatchMatch Stereo) with no thesis equation of its own; a segment
+    mean like the data term of thesis Eq. 6.21, with the slanted cost in place of ``c_data``.
     """
     win = window or SlantedParams()
     sp = slanted_pair(left, right, census=win.census) if pair is None else pair
@@ -433,7 +482,11 @@ def segment_plane_costs(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8
 def _rho_at(l0: float, l1: float, l2: float, l3: float, rv: F32, qy: int, x: int, crq: np.uint64,
             clq: np.uint64, win: _Window) -> float:  # pragma: no cover - numba
     """``ρ`` of the module docstring between left values ``l0..l3`` (census ``clq``) and mirrored right column
-    ``x`` of row ``qy`` (census ``crq``)."""
+    ``x`` of row ``qy`` (census ``crq``).
+
+    An addition to the thesis (module docstring, after PatchMatch Stereo) with no thesis equation of its own; cf. the
+    dissimilarity ``S_AD`` of thesis Eq. 5.6.
+    """
     lam_cen, alpha, tau_col, tau_grad = win.lam_cen, win.alpha, win.tau_col, win.tau_grad
     col = abs(l0 - rv[qy, 0, x]) + abs(l1 - rv[qy, 1, x]) + abs(l2 - rv[qy, 2, x])
     rho = (1.0 - alpha) * min(col, tau_col) + alpha * min(abs(l3 - rv[qy, 3, x]), tau_grad)
@@ -454,7 +507,11 @@ def _sweep_costs(fl: F32, rv: F32, cl: npt.NDArray[np.uint64], crv: npt.NDArray[
     Along ``i`` a window sample's match moves left by exactly one pixel at a constant subpixel fraction, so the
     right image, mirrored and channel-planar (``rv[y, ch, W - 1 - x]``, ``crv[y, W - 1 - x]`` its census), is
     read contiguously forwards, and the samples whose match leaves the image (clamped to its border column)
-    share one cost."""
+    share one cost.
+
+    An addition to the thesis (module docstring, after PatchMatch Stereo) with no thesis equation of its own (the
+    segment sweep of ``coop``'s sweep step).
+    """
     avals, na, cx, cy, slopes, d0, nd = sweep.avals, sweep.na, sweep.cx, sweep.cy, sweep.slopes, sweep.d0, sweep.nd
     lam_cen, radius, dil, gamma = win.lam_cen, win.radius, win.dil, win.gamma
     alpha, tau_col, tau_grad = win.alpha, win.tau_col, win.tau_grad
@@ -568,6 +625,9 @@ def segment_sweep_costs(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8
     Returns (K, 2 x len(slopes) x D) float64, column ``(ia * len(slopes) + ib) * D + (dc - min_disp)`` for the
     plane ``a = avals[s, ia]``, ``b = slopes[ib]``, ``c = dc - a cx - b cy``; ``inf`` for missing ``a`` and for
     segments without a sampled pixel. ``window`` and ``pair`` as in :func:`segment_plane_costs`.
+
+    An addition to the thesis (module docstring, after PatchMatch Stereo) with no thesis equation of its own (the
+    segment sweep of ``coop``'s sweep step).
     """
     win = window or SlantedParams()
     sp = slanted_pair(left, right, census=win.census) if pair is None else pair
