@@ -61,6 +61,7 @@ class CostParams:
     eps: float = 1e-4
 
     def __post_init__(self) -> None:  # a census of (2 rx + 1)(2 ry + 1) - 1 <= 64 bits
+        """Validate the fields; implementation helper with no thesis equation of its own."""
         check_fields(self, {"census_rx": (0, 7), "census_ry": (0, 7), "radius": (0, 100), "tau_color": (0, None),
                             "tau_grad": (0, None)}, positive=("lambda_census", "lambda_ad", "eps"))
         if (2 * self.census_rx + 1) * (2 * self.census_ry + 1) > 65:
@@ -69,14 +70,20 @@ class CostParams:
 
 
 def census_bits(gray: F32, ry: int, rx: int) -> npt.NDArray[np.uint64]:
-    """Census transform over a ``(2 ry + 1) x (2 rx + 1)`` window (bit set where the neighbour is darker)."""
+    """Census transform over a ``(2 ry + 1) x (2 rx + 1)`` window (bit set where the neighbour is darker).
+
+    The census of Mei et al. 2011 (module docstring), an addition to the thesis with no thesis equation of its own.
+    """
     return _census_sheared(gray, ry, rx, 0.0)
 
 
 @njit(cache=True)
 def _census_table(lam_c: float) -> npt.NDArray[np.float64]:
     """``1 - exp(-hd / λ_census)`` for every Hamming distance of a 64-bit census (the same float64 values as
-    evaluating it per pixel)."""
+    evaluating it per pixel).
+
+    The census part of the pixel cost (Mei et al. 2011), an addition to the thesis with no thesis equation of its own.
+    """
     t = np.empty(65, np.float64)
     for hd in range(65):
         t[hd] = 1.0 - np.exp(-hd / lam_c)
@@ -86,7 +93,10 @@ def _census_table(lam_c: float) -> npt.NDArray[np.float64]:
 @njit(cache=True, inline="always")
 def _ad_cost(left: F32, right: F32, gl: F32, gr: F32, y: int, x: int, xr: int, tau_c: float, tau_g: float,
              lam_ad: float) -> float:
-    """``1 - exp(-(min(AD, τ_c) + min(|∇x|, τ_g)) / λ_ad)`` of left pixel (y, x) against right pixel (y, xr)."""
+    """``1 - exp(-(min(AD, τ_c) + min(|∇x|, τ_g)) / λ_ad)`` of left pixel (y, x) against right pixel (y, xr).
+
+    A truncated, robust variant of the AD + gradient dissimilarity ``S_AD`` of thesis Eq. 5.6 (x-gradient only).
+    """
     ad = 0.0
     for c in range(left.shape[2]):
         ad += abs(left[y, x, c] - right[y, xr, c])
@@ -99,7 +109,10 @@ def _ad_cost(left: F32, right: F32, gl: F32, gr: F32, y: int, x: int, xr: int, t
 def _ad_term(left: F32, right: F32, gl: F32, gr: F32, min_disp: int, ndisp: int, tau_c: float, tau_g: float,
              lam_ad: float) -> npt.NDArray[np.float64]:
     """The colour + gradient part ``1 - exp(-(AD + ∇) / λ_ad)`` of :func:`_raw_cost` (NaN where x - d falls
-    outside the right image): it does not depend on the census window, so sheared volumes share it."""
+    outside the right image): it does not depend on the census window, so sheared volumes share it.
+
+    A truncated, robust variant of the AD + gradient dissimilarity ``S_AD`` of thesis Eq. 5.6 (x-gradient only).
+    """
     h, w = left.shape[:2]
     out = np.full((h, w, ndisp), np.nan)
     for y in prange(h):
@@ -114,7 +127,10 @@ def _ad_term(left: F32, right: F32, gl: F32, gr: F32, min_disp: int, ndisp: int,
 
 @njit(cache=True, inline="always")
 def _reflect(p: int, n: int) -> int:
-    """OpenCV's ``BORDER_REFLECT`` index (``fedcba|abcdef|fedcba``) of ``p`` in ``[0, n)``."""
+    """OpenCV's ``BORDER_REFLECT`` index (``fedcba|abcdef|fedcba``) of ``p`` in ``[0, n)``.
+
+    Implementation helper (border index) with no thesis equation of its own.
+    """
     if n == 1:
         return 0
     while p < 0 or p >= n:
@@ -127,7 +143,10 @@ def _census_raw_row(ad_row: npt.NDArray[np.float64], cl_row: npt.NDArray[np.uint
                     cr_row: npt.NDArray[np.uint64], need: npt.NDArray[np.bool_], min_disp: int,
                     tab: npt.NDArray[np.float64], raw: F32) -> None:
     """``raw[x, k]`` (W, D): the pixel cost ``ad + census`` (:func:`_raw_cost`'s) of one row at the columns of
-    ``need``, 2 where the right pixel ``x - (min_disp + k)`` leaves the image."""
+    ``need``, 2 where the right pixel ``x - (min_disp + k)`` leaves the image.
+
+    The pixel cost: a variant of thesis Eq. 5.6 plus a census term (an addition to the thesis).
+    """
     w, ndisp = raw.shape
     for x in range(w):
         if not need[x]:
@@ -144,7 +163,10 @@ def _census_raw_row(ad_row: npt.NDArray[np.float64], cl_row: npt.NDArray[np.uint
 @njit(cache=True, nogil=True)
 def _row_needs(mask_row: npt.NDArray[np.bool_], r: int, need: npt.NDArray[np.bool_]) -> bool:
     """Flag in ``need`` (W,) the columns the (2r+1)-pixel row boxes of ``mask_row`` read (reflected borders);
-    whether the row has any box at all."""
+    whether the row has any box at all.
+
+    Implementation helper (the columns a row box reads) with no thesis equation of its own.
+    """
     w = mask_row.size
     todo = False
     for x in range(w):
@@ -159,7 +181,10 @@ def _row_needs(mask_row: npt.NDArray[np.bool_], r: int, need: npt.NDArray[np.boo
 def _row_box_mean(raw: F32, mask_row: npt.NDArray[np.bool_], r: int, inv: float, acc: npt.NDArray[np.float64],
              out_row: F32) -> None:
     """``out_row[x]`` (W, D): the (2r+1)-pixel mean of ``raw`` (W, D) around ``x`` at the columns of
-    ``mask_row``, summed in float64 (``acc`` (D,) is scratch) in the window's order, as OpenCV's ``boxFilter``."""
+    ``mask_row``, summed in float64 (``acc`` (D,) is scratch) in the window's order, as OpenCV's ``boxFilter``.
+
+    Row-box aggregation of the pixel cost, an addition to the thesis with no thesis equation of its own.
+    """
     w, ndisp = raw.shape
     for x in range(w):
         if not mask_row[x]:
@@ -180,7 +205,10 @@ def _census_row_box(ad: npt.NDArray[np.float64], cl: npt.NDArray[np.uint64], cr:
     the pixels of ``mask`` (reflected borders; untouched elsewhere).
 
     The row's pixel costs are float32, as :func:`_raw_cost` stores them, and their sum is exact in float64,
-    so ``float32(sum * (1 / (2r+1)))`` is OpenCV's ``boxFilter`` of them bit for bit."""
+    so ``float32(sum * (1 / (2r+1)))`` is OpenCV's ``boxFilter`` of them bit for bit.
+
+    Row-box aggregation of the pixel cost, an addition to the thesis with no thesis equation of its own.
+    """
     h, w, ndisp = ad.shape
     tab = _census_table(lam_c)
     inv = 1.0 / (2 * r + 1)
@@ -248,7 +276,10 @@ def _census_row_boxes_at(left: F32, right: F32, gl: F32, gr: F32, cl: npt.NDArra
 def _raw_cost(left: F32, right: F32, gl: F32, gr: F32, cl: npt.NDArray[np.uint64],
               cr: npt.NDArray[np.uint64], min_disp: int, ndisp: int, tau_c: float, tau_g: float,
               lam_ad: float, lam_c: float) -> F32:
-    """Raw left-view cost C(y, x, k) for d = min_disp + k; pixels with x - d < 0 get the maximum 2."""
+    """Raw left-view cost C(y, x, k) for d = min_disp + k; pixels with x - d < 0 get the maximum 2.
+
+    The pixel cost: a variant of the dissimilarity of thesis Eq. 5.6 plus a census term (an addition).
+    """
     h, w = left.shape[:2]
     tab = _census_table(lam_c)
     out = np.full((h, w, ndisp), 2.0, dtype=np.float32)
@@ -264,7 +295,10 @@ def _raw_cost(left: F32, right: F32, gl: F32, gr: F32, cl: npt.NDArray[np.uint64
 
 
 def _box(a: F32, r: int) -> F32:
-    """Mean over a (2r+1)² window of each channel of an (H, W, C) or (H, W) float32 array."""
+    """Mean over a (2r+1)² window of each channel of an (H, W, C) or (H, W) float32 array.
+
+    Implementation helper (box mean of the guided filter) with no thesis equation of its own.
+    """
     k = 2 * r + 1
     if a.ndim == 3 and a.shape[2] > 512:
         return np.concatenate([_box(a[:, :, i:i + 512], r) for i in range(0, a.shape[2], 512)], axis=2)
@@ -278,6 +312,9 @@ def _box(a: F32, r: int) -> F32:
 def guided_filter_volume(guide: npt.NDArray[np.generic], vol: F32, *, radius: int, eps: float,
                          right_of: int | None = None) -> F32:
     """Colour guided filter of every disparity slice of a cost volume (He et al. 2013).
+
+    The guided filter is the edge-aware aggregation used in place of the adaptive support weights of thesis §5.2
+    (Eqs. 5.7-5.14).
 
     Parameters
     ----------
@@ -326,7 +363,10 @@ def guided_filter_volume(guide: npt.NDArray[np.generic], vol: F32, *, radius: in
 
 @njit(cache=True, inline="always")
 def _cost_at(vol: F32, yy: int, xx: int, kk: int, md: int, right: bool) -> np.float32:
-    """``vol[yy, xx, kk]``, or with ``right`` the right view's cost ``vol[yy, xx + md + kk, kk]`` (2 outside)."""
+    """``vol[yy, xx, kk]``, or with ``right`` the right view's cost ``vol[yy, xx + md + kk, kk]`` (2 outside).
+
+    Implementation helper (volume read) with no thesis equation of its own.
+    """
     if not right:
         return vol[yy, xx, kk]
     xl = xx + md + kk
@@ -341,7 +381,10 @@ def _box_cost_row(vol: F32, img: F32, k0: int, ng: int, yy: int, r: int, fx: npt
                   md: int, right: bool) -> None:
     """``row[q, x, c]`` (4, W, ng): OpenCV's float64 row sum (its ``RowSum``: running for windows of 7 pixels
     and more) of row ``yy`` of slice ``k0 + c`` of the cost (q = 0) and of the cost times colour ``q - 1``
-    (float32 products)."""
+    (float32 products).
+
+    Implementation helper (OpenCV's box filter reproduced) with no thesis equation of its own.
+    """
     w = row.shape[1]
     k = 2 * r + 1
     if k <= 5:
@@ -401,7 +444,10 @@ def _box_cost_row(vol: F32, img: F32, k0: int, ng: int, yy: int, r: int, fx: npt
 def _box_row(src: F32, yy: int, r: int, fx: npt.NDArray[np.int64], add: npt.NDArray[np.int64],
              sub: npt.NDArray[np.int64], row: npt.NDArray[np.float64]) -> None:
     """``row[q, x, c]``: OpenCV's float64 row sum (as :func:`_box_cost_row`) of row ``yy`` of ``src``
-    (Q, H, W, ng)."""
+    (Q, H, W, ng).
+
+    Implementation helper (OpenCV's box filter reproduced) with no thesis equation of its own.
+    """
     w = row.shape[1]
     nq, _, _, ng = src.shape
     k = 2 * r + 1
@@ -430,7 +476,10 @@ def _box_row(src: F32, yy: int, r: int, fx: npt.NDArray[np.int64], add: npt.NDAr
 def _box_column_step(acc: npt.NDArray[np.float64], nxt: npt.NDArray[np.float64], old: npt.NDArray[np.float64],
                      mean: F32, scale: float) -> None:
     """One output row of OpenCV's column pass (its ``ColumnSum``): ``mean = float32((acc + nxt) * scale)``,
-    then ``acc = acc + nxt - old`` (all (Q, N); ``nxt`` the row sums entering the window, ``old`` leaving)."""
+    then ``acc = acc + nxt - old`` (all (Q, N); ``nxt`` the row sums entering the window, ``old`` leaving).
+
+    Implementation helper (OpenCV's box filter reproduced) with no thesis equation of its own.
+    """
     for q in range(acc.shape[0]):
         aq = acc[q]
         nq = nxt[q]
@@ -450,7 +499,11 @@ def _gf_slices(vol: F32, img: F32, mean_i: F32, inv: F32, r: int, group: int, ou
     cost-colour products, then ``box(b) + Σ_c box(a_c) I_c``.
 
     Each box is OpenCV's ``boxFilter`` (normalised, BORDER_REFLECT) to the bit, streamed over the rows with a
-    ring of 2r + 1 row sums; the float32 arithmetic of a, b and the output is the numpy formulation's."""
+    ring of 2r + 1 row sums; the float32 arithmetic of a, b and the output is the numpy formulation's.
+
+    The guided filter is the edge-aware aggregation used in place of the adaptive support weights of thesis §5.2
+    (Eqs. 5.7-5.14).
+    """
     h, w, nd = vol.shape
     k = 2 * r + 1
     scale = 1.0 / (k * k)
@@ -536,7 +589,10 @@ class _CostInputs(NamedTuple):
 
 
 def _cost_inputs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic]) -> _CostInputs:
-    """The :class:`_CostInputs` of a pair."""
+    """The :class:`_CostInputs` of a pair.
+
+    Implementation helper (input preparation) with no thesis equation of its own.
+    """
     lf = np.asarray(left, dtype=np.float32)
     rf = np.asarray(right, dtype=np.float32)
     if lf.ndim == 2:
@@ -555,6 +611,8 @@ def raw_cost(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, m
 
     ``(1 - exp(-(min(AD, τ_c) + min(|∇x|, τ_g)) / λ_ad)) + (1 - exp(-census / λ_census))``; slice k holds
     d = min_disp + k; pixels with x - d < 0 get the maximum 2.
+
+    The pixel cost: a variant of the dissimilarity of thesis Eq. 5.6 plus a census term (an addition).
     """
     p = params or CostParams()
     ci = _cost_inputs(left, right)
@@ -569,6 +627,10 @@ def aggregated_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generi
                      min_disp: int = 0, params: CostParams | None = None,
                      raw: F32 | None = None) -> tuple[F32, F32]:
     """Aggregated cost volumes of the left and the right view.
+
+    The left volume is the ``c_data`` of the data term (thesis Eq. 6.21), the right one serves the cross-check
+    (Eq. 6.7); the aggregation is the edge-aware aggregation used in place of the adaptive support weights of thesis
+    §5.2 (Eqs. 5.7-5.14).
 
     Parameters
     ----------
@@ -602,6 +664,8 @@ def _census_sheared(gray: F32, ry: int, rx: int, slope: float) -> npt.NDArray[np
 
     The bit order is that of :func:`census_bits`, so a left census and a sheared right census compare the pixels
     that a surface ``d = a x + b y + c`` with ``b = slope`` maps onto each other.
+
+    Sheared census for surfaces slanted in ``y`` (an addition to thesis Eq. 6.21) with no thesis equation of its own.
     """
     h, w = gray.shape
     out = np.zeros((h, w), dtype=np.uint64)
@@ -623,7 +687,11 @@ def _census_sheared(gray: F32, ry: int, rx: int, slope: float) -> npt.NDArray[np
 
 @njit(cache=True, parallel=True, nogil=True)
 def _shear_box_rows(hb: F32, slope: float, r: int, out: F32) -> None:
-    """``out[y, x, k] = mean over |dy| <= r of hb[y + dy, x, k + slope * dy]`` (linear in k, rows clamped)."""
+    """``out[y, x, k] = mean over |dy| <= r of hb[y + dy, x, k + slope * dy]`` (linear in k, rows clamped).
+
+    Sheared aggregation for surfaces slanted in ``y`` (an addition to thesis Eq. 6.21) with no thesis equation of its
+    own.
+    """
     h, w, nd = hb.shape
     # the interpolation taps depend on (dy, k) only
     nr = 2 * r + 1
@@ -678,7 +746,10 @@ class ShearedInputs:
 
 def sheared_inputs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
                    params: CostParams | None = None, slopes: tuple[float, ...] = (0.0,)) -> ShearedInputs:
-    """The :class:`ShearedInputs` of a rectified pair ((H, W, 3) uint8 RGB or (H, W) grey) for ``slopes``."""
+    """The :class:`ShearedInputs` of a rectified pair ((H, W, 3) uint8 RGB or (H, W) grey) for ``slopes``.
+
+    Implementation helper (input preparation) with no thesis equation of its own.
+    """
     p = params or CostParams()
     ci = _cost_inputs(left, right)
     cl = census_bits(ci.gray_left, p.census_ry, p.census_rx)
@@ -689,6 +760,7 @@ def sheared_inputs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic]
 
 
 def _check_inputs(inputs: ShearedInputs, shape: tuple[int, ...], p: CostParams, slopes: tuple[float, ...]) -> None:
+    """Raise :class:`MatchingError` unless ``inputs`` fit this call; implementation helper with no thesis equation."""
     if inputs.left.shape[:2] != shape[:2] or inputs.params != p or inputs.slopes != tuple(float(b) for b in slopes):
         raise MatchingError("expected inputs made by sheared_inputs of this pair with the same params and slopes")
 
@@ -752,6 +824,8 @@ def sheared_row_costs_at(left: npt.NDArray[np.generic], right: npt.NDArray[np.ge
                          inputs: ShearedInputs | None = None, fill: F32 | None = None) -> None:
     """Write :func:`sheared_costs` ``(..., vertical=False)`` into ``out`` at the ``selected`` pixels only (and
     ``fill`` at the others, when given).
+
+    Sheared costs for surfaces slanted in ``y`` (an addition to thesis Eq. 6.21) with no thesis equation of its own.
 
     Parameters
     ----------

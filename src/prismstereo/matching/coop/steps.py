@@ -463,8 +463,8 @@ def _merge(s: PlaneLabels, info: Mapping[str, float]) -> dict[str, float]:
 
 
 def step_optimise(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
-    """The cooperative optimisation of thesis §6.2: segment-wise minimisation of Eq. 6.19 over the energy of Eqs.
-    6.18-6.25."""
+    """The cooperative optimisation of thesis §6.2: segment-wise minimisation of Eq. 6.19 over the energy of
+    Eqs. 6.18-6.25."""
     assign, planes, info = ev.optimise(s, s.assign, s.planes, s.own)
     return dataclasses.replace(s, assign=assign, planes=planes, info=_merge(s, info))
 
