@@ -119,6 +119,7 @@ class CoopResult:
 
 
 def _as_rgb8(image: npt.NDArray[np.generic], name: str) -> npt.NDArray[np.uint8]:
+    """``image`` as (H, W, 3) uint8 RGB; implementation helper with no thesis equation of its own."""
     return as_image(image, name=name, channels=3)  # the one coercion rule (docs/conventions.md)
 
 
@@ -146,7 +147,10 @@ def _checked_subpixel(cost_left: F32, dr: npt.NDArray[np.int64], *, min_disp: in
                       tolerance: float, dl: npt.NDArray[np.int64] | None = None
                       ) -> tuple[F32, npt.NDArray[np.bool_]]:
     """:func:`initial_disparity` from the right view's integer WTA slice index ``dr`` (H, W) (and the left
-    view's, ``cost_left.argmin(axis=2)``, when already known)."""
+    view's, ``cost_left.argmin(axis=2)``, when already known).
+
+    WTA (thesis Eq. 5.15) with parabola subpixel and the left-right cross-check of thesis Eq. 6.7.
+    """
     h, w, nd = cost_left.shape
     if dl is None:
         dl = cost_left.argmin(axis=2)
@@ -170,6 +174,8 @@ def _checked_subpixel(cost_left: F32, dr: npt.NDArray[np.int64], *, min_disp: in
 
 def box_filter_volume(vol: F32, r: int, *, vertical: bool = True) -> F32:
     """Box-sum each disparity slice of an (H, W, D) cost volume over a (2r+1)² window (or 1 × (2r+1)).
+
+    Implementation helper (box aggregation of a cost volume) with no thesis equation of its own.
 
     Parameters
     ----------
@@ -214,7 +220,11 @@ def bpasw_dense_map(vol: F32, image: npt.NDArray[np.uint8], *, min_disp: int = 0
     ``right_winner``: the volume's :func:`~prismstereo.matching.local.selection.right_winner`, when already
     known; ``where`` (H, W) bool: the pixels wanted (the final median runs there only; the others are left
     before it); ``left_winner``: ``vol.argmin(axis=2)`` of a finite volume, when already known. Returns
-    (H, W) float32, dense."""
+    (H, W) float32, dense.
+
+    From the cost volume of thesis §5.2 (Eqs. 5.6-5.14): WTA (Eq. 5.15) and the cross-check (Eq. 6.7); the fill and
+    the median are post-processing beyond the thesis.
+    """
     if left_winner is None:
         disp = selection.winner_take_all(vol, min_disp=min_disp)
     else:
@@ -238,6 +248,7 @@ def _bpasw_reliable(vol: F32, dr: npt.NDArray[np.int64], min_disp: int,
                     dl: npt.NDArray[np.int64] | None = None) -> tuple[npt.NDArray[np.bool_], F32]:
     # dr: the right view's winners (selection.right_winner; the BPASW volume is finite, so they are argmin's);
     # dl: the left view's (vol.argmin(axis=2)) when already known
+    """The BPASW map's left-right cross-check (thesis Eq. 6.7): (H, W) reliable mask and subpixel disparity."""
     d, rel = _checked_subpixel(vol, dr, min_disp=min_disp, tolerance=0.0, dl=dl)
     return rel, d
 
@@ -249,7 +260,11 @@ def occlusion_background_fill(disp: F32, seg: npt.NDArray[np.int32], assign: npt
                     radius: int) -> tuple[F32, npt.NDArray[np.bool_]]:
     """Pixels whose match in the right view reliably sees a farther surface (``d_R < d - tol``) are taken as
     occluded and get the background plane: of the nearest consistent pixels left and right on the row, the
-    plane (extrapolated to the pixel) with the smaller disparity."""
+    plane (extrapolated to the pixel) with the smaller disparity.
+
+    Post-processing beyond the thesis with no equation of its own (occluded pixels are those the visibility test finds,
+    cf. thesis Eq. 6.22's ``N_occ``).
+    """
     h, w = disp.shape
     occ = np.zeros((h, w), np.bool_)
     for y in range(h):
@@ -400,6 +415,7 @@ class DataTermParams:
     radiometry: RadiometryParams = field(default_factory=RadiometryParams)
 
     def __post_init__(self) -> None:
+        """Validate and coerce the fields; implementation helper with no thesis equation of its own."""
         object.__setattr__(self, "radiometry", coerce_params(RadiometryParams, self.radiometry, "data.radiometry"))
         if self.check_tolerance < 0 or self.radius < 0:
             raise ConfigError(f"expected data.check_tolerance and data.radius >= 0, got "
@@ -457,6 +473,7 @@ class _PairEvidence:
     def __init__(self, lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uint8], *, min_disp: int, max_disp: int,
                  maps: PairMaps, params: PairSetup,
                  segments: dict[SegmentationParams, Future[npt.NDArray[np.int32]]] | None = None):
+        """Implementation helper (the pair's evidence for the steps) with no thesis equation of its own."""
         self.image, self.right = lft, rgt
         self._sheared = maps.sheared  # the data term's census transforms etc., reused by the row-only volume
         self._segments = dict(segments or {})  # segmentations of the image computed ahead (the fine step's)
@@ -478,22 +495,29 @@ class _PairEvidence:
                  own: npt.NDArray[np.int64], *, neighbour_own_planes: bool = False
                  ) -> tuple[npt.NDArray[np.int32], npt.NDArray[np.float64], dict[str, float]]:
         # the cooperative optimisation (Eqs. 6.18-6.25) on the segments and the data term
+        """The cooperative optimisation of thesis §6.2 (Eqs. 6.18-6.25) on the pair's data term."""
         prm = dataclasses.replace(self.coop, neighbour_own_planes=True) if neighbour_own_planes else self.coop
         return cooperative_optimize(assign, planes, s.index, s.graph, self.data, self.reliable, own=own,
                                     min_disp=self.min_disp, params=prm, slopes=self.slopes, memo=self.memo)
 
     def refit(self, s: PlaneLabels, assign: npt.NDArray[np.int32], planes: npt.NDArray[np.float64]
               ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]] | None:
+        """One plane refitted per group of segments sharing a plane (thesis Eqs. 6.1-6.10 after the merging of §6.1.3).
+        """
         return group_refit_planes(assign, planes, s.index, self.initial, self.reliable, params=self.plane_params)
 
     def bpasw_map(self) -> tuple[F32, npt.NDArray[np.bool_]]:
+        """The BPASW map of thesis §5.2 and its cross-check mask (Eq. 6.7), each (H, W)."""
         return self.bdisp, self.brel
 
     def sweep(self, s: PlaneLabels, p: SweepParams) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+        """The segment sweep's candidate planes: an addition to the thesis with no equation of its own."""
         return segment_sweep_candidates(self.image, self.right, s.labels, s.index, s.assign, s.planes,
                                         min_disp=self.min_disp, max_disp=self.max_disp, params=p)
 
     def row_box(self, selected: npt.NDArray[np.bool_], p: SweepParams) -> None:
+        """A row-only aggregated data term for the ``selected`` (H, W) pixels: an addition to thesis Eq. 6.21, no
+        equation of its own."""
         kw = {"max_disp": self.max_disp, "min_disp": self.min_disp, "params": self.cost}
         # the row-boxed volume with the other pixels' data term becomes the optimiser's; moves are still checked
         # against the data term itself (``check_data``)
@@ -508,17 +532,22 @@ class _PairEvidence:
         self.check_data, self.data = self.data, hb
 
     def segments(self, params: SegmentationParams) -> npt.NDArray[np.int32]:
+        """Mean-shift segmentation of the image (thesis §5.1, Eqs. 5.1-5.4)."""
         ahead = self._segments.pop(params, None)
         return mean_shift_segment(self.image, params=params) if ahead is None else ahead.result()
 
     def fine_evidence(self, tol: float) -> tuple[npt.NDArray[np.bool_], F32]:
+        """Implementation helper (the steps' evidence: both initial maps agree) with no thesis equation of its own."""
         return _pair_agreement(self.reliable, self.initial, self.brel, self.bdisp, tol), self.initial
 
     def boundary_evidence(self, tol: float) -> tuple[F32, F32, npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
+        """Implementation helper (the steps' evidence for the boundary step) with no thesis equation of its own."""
         return self.bvol, self.bdisp, self.brel, _pair_agreement(self.reliable, self.initial, self.brel,
                                                                  self.bdisp, tol)
 
     def occlusion(self, s: PlaneLabels, final: F32, p: OcclusionParams) -> F32:
+        """The occlusion step's background fill (:func:`occlusion_background_fill`): post-processing beyond the thesis,
+        no equation of its own."""
         md = self.min_disp
         dr_int = self.bright
         dl_int = self.bleft
@@ -535,6 +564,8 @@ class _PairEvidence:
         # the segments that failed the plane support test are not planar; a segment the evidence covers only in
         # part has its plane extrapolated over the rest, one it barely covers has its plane from the neighbours
         # alone, and one whose map contradicts nearly all of its evidence was moved against it: the local map there
+        """The fallback step (:func:`segment_support_choice`): post-processing beyond the thesis, no equation of its
+        own."""
         lab = s.labels.ravel()
         sizes = np.bincount(lab, minlength=s.assign.size)
         covered = np.bincount(lab, weights=self.evidence.ravel(), minlength=s.assign.size)
@@ -581,12 +612,14 @@ class _PairEvidence:
 
     def _bpasw_checked(self) -> npt.NDArray[np.bool_]:
         # the BPASW matcher's own left-right check (1 px), the pixels its dense map keeps before filling
+        """The BPASW matcher's left-right cross-check (thesis Eq. 6.7, 1 px) as an (H, W) mask."""
         md = self.min_disp
         dright = (self.bright + md).astype(np.float32)
         return np.asarray(selection.cross_check((self.bleft + md).astype(np.float32), dright, tolerance=1.0), bool)
 
     def _sgm_map(self) -> tuple[F32, npt.NDArray[np.bool_]]:
         # the ``sgm`` matcher (census cost, 8 paths) with its defaults: its dense map and its checked pixels
+        """The ``sgm`` matcher's map and checked pixels: a fallback beyond the thesis with no equation of its own."""
         res = SGMMatcher().compute(self.image, self.right, max_disp=self.max_disp, min_disp=self.min_disp)
         return np.asarray(res.disparity, np.float32), np.asarray(res.valid, bool)
 
@@ -594,6 +627,8 @@ class _PairEvidence:
 def segment_support_choice(labels: npt.NDArray[np.int32], where: npt.NDArray[np.bool_],
                            support: list[npt.NDArray[np.bool_]], *, margin: float) -> npt.NDArray[np.int64]:
     """Per pixel, the index of the candidate map its segment takes in the fallback step.
+
+    Post-processing beyond the thesis with no equation of its own.
 
     Parameters
     ----------
@@ -640,7 +675,10 @@ def _data_volume(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, m
 
 def _pair_agreement(reliable: npt.NDArray[np.bool_], initial: F32, brel: npt.NDArray[np.bool_], bdisp: F32,
                     tol: float) -> npt.NDArray[np.bool_]:
-    """Both cross-checked initial maps (differently aggregated) agree within ``tol``: the steps' evidence."""
+    """Both cross-checked initial maps (differently aggregated) agree within ``tol``: the steps' evidence.
+
+    Implementation helper (evidence mask, (H, W) bool) with no thesis equation of its own.
+    """
     return reliable & brel & (np.abs(bdisp - initial) <= tol)
 
 
@@ -774,6 +812,7 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     marks = {"fine": "cooperative"}
 
     def snapshot(name: str, s: PlaneLabels) -> None:
+        """Implementation helper (stage snapshots and timings) with no thesis equation of its own."""
         nonlocal t
         if keep_stages:
             stages[name] = (s.render() if s.disparity is None else s.disparity).copy()
@@ -814,6 +853,7 @@ class CoopMatcher:
                  cost: CostParams | dict[str, Any] | None = None, planes: PlaneParams | dict[str, Any] | None = None,
                  coop: CoopParams | dict[str, Any] | None = None, data: DataTermParams | dict[str, Any] | None = None,
                  steps: StepParams | dict[str, Any] | None = None):
+        """Implementation helper (matcher configuration) with no thesis equation of its own."""
         self.segmentation = coerce_params(SegmentationParams, segmentation, "segmentation")
         self.cost = coerce_params(CostParams, cost, "cost")
         self.planes = coerce_params(PlaneParams, planes, "planes")
@@ -822,6 +862,7 @@ class CoopMatcher:
         self.steps = coerce_params(StepParams, steps, "steps")
 
     def compute(self, left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int = 0) -> MatchResult:
+        """The ``coop`` matcher (thesis chapters 5-6, module docstring) as a :class:`MatchResult`."""
         res = coop_match(left, right, max_disp=max_disp, min_disp=min_disp, segmentation=self.segmentation,
                          cost=self.cost, planes=self.planes, coop=self.coop, data=self.data, steps=self.steps)
         raw = np.where(res.reliable, res.initial, np.nan).astype(np.float32)
