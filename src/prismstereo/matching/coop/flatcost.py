@@ -25,6 +25,8 @@ B = npt.NDArray[np.bool_]
 
 @njit(cache=True, nogil=True)
 def _peak_ratio(vol: F32, winner: npt.NDArray[np.int64], where: B) -> F32:
+    """Peak ratio ``(c2 - c1) / c1`` (H, W) float32 of ``vol`` (H, W, D) at ``winner`` where ``where``: an addition to
+    thesis §6.1 (module docstring) with no thesis equation of its own."""
     h, w, nd = vol.shape
     out = np.full((h, w), np.inf, np.float32)
     for y in range(h):
@@ -47,6 +49,8 @@ def _peak_ratio(vol: F32, winner: npt.NDArray[np.int64], where: B) -> F32:
 def peak_ratio(vol: F32, winner: npt.NDArray[np.int64], where: B) -> F32:
     """Peak ratio of an aggregated cost volume at its winners (see the module docstring).
 
+    An addition to thesis §6.1 (module docstring) with no thesis equation of its own.
+
     Parameters
     ----------
     vol : (H, W, D) float32  aggregated cost (lower is better).
@@ -63,7 +67,10 @@ def peak_ratio(vol: F32, winner: npt.NDArray[np.int64], where: B) -> F32:
 
 
 def _segment_medians(lab: npt.NDArray[np.int64], values: npt.NDArray[np.float64], n: int) -> npt.NDArray[np.float64]:
-    """Median of ``values`` per label 0..n-1 (NaN for an absent label), as :func:`numpy.median`."""
+    """Median of ``values`` per label 0..n-1 (NaN for an absent label), as :func:`numpy.median`.
+
+    Implementation helper (per-label median) with no thesis equation of its own.
+    """
     order = np.lexsort((values, lab))
     ls, vs = lab[order], values[order]
     starts = np.searchsorted(ls, np.arange(n))
@@ -80,6 +87,8 @@ def _segment_medians(lab: npt.NDArray[np.int64], values: npt.NDArray[np.float64]
 def flat_cost_segments(labels: npt.NDArray[np.int32], where: B, ratio: F32, sgm_support: B, bpasw_support: B, *,
                        max_ratio: float, min_support: float, support_margin: float) -> B:
     """The segments whose ``where`` pixels should take ``sgm``'s map because ``bpasw``'s cost is flat there.
+
+    An addition to thesis §6.1 (module docstring) with no thesis equation of its own.
 
     Parameters
     ----------

@@ -70,6 +70,7 @@ class RadiometryParams:
     max_residual: float = 8.0
 
     def __post_init__(self) -> None:
+        """Validate the fields; implementation helper with no thesis equation of its own."""
         if not (self.scale >= 1 and self.radius >= 0 and 0.0 <= self.uniqueness < 1.0 and self.min_samples >= 16
                 and self.min_gain >= 0 and self.max_residual >= 0):
             raise ConfigError(f"expected radiometry.scale >= 1, radius >= 0, uniqueness in [0, 1), min_samples "
@@ -79,7 +80,11 @@ class RadiometryParams:
 
 def _census_matches(left: U8, right: U8, *, max_disp: int, radius: int,
                     uniqueness: float) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp], npt.NDArray[np.intp]]:
-    """Rows, left columns and right columns of the unique, cross-checked census WTA matches of a pair."""
+    """Rows, left columns and right columns of the unique, cross-checked census WTA matches of a pair.
+
+    An addition to thesis §5.2 (module docstring) with no thesis equation of its own; the cross-check is that of
+    Eq. 6.7.
+    """
     h, w = left.shape[:2]
     vol = cost_census(left, right, max_disp=max_disp, min_disp=0, window=(7, 7))
     if radius > 0:
@@ -110,7 +115,10 @@ def _census_matches(left: U8, right: U8, *, max_disp: int, radius: int,
 
 
 def _quantile_table(src: npt.NDArray[np.float64], ref: npt.NDArray[np.float64]) -> npt.NDArray[np.uint8]:
-    """256-entry monotone table mapping the distribution of ``src`` samples onto that of ``ref`` samples."""
+    """256-entry monotone table mapping the distribution of ``src`` samples onto that of ``ref`` samples.
+
+    An addition to thesis §5.2 (module docstring) with no thesis equation of its own.
+    """
     q = np.linspace(0.0, 1.0, 101)
     qs = np.quantile(src, q)
     qr = np.quantile(ref, q)
@@ -122,6 +130,8 @@ def _quantile_table(src: npt.NDArray[np.float64], ref: npt.NDArray[np.float64]) 
 def compensate_right(left: U8, right: U8, *, max_disp: int,
                      params: RadiometryParams | None = None) -> tuple[U8, dict[str, float]]:
     """The right view with its colours mapped to the left view's radiometry (see the module docstring).
+
+    An addition to thesis §5.2 (module docstring) with no thesis equation of its own.
 
     Parameters
     ----------

@@ -39,7 +39,11 @@ def boundary_pixel_planes(seg: npt.NDArray[np.int32], assign: npt.NDArray[np.int
                   active: npt.NDArray[np.bool_], dref: F32, tol: float,
                   active_up: npt.NDArray[np.bool_], assign2: npt.NDArray[np.int32]) -> F32:  # assign2: (K, M)
     """Per pixel, the disparity of the plane with the lowest aggregated cost among the planes of the segments
-    within ``radius`` (its own first; another wins only when cheaper by more than ``margin``)."""
+    within ``radius`` (its own first; another wins only when cheaper by more than ``margin``).
+
+    Post-processing beyond the thesis (the ``boundary`` step) with no equation of its own; the planes are those of
+    thesis Eq. 6.1.
+    """
     h, w = seg.shape
     nd = cost.shape[2]
     out = np.empty((h, w), np.float32)
@@ -106,7 +110,10 @@ def boundary_pixel_planes(seg: npt.NDArray[np.int32], assign: npt.NDArray[np.int
 @njit(cache=True, nogil=True)
 def _pair_ranks(a: npt.NDArray[np.int64], b: npt.NDArray[np.int64]) -> npt.NDArray[np.int32]:
     """Rank of each pixel's pair ``(a, b)`` among the distinct pairs in lexicographic order (labels >= 0):
-    ``np.unique`` of the pairs' inverse, by two stable counting sorts."""
+    ``np.unique`` of the pairs' inverse, by two stable counting sorts.
+
+    Implementation helper (ranking of label pairs) with no thesis equation of its own.
+    """
     n = a.size
     out = np.empty(n, np.int32)
     if n == 0:
@@ -142,7 +149,11 @@ def _pair_ranks(a: npt.NDArray[np.int64], b: npt.NDArray[np.int64]) -> npt.NDArr
 def _plane_support(order: npt.NDArray[np.int64], starts: npt.NDArray[np.int64], w: int,
                    planes: npt.NDArray[np.float64], assign: npt.NDArray[np.int64], evidence: npt.NDArray[np.bool_],
                    reference: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """Per segment, its ``evidence`` pixels within 1 px of ``reference`` under its plane ``assign``."""
+    """Per segment, its ``evidence`` pixels within 1 px of ``reference`` under its plane ``assign``.
+
+    The support count is like the outlier rule of thesis Eq. 6.9 (distance to the plane within 1 px); no equation of its
+    own.
+    """
     k = starts.size - 1
     out = np.zeros(k)
     for j in range(k):
@@ -171,7 +182,11 @@ def bpasw_candidate_rounds(assign: npt.NDArray[np.int32], plane_set: npt.NDArray
     merged-cluster planes as second (2), then one plane refitted per group of segments sharing a plane (3);
     ``optimise(assign, planes, own)`` resumes the cooperative optimisation after each. Returns assign,
     planes, the last optimisation's info (None when none ran) and each segment's own BPASW-fit plane id
-    (-1 none)."""
+    (-1 none).
+
+    Planes fitted by thesis §6.1 (Eqs. 6.1-6.10) and merged by §6.1.3 (Eqs. 6.14-6.17), then the cooperative
+    optimisation of §6.2 (Eq. 6.19).
+    """
     info: dict[str, float] | None = None
     bfit_ids: npt.NDArray[np.int64] | None = None
     if rounds <= 0:
