@@ -320,7 +320,11 @@ def segment_sweep_candidates(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uin
     px) get planes swept over the centre disparity (integer steps over the whole range) and the slopes ``b`` in
     ``params.slopes`` (``a`` = 0 and the current ``a``); the ``params.keep`` cheapest (at least 2 px apart in
     centre disparity or differing in slope) are returned as new planes and a (K, keep) index array into the
-    extended plane set (-1 = none). The other fields of ``params`` are not read here."""
+    extended plane set (-1 = none). The other fields of ``params`` are not read here.
+
+    The segment sweep is an addition to the thesis with no equation of its own; its planes ``d = a x + b y + c`` are
+    those of thesis Eq. 6.1 and become candidates of the cooperative minimisation (Eq. 6.19).
+    """
     frac, slopes, keep, min_px = params.frac, params.slopes, params.keep, params.min_px
     window = SlantedParams(step=params.step, dilation=params.dilation)
     k = assign.shape[0]

@@ -492,6 +492,7 @@ def step_bpasw_planes(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabel
         return s
 
     def optimise(a: I32, pl: F64, own: I64) -> tuple[I32, F64, dict[str, float]]:
+        """The cooperative optimisation of thesis §6.2 (Eq. 6.19) on ``s``; implementation helper (closure)."""
         return ev.optimise(s, a, pl, own)
 
     assign, planes, info, bfit_ids = bpasw_candidate_rounds(s.assign, s.planes, s.own, s.index, s.pairs, bm[0],
