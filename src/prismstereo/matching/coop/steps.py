@@ -470,8 +470,8 @@ def step_optimise(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
 
 
 def step_refit(s: PlaneLabels, ev: Evidence, p: StepParams) -> PlaneLabels:
-    """Refit one plane per group of segments sharing a plane (least squares of thesis Eqs. 6.2-6.5, after the merging of
-    §6.1.3), then resume the cooperative optimisation (§6.2, Eq. 6.19)."""
+    """Refit one plane per group of segments sharing a plane (the robust fit of thesis Eqs. 6.1-6.10, as after the
+    merging of §6.1.3), then resume the cooperative optimisation (§6.2, Eq. 6.19)."""
     for _ in range(p.refit.rounds):
         refit = ev.refit(s, s.assign, s.planes)
         if refit is None:
