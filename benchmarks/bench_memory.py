@@ -38,14 +38,6 @@ def _hwm() -> int:
     return 0
 
 
-def _rss() -> int:
-    with open("/proc/self/status", encoding="ascii") as fh:
-        for line in fh:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) * 1024
-    return 0
-
-
 def _reset_hwm() -> None:
     with open("/proc/self/clear_refs", "w", encoding="ascii") as fh:
         fh.write("5")
@@ -59,7 +51,7 @@ def _child(folder: Path, preset: str, max_memory: int | None, c2f: str, runs: in
 
     from prismstereo.config import load_rig
     from prismstereo.depth import pipeline
-    from prismstereo.depth.memory import estimate_depth_memory
+    from prismstereo.depth.memory import estimate_depth_memory, resident_bytes
     from prismstereo.depth.pipeline import DepthConfig, run_depth, validate_config
     from prismstereo.evaluation.depth_metrics import evaluate_depth, read_depth_gt
     from prismstereo.io import read_image
@@ -94,7 +86,7 @@ def _child(folder: Path, preset: str, max_memory: int | None, c2f: str, runs: in
     first = time.perf_counter() - t
     plan = estimate_depth_memory(rig, resolved)  # the set-up is cached now: its size and range
     est = plan.peak
-    base = _rss()
+    base = resident_bytes()
     res = run_depth(rig, img, config=cfg, progress=False)
     pipeline._Clock.step = orig  # type: ignore[method-assign]
     overall[0] = max(overall[0], _hwm())
