@@ -442,6 +442,8 @@ class PairMaps:
     evidence : (H, W) bool      both cross-checked initial maps agree.
     bright, bleft : (H, W) int64 or None   the right and left view's winners of ``bvol`` (computed when None).
     sheared : ShearedInputs or None        the data term's pixel inputs, reused by the row-only volume.
+    fallback_right : (H, W, 3) uint8 or None   the right view with a brightness offset removed, for the
+        fallback's ``bpasw`` map only (:func:`_compensate_views`); None: the fallback reads ``bvol``.
     """
 
     data: F32
@@ -455,6 +457,7 @@ class PairMaps:
     bright: npt.NDArray[np.int64] | None = None
     bleft: npt.NDArray[np.int64] | None = None
     sheared: ShearedInputs | None = None
+    fallback_right: npt.NDArray[np.uint8] | None = None
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -492,6 +495,7 @@ class _PairEvidence:
         self.coop, self.segmentation, self.plane_params = params.coop, params.segmentation, params.planes
         self.cost, self.slopes = params.cost, params.slopes
         self.evidence = maps.evidence
+        self._fallback_right = maps.fallback_right
         self.fallback_pixels = 0
         self.memo = CoopMemo()
 
@@ -591,8 +595,7 @@ class _PairEvidence:
                 maps.append(final)
                 support.append(self.evidence & (np.abs(final - self.initial) <= p.tol))
             elif name == "bpasw":
-                maps.append(bpasw_dense_map(self.bvol, self.image, min_disp=self.min_disp, right_winner=self.bright,
-                                            where=local, left_winner=self.bleft))
+                maps.append(self._fallback_bpasw_map(local))
                 support.append(self._bpasw_checked())
             else:
                 sgm_map, sgm_valid = self._sgm_map()
@@ -613,6 +616,17 @@ class _PairEvidence:
             sel = local & (pick == i)
             out[sel] = m[sel]
         return out
+
+    def _fallback_bpasw_map(self, local: npt.NDArray[np.bool_]) -> F32:
+        """The ``bpasw`` matcher's dense map (H, W) float32 at the ``local`` pixels, of the offset-compensated pair
+        when there is one (:class:`PairMaps` ``fallback_right``): post-processing beyond the thesis, no equation of
+        its own."""
+        if self._fallback_right is None:
+            return bpasw_dense_map(self.bvol, self.image, min_disp=self.min_disp, right_winner=self.bright,
+                                   where=local, left_winner=self.bleft)
+        # a brightness offset between the views moves a colour cost's minimum on weak texture (radiometry.py)
+        vol = bpasw_volume(self.image, self._fallback_right, max_disp=self.max_disp, min_disp=self.min_disp)
+        return bpasw_dense_map(vol, self.image, min_disp=self.min_disp, where=local)
 
     def _bpasw_checked(self) -> npt.NDArray[np.bool_]:
         # the BPASW matcher's own left-right check (1 px), the pixels its dense map keeps before filling
@@ -655,6 +669,32 @@ def segment_support_choice(labels: npt.NDArray[np.int32], where: npt.NDArray[np.
     best = share.argmax(axis=0)
     take = share[best, np.arange(n)] > share[0] + margin
     return np.asarray(np.where(take, best, 0)[labels], np.int64)
+
+
+def _compensate_views(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uint8], *, max_disp: int,
+                      radiometry: RadiometryParams, fallback: FallbackParams
+                      ) -> tuple[npt.NDArray[np.uint8], npt.NDArray[np.uint8] | None, dict[str, float]]:
+    """The right view every colour cost reads, the right view of the fallback's ``bpasw`` map, and the
+    compensation's info (:func:`~prismstereo.matching.coop.radiometry.compensate_right`).
+
+    An addition to thesis §5.2 with no equation of its own. A systematic brightness offset of at least
+    ``fallback.radiometry_offset`` grey levels that the compensation's own rules leave in place is removed for
+    the fallback's map only (None otherwise): removing it for the whole pipeline changes the maps of scenes
+    whose offset did no harm (docs/EXPERIMENTS.md, issue 27, h-mb27).
+    """
+    offset = fallback.radiometry_offset
+    want = fallback.enabled and offset > 0 and "bpasw" in fallback.candidates and radiometry.min_offset == 0
+    params = dataclasses.replace(radiometry, min_offset=offset) if want else radiometry
+    out, info = compensate_right(lft, rgt, max_disp=max_disp, params=params)
+    if want and info.get("radiometry_offset_only", 0.0) == 1.0:
+        # the pipeline reads the views as given: the census-only test is on their own colour difference
+        census_only = float(info["radiometry_ad_before"] > radiometry.max_residual)
+        info = {**info, "radiometry_applied": 0.0, "radiometry_census_only": census_only,
+                "radiometry_fallback_offset": 1.0}
+        log.info("coop: a brightness offset of %.1f levels between the views, removed for the fallback's map",
+                 info["radiometry_offset_before"])
+        return rgt, out, info
+    return out, None, {**info, "radiometry_fallback_offset": 0.0}
 
 
 def _guided_initial(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, max_disp: int, min_disp: int,
@@ -730,7 +770,8 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     tol = st.boundary.tol
     t = time.perf_counter()
     # every colour cost of the pair below reads the right view in the left view's radiometry
-    rgt, radio = compensate_right(lft, rgt, max_disp=int(max_disp), params=dp.radiometry)
+    rgt, fallback_right, radio = _compensate_views(lft, rgt, max_disp=int(max_disp), radiometry=dp.radiometry,
+                                                   fallback=st.fallback)
     if radio["radiometry_census_only"]:
         # colours that no intensity mapping reconciles: the pixel costs keep their census term only
         cp = dataclasses.replace(cp, tau_color=0.0, tau_grad=0.0)
@@ -799,7 +840,8 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     graph = build_segment_graph(labels, lft)
     dcost, sheared = fut_data.result()
     maps = PairMaps(data=dcost, reliable=reliable, initial=initial, bvol=bvol, bdisp=bdisp0, brel=brel0,
-                    nonplanar=nonplanar, evidence=evidence, bright=bright, bleft=bleft, sheared=sheared)
+                    nonplanar=nonplanar, evidence=evidence, bright=bright, bleft=bleft, sheared=sheared,
+                    fallback_right=fallback_right)
     ev = _PairEvidence(lft, rgt, min_disp=min_disp, max_disp=max_disp, maps=maps,
                        params=PairSetup(coop=op, segmentation=sp, planes=pp, cost=dp.cost or cp,
                                          slopes=dp.slopes or None), segments=ahead)

@@ -11,8 +11,16 @@ The compensation uses census alone to find correspondences: census Hamming costs
 (the same surface points in both views) each colour channel's transfer from the right view to the left is
 estimated as the monotone quantile map of the right samples onto the left samples, and applied to the full
 right view by a 256-entry table. Without a radiometric difference the table is near the identity; it is applied
-only when it lowers the median colour difference of the matched pixels by at least ``min_gain`` grey levels
-(otherwise the right view is returned unchanged, bit for bit).
+only when it lowers the median colour difference of the matched pixels by at least ``min_gain`` grey levels,
+or (``min_offset`` > 0, off by default) when the matched pixels show a systematic brightness offset (median
+signed difference of at least ``min_offset`` levels) that the table reduces; otherwise the right view is
+returned unchanged, bit for bit.
+The offset matters on weak texture: on a wall whose intensity varies by a level or two over many pixels, an
+offset of 1-2 levels between the views moves the minimum of any colour-difference cost to a wrong disparity
+where the slope of the wall's shading cancels it, while the median absolute difference, dominated by noise and
+texture, hardly changes. The offset trigger is off by default because the same offsets occur on scenes where
+removing them changes coop's maps for the worse as often as for the better (docs/EXPERIMENTS.md, issue 27,
+branch h-mb27).
 """
 
 from __future__ import annotations
@@ -55,6 +63,11 @@ class RadiometryParams:
     min_gain : float
         Grey levels by which the median colour difference of the matched pixels must drop for the table to be
         applied.
+    min_offset : float
+        The table is applied too when the magnitude of the matched pixels' median signed colour difference
+        (left minus right, mean over the channels) is at least this many grey levels and the table reduces it
+        without raising their median colour difference or leaving it above ``max_residual`` (0: off, the
+        default; 1.0 is the value measured in docs/EXPERIMENTS.md).
     max_residual : float
         When the matched pixels' median colour difference stays above this many grey levels after the mapping
         (a change of light that no function of intensity undoes), ``info["radiometry_census_only"]`` is 1: the
@@ -67,15 +80,17 @@ class RadiometryParams:
     uniqueness: float = 0.1
     min_samples: int = 500
     min_gain: float = 3.0
+    min_offset: float = 0.0
     max_residual: float = 8.0
 
     def __post_init__(self) -> None:
         """Validate the fields; implementation helper with no thesis equation of its own."""
         if not (self.scale >= 1 and self.radius >= 0 and 0.0 <= self.uniqueness < 1.0 and self.min_samples >= 16
-                and self.min_gain >= 0 and self.max_residual >= 0):
+                and self.min_gain >= 0 and self.min_offset >= 0 and self.max_residual >= 0):
             raise ConfigError(f"expected radiometry.scale >= 1, radius >= 0, uniqueness in [0, 1), min_samples "
-                              f">= 16, min_gain and max_residual >= 0, got {self.scale!r}, {self.radius!r}, "
-                              f"{self.uniqueness!r}, {self.min_samples!r}, {self.min_gain!r}, {self.max_residual!r}")
+                              f">= 16, min_gain, min_offset and max_residual >= 0, got {self.scale!r}, "
+                              f"{self.radius!r}, {self.uniqueness!r}, {self.min_samples!r}, {self.min_gain!r}, "
+                              f"{self.min_offset!r}, {self.max_residual!r}")
 
 
 def _census_matches(left: U8, right: U8, *, max_disp: int, radius: int,
@@ -148,7 +163,9 @@ def compensate_right(left: U8, right: U8, *, max_disp: int,
         few matches, or does not lower the matched pixels' median colour difference by ``min_gain``.
     info : dict
         ``radiometry_samples``, ``radiometry_ad_before``, ``radiometry_ad_after`` (median mean-channel absolute
-        difference of the matched pixels, grey levels), ``radiometry_applied`` and ``radiometry_census_only``
+        difference of the matched pixels, grey levels), ``radiometry_offset_before``, ``radiometry_offset_after``
+        (their median mean-channel signed difference, left minus right), ``radiometry_applied``,
+        ``radiometry_offset_only`` (applied by the ``min_offset`` rule alone) and ``radiometry_census_only``
         (0 / 1, see :class:`RadiometryParams`).
     """
     p = params or RadiometryParams()
@@ -171,8 +188,15 @@ def compensate_right(left: U8, right: U8, *, max_disp: int,
     mapped = np.stack([luts[c][rs[ys, xr, c]] for c in range(left.shape[2])], axis=1).astype(np.float64)
     before = float(np.median(np.abs(lv - rv).mean(axis=1)))
     after = float(np.median(np.abs(lv - mapped).mean(axis=1)))
-    info.update(radiometry_ad_before=before, radiometry_ad_after=after)
-    applied = before - after >= p.min_gain
+    off_before = float(np.median((lv - rv).mean(axis=1)))
+    off_after = float(np.median((lv - mapped).mean(axis=1)))
+    info.update(radiometry_ad_before=before, radiometry_ad_after=after, radiometry_offset_before=off_before,
+                radiometry_offset_after=off_after)
+    # a systematic offset is read by the colour costs as texture on weakly textured surfaces (module docstring)
+    offset = (p.min_offset > 0 and abs(off_before) >= p.min_offset and abs(off_after) < abs(off_before)
+              and after <= min(before, p.max_residual))
+    applied = before - after >= p.min_gain or offset
+    info["radiometry_offset_only"] = float(applied and before - after < p.min_gain)
     if (after if applied else before) > p.max_residual:  # what the costs will see still disagrees
         info["radiometry_census_only"] = 1.0
     if not applied:
@@ -181,6 +205,6 @@ def compensate_right(left: U8, right: U8, *, max_disp: int,
     for c in range(right.shape[2]):
         out[:, :, c] = cv2.LUT(np.ascontiguousarray(right[:, :, c]), luts[c])
     info["radiometry_applied"] = 1.0
-    log.info("coop: right view's colours mapped to the left's (matched median AD %.1f -> %.1f, %d samples)",
-             before, after, ys.size)
+    log.info("coop: right view's colours mapped to the left's (matched median AD %.1f -> %.1f, offset %.1f -> "
+             "%.1f, %d samples)", before, after, off_before, off_after, ys.size)
     return np.ascontiguousarray(out), info

@@ -237,7 +237,11 @@ class FallbackParams:
     BPASW cost is flat (median peak ratio of its replaced pixels below ``flat_ratio``,
     :mod:`~prismstereo.matching.coop.flatcost`) takes ``sgm``'s map when ``sgm``'s check keeps at least
     ``flat_min_support`` of those pixels and no less than BPASW's share minus ``flat_support_margin``
-    (``flat_ratio`` 0 = off)."""
+    (``flat_ratio`` 0 = off). When the views differ by a systematic brightness offset of at least
+    ``radiometry_offset`` grey levels that the pair's own compensation leaves in place
+    (:class:`~prismstereo.matching.coop.radiometry.RadiometryParams` ``min_offset``), the ``bpasw`` map a
+    segment takes is that of the offset-compensated pair (one more BPASW volume); the evidence of the choice
+    (the checks, the peak ratio) stays that of the pair the front end matched (0 = off)."""
 
     enabled: bool = True
     min_coverage: float = 0.4
@@ -253,9 +257,11 @@ class FallbackParams:
     flat_ratio: float = 0.07
     flat_min_support: float = 0.4
     flat_support_margin: float = 0.3
+    radiometry_offset: float = 1.0
 
     def __post_init__(self) -> None:
         """Validate the fields; implementation helper with no thesis equation of its own."""
+        _need(self.radiometry_offset >= 0, "fallback.radiometry_offset >= 0", self.radiometry_offset)
         _need(self.flat_ratio >= 0 and 0.0 <= self.flat_min_support <= 1.0 and 0.0 <= self.flat_support_margin <= 1.0,
               "fallback.flat_ratio >= 0, flat_min_support and flat_support_margin in [0, 1]",
               (self.flat_ratio, self.flat_min_support, self.flat_support_margin))
