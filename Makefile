@@ -15,8 +15,13 @@ demo: $(STAMP)
 	$(BIN)/prismstereo warmup --methods bpasw --parts depth    # the kernels the demo runs, not every matcher's
 	$(BIN)/prismstereo demo -o demo_out
 
+# two pytest processes (pytest-xdist), each taking whole test files so that a file's module fixtures are built
+# once: CI and the developers' machines have 2 cores, and most of the suite runs on one. Both processes share
+# .numba_cache (numba writes each cache file under a temporary name and renames it).
+TEST_WORKERS ?= 2
+
 test: $(STAMP)
-	NUMBA_CACHE_DIR=$(CURDIR)/.numba_cache $(BIN)/python -m pytest
+	NUMBA_CACHE_DIR=$(CURDIR)/.numba_cache $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks
