@@ -179,3 +179,49 @@ def test_the_prefilter_ignores_what_lies_beyond_a_views_valid_region_and_its_rim
     np.testing.assert_array_equal(d0, d1)
     np.testing.assert_array_equal(c0, c1)
     assert np.isfinite(c0[10:-10, 27:40]).mean() > 0.9  # the cut windows at the left view's edge are refined
+
+
+def _masked_sums_reference(L, R, Rx, VL, VR, y, x, b0, r, oy, fy):  # noqa: ANN001, ANN202
+    """The masked window sums pixel by pixel, with the rule of ``_masked_tap_sums`` spelled out."""
+    h, w = VL.shape
+    out = np.zeros(21)
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            yl, xl, xa, yr = y + dy, x + dx, b0 + dx, y + dy + oy
+            if not (0 <= yl < h and 0 <= xl < w and VL[yl, xl] and 0 <= xa and xa + 1 < w):
+                continue
+            near, far = (yr, yr + 1) if fy < 0.5 else (yr + 1, yr)
+            if not (0 <= near < h and VR[near, xa] >= 2 and VR[near, xa + 1] >= 2):
+                continue
+            if fy != 0.0 and not (0 <= far < h and VR[far, xa] >= 1 and VR[far, xa + 1] >= 1):
+                continue
+            ya, yb = min(max(yr, 0), h - 1), min(max(yr + 1, 0), h - 1)
+            ra, rb = ((1 - fy) * float(R[ya, c]) + fy * float(R[yb, c]) for c in (xa, xa + 1))
+            ja, jb = ((1 - fy) * float(Rx[ya, c]) + fy * float(Rx[yb, c]) for c in (xa, xa + 1))
+            lv = float(L[yl, xl])
+            out += [1, lv, lv * lv, ra, rb, ja, jb, lv * ja, lv * jb, ra * ja, ra * jb, rb * ja, rb * jb, ja * ja,
+                    ja * jb, jb * jb, ra * ra, ra * rb, rb * rb, lv * ra, lv * rb]
+    return out
+
+
+def test_cut_window_sums_count_only_the_pixels_inside_both_views() -> None:
+    """The branch-free masked sums of the cut windows equal the pixel-by-pixel rule, at the image's edges, across
+    holes of both views, with and without a row fraction (fy below and above one half)."""
+    from prismstereo.depth.refine import _masked_tap_sums
+
+    rng = np.random.default_rng(3)
+    h, w, r = 24, 30, 3
+    L = rng.uniform(0, 255, (h, w)).astype(np.float32)
+    R = rng.uniform(0, 255, (h, w)).astype(np.float32)
+    Rx = rng.normal(0, 20, (h, w)).astype(np.float32)
+    VL = (rng.uniform(size=(h, w)) > 0.15).astype(np.uint8)
+    VR = rng.choice(np.array([0, 1, 2, 2, 2], dtype=np.uint8), size=(h, w))
+    for _ in range(150):
+        y, x = int(rng.integers(0, h)), int(rng.integers(0, w))
+        b0, oy = x - int(rng.integers(-2, 6)), int(rng.integers(-2, 2))
+        fy = float(rng.choice([0.0, 0.3, 0.8]))
+        got = np.array(_masked_tap_sums(L, R, Rx, VL, VR, y, x, b0, r, oy, fy))
+        want = _masked_sums_reference(L, R, Rx, VL, VR, y, x, b0, r, oy, fy)
+        # products of float32 pixels are float32 in the kernel (numba's float() keeps the type): a pixel counted
+        # wrongly moves a sum by a whole term, ≥ 1e-3 of it here
+        np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-6)

@@ -46,27 +46,6 @@ def _sample(img: np.ndarray, y: int, xf: float, fy: float) -> float:  # pragma: 
 
 
 @njit(cache=True, inline="always")
-def _taps(R: np.ndarray, Rx: np.ndarray, yr: int, fy: float, xa: int) -> tuple[float, float, float, float]:
-    # pragma: no cover - numba
-    """R and Rx at the integer columns ``xa`` and ``xa + 1`` of the (fractional) row ``yr + fy``: linear
-    between rows ``yr`` and ``yr + 1``, edge-replicated."""
-    h = R.shape[0]
-    ya = min(max(yr, 0), h - 1)
-    ra = float(R[ya, xa])
-    rb = float(R[ya, xa + 1])
-    ja = float(Rx[ya, xa])
-    jb = float(Rx[ya, xa + 1])
-    if fy != 0.0:
-        yb = min(max(yr + 1, 0), h - 1)
-        gy = 1.0 - fy
-        ra = gy * ra + fy * float(R[yb, xa])
-        rb = gy * rb + fy * float(R[yb, xa + 1])
-        ja = gy * ja + fy * float(Rx[yb, xa])
-        jb = gy * jb + fy * float(Rx[yb, xa + 1])
-    return ra, rb, ja, jb
-
-
-@njit(cache=True, inline="always")
 def _tap_sums(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, y: int, x: int, b0: int, lmean: float,
               radius: int, oy: int, fy: float) -> tuple[float, ...]:  # pragma: no cover - numba
     """Window sums of the two integer taps ``a = b0 + dx`` and ``b = a + 1`` of R and Rx, against the left
@@ -80,7 +59,8 @@ def _tap_sums(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, y: int, x: int, b0: 
     gy = 1.0 - fy
     for dy in range(-radius, radius + 1):
         yy = y + dy
-        # the taps of :func:`_taps`, each column sampled once: tap b of one column is tap a of the next
+        # R and Rx linear between rows ya and yb, each column sampled once: tap b of one column is tap a of
+        # the next
         ya = min(max(yy + oy, 0), h - 1)
         yb = min(max(yy + oy + 1, 0), h - 1)
         xa = b0 - radius
@@ -222,61 +202,88 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
     return d_out, zncc, keep
 
 
-@njit(cache=True, inline="always")
-def _window_valid(VL: np.ndarray, VR: np.ndarray, y: int, xl: int, xa: int, yr: int,
-                  fy: float) -> bool:  # pragma: no cover - numba
-    """Whether a window pixel counts: inside the image and the left view, both right taps inside the right
-    view. ``VR`` is 2 inside the right view, 1 on its outermost pixels, 0 outside; the right window lies
-    between rows ``yr`` and ``yr + 1`` (weight ``fy`` on ``yr + 1``): the nearer row must be inside (2),
-    the other one, weighted less than half, in the view (≥ 1)."""
-    h, w = VL.shape
-    if not (0 <= y < h and 0 <= xl < w and VL[y, xl] != 0 and 0 <= xa and xa + 1 < w):
-        return False
-    near, far = (yr, yr + 1) if fy < 0.5 else (yr + 1, yr)
-    if not (0 <= near < h and VR[near, xa] >= 2 and VR[near, xa + 1] >= 2):
-        return False
-    return fy == 0.0 or (0 <= far < h and VR[far, xa] >= 1 and VR[far, xa + 1] >= 1)
-
-
 @njit(cache=True)
 def _masked_tap_sums(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray, VR: np.ndarray, y: int,
                      x: int, b0: int, radius: int, oy: int, fy: float) -> tuple[float, ...]:  # pragma: no cover - numba
-    """:func:`_tap_sums` over the window pixels that count (:func:`_window_valid`; with the taps at ``b0 + dx``
-    the set is the same for every fraction), on the raw left window: m, Σ L, Σ L², then Σ Ra, Σ Rb, Σ Ja,
-    Σ Jb, Σ L·Ja, Σ L·Jb, Σ Ra·Ja, Σ Ra·Jb, Σ Rb·Ja, Σ Rb·Jb, Σ Ja², Σ Ja·Jb, Σ Jb², Σ Ra², Σ Ra·Rb,
-    Σ Rb², Σ L·Ra, Σ L·Rb."""
+    """:func:`_tap_sums` over the window pixels that count, on the raw left window: m, Σ L, Σ L², then Σ Ra,
+    Σ Rb, Σ Ja, Σ Jb, Σ L·Ja, Σ L·Jb, Σ Ra·Ja, Σ Ra·Jb, Σ Rb·Ja, Σ Rb·Jb, Σ Ja², Σ Ja·Jb, Σ Jb², Σ Ra²,
+    Σ Ra·Rb, Σ Rb², Σ L·Ra, Σ L·Rb (the taps R, Rx linear between the rows ``yr = y + dy + oy`` and ``yr + 1``,
+    clamped to the image, at the columns ``b0 + dx`` and ``b0 + dx + 1``).
+
+    A window pixel counts when it lies inside the image and the left view (``VL`` ≠ 0) and both its right taps
+    inside the right view: ``VR`` is 2 inside it, 1 on its outermost pixels, 0 outside; of the rows ``yr`` and
+    ``yr + 1`` (weight ``fy`` on ``yr + 1``) the nearer one must be inside (2), the other one, weighted less
+    than half, in the view (≥ 1; not read when ``fy`` is 0). With the taps at ``b0 + dx`` the set is the same
+    for every fraction.
+
+    Branch-free along a window row: each pixel's terms are weighted by whether it counts (1.0 or 0.0, so
+    the sums are those of the pixels that count, in the same order, bit for bit), and the taps and the right
+    view's test of a column are carried to the next one (tap b of one column is tap a of the next); loads
+    are clamped to the image (what they read off it is weighted 0)."""
+    h, w = VL.shape
     m = sl = sll = 0.0
     sra = srb = sja = sjb = slja = sljb = 0.0
     sraja = srajb = srbja = srbjb = sjaja = sjajb = sjbjb = 0.0
     srara = srarb = srbrb = slra = slrb = 0.0
     for dy in range(-radius, radius + 1):
+        yl = y + dy
+        yr = yl + oy
+        near, far = (yr, yr + 1) if fy < 0.5 else (yr + 1, yr)
+        if not (0 <= yl < h and 0 <= near < h and (fy == 0.0 or 0 <= far < h)):
+            continue  # no pixel of this row counts
+        nc = min(max(near, 0), h - 1)
+        fc = min(max(far, 0), h - 1)
+        # the rows of the taps, clamped
+        ya = min(max(yr, 0), h - 1)
+        yb = min(max(yr + 1, 0), h - 1)
+        xa = b0 - radius
+        xc = min(max(xa, 0), w - 1)
+        ra = float(R[ya, xc])
+        ja = float(Rx[ya, xc])
+        if fy != 0.0:
+            gy = 1.0 - fy
+            ra = gy * ra + fy * float(R[yb, xc])
+            ja = gy * ja + fy * float(Rx[yb, xc])
+        ok_a = VR[nc, xc] >= 2 and (fy == 0.0 or VR[fc, xc] >= 1)
         for dx in range(-radius, radius + 1):
             xa = b0 + dx
-            if not _window_valid(VL, VR, y + dy, x + dx, xa, y + dy + oy, fy):
-                continue
-            ra, rb, ja, jb = _taps(R, Rx, y + dy + oy, fy, xa)
-            lv = float(L[y + dy, x + dx])
-            m += 1.0
-            sl += lv
-            sll += lv * lv
-            sra += ra
-            srb += rb
-            sja += ja
-            sjb += jb
-            slja += lv * ja
-            sljb += lv * jb
-            sraja += ra * ja
-            srajb += ra * jb
-            srbja += rb * ja
-            srbjb += rb * jb
-            sjaja += ja * ja
-            sjajb += ja * jb
-            sjbjb += jb * jb
-            srara += ra * ra
-            srarb += ra * rb
-            srbrb += rb * rb
-            slra += lv * ra
-            slrb += lv * rb
+            xl = x + dx
+            xn = min(max(xa + 1, 0), w - 1)
+            rb = float(R[ya, xn])
+            jb = float(Rx[ya, xn])
+            if fy != 0.0:
+                gy = 1.0 - fy
+                rb = gy * rb + fy * float(R[yb, xn])
+                jb = gy * jb + fy * float(Rx[yb, xn])
+            ok_b = VR[nc, xn] >= 2 and (fy == 0.0 or VR[fc, xn] >= 1)
+            xlc = min(max(xl, 0), w - 1)
+            counts = 0 <= xl < w and VL[yl, xlc] != 0 and 0 <= xa and xa + 1 < w and ok_a and ok_b
+            v = 1.0 if counts else 0.0
+            lv = float(L[yl, xlc])
+            m += v
+            sl += v * lv
+            sll += v * (lv * lv)
+            sra += v * ra
+            srb += v * rb
+            sja += v * ja
+            sjb += v * jb
+            slja += v * (lv * ja)
+            sljb += v * (lv * jb)
+            sraja += v * (ra * ja)
+            srajb += v * (ra * jb)
+            srbja += v * (rb * ja)
+            srbjb += v * (rb * jb)
+            sjaja += v * (ja * ja)
+            sjajb += v * (ja * jb)
+            sjbjb += v * (jb * jb)
+            srara += v * (ra * ra)
+            srarb += v * (ra * rb)
+            srbrb += v * (rb * rb)
+            slra += v * (lv * ra)
+            slrb += v * (lv * rb)
+            ra = rb
+            ja = jb
+            ok_a = ok_b
     return (m, sl, sll, sra, srb, sja, sjb, slja, sljb, sraja, srajb, srbja, srbjb, sjaja, sjajb, sjbjb,
             srara, srarb, srbrb, slra, slrb)
 
@@ -286,7 +293,7 @@ def _refine_masked(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray,
                    init: float, oy: int, fy: float, radius: int, iterations: int, max_shift: float, min_texture: float,
                    min_pixels: int) -> tuple[float, float, bool]:  # pragma: no cover - numba
     """Gauss–Newton of one pixel whose window is cut by an edge: the sums run over the window's pixels that
-    lie in both views (re-selected at each step, since the right taps move with d); the means, the texture
+    lie in both views (re-selected at each tap position, since the right taps move with d); the means, the texture
     test and the ZNCC are those of these pixels. Fewer than ``min_pixels`` of them: not refined. The sums
     come from :func:`_masked_tap_sums`, once per integer tap position visited (as in :func:`_refine_kernel`)."""
     d = init
@@ -359,10 +366,14 @@ def _inner(valid: np.ndarray) -> np.ndarray:
     return cv2.erode(valid.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
 
 
-def _split_rows(offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Row offsets → integer part (int64) and fraction in [0, 1) (float64)."""
-    base = np.floor(offset)
-    return base.astype(np.int64), (offset - base).astype(np.float64)
+def _split_rows(offset: np.ndarray | None, ys: np.ndarray, xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The row offsets at pixels ``(ys, xs)`` (0 where None or not finite) → integer part (int64) and fraction
+    in [0, 1) (float64); only the pixels asked are converted (the map is the whole view)."""
+    if offset is None:
+        return np.zeros(ys.size, dtype=np.int64), np.zeros(ys.size, dtype=np.float64)
+    off = np.nan_to_num(offset[ys, xs].astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+    base = np.floor(off)
+    return base.astype(np.int64), (off - base).astype(np.float64)
 
 
 def _gray(img: np.ndarray) -> np.ndarray:
@@ -466,10 +477,7 @@ def refine_disparity(
     conf = np.full(d0.shape, np.nan, dtype=np.float32)
     finite = np.isfinite(d0)
     k = 2 * radius + 1
-    if row_offset is None:
-        offs = np.zeros((h, w), dtype=np.float64)
-    else:
-        offs = np.nan_to_num(np.asarray(row_offset, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+    offs = None if row_offset is None else np.asarray(row_offset)
     vl = np.ones((h, w), dtype=bool) if valid_left is None else np.asarray(valid_left, dtype=bool)
     vr = np.ones((h, w), dtype=bool) if valid_right is None else np.asarray(valid_right, dtype=bool)
     # window content: with cut windows, not the outermost pixel of a view's valid region either (its
@@ -497,7 +505,7 @@ def refine_disparity(
         xr0 = np.rint(xs0 - d0[ys0, xs0]).astype(np.int64)
         # the right window's rows: those of the left one moved by the row offset, and the next ones when
         # it has a fraction
-        oy0, fy0 = _split_rows(offs[ys0, xs0])
+        oy0, fy0 = _split_rows(offs, ys0, xs0)
         yr0 = ys0 + oy0
         yr1 = yr0 + (fy0 > 0.0)
         inside = (xr0 >= 0) & (xr0 < w) & (yr0 >= 0) & (yr1 < h)
@@ -508,7 +516,7 @@ def refine_disparity(
     Rx = cv2.Sobel(R, cv2.CV_32F, 1, 0, ksize=3, scale=1.0 / 8.0)
     ys, xs = np.nonzero(ok)
     if ys.size:
-        oy, fy = _split_rows(offs[ys, xs])
+        oy, fy = _split_rows(offs, ys, xs)
         d, zncc, keep = _refine_kernel(L, R, Rx, ys.astype(np.int64), xs.astype(np.int64), d0, oy, fy,
                                        int(radius), int(iterations), float(max_shift), float(min_texture))
         if valid_right is not None and min_pixels is None:
@@ -522,7 +530,7 @@ def refine_disparity(
         conf[ys[keep], xs[keep]] = zncc[keep]
     ys, xs = np.nonzero(cut)
     if ys.size and min_pixels is not None:
-        oy, fy = _split_rows(offs[ys, xs])
+        oy, fy = _split_rows(offs, ys, xs)
         vr_levels = vr_in.astype(np.uint8) + vr.astype(np.uint8)  # 2 inside, 1 outermost pixels, 0 outside
         d, zncc, keep = _refine_cut_kernel(L, R, Rx, vl_in.astype(np.uint8), vr_levels,
                                            ys.astype(np.int64), xs.astype(np.int64), d0, oy, fy, int(radius),

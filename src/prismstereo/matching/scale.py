@@ -460,8 +460,11 @@ def match_scaled(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp
         t0 = time.perf_counter()
         cl, cr = _downsample(left, f), _downsample(right, f)
         clo, chi = _coarse_range(lo, hi, f, cl.shape[1])
-        coarse = match_scaled(cl, cr, max_disp=chi, min_disp=clo, method=method, params=prm, scale=_sub_params(p),
-                              _level=_level + 1)
+        # the band is read from the coarse level's dense map: its holes filled even where the full resolution's
+        # are not (the depth pipeline skips that filling when it reads only the cross-checked matches)
+        coarse_prm = {**prm, "fill": True} if prm.get("fill") is False else prm
+        coarse = match_scaled(cl, cr, max_disp=chi, min_disp=clo, method=method, params=coarse_prm,
+                              scale=_sub_params(p), _level=_level + 1)
         coarse_s = time.perf_counter() - t0
         info["levels"] = int(coarse.extras.get("scale", {}).get("levels", _level + 2))
         # the coarse levels ran first, in the same process: the run's peak is the larger of theirs and the tiles'
