@@ -322,3 +322,52 @@ def test_a_wider_window_retries_the_weak_matches_only_and_makes_them_precise():
     first = np.isfinite(c5) & (c5 >= 0.95)
     assert first[strong].mean() > 0.9
     assert np.array_equal(d_r[first], d5[first]) and np.array_equal(c_r[first], c5[first])  # not retried
+
+
+def _weak_and_strong(seed: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Weak texture under sensor noise on columns < 100, a strong one beyond (true disparity 7.3 px)."""
+    strong_l, strong_r = _shifted_pair(7.3, seed=3, h=60, w=160)
+    rng = np.random.default_rng(seed)
+    left = (0.08 * strong_l + rng.normal(0.0, 1.5, strong_l.shape)).astype(np.float32)
+    right = (0.08 * strong_r + rng.normal(0.0, 1.5, strong_r.shape)).astype(np.float32)
+    left[:, 100:], right[:, 100:] = strong_l[:, 100:], strong_r[:, 100:]
+    return left, right
+
+
+def test_retry_drop_zeroes_only_the_weak_matches_the_wider_window_does_not_confirm():
+    left, right = _weak_and_strong()
+    init = np.full(left.shape, 7.0, dtype=np.float32)
+    kw = dict(radius=5, min_confidence=None, max_lr_gap=0.45, retry_radius=11, retry_below=0.95)
+    d0, c0 = confident_matches(left, right, init, **kw)
+    d1, c1 = confident_matches(left, right, init, retry_drop=True, **kw)
+    _, c5 = confident_matches(left, right, init, radius=5, min_confidence=None, max_lr_gap=0.45)
+    _, c11 = confident_matches(left, right, init, radius=11, min_confidence=None, max_lr_gap=0.45)
+    unconfirmed = ~(c5 >= 0.95) & ~(c11 > 0.0)
+    assert unconfirmed.sum() > 50  # the weak part has some
+    assert np.array_equal(d1, d0, equal_nan=True)
+    assert np.all(c1[unconfirmed] == 0.0)
+    assert np.array_equal(c1[~unconfirmed], c0[~unconfirmed], equal_nan=True)
+    kept, _ = confident_matches(left, right, init, retry_drop=True, **{**kw, "min_confidence": 0.5})
+    assert not np.isfinite(kept[unconfirmed]).any()
+
+
+def test_an_agreeing_fill_keeps_the_filled_values_both_windows_confirm_alike():
+    from prismstereo.depth.confidence import confident_fill
+    from prismstereo.errors import ConfigError
+
+    left, right = _weak_and_strong()
+    none = np.full(left.shape, np.nan, dtype=np.float32)
+    filled = np.full(left.shape, 7.0, dtype=np.float32)
+    kw = dict(radius=5, min_confidence=0.5, max_lr_gap=0.45, retry_radius=11, retry_below=0.95)
+    d_all, c_all = confident_fill(left, right, none, none, filled, **kw)
+    d_ag, c_ag = confident_fill(left, right, none, none, filled, agree=0.5, **kw)
+    ag = np.isfinite(d_ag)
+    assert np.all(np.isfinite(d_all[ag]))  # a subset of the one-pass fill, with its values
+    assert np.allclose(d_ag[ag], d_all[ag]) and np.allclose(c_ag[ag], c_all[ag])
+    weak = (slice(None), slice(0, 100))
+    far_all = np.nanmean(np.abs(d_all[weak] - 7.3) > 0.5)
+    far_ag = np.nanmean(np.abs(d_ag[weak] - 7.3) > 0.5)
+    assert far_ag < 0.5 * far_all  # the values the two windows disagree on are the wrong ones
+    assert np.isfinite(d_ag[14:-14, 124:-20]).mean() > 0.9  # the strong texture is kept (off its border)
+    with pytest.raises(ConfigError, match="agree"):
+        confident_fill(left, right, none, none, filled, agree=0.5, radius=5, max_lr_gap=0.45)

@@ -313,7 +313,8 @@ def _add_depth(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--refine-fill", action=argparse.BooleanOptionalAction, default=None,
                    help="where no cross-checked match was kept, refine from the matcher's dense map and keep what "
                         "the sub-pixel left-right check and --min-confidence confirm: more points on weak texture, "
-                        "less precise ones (default off: DepthConfig.refine_fill)")
+                        "less precise ones (default off: DepthConfig.refine_fill; by default a dense-map value is "
+                        "kept only where two window sizes agree, DepthConfig.refine_fill_agree)")
     p.add_argument("--self-calibrate", action="store_true",
                    help="first refine the prism's rotation and tilt from feature matches in this capture "
                         "(calibrate-prism --from-scene); the refined rig is written as rig_refined.toml")

@@ -13,13 +13,17 @@ The pipeline's ``refine`` and ``speckles`` steps are these plain functions on ar
   tri-prism's) that is a large share of it. With ``retry_radius`` the matches whose window stayed below
   ``retry_below`` (or were dropped) are refined and checked again with a wider window, whose result
   replaces the first where it is confirmed: on weak texture a small window's sub-pixel value is noisy.
+  With ``retry_drop`` a match the wider window could not confirm gets confidence 0 (it had already
+  failed to reach ``retry_below`` in the small one).
   Matches below ``min_confidence`` are dropped; ``min_confidence=None`` keeps them all with their
   confidence, for the user to filter.
 - :func:`remove_speckles` drops connected patches of disparity smaller than a share of the matched region.
 - :func:`confident_fill` tries again, from the matcher's dense (hole-filled, smoothed) map, where no
   cross-checked match was kept: on weak texture the integer cross-check and the refinement from the raw
   values drop whole regions the matcher had right; the same refinement, sub-pixel left–right check and
-  confidence threshold confirm or drop each of them.
+  confidence threshold confirm or drop each of them. With ``agree`` a filled value is kept only where the
+  two windows (``radius`` and ``retry_radius``), each confirmed on its own, agree: the dense map's
+  values are guesses, and two independent sub-pixel values that agree are what tells a right one.
 """
 
 from __future__ import annotations
@@ -46,7 +50,8 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
                       prefilter: float | None = 0.7,
                       right_seeds: np.ndarray | None = None,
                       retry_radius: int | None = None,
-                      retry_below: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
+                      retry_below: float = 0.95,
+                      retry_drop: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Refine matches, rate them and keep the confident ones.
 
     With ``retry_radius``, every match whose ``radius`` window did not reach a confidence of ``retry_below``
@@ -95,6 +100,10 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
         Half-size of the second, wider window (see above); None: one window.
     retry_below : float
         Matches whose first confidence is below this (or that were dropped) get the wider window.
+    retry_drop : bool
+        A retried match that the wider window does not confirm gets confidence 0 (so ``min_confidence``
+        drops it) instead of keeping its first window's result: its small window was weak, and the wide
+        one, with four times the pixels, failed the refinement or the sub-pixel check.
 
     Returns
     -------
@@ -117,6 +126,8 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
                             min_confidence=min_confidence, **kw)
             take = retry & np.isfinite(d2) & (c2 > 0.0)
             disp, conf = np.where(take, d2, disp), np.where(take, c2, conf)
+            if retry_drop:
+                conf = np.where(retry & ~take & np.isfinite(disp), np.float32(0.0), conf)
     keep = np.isfinite(disp) if min_confidence is None else np.isfinite(disp) & (conf >= min_confidence)
     nan = np.float32(np.nan)
     return np.where(keep, disp, nan).astype(np.float32), np.where(keep, conf, nan).astype(np.float32)
@@ -153,8 +164,8 @@ def _rated(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, *, radius
 
 
 def confident_fill(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, confidence: np.ndarray,
-                   filled: np.ndarray, *, valid_right: np.ndarray | None = None, **kwargs: Any
-                   ) -> tuple[np.ndarray, np.ndarray]:
+                   filled: np.ndarray, *, valid_right: np.ndarray | None = None, agree: float | None = None,
+                   **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
     """Add the confident matches of the matcher's dense (hole-filled, post-processed) map where
     :func:`confident_matches` kept none of its cross-checked ones.
 
@@ -174,6 +185,12 @@ def confident_fill(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, c
         The matcher's dense disparities, px, NaN outside the searched region.
     valid_right : (H, W) bool, optional
         Valid region of the rectified right view (a filled value whose right pixel is outside is skipped).
+    agree : float or None
+        Keep a filled value only where its ``radius`` window and its ``retry_radius`` window are each
+        confirmed (refinement, sub-pixel check, ``min_confidence``; a confidence > 0 without it) and their
+        refined disparities differ by less than this, px; the value kept is the wider window's where the
+        first one's confidence is below ``retry_below``, as in :func:`confident_matches`. None: every
+        confirmed filled value (one pass of :func:`confident_matches`).
     **kwargs
         The other keyword arguments of :func:`confident_matches` (``max_lr_gap`` must not be None: the
         check is what tests a filled value).
@@ -186,11 +203,14 @@ def confident_fill(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, c
     Raises
     ------
     ConfigError
-        ``max_lr_gap`` None.
+        ``max_lr_gap`` None, or ``agree`` without a ``retry_radius`` other than ``radius``.
     """
     if kwargs.get("max_lr_gap", 0.45) is None:
         raise ConfigError("confident_fill max_lr_gap: expected a number of px (the sub-pixel left–right "
                           "check is what tests a filled value), got None; pass the pipeline's refine_max_lr_gap")
+    if agree is not None and kwargs.get("retry_radius") in (None, kwargs.get("radius", 5)):
+        raise ConfigError(f"confident_fill agree: needs a second window (retry_radius other than radius), got "
+                          f"retry_radius {kwargs.get('retry_radius')!r}; pass agree=None for one window")
     d = np.asarray(disparity, dtype=np.float32)
     f = np.asarray(filled, dtype=np.float32)
     h, w = d.shape
@@ -204,10 +224,33 @@ def confident_fill(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, c
     retry = np.where(~np.isfinite(d), seeds, np.float32(np.nan))
     if not np.isfinite(retry).any():
         return d, np.asarray(confidence, dtype=np.float32)
-    d2, c2 = confident_matches(left, right, retry, valid_right=valid_right, right_seeds=seeds, **kwargs)
+    if agree is None:
+        d2, c2 = confident_matches(left, right, retry, valid_right=valid_right, right_seeds=seeds, **kwargs)
+    else:
+        d2, c2 = _agreeing(left, right, retry, seeds, valid_right=valid_right, agree=agree, **kwargs)
     add = ~np.isfinite(d) & np.isfinite(d2)
     return (np.where(add, d2, d).astype(np.float32),
             np.where(add, c2, np.asarray(confidence, dtype=np.float32)).astype(np.float32))
+
+
+def _agreeing(left: np.ndarray, right: np.ndarray, seeds: np.ndarray, right_seeds: np.ndarray, *,
+              valid_right: np.ndarray | None, agree: float, **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) float32 disparities and confidences of the ``seeds`` that both windows confirm and that agree
+    within ``agree`` px (see :func:`confident_fill`), NaN elsewhere."""
+    below = float(kwargs.pop("retry_below", 0.95))
+    wide = int(kwargs.pop("retry_radius"))
+    small = int(kwargs.pop("radius", 5))
+    kwargs.pop("retry_drop", None)
+    d1, c1 = confident_matches(left, right, seeds, radius=small, valid_right=valid_right, right_seeds=right_seeds,
+                               **kwargs)
+    d2, c2 = confident_matches(left, right, seeds, radius=wide, valid_right=valid_right, right_seeds=right_seeds,
+                               **kwargs)
+    with np.errstate(invalid="ignore"):
+        both = (c1 > 0.0) & (c2 > 0.0) & (np.abs(d1 - d2) < agree)
+    first = c1 >= below
+    nan = np.float32(np.nan)
+    return (np.where(both, np.where(first, d1, d2), nan).astype(np.float32),
+            np.where(both, np.where(first, c1, c2), nan).astype(np.float32))
 
 
 def remove_speckles(disparity: np.ndarray, *, max_size: int) -> np.ndarray:

@@ -166,7 +166,15 @@ class DepthConfig:
         (:func:`~prismstereo.depth.confidence.confident_fill`): on weak texture the integer cross-check
         and the refinement from the raw values drop whole regions the matcher had right. Needs ``refine``
         and ``refine_max_lr_gap`` (without the check nothing tests the filled values: not used). Off by
-        default: the points it adds are right but less precise (docs/EXPERIMENTS.md, issue 26).
+        default: the points it adds are right but less precise (docs/EXPERIMENTS.md, issue 26); the
+        default fills with ``refine_fill_agree`` instead. On, it keeps every confirmed filled value
+        (``refine_fill_agree`` is not applied).
+    refine_fill_agree : float or None
+        Where no cross-checked match was kept, try again from the matcher's dense map and keep a value only
+        where the ``refine_radius`` and the ``refine_retry_radius`` windows each confirm it and their
+        refined disparities differ by less than this, px (``agree`` of
+        :func:`~prismstereo.depth.confidence.confident_fill`). Needs ``refine``, ``refine_max_lr_gap`` and
+        a ``refine_retry_radius`` other than ``refine_radius`` (otherwise not used); None: no such fill.
     refine_retry_radius : int or None
         Half-size of a second refinement window for the matches whose ``refine_radius`` window did not
         reach a confidence of ``refine_retry_below`` or was dropped (``retry_radius`` of
@@ -175,6 +183,10 @@ class DepthConfig:
         the sub-pixel left–right check confirm it; None: one window.
     refine_retry_below : float
         See ``refine_retry_radius``.
+    refine_retry_drop : bool
+        A match whose ``refine_radius`` window stayed below ``refine_retry_below`` and whose wider window
+        is not confirmed gets confidence 0 (``min_confidence`` drops it) instead of keeping the small
+        window's result (``retry_drop`` of :func:`~prismstereo.depth.confidence.confident_matches`).
     sweep : SweepParams
         The plane sweep of ``views="all"`` (:class:`~prismstereo.multiview.prism.SweepParams`).
     coarse_to_fine : {"auto", "on", "off"}
@@ -199,13 +211,15 @@ class DepthConfig:
     min_confidence: float | None = 0.5
     speckle_fraction: float | None = 0.001
     refine_iterations: int = 6
-    refine_max_shift: float = 1.0
+    refine_max_shift: float = 0.85
     refine_min_texture: float = 0.01
     refine_max_lr_gap: float | None = 0.45
     refine_prefilter: float | None = 0.7
     refine_fill: bool = False
     refine_retry_radius: int | None = 11
     refine_retry_below: float = 0.95
+    refine_retry_drop: bool = True
+    refine_fill_agree: float | None = 0.5
     sweep: SweepParams = field(default_factory=SweepParams)
     coarse_to_fine: str = "auto"
     max_memory: int | None = None
@@ -216,8 +230,9 @@ class DepthConfig:
                             "refine_iterations": (0, 100), "refine_max_shift": (None, 20.0),
                             "refine_min_texture": (0.0, None), "refine_max_lr_gap": (0.0, None),
                             "refine_prefilter": (0.0, 5.0),
-                            "refine_retry_radius": (1, 50), "refine_retry_below": (0.0, 1.0)},
-                     positive=("max_gap_mm", "refine_max_shift"))
+                            "refine_retry_radius": (1, 50), "refine_retry_below": (0.0, 1.0),
+                            "refine_fill_agree": (0.0, None)},
+                     positive=("max_gap_mm", "refine_max_shift", "refine_fill_agree"))
         if not isinstance(self.method, str):
             fail(self, "method", "a matcher name", self.method)
         if not isinstance(self.matcher_params, Mapping):
@@ -803,7 +818,7 @@ def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, dis
     """Sub-pixel refinement, confidence and the confidence filter
     (:func:`~prismstereo.depth.confidence.confident_matches`), the right windows on the epipolar curves of
     ``epipolar`` (:func:`epipolar_curves`; None: on the left pixels' rows); with ``filled`` (the matcher's
-    dense map) and ``refine_fill``, a second try from it where none was kept
+    dense map) and ``refine_fill`` or ``refine_fill_agree``, a second try from it where none was kept
     (:func:`~prismstereo.depth.confidence.confident_fill`; none lands on ``right_excluded``); returns
     (disparity, confidence in [0, 1], 0 for every match when the refinement is off, NaN where there is no
     match)."""
@@ -815,12 +830,26 @@ def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, dis
                               min_texture=config.refine_min_texture, min_confidence=config.min_confidence,
                               max_lr_gap=config.refine_max_lr_gap, valid_left=vl, epipolar=epipolar,
                               prefilter=config.refine_prefilter, retry_radius=config.refine_retry_radius,
-                              retry_below=config.refine_retry_below)
+                              retry_below=config.refine_retry_below, retry_drop=config.refine_retry_drop)
     disp, conf = confident_matches(left, right, disparity, valid_right=vr, **kw)
-    if filled is not None and config.refine_fill and config.refine_max_lr_gap is not None:
+    fill, agree = _fill_rule(config)
+    if filled is not None and fill:
         vr_fill = vr if right_excluded is None else np.asarray(vr, dtype=bool) & ~right_excluded
-        disp, conf = confident_fill(left, right, disp, conf, filled, valid_right=vr_fill, **kw)
+        disp, conf = confident_fill(left, right, disp, conf, filled, valid_right=vr_fill, agree=agree, **kw)
     return disp, conf
+
+
+def _fill_rule(config: DepthConfig) -> tuple[bool, float | None]:
+    """Whether :func:`refine_matches` fills from the dense map, and its ``agree`` (None: every confirmed
+    value, ``refine_fill``)."""
+    if config.refine_max_lr_gap is None:
+        return False, None
+    if config.refine_fill:
+        return True, None
+    two = config.refine_retry_radius is not None and config.refine_retry_radius != config.refine_radius
+    if config.refine_fill_agree is not None and two:
+        return True, float(config.refine_fill_agree)
+    return False, None
 
 
 def remove_speckles(disparity: np.ndarray, region: SearchRegion, config: DepthConfig) -> np.ndarray:
