@@ -153,14 +153,16 @@ def test_the_steps_compose_to_run_depth(plane_capture, plane_run):
     left, right = pl.rectify_capture(pair, img)
     region = pl.search_region(rig, pair, cfg, left, right)
     matched = pl.match_pair(left, right, pair, region, cfg)
-    # the run reads no dense map: the matcher's hole filling is skipped, the cross-checked matches are the same
-    assert matched.filled is None and matched.info["dense_map"] is False
-    dense_cfg = dataclasses.replace(cfg, refine_fill=True)
-    assert pl.needs_dense_map(dense_cfg) and not pl.needs_dense_map(cfg)
-    with_dense = pl.match_pair(left, right, pair, region, dense_cfg)
-    assert with_dense.filled is not None and np.isfinite(with_dense.filled).sum() > np.isfinite(matched.raw).sum()
-    np.testing.assert_array_equal(with_dense.disparity, matched.disparity)
-    np.testing.assert_array_equal(with_dense.raw, matched.raw)
+    # the default refinement tries the dense map where no match was kept (refine_fill_agree): it is computed
+    assert pl.needs_dense_map(cfg) and matched.filled is not None
+    bare = dataclasses.replace(cfg, refine_fill_agree=None)
+    assert not pl.needs_dense_map(bare) and pl.needs_dense_map(dataclasses.replace(bare, refine_fill=True))
+    # a run that reads no dense map skips the matcher's hole filling; the cross-checked matches are the same
+    no_dense = pl.match_pair(left, right, pair, region, bare)
+    assert no_dense.filled is None and no_dense.info["dense_map"] is False
+    assert np.isfinite(matched.filled).sum() > np.isfinite(no_dense.raw).sum()
+    np.testing.assert_array_equal(no_dense.disparity, matched.disparity)
+    np.testing.assert_array_equal(no_dense.raw, matched.raw)
     disp, _ = pl.refine_matches(left, right, pair, matched.disparity, cfg, epipolar=pl.epipolar_curves(pair),
                                 filled=matched.filled, right_excluded=region.right_excluded)
     disp = pl.remove_speckles(disp, region, cfg)

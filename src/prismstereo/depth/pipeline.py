@@ -754,8 +754,9 @@ def _roi_box(mask: np.ndarray) -> tuple[int, int, int, int]:
 
 def needs_dense_map(config: DepthConfig) -> bool:
     """Whether a pair run reads the matcher's dense (hole-filled) map: it triangulates it (``use_filled``) or
-    tries its values where no match was kept (``refine_fill`` with the refinement and its sub-pixel check)."""
-    return bool(config.use_filled or (config.refine and config.refine_fill and config.refine_max_lr_gap is not None))
+    tries its values where no match was kept (:func:`_fill_rule`: ``refine_fill`` or ``refine_fill_agree``, with
+    the refinement and its sub-pixel check)."""
+    return bool(config.use_filled or (config.refine and _fill_rule(config)[0]))
 
 
 def match_pair(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, region: SearchRegion,
