@@ -22,8 +22,8 @@ from prismstereo.checks import check_fields
 from prismstereo.errors import ConfigError, MatchingError
 from prismstereo.matching.local.costs import popcount64
 
-__all__ = ["CostParams", "ShearedInputs", "aggregated_costs", "guided_filter_volume", "raw_cost", "sheared_costs",
-           "sheared_inputs", "sheared_row_costs_at"]
+__all__ = ["CostParams", "ShearedInputs", "aggregated_costs", "colour_term", "guided_filter_volume", "raw_cost",
+           "raw_cost_from", "sheared_costs", "sheared_inputs", "sheared_row_costs_at"]
 
 F32 = npt.NDArray[np.float32]
 
@@ -291,6 +291,28 @@ def _raw_cost(left: F32, right: F32, gl: F32, gr: F32, cl: npt.NDArray[np.uint64
                     continue
                 out[y, x, k] = (_ad_cost(left, right, gl, gr, y, x, xr, tau_c, tau_g, lam_ad)
                                 + tab[popcount64(cl[y, x] ^ cr[y, xr])])
+    return out
+
+
+@njit(cache=True, parallel=True, nogil=True)
+def _raw_from_ad(ad: npt.NDArray[np.float64], cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint64], min_disp: int,
+                 lam_c: float) -> F32:
+    """:func:`_raw_cost` from its colour + gradient part ``ad`` (:func:`_ad_term`'s float64 values): the same
+    float64 sum ``ad + census`` rounded to float32, 2 where the right pixel leaves the image.
+
+    The pixel cost: a variant of the dissimilarity of thesis Eq. 5.6 plus a census term (an addition).
+    """
+    h, w, ndisp = ad.shape
+    tab = _census_table(lam_c)
+    out = np.full((h, w, ndisp), 2.0, dtype=np.float32)
+    for y in prange(h):
+        for x in range(w):
+            c = cl[y, x]
+            for k in range(ndisp):
+                xr = x - (min_disp + k)
+                if xr < 0 or xr >= w:
+                    continue
+                out[y, x, k] = ad[y, x, k] + tab[popcount64(c ^ cr[y, xr])]
     return out
 
 
@@ -706,6 +728,28 @@ def _shear_box_rows(hb: F32, slope: float, r: int, out: F32) -> None:
             k1s[i, k] = min(int(kk) + 1, nd - 1)
             fs[i, k] = kk - int(kk)
             gs[i, k] = 1.0 - fs[i, k]
+    # per window row, the run of k whose taps are k + o, k + o + 1 with one weight pair (the same values as the
+    # tables): read there as contiguous slices, the tables elsewhere (the clamped ends, a slope whose fraction
+    # varies with k); the same products and sums in the same order
+    ka = np.zeros(nr, np.int64)
+    kb = np.zeros(nr, np.int64)
+    offs = np.zeros(nr, np.int64)
+    fu = np.zeros(nr)
+    gu = np.zeros(nr)
+    for i in range(nr):
+        m = nd // 2
+        o = k0s[i, m] - m
+        if k1s[i, m] != m + o + 1:
+            continue
+        a = m
+        while (a > 0 and k0s[i, a - 1] == a - 1 + o and k1s[i, a - 1] == a + o and fs[i, a - 1] == fs[i, m]
+               and gs[i, a - 1] == gs[i, m]):
+            a -= 1
+        b = m + 1
+        while (b < nd and k0s[i, b] == b + o and k1s[i, b] == b + o + 1 and fs[i, b] == fs[i, m]
+               and gs[i, b] == gs[i, m]):
+            b += 1
+        ka[i], kb[i], offs[i], fu[i], gu[i] = a, b, o, fs[i, m], gs[i, m]
     for y in prange(h):
         s = np.empty(nd)
         for x in range(w):
@@ -713,8 +757,17 @@ def _shear_box_rows(hb: F32, slope: float, r: int, out: F32) -> None:
             # rows outside, disparities inside: the inner loop vectorises, each sum still runs over dy in order
             for i in range(nr):
                 yy = min(max(y + i - r, 0), h - 1)
-                for k in range(nd):
-                    s[k] += gs[i, k] * hb[yy, x, k0s[i, k]] + fs[i, k] * hb[yy, x, k1s[i, k]]
+                row = hb[yy, x]
+                a, b, o, f, g = ka[i], kb[i], offs[i], fu[i], gu[i]
+                for k in range(a):
+                    s[k] += gs[i, k] * row[k0s[i, k]] + fs[i, k] * row[k1s[i, k]]
+                r0 = row[a + o:b + o]
+                r1 = row[a + o + 1:b + o + 1]
+                sv = s[a:b]
+                for j in range(b - a):
+                    sv[j] += g * r0[j] + f * r1[j]
+                for k in range(b, nd):
+                    s[k] += gs[i, k] * row[k0s[i, k]] + fs[i, k] * row[k1s[i, k]]
             for k in range(nd):
                 out[y, x, k] = s[k] / nr
 
@@ -759,6 +812,31 @@ def sheared_inputs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic]
     return ShearedInputs(ci.left, ci.right, ci.grad_left, ci.grad_right, cl, cr, tuple(float(b) for b in slopes), p)
 
 
+def colour_term(inputs: ShearedInputs, *, max_disp: int, min_disp: int = 0) -> npt.NDArray[np.float64]:
+    """The colour + gradient part of the pixel cost, ``1 - exp(-(min(AD, τ_c) + min(|∇x|, τ_g)) / λ_ad)``, of the
+    pair of ``inputs``: (H, W, D) float64, NaN where ``x - d`` leaves the right image. It does not depend on the
+    census window, so :func:`raw_cost_from` and :func:`sheared_costs` (``ad=``) share one evaluation.
+
+    A truncated, robust variant of the AD + gradient dissimilarity ``S_AD`` of thesis Eq. 5.6 (x-gradient only).
+    """
+    p = inputs.params
+    return _ad_term(inputs.left, inputs.right, inputs.grad_left, inputs.grad_right, int(min_disp),
+                    int(max_disp) - int(min_disp) + 1, p.tau_color, p.tau_grad, p.lambda_ad)
+
+
+def raw_cost_from(inputs: ShearedInputs, ad: npt.NDArray[np.float64], *, min_disp: int = 0) -> F32:
+    """:func:`raw_cost` of the pair of ``inputs`` (with their ``params``) from its :func:`colour_term` ``ad``,
+    bit for bit: (H, W, D) float32. ``inputs.slopes`` must hold 0 (its census is the unsheared one).
+
+    The pixel cost: a variant of the dissimilarity of thesis Eq. 5.6 plus a census term (an addition).
+    """
+    if 0.0 not in inputs.slopes or ad.shape[:2] != inputs.census_left.shape:
+        raise MatchingError("expected inputs with slope 0 among their slopes and a colour term of their pair")
+    cr = inputs.census_right[inputs.slopes.index(0.0)]
+    return _raw_from_ad(np.ascontiguousarray(ad, np.float64), inputs.census_left, cr, int(min_disp),
+                        inputs.params.lambda_census)
+
+
 def _check_inputs(inputs: ShearedInputs, shape: tuple[int, ...], p: CostParams, slopes: tuple[float, ...]) -> None:
     """Raise :class:`MatchingError` unless ``inputs`` fit this call; implementation helper with no thesis equation."""
     if inputs.left.shape[:2] != shape[:2] or inputs.params != p or inputs.slopes != tuple(float(b) for b in slopes):
@@ -767,7 +845,8 @@ def _check_inputs(inputs: ShearedInputs, shape: tuple[int, ...], p: CostParams, 
 
 def sheared_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, max_disp: int,
                   min_disp: int = 0, params: CostParams | None = None, slopes: tuple[float, ...] = (0.0,),
-                  radius: int = 1, vertical: bool = True, inputs: ShearedInputs | None = None) -> F32:
+                  radius: int = 1, vertical: bool = True, inputs: ShearedInputs | None = None,
+                  ad: npt.NDArray[np.float64] | None = None) -> F32:
     """Pixel cost volumes for surfaces slanted in ``y``: one per vertical disparity slope (an addition to Eq. 6.21).
 
     The census window of the right view and the ``(2 radius + 1)²`` smoothing box follow a surface of
@@ -790,6 +869,8 @@ def sheared_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic],
         Box over rows as well (False: along the row only).
     inputs : ShearedInputs, keyword-only
         :func:`sheared_inputs` of the pair with ``params`` and ``slopes``, when already made.
+    ad : (H, W, D) float64, keyword-only
+        :func:`colour_term` of ``inputs`` over this range, when already made.
 
     Returns
     -------
@@ -802,8 +883,10 @@ def sheared_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic],
     nd = max_disp - min_disp + 1
     h, w = cl.shape
     out = np.empty((len(slopes), h, w, nd), np.float32)
-    ad = _ad_term(si.left, si.right, si.grad_left, si.grad_right, int(min_disp), nd, p.tau_color, p.tau_grad,
-                  p.lambda_ad)
+    if ad is None:
+        ad = colour_term(si, max_disp=max_disp, min_disp=min_disp)
+    elif ad.shape != (h, w, nd):
+        raise MatchingError(f"expected ad of shape {(h, w, nd)}, got {ad.shape}")
     every = np.ones((h, w), np.bool_)
     r = max(int(radius), 0)
     # the pixel costs boxed along the row, per slope; sheared over the rows from there
