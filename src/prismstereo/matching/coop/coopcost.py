@@ -537,6 +537,10 @@ def _gf_slices(vol: F32, img: F32, mean_i: F32, inv: F32, r: int, group: int, ou
     for x in range(w - 1):
         add[x] = _reflect(x + k - r, w)
         sub[x] = _reflect(x - r, w)
+    # the coefficient rows a and b kept for the second box (its window and reflected borders): 2r + 1 rows,
+    # the whole slice on an image of at most 2r + 1 rows; the second box trails the first by ``lag`` rows
+    nkeep = k if h > k else h
+    lag = r if h > k else h
     for task in prange((nd + group - 1) // group):
         k0 = task * group
         ng = min(group, nd - k0)
@@ -544,57 +548,67 @@ def _gf_slices(vol: F32, img: F32, mean_i: F32, inv: F32, r: int, group: int, ou
         acc = np.zeros((4, w * ng))
         mean = np.empty((4, w, ng), np.float32)
         meanf = mean.reshape(4, w * ng)
-        coef = np.empty((4, h, w, ng), np.float32)
+        ring2 = np.empty((k, 4, w, ng))
+        acc2 = np.zeros((4, w * ng))
+        mean2 = np.empty((4, w, ng), np.float32)
+        meanf2 = mean2.reshape(4, w * ng)
+        coef = np.empty((4, nkeep, w, ng), np.float32)  # row y in slot y % nkeep
         # the window's first 2r rows; row j of the padded image is row _reflect(j - r) of the slice
         for j in range(k - 1):
             _box_cost_row(vol, img, k0, ng, _reflect(j - r, h), r, fx, add, sub, ring[j], md, right)
             acc += ring[j].reshape(4, w * ng)
-        for y in range(h):
-            nxt = ring[(y + k - 1) % k]
-            _box_cost_row(vol, img, k0, ng, _reflect(y + k - 1 - r, h), r, fx, add, sub, nxt, md, right)
-            _box_column_step(acc, nxt.reshape(4, w * ng), ring[y % k].reshape(4, w * ng), meanf, scale)
-            for x in range(w):
-                m0 = mean_i[y, x, 0]
-                m1 = mean_i[y, x, 1]
-                m2 = mean_i[y, x, 2]
-                v00 = inv[y, x, 0, 0]
-                v01 = inv[y, x, 0, 1]
-                v02 = inv[y, x, 0, 2]
-                v10 = inv[y, x, 1, 0]
-                v11 = inv[y, x, 1, 1]
-                v12 = inv[y, x, 1, 2]
-                v20 = inv[y, x, 2, 0]
-                v21 = inv[y, x, 2, 1]
-                v22 = inv[y, x, 2, 2]
-                for c in range(ng):
-                    mp = mean[0, x, c]
-                    c0 = mean[1, x, c] - m0 * mp
-                    c1 = mean[2, x, c] - m1 * mp
-                    c2 = mean[3, x, c] - m2 * mp
-                    a0 = v00 * c0 + v01 * c1 + v02 * c2
-                    a1 = v10 * c0 + v11 * c1 + v12 * c2
-                    a2 = v20 * c0 + v21 * c1 + v22 * c2
-                    coef[0, y, x, c] = a0
-                    coef[1, y, x, c] = a1
-                    coef[2, y, x, c] = a2
-                    coef[3, y, x, c] = mp - a0 * m0 - a1 * m1 - a2 * m2
-        acc[:] = 0.0
-        for j in range(k - 1):
-            _box_row(coef, _reflect(j - r, h), r, fx, add, sub, ring[j])
-            acc += ring[j].reshape(4, w * ng)
-        for y in range(h):
-            nxt = ring[(y + k - 1) % k]
-            _box_row(coef, _reflect(y + k - 1 - r, h), r, fx, add, sub, nxt)
-            _box_column_step(acc, nxt.reshape(4, w * ng), ring[y % k].reshape(4, w * ng), meanf, scale)
+        for y1 in range(h + lag):
+            if y1 < h:
+                y = y1
+                slot = y % nkeep
+                nxt = ring[(y + k - 1) % k]
+                _box_cost_row(vol, img, k0, ng, _reflect(y + k - 1 - r, h), r, fx, add, sub, nxt, md, right)
+                _box_column_step(acc, nxt.reshape(4, w * ng), ring[y % k].reshape(4, w * ng), meanf, scale)
+                for x in range(w):
+                    m0 = mean_i[y, x, 0]
+                    m1 = mean_i[y, x, 1]
+                    m2 = mean_i[y, x, 2]
+                    v00 = inv[y, x, 0, 0]
+                    v01 = inv[y, x, 0, 1]
+                    v02 = inv[y, x, 0, 2]
+                    v10 = inv[y, x, 1, 0]
+                    v11 = inv[y, x, 1, 1]
+                    v12 = inv[y, x, 1, 2]
+                    v20 = inv[y, x, 2, 0]
+                    v21 = inv[y, x, 2, 1]
+                    v22 = inv[y, x, 2, 2]
+                    for c in range(ng):
+                        mp = mean[0, x, c]
+                        c0 = mean[1, x, c] - m0 * mp
+                        c1 = mean[2, x, c] - m1 * mp
+                        c2 = mean[3, x, c] - m2 * mp
+                        a0 = v00 * c0 + v01 * c1 + v02 * c2
+                        a1 = v10 * c0 + v11 * c1 + v12 * c2
+                        a2 = v20 * c0 + v21 * c1 + v22 * c2
+                        coef[0, slot, x, c] = a0
+                        coef[1, slot, x, c] = a1
+                        coef[2, slot, x, c] = a2
+                        coef[3, slot, x, c] = mp - a0 * m0 - a1 * m1 - a2 * m2
+            if y1 == lag - 1:  # the coefficient rows 0 .. lag - 1 are there: the second box's first 2r rows
+                for j in range(k - 1):
+                    _box_row(coef, _reflect(j - r, h) % nkeep, r, fx, add, sub, ring2[j])
+                    acc2 += ring2[j].reshape(4, w * ng)
+            y = y1 - lag
+            if y < 0:
+                continue
+            # output row y: its window's last row, _reflect(y + r), is the coefficient row made last (or kept)
+            nxt = ring2[(y + k - 1) % k]
+            _box_row(coef, _reflect(y + k - 1 - r, h) % nkeep, r, fx, add, sub, nxt)
+            _box_column_step(acc2, nxt.reshape(4, w * ng), ring2[y % k].reshape(4, w * ng), meanf2, scale)
             for x in range(w):
                 g0 = img[y, x, 0]
                 g1 = img[y, x, 1]
                 g2 = img[y, x, 2]
                 for c in range(ng):
-                    q = mean[3, x, c]
-                    q = q + mean[0, x, c] * g0
-                    q = q + mean[1, x, c] * g1
-                    q = q + mean[2, x, c] * g2
+                    q = mean2[3, x, c]
+                    q = q + mean2[0, x, c] * g0
+                    q = q + mean2[1, x, c] * g1
+                    q = q + mean2[2, x, c] * g2
                     out[y, x, k0 + c] = q
 
 
