@@ -7,7 +7,15 @@ import numpy as np
 import pytest
 
 from prismstereo.errors import MatchingError
-from prismstereo.matching.coop.coopcost import CostParams, raw_cost, sheared_costs, sheared_inputs, sheared_row_costs_at
+from prismstereo.matching.coop.coopcost import (
+    CostParams,
+    colour_term,
+    raw_cost,
+    raw_cost_from,
+    sheared_costs,
+    sheared_inputs,
+    sheared_row_costs_at,
+)
 from prismstereo.matching.coop.cooperative import build_segment_graph, total_energy
 from prismstereo.matching.coop.pipeline import box_filter_volume
 from prismstereo.matching.segments.planes import build_segment_index
@@ -32,6 +40,35 @@ def test_slope_zero_is_the_boxed_raw_cost() -> None:
     ref = box_filter_volume(raw_cost(left, right, max_disp=30), 1)
     assert vol.shape == (1, *ref.shape)
     np.testing.assert_allclose(vol[0], ref, atol=1e-6)
+
+
+def test_raw_cost_from_the_shared_colour_term_is_raw_cost_bit_for_bit() -> None:
+    left, right, _ = _steep_floor()
+    si = sheared_inputs(left, right, slopes=(-1.0, 0.0, 0.5))
+    ad = colour_term(si, max_disp=30, min_disp=2)
+    np.testing.assert_array_equal(raw_cost_from(si, ad, min_disp=2), raw_cost(left, right, max_disp=30, min_disp=2))
+    np.testing.assert_array_equal(sheared_costs(left, right, max_disp=30, min_disp=2, slopes=si.slopes, inputs=si,
+                                                ad=ad),
+                                  sheared_costs(left, right, max_disp=30, min_disp=2, slopes=si.slopes))
+    with pytest.raises(MatchingError):
+        raw_cost_from(sheared_inputs(left, right, slopes=(0.5,)), ad, min_disp=2)
+
+
+@pytest.mark.parametrize("slope", [-1.0, -0.5, 0.3, 1.0, 2.5])
+def test_sheared_box_is_the_interpolated_row_mean_bit_for_bit(slope: float) -> None:
+    # the kernel reads runs of disparities as contiguous slices; the sum must stay the per-tap formula's
+    left, right, _ = _steep_floor()
+    hb = sheared_costs(left, right, max_disp=30, slopes=(slope,), radius=1, vertical=False)[0]  # its census
+    out = sheared_costs(left, right, max_disp=30, slopes=(slope,), radius=1)[0]
+    h, _w, nd = hb.shape
+    ref = np.zeros(hb.shape, np.float64)
+    for dy in (-1, 0, 1):
+        rows = hb[np.clip(np.arange(h) + dy, 0, h - 1)].astype(np.float64)
+        kk = np.clip(np.arange(nd) + slope * dy, 0.0, nd - 1.0)
+        k0 = kk.astype(int)
+        f = kk - k0
+        ref += (1.0 - f) * rows[:, :, k0] + f * rows[:, :, np.minimum(k0 + 1, nd - 1)]
+    np.testing.assert_array_equal(out, (ref / 3).astype(np.float32))
 
 
 def test_row_box_is_opencvs_box_of_the_raw_cost_bit_for_bit() -> None:

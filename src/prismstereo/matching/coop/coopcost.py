@@ -22,8 +22,8 @@ from prismstereo.checks import check_fields
 from prismstereo.errors import ConfigError, MatchingError
 from prismstereo.matching.local.costs import popcount64
 
-__all__ = ["CostParams", "ShearedInputs", "aggregated_costs", "guided_filter_volume", "raw_cost", "sheared_costs",
-           "sheared_inputs", "sheared_row_costs_at"]
+__all__ = ["CostParams", "ShearedInputs", "aggregated_costs", "colour_term", "guided_filter_volume", "raw_cost",
+           "raw_cost_from", "sheared_costs", "sheared_inputs", "sheared_row_costs_at"]
 
 F32 = npt.NDArray[np.float32]
 
@@ -294,6 +294,28 @@ def _raw_cost(left: F32, right: F32, gl: F32, gr: F32, cl: npt.NDArray[np.uint64
     return out
 
 
+@njit(cache=True, parallel=True, nogil=True)
+def _raw_from_ad(ad: npt.NDArray[np.float64], cl: npt.NDArray[np.uint64], cr: npt.NDArray[np.uint64], min_disp: int,
+                 lam_c: float) -> F32:
+    """:func:`_raw_cost` from its colour + gradient part ``ad`` (:func:`_ad_term`'s float64 values): the same
+    float64 sum ``ad + census`` rounded to float32, 2 where the right pixel leaves the image.
+
+    The pixel cost: a variant of the dissimilarity of thesis Eq. 5.6 plus a census term (an addition).
+    """
+    h, w, ndisp = ad.shape
+    tab = _census_table(lam_c)
+    out = np.full((h, w, ndisp), 2.0, dtype=np.float32)
+    for y in prange(h):
+        for x in range(w):
+            c = cl[y, x]
+            for k in range(ndisp):
+                xr = x - (min_disp + k)
+                if xr < 0 or xr >= w:
+                    continue
+                out[y, x, k] = ad[y, x, k] + tab[popcount64(c ^ cr[y, xr])]
+    return out
+
+
 def _box(a: F32, r: int) -> F32:
     """Mean over a (2r+1)² window of each channel of an (H, W, C) or (H, W) float32 array.
 
@@ -515,6 +537,10 @@ def _gf_slices(vol: F32, img: F32, mean_i: F32, inv: F32, r: int, group: int, ou
     for x in range(w - 1):
         add[x] = _reflect(x + k - r, w)
         sub[x] = _reflect(x - r, w)
+    # the coefficient rows a and b kept for the second box (its window and reflected borders): 2r + 1 rows,
+    # the whole slice on an image of at most 2r + 1 rows; the second box trails the first by ``lag`` rows
+    nkeep = k if h > k else h
+    lag = r if h > k else h
     for task in prange((nd + group - 1) // group):
         k0 = task * group
         ng = min(group, nd - k0)
@@ -522,57 +548,67 @@ def _gf_slices(vol: F32, img: F32, mean_i: F32, inv: F32, r: int, group: int, ou
         acc = np.zeros((4, w * ng))
         mean = np.empty((4, w, ng), np.float32)
         meanf = mean.reshape(4, w * ng)
-        coef = np.empty((4, h, w, ng), np.float32)
+        ring2 = np.empty((k, 4, w, ng))
+        acc2 = np.zeros((4, w * ng))
+        mean2 = np.empty((4, w, ng), np.float32)
+        meanf2 = mean2.reshape(4, w * ng)
+        coef = np.empty((4, nkeep, w, ng), np.float32)  # row y in slot y % nkeep
         # the window's first 2r rows; row j of the padded image is row _reflect(j - r) of the slice
         for j in range(k - 1):
             _box_cost_row(vol, img, k0, ng, _reflect(j - r, h), r, fx, add, sub, ring[j], md, right)
             acc += ring[j].reshape(4, w * ng)
-        for y in range(h):
-            nxt = ring[(y + k - 1) % k]
-            _box_cost_row(vol, img, k0, ng, _reflect(y + k - 1 - r, h), r, fx, add, sub, nxt, md, right)
-            _box_column_step(acc, nxt.reshape(4, w * ng), ring[y % k].reshape(4, w * ng), meanf, scale)
-            for x in range(w):
-                m0 = mean_i[y, x, 0]
-                m1 = mean_i[y, x, 1]
-                m2 = mean_i[y, x, 2]
-                v00 = inv[y, x, 0, 0]
-                v01 = inv[y, x, 0, 1]
-                v02 = inv[y, x, 0, 2]
-                v10 = inv[y, x, 1, 0]
-                v11 = inv[y, x, 1, 1]
-                v12 = inv[y, x, 1, 2]
-                v20 = inv[y, x, 2, 0]
-                v21 = inv[y, x, 2, 1]
-                v22 = inv[y, x, 2, 2]
-                for c in range(ng):
-                    mp = mean[0, x, c]
-                    c0 = mean[1, x, c] - m0 * mp
-                    c1 = mean[2, x, c] - m1 * mp
-                    c2 = mean[3, x, c] - m2 * mp
-                    a0 = v00 * c0 + v01 * c1 + v02 * c2
-                    a1 = v10 * c0 + v11 * c1 + v12 * c2
-                    a2 = v20 * c0 + v21 * c1 + v22 * c2
-                    coef[0, y, x, c] = a0
-                    coef[1, y, x, c] = a1
-                    coef[2, y, x, c] = a2
-                    coef[3, y, x, c] = mp - a0 * m0 - a1 * m1 - a2 * m2
-        acc[:] = 0.0
-        for j in range(k - 1):
-            _box_row(coef, _reflect(j - r, h), r, fx, add, sub, ring[j])
-            acc += ring[j].reshape(4, w * ng)
-        for y in range(h):
-            nxt = ring[(y + k - 1) % k]
-            _box_row(coef, _reflect(y + k - 1 - r, h), r, fx, add, sub, nxt)
-            _box_column_step(acc, nxt.reshape(4, w * ng), ring[y % k].reshape(4, w * ng), meanf, scale)
+        for y1 in range(h + lag):
+            if y1 < h:
+                y = y1
+                slot = y % nkeep
+                nxt = ring[(y + k - 1) % k]
+                _box_cost_row(vol, img, k0, ng, _reflect(y + k - 1 - r, h), r, fx, add, sub, nxt, md, right)
+                _box_column_step(acc, nxt.reshape(4, w * ng), ring[y % k].reshape(4, w * ng), meanf, scale)
+                for x in range(w):
+                    m0 = mean_i[y, x, 0]
+                    m1 = mean_i[y, x, 1]
+                    m2 = mean_i[y, x, 2]
+                    v00 = inv[y, x, 0, 0]
+                    v01 = inv[y, x, 0, 1]
+                    v02 = inv[y, x, 0, 2]
+                    v10 = inv[y, x, 1, 0]
+                    v11 = inv[y, x, 1, 1]
+                    v12 = inv[y, x, 1, 2]
+                    v20 = inv[y, x, 2, 0]
+                    v21 = inv[y, x, 2, 1]
+                    v22 = inv[y, x, 2, 2]
+                    for c in range(ng):
+                        mp = mean[0, x, c]
+                        c0 = mean[1, x, c] - m0 * mp
+                        c1 = mean[2, x, c] - m1 * mp
+                        c2 = mean[3, x, c] - m2 * mp
+                        a0 = v00 * c0 + v01 * c1 + v02 * c2
+                        a1 = v10 * c0 + v11 * c1 + v12 * c2
+                        a2 = v20 * c0 + v21 * c1 + v22 * c2
+                        coef[0, slot, x, c] = a0
+                        coef[1, slot, x, c] = a1
+                        coef[2, slot, x, c] = a2
+                        coef[3, slot, x, c] = mp - a0 * m0 - a1 * m1 - a2 * m2
+            if y1 == lag - 1:  # the coefficient rows 0 .. lag - 1 are there: the second box's first 2r rows
+                for j in range(k - 1):
+                    _box_row(coef, _reflect(j - r, h) % nkeep, r, fx, add, sub, ring2[j])
+                    acc2 += ring2[j].reshape(4, w * ng)
+            y = y1 - lag
+            if y < 0:
+                continue
+            # output row y: its window's last row, _reflect(y + r), is the coefficient row made last (or kept)
+            nxt = ring2[(y + k - 1) % k]
+            _box_row(coef, _reflect(y + k - 1 - r, h) % nkeep, r, fx, add, sub, nxt)
+            _box_column_step(acc2, nxt.reshape(4, w * ng), ring2[y % k].reshape(4, w * ng), meanf2, scale)
             for x in range(w):
                 g0 = img[y, x, 0]
                 g1 = img[y, x, 1]
                 g2 = img[y, x, 2]
                 for c in range(ng):
-                    q = mean[3, x, c]
-                    q = q + mean[0, x, c] * g0
-                    q = q + mean[1, x, c] * g1
-                    q = q + mean[2, x, c] * g2
+                    q = mean2[3, x, c]
+                    q = q + mean2[0, x, c] * g0
+                    q = q + mean2[1, x, c] * g1
+                    q = q + mean2[2, x, c] * g2
                     out[y, x, k0 + c] = q
 
 
@@ -706,6 +742,28 @@ def _shear_box_rows(hb: F32, slope: float, r: int, out: F32) -> None:
             k1s[i, k] = min(int(kk) + 1, nd - 1)
             fs[i, k] = kk - int(kk)
             gs[i, k] = 1.0 - fs[i, k]
+    # per window row, the run of k whose taps are k + o, k + o + 1 with one weight pair (the same values as the
+    # tables): read there as contiguous slices, the tables elsewhere (the clamped ends, a slope whose fraction
+    # varies with k); the same products and sums in the same order
+    ka = np.zeros(nr, np.int64)
+    kb = np.zeros(nr, np.int64)
+    offs = np.zeros(nr, np.int64)
+    fu = np.zeros(nr)
+    gu = np.zeros(nr)
+    for i in range(nr):
+        m = nd // 2
+        o = k0s[i, m] - m
+        if k1s[i, m] != m + o + 1:
+            continue
+        a = m
+        while (a > 0 and k0s[i, a - 1] == a - 1 + o and k1s[i, a - 1] == a + o and fs[i, a - 1] == fs[i, m]
+               and gs[i, a - 1] == gs[i, m]):
+            a -= 1
+        b = m + 1
+        while (b < nd and k0s[i, b] == b + o and k1s[i, b] == b + o + 1 and fs[i, b] == fs[i, m]
+               and gs[i, b] == gs[i, m]):
+            b += 1
+        ka[i], kb[i], offs[i], fu[i], gu[i] = a, b, o, fs[i, m], gs[i, m]
     for y in prange(h):
         s = np.empty(nd)
         for x in range(w):
@@ -713,8 +771,17 @@ def _shear_box_rows(hb: F32, slope: float, r: int, out: F32) -> None:
             # rows outside, disparities inside: the inner loop vectorises, each sum still runs over dy in order
             for i in range(nr):
                 yy = min(max(y + i - r, 0), h - 1)
-                for k in range(nd):
-                    s[k] += gs[i, k] * hb[yy, x, k0s[i, k]] + fs[i, k] * hb[yy, x, k1s[i, k]]
+                row = hb[yy, x]
+                a, b, o, f, g = ka[i], kb[i], offs[i], fu[i], gu[i]
+                for k in range(a):
+                    s[k] += gs[i, k] * row[k0s[i, k]] + fs[i, k] * row[k1s[i, k]]
+                r0 = row[a + o:b + o]
+                r1 = row[a + o + 1:b + o + 1]
+                sv = s[a:b]
+                for j in range(b - a):
+                    sv[j] += g * r0[j] + f * r1[j]
+                for k in range(b, nd):
+                    s[k] += gs[i, k] * row[k0s[i, k]] + fs[i, k] * row[k1s[i, k]]
             for k in range(nd):
                 out[y, x, k] = s[k] / nr
 
@@ -759,6 +826,31 @@ def sheared_inputs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic]
     return ShearedInputs(ci.left, ci.right, ci.grad_left, ci.grad_right, cl, cr, tuple(float(b) for b in slopes), p)
 
 
+def colour_term(inputs: ShearedInputs, *, max_disp: int, min_disp: int = 0) -> npt.NDArray[np.float64]:
+    """The colour + gradient part of the pixel cost, ``1 - exp(-(min(AD, τ_c) + min(|∇x|, τ_g)) / λ_ad)``, of the
+    pair of ``inputs``: (H, W, D) float64, NaN where ``x - d`` leaves the right image. It does not depend on the
+    census window, so :func:`raw_cost_from` and :func:`sheared_costs` (``ad=``) share one evaluation.
+
+    A truncated, robust variant of the AD + gradient dissimilarity ``S_AD`` of thesis Eq. 5.6 (x-gradient only).
+    """
+    p = inputs.params
+    return _ad_term(inputs.left, inputs.right, inputs.grad_left, inputs.grad_right, int(min_disp),
+                    int(max_disp) - int(min_disp) + 1, p.tau_color, p.tau_grad, p.lambda_ad)
+
+
+def raw_cost_from(inputs: ShearedInputs, ad: npt.NDArray[np.float64], *, min_disp: int = 0) -> F32:
+    """:func:`raw_cost` of the pair of ``inputs`` (with their ``params``) from its :func:`colour_term` ``ad``,
+    bit for bit: (H, W, D) float32. ``inputs.slopes`` must hold 0 (its census is the unsheared one).
+
+    The pixel cost: a variant of the dissimilarity of thesis Eq. 5.6 plus a census term (an addition).
+    """
+    if 0.0 not in inputs.slopes or ad.shape[:2] != inputs.census_left.shape:
+        raise MatchingError("expected inputs with slope 0 among their slopes and a colour term of their pair")
+    cr = inputs.census_right[inputs.slopes.index(0.0)]
+    return _raw_from_ad(np.ascontiguousarray(ad, np.float64), inputs.census_left, cr, int(min_disp),
+                        inputs.params.lambda_census)
+
+
 def _check_inputs(inputs: ShearedInputs, shape: tuple[int, ...], p: CostParams, slopes: tuple[float, ...]) -> None:
     """Raise :class:`MatchingError` unless ``inputs`` fit this call; implementation helper with no thesis equation."""
     if inputs.left.shape[:2] != shape[:2] or inputs.params != p or inputs.slopes != tuple(float(b) for b in slopes):
@@ -767,7 +859,8 @@ def _check_inputs(inputs: ShearedInputs, shape: tuple[int, ...], p: CostParams, 
 
 def sheared_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *, max_disp: int,
                   min_disp: int = 0, params: CostParams | None = None, slopes: tuple[float, ...] = (0.0,),
-                  radius: int = 1, vertical: bool = True, inputs: ShearedInputs | None = None) -> F32:
+                  radius: int = 1, vertical: bool = True, inputs: ShearedInputs | None = None,
+                  ad: npt.NDArray[np.float64] | None = None) -> F32:
     """Pixel cost volumes for surfaces slanted in ``y``: one per vertical disparity slope (an addition to Eq. 6.21).
 
     The census window of the right view and the ``(2 radius + 1)²`` smoothing box follow a surface of
@@ -790,6 +883,8 @@ def sheared_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic],
         Box over rows as well (False: along the row only).
     inputs : ShearedInputs, keyword-only
         :func:`sheared_inputs` of the pair with ``params`` and ``slopes``, when already made.
+    ad : (H, W, D) float64, keyword-only
+        :func:`colour_term` of ``inputs`` over this range, when already made.
 
     Returns
     -------
@@ -802,8 +897,10 @@ def sheared_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic],
     nd = max_disp - min_disp + 1
     h, w = cl.shape
     out = np.empty((len(slopes), h, w, nd), np.float32)
-    ad = _ad_term(si.left, si.right, si.grad_left, si.grad_right, int(min_disp), nd, p.tau_color, p.tau_grad,
-                  p.lambda_ad)
+    if ad is None:
+        ad = colour_term(si, max_disp=max_disp, min_disp=min_disp)
+    elif ad.shape != (h, w, nd):
+        raise MatchingError(f"expected ad of shape {(h, w, nd)}, got {ad.shape}")
     every = np.ones((h, w), np.bool_)
     r = max(int(radius), 0)
     # the pixel costs boxed along the row, per slope; sheared over the rows from there

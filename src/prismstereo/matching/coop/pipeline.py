@@ -26,9 +26,10 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import cv2
 import numpy as np
@@ -41,7 +42,9 @@ from prismstereo.matching.coop.coopcost import (
     CostParams,
     ShearedInputs,
     aggregated_costs,
+    colour_term,
     raw_cost,
+    raw_cost_from,
     sheared_costs,
     sheared_inputs,
     sheared_row_costs_at,
@@ -84,6 +87,7 @@ __all__ = ["CoopMatcher", "CoopResult", "DataTermParams", "PairMaps", "PairSetup
            "occlusion_background_fill", "segment_sweep_candidates"]
 
 F32 = npt.NDArray[np.float32]
+R = TypeVar("R")
 
 
 @dataclass(frozen=True)
@@ -696,23 +700,56 @@ def _compensate_views(lft: npt.NDArray[np.uint8], rgt: npt.NDArray[np.uint8], *,
         return rgt, out, info
     return out, None, {**info, "radiometry_fallback_offset": 0.0}
 
+def _shared_terms(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, max_disp: int, min_disp: int,
+                  data: DataTermParams, cost: CostParams) -> list[Any]:
+    """The data term's inputs and colour term, ``[ShearedInputs, (H, W, D) float64]``, when the initial map's pixel
+    cost is the data term's (the same parameters, slope 0 among the slopes): evaluated once for both
+    (:func:`~prismstereo.matching.coop.coopcost.raw_cost_from`); ``[]`` otherwise. The caller empties the list
+    when the data volume is made, so the float64 term is not held beyond it.
+
+    Implementation helper (shared evaluation of the pixel cost of thesis Eq. 5.6's variant) with no equation.
+    """
+    if not data.slopes or 0.0 not in data.slopes or (data.cost is not None and data.cost != cost):
+        return []
+    si = sheared_inputs(left, right, params=cost, slopes=data.slopes)
+    return [si, colour_term(si, max_disp=max_disp, min_disp=min_disp)]
+
+
+def _with_shared(fut: Future[list[Any]], fn: Callable[..., R], *args: Any, **kwargs: Any) -> R:
+    """``fn(*args, **kwargs, shared=fut.result())``: a worker task that reads :func:`_shared_terms`' result.
+
+    Implementation helper (task chaining) with no thesis equation of its own.
+    """
+    return fn(*args, **kwargs, shared=fut.result())
+
 
 def _guided_initial(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, max_disp: int, min_disp: int,
-                    params: CostParams, tolerance: float) -> tuple[F32, npt.NDArray[np.bool_]]:
-    """The cross-checked initial map of the guided-filter volumes (thesis §6.1): (H, W) float32 and bool."""
-    raw = raw_cost(left, right, max_disp=max_disp, min_disp=min_disp, params=params)
+                    params: CostParams, tolerance: float, shared: list[Any] | None = None
+                    ) -> tuple[F32, npt.NDArray[np.bool_]]:
+    """The cross-checked initial map of the guided-filter volumes (thesis §6.1): (H, W) float32 and bool.
+    ``shared``: :func:`_shared_terms` of the pair (its pixel cost then comes from them, the same bits)."""
+    if shared:
+        raw = raw_cost_from(shared[0], shared[1], min_disp=min_disp)
+    else:
+        raw = raw_cost(left, right, max_disp=max_disp, min_disp=min_disp, params=params)
     agg_l, agg_r = aggregated_costs(left, right, max_disp=max_disp, min_disp=min_disp, params=params, raw=raw)
     return initial_disparity(agg_l, agg_r, min_disp=min_disp, tolerance=tolerance)
 
 
 def _data_volume(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, max_disp: int, min_disp: int,
-                 data: DataTermParams, cost: CostParams) -> tuple[F32, ShearedInputs | None]:
+                 data: DataTermParams, cost: CostParams,
+                 shared: list[Any] | None = None) -> tuple[F32, ShearedInputs | None]:
     """The data term's pixel-cost volume (Eqs. 6.21-6.22): sheared per slope, or one box-filtered volume; and
-    the sheared volumes' inputs (None without slopes)."""
+    the sheared volumes' inputs (None without slopes). ``shared``: :func:`_shared_terms` of the pair, emptied here."""
     if data.slopes:
-        si = sheared_inputs(left, right, params=data.cost or cost, slopes=data.slopes)
+        ad = None
+        if shared:
+            si, ad = shared
+            shared.clear()
+        else:
+            si = sheared_inputs(left, right, params=data.cost or cost, slopes=data.slopes)
         return sheared_costs(left, right, max_disp=max_disp, min_disp=min_disp, params=data.cost or cost,
-                             slopes=data.slopes, radius=data.radius, inputs=si), si
+                             slopes=data.slopes, radius=data.radius, inputs=si, ad=ad), si
     raw = raw_cost(left, right, max_disp=max_disp, min_disp=min_disp, params=data.cost or cost)
     return box_filter_volume(raw, data.radius), None
 
@@ -787,9 +824,12 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     # map) and the BPASW volume on the other. Serial pieces (OpenCV box filters and mean shift, Python glue)
     # then overlap with parallel kernels instead of leaving a core idle; every result is the same.
     pool = ThreadPoolExecutor(max_workers=1)
-    fut_init = pool.submit(_guided_initial, lft, rgt, max_disp=max_disp, min_disp=min_disp, params=cp,
-                           tolerance=dp.check_tolerance)
-    fut_data = pool.submit(_data_volume, lft, rgt, max_disp=max_disp, min_disp=min_disp, data=dp, cost=cp)
+    # the initial map's pixel cost and the data term's share their colour term (one worker, in this order)
+    fut_shared = pool.submit(_shared_terms, lft, rgt, max_disp=max_disp, min_disp=min_disp, data=dp, cost=cp)
+    fut_init = pool.submit(_with_shared, fut_shared, _guided_initial, lft, rgt, max_disp=max_disp,
+                           min_disp=min_disp, params=cp, tolerance=dp.check_tolerance)
+    fut_data = pool.submit(_with_shared, fut_shared, _data_volume, lft, rgt, max_disp=max_disp, min_disp=min_disp,
+                           data=dp, cost=cp)
     # the fine step's segmentations read the image only
     fine_seg = [dataclasses.replace(sp, hr=float(hr), min_region=int(m)) for hr, m in st.fine.levels]
     ahead = {f: pool.submit(mean_shift_segment, lft, params=f) for f in fine_seg}
