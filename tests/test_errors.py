@@ -47,6 +47,28 @@ def test_no_library_error_message_speaks_the_command_line() -> None:
     assert not found, "library errors that name a flag instead of the parameter:\n" + "\n".join(found)
 
 
+def _non_doc_strings(text: str) -> Iterator[tuple[int, str]]:
+    """(line, text) of every string constant of a module that is not a docstring."""
+    tree = ast.parse(text)
+    docs = {id(n.body[0].value) for n in ast.walk(tree)
+            if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and n.body
+            and isinstance(n.body[0], ast.Expr) and isinstance(n.body[0].value, ast.Constant)}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docs:
+            yield node.lineno, node.value
+
+
+def test_no_library_text_speaks_the_command_line() -> None:
+    """Outside the commands no library string (a verdict, a figure label, a warning) holds a ``--flag``; the
+    one exception is the benchmark command a measured table records (``benchmarks/...py --presets``)."""
+    found = [f"{path.relative_to(PACKAGE)}:{line}: {text!r}" for path in sorted(PACKAGE.rglob("*.py"))
+             if path.relative_to(PACKAGE).parts[0] not in ("apps", "cli.py", "__main__.py")
+             for line, text in _non_doc_strings(path.read_text(encoding="utf-8"))
+             if re.search(r"(^|[\s(])--[a-z]", text) and "benchmarks/" not in text]
+    assert not found, "library texts that name a flag instead of the parameter:\n" + "\n".join(found)
+    assert [t for _, t in _non_doc_strings('"""doc"""\nX = "see --verify"\n')] == ["see --verify"]
+
+
 @pytest.mark.parametrize(("command", "message", "printed"), [
     ("depth", "DepthConfig.min_confidence: expected a number in [0, 1], got 5",
      "--min-confidence: expected a number in [0, 1], got 5"),

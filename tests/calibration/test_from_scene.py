@@ -55,6 +55,8 @@ def test_self_calibration_recovers_rotation_and_tilt(start_rig, small_true, scen
     refined = row_misalignment(cal.rig, scene_capture)
     assert nominal.needs_recalibration and nominal.p95_px > 4.0
     assert not refined.needs_recalibration and refined.p95_px < 0.5
+    # the library's verdict names the library's call, not the command's flags
+    assert "from_scene=True" in nominal.summary() and "--" not in nominal.summary()
 
 
 def test_self_calibration_refuses_a_textureless_scene(small_true, start_rig):
@@ -81,6 +83,7 @@ def test_check_and_calibrate_from_scene_commands(tmp_path, start_rig, small_true
     assert main(["check", str(nominal_path), str(cap), "-o", str(report)]) == 3
     data = json.loads(report.read_text())
     assert data["needs_recalibration"] is True and data["p95_dy_px"] > 4.0
+    assert "calibrate-prism RIG CAPTURE --from-scene" in capsys.readouterr().out  # the command's words
     assert main(["check", str(true_path), str(cap)]) == 0
     assert "no recalibration needed" in capsys.readouterr().out
 

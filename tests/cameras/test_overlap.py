@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from prismstereo.cameras import calibrate_rig
-from prismstereo.cameras.overlap import working_depth_range
+from prismstereo.cameras.overlap import overlap_span, working_depth_range
 from prismstereo.config import thesis_biprism
 from prismstereo.rectify import rectify_pair
 from prismstereo.rectify.verify import true_correspondences, vertical_residual
@@ -42,3 +42,13 @@ def test_strong_biprism_pair_is_cropped_to_its_common_view(pair20):
     pts = pair.reproject(xl, d)
     rel = np.abs(pts[:, 2] - corr.points[:, 2]) / corr.points[:, 2]
     assert np.median(rel) < 2e-3
+
+
+def test_overlap_span_interpolates_or_keeps_the_samples():
+    depths = np.array([100.0, 200.0, 400.0, 800.0, 1600.0])
+    frac = np.array([0.0, 0.5, 1.0, 0.5, 0.0])
+    # level 0.25: halfway in fraction between the first two and the last two samples, in log depth
+    near, far = overlap_span(depths, frac)
+    assert np.isclose(near, np.sqrt(100.0 * 200.0)) and np.isclose(far, np.sqrt(800.0 * 1600.0))
+    assert overlap_span(depths, frac, interpolate=False) == (200.0, 800.0)
+    assert overlap_span(depths, frac, fraction=0.8, interpolate=False) == (400.0, 400.0)

@@ -111,7 +111,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
     result = row_misalignment(rig, image, calibration=args.calibration)
     if args.output is not None:
         write_json(args.output, {"inputs": {"rig": str(args.rig), "capture": str(args.capture)}, **result.report()})
-    print(result.summary())
+    print(result.summary(recalibrate="prismstereo calibrate-prism RIG CAPTURE --from-scene -o NEW_RIG"))
     if args.output is not None:
         print(f"wrote {args.output}")
     return NEEDS_RECALIBRATION_EXIT if result.needs_recalibration else 0

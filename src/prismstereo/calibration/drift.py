@@ -6,7 +6,8 @@ between the rectified views (ratio test, mutual nearest neighbours, fundamental-
 not assume the rows are aligned) and measures |y_left − y_right| of the consistent matches. Stereo
 matching of rectified views searches along rows only; the project's matchers tolerate about half a pixel
 of misalignment, so a median above :data:`RECALIBRATE_MEDIAN_PX` or a 95th percentile above
-:data:`RECALIBRATE_P95_PX` means the rig needs recalibrating (``calibrate-prism --from-scene``).
+:data:`RECALIBRATE_P95_PX` means the rig needs recalibrating (:func:`prismstereo.calibrate_prism` with
+``from_scene=True``).
 """
 
 from __future__ import annotations
@@ -33,6 +34,8 @@ __all__ = ["RECALIBRATE_MEDIAN_PX", "RECALIBRATE_P95_PX", "RowCheck", "row_misal
 RECALIBRATE_MEDIAN_PX = 0.3
 #: a 95th percentile |dy| above this (px) says the rig needs recalibrating
 RECALIBRATE_P95_PX = 1.0
+#: how :meth:`RowCheck.summary` says to recalibrate, by default (the library's call)
+RECALIBRATE_CALL = "prismstereo.calibrate_prism(rig, [capture], from_scene=True)"
 #: fewest consistent matches for a verdict
 MIN_CHECK_MATCHES = 30
 
@@ -60,11 +63,13 @@ class RowCheck:
                 "needs_recalibration": self.needs_recalibration,
                 "thresholds_px": {"median": RECALIBRATE_MEDIAN_PX, "p95": RECALIBRATE_P95_PX}, "pairs": self.pairs}
 
-    def summary(self) -> str:
+    def summary(self, *, recalibrate: str = RECALIBRATE_CALL) -> str:
+        """The per-pair lines and the verdict; ``recalibrate`` says how to recalibrate (the CLI gives its
+        command)."""
         lines = [f"faces {p['faces'][0]}-{p['faces'][1]}: {p['matches']} matches, |dy| median "  # type: ignore[index]
                  f"{p['median_px']:.3f} px, p95 {p['p95_px']:.3f} px, mean dy {p['mean_dy_px']:+.3f} px"
                  for p in self.pairs]
-        verdict = ("needs recalibration (prismstereo calibrate-prism RIG CAPTURE --from-scene -o NEW_RIG)"
+        verdict = (f"needs recalibration ({recalibrate})"
                    if self.needs_recalibration else "rows aligned: no recalibration needed")
         lines.append(f"rectified rows |dy| median {self.median_px:.3f} px, p95 {self.p95_px:.3f} px over "
                      f"{self.n_matches} matches (thresholds {RECALIBRATE_MEDIAN_PX:g} / {RECALIBRATE_P95_PX:g} px): "

@@ -29,7 +29,8 @@ from prismstereo.config import Rig
 from prismstereo.errors import GeometryError
 from prismstereo.optics import RayBundle, pixel_grid, project_exact, trace_pixels
 
-__all__ = ["DEPTH_STEP_LIMIT", "FAR_MM", "MODEL_FRACTION", "OVERLAP_FRACTION", "face_overlap", "working_depth_range"]
+__all__ = ["DEPTH_STEP_LIMIT", "FAR_MM", "MODEL_FRACTION", "OVERLAP_FRACTION", "face_overlap", "overlap_depths",
+           "overlap_span", "working_depth_range"]
 
 #: a depth can be matched when the views share at least this share of their best overlap (also the rectified
 #: search of :mod:`prismstereo.depth.search_range`)
@@ -133,6 +134,28 @@ def _project_into_face(rig: Rig, pixels: np.ndarray, grid: RayBundle, face: int,
     return out.reshape(D, N, 2), valid.reshape(D, N)
 
 
+def overlap_depths(back_mm: float, n: int = 32, *, margin: float = 1.05) -> np.ndarray:
+    """(n,) depths, mm, at which a rig's overlap is sampled: geometric from ``margin`` times the prism's back
+    distance ``back_mm`` to :data:`FAR_MM` (the working range here, the rectified search of
+    :mod:`prismstereo.depth.search_range`)."""
+    return np.geomspace(back_mm * margin, FAR_MM, n)
+
+
+def overlap_span(depths: np.ndarray, frac: np.ndarray, *, fraction: float = OVERLAP_FRACTION,
+                 interpolate: bool = True) -> tuple[float, float]:
+    """(near, far) mm where the overlap ``frac`` sampled at ``depths`` (increasing) is at least ``fraction`` of
+    its largest value: the one depth-range search of the working range (:func:`pair_depth_range`, on the real
+    faces) and of the rectified search (:mod:`prismstereo.depth.search_range`, on a rectified pair).
+
+    ``interpolate`` True: the depths where ``frac`` crosses the level, log-linear between samples; False: the
+    nearest and farthest samples at or above it."""
+    level = fraction * float(frac.max())
+    if not interpolate:
+        keep = np.flatnonzero(frac >= level)
+        return float(depths[keep[0]]), float(depths[keep[-1]])
+    return _crossings(depths, frac, level)
+
+
 def _crossings(depths: np.ndarray, frac: np.ndarray, level: float) -> tuple[float, float]:
     """Near and far depth where ``frac`` crosses ``level`` (log-linear interpolation between samples)."""
     keep = np.flatnonzero(frac >= level)
@@ -159,19 +182,19 @@ def pair_depth_range(rig: Rig, face_a: int, face_b: int, *, near_fraction: float
 
     ``depth_step_cap`` False keeps every depth where the views overlap (no cut at the depth-resolution limit).
     """
-    depths = np.geomspace(rig.prism.back_distance * 1.05, FAR_MM, n_depths)
+    depths = overlap_depths(rig.prism.back_distance, n_depths)
     frac = face_overlap(rig, face_a, face_b, depths)
     if not (frac > 0).any():
         return None
-    near, _ = _crossings(depths, frac, near_fraction * float(frac.max()))
-    _, far = _crossings(depths, frac, OVERLAP_FRACTION * float(frac.max()))
+    near, _ = overlap_span(depths, frac, fraction=near_fraction)
+    _, far = overlap_span(depths, frac)
     if far <= near * 1.05:
         # a narrow overlap between two samples: resample finely around it
         fine = np.geomspace(near / 1.5, far * 1.5, n_depths)
         fine = fine[fine > rig.prism.back_distance * 1.02]
         f2 = face_overlap(rig, face_a, face_b, fine)
-        near, _ = _crossings(fine, f2, near_fraction * float(f2.max()))
-        _, far = _crossings(fine, f2, OVERLAP_FRACTION * float(f2.max()))
+        near, _ = overlap_span(fine, f2, fraction=near_fraction)
+        _, far = overlap_span(fine, f2)
     if depth_step_cap:
         far = min(far, DEPTH_STEP_LIMIT * rig.camera.focal_px * _baseline(rig, face_a, face_b))
     return near, max(far, near * 1.05)

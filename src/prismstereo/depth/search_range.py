@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 
 from prismstereo.cameras import calibrate_rig
-from prismstereo.cameras.overlap import FAR_MM, OVERLAP_FRACTION
+from prismstereo.cameras.overlap import overlap_depths, overlap_span
 from prismstereo.config import Rig
 from prismstereo.errors import GeometryError
 from prismstereo.matching.diagnostics import LIMIT_SHARE, limit_shares
@@ -146,13 +146,13 @@ class SearchRange:
 
 
 def _rig_range(pair: RectifiedPair, back_mm: float) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
-    depths = np.geomspace(back_mm * 1.02, FAR_MM, 32)
+    depths = overlap_depths(back_mm, 32, margin=1.02)
     frac, disp = view_overlap(pair, depths, stride=6)
     if not (frac > 0).any():
         raise GeometryError("expected the two views to share part of the scene at some depth, got views that "
                             "never overlap (choose other views)")
-    keep = np.flatnonzero(frac >= OVERLAP_FRACTION * frac.max())
-    return depths, disp, (float(depths[keep[0]]), float(depths[keep[-1]]))
+    # the kept samples themselves, not the interpolated crossings: every run's default range is these
+    return depths, disp, overlap_span(depths, frac, interpolate=False)
 
 
 def _depth_of(d: float, depths: np.ndarray, disp: np.ndarray) -> float:

@@ -96,7 +96,7 @@ def _glass(ax_side: plt.Axes, ax_front: plt.Axes, pred: Prediction) -> None:
 def design_figure(pred: Prediction, *, title: str = "", reference: Prediction | None = None,
                   measured: list[tuple[float, float]] | None = None) -> bytes:
     """PNG bytes of the figure for one prediction (``reference``: another prism's, drawn dashed;
-    ``measured``: (depth mm, median relative error) points of ``--verify``)."""
+    ``measured``: (depth mm, median relative error) points of :func:`~prismstereo.design.verify`)."""
     fig = plt.figure(figsize=(13, 9), dpi=90)
     ax_err = fig.add_subplot(2, 2, 1)
     ax_lay = fig.add_subplot(2, 2, 2)
@@ -108,7 +108,8 @@ def design_figure(pred: Prediction, *, title: str = "", reference: Prediction | 
         ax_err.plot([p.depth_mm for p in reference.depths], [100 * p.relative_error for p in reference.depths], "b--",
                     label="expected error (given prism)")
     if measured:
-        ax_err.plot([m[0] for m in measured], [100 * m[1] for m in measured], "kx", ms=8, label="measured (--verify)")
+        ax_err.plot([m[0] for m in measured], [100 * m[1] for m in measured], "kx", ms=8,
+                    label="measured (rendered captures)")
     ax_err.set_xlabel("depth Z (mm)")
     ax_err.set_ylabel("median |δZ|/Z (%)", color="b")
     ax_f = ax_err.twinx()

@@ -782,7 +782,7 @@ def _candidates(j: int, a: I32, own: I64, nstart: I64, nbr: I64, prm: KernelPara
     return nc
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def _sweep(a: I32, own: I64, planes: F64, dt: PixelData, g: GraphArrays, prm: KernelParams,
            active: npt.NDArray[np.bool_], cache: SweepCache) -> int:
     """One cooperative sweep over the active segments (Eq. 6.19), in place; returns the number of changes.
@@ -791,22 +791,36 @@ def _sweep(a: I32, own: I64, planes: F64, dt: PixelData, g: GraphArrays, prm: Ke
     A segment's decision depends only on its plane, its neighbours' planes at its turn and its candidates' data
     terms; a segment that kept its plane at its last turn is ``clean`` until one of them changes (a neighbour
     moves, a remembered data term is dropped), and its turn is skipped: it would keep its plane again."""
+    nstart, nbr = g.nstart, g.nbr
+    clean, afor = cache.clean, cache.afor
+    zb = _zbuffer_cached(a, planes, dt, cache, prm)
+    # a segment or a neighbour moved outside the sweeps (an undone sweep, a group move): decide again
+    for j in range(a.size):
+        if a[j] != afor[j]:
+            clean[j] = False
+            for t in range(nstart[j], nstart[j + 1]):
+                clean[nbr[t]] = False
+    changes = _sweep_turns(a, own, planes, dt, g, prm, active, zb, cache.clab, cache.cval, cache.cn, clean)
+    afor[:] = a
+    return changes
+
+
+@njit(cache=True, parallel=True)
+def _sweep_turns(a: I32, own: I64, planes: F64, dt: PixelData, g: GraphArrays, prm: KernelParams,
+                 active: npt.NDArray[np.bool_], zb: tuple[F64, I64, F64], clab: I64, cval: F64, cn: I64,
+                 clean: npt.NDArray[np.bool_]) -> int:
+    """The turns of :func:`_sweep` (Eq. 6.19) under the right-view z-buffer ``zb`` (``z1, o1, z2``), with the
+    remembered data terms ``clab, cval, cn`` and the ``clean`` flags of :class:`SweepCache`, passed as arrays:
+    the parallel loops run measurably slower when the arrays they write come out of the cache's tuple
+    (docs/EXPERIMENTS.md, issue 28, branch h-coop28)."""
     order, starts, w, cost, min_disp, reliable = dt
     pairs, bstart, bp_lo, bp_hi, bw, nstart, nbr, nedge = g
-    (zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval, cn, clean, afor, rstart, rp, rseg, sstart, srun, elab,
-     es) = cache
+    z1, o1, z2 = zb
     k = starts.size - 1
     kappa = prm.kappa
     mu = prm.mu
     gamma = prm.gamma
     thr = prm.smooth_threshold
-    z1, o1, z2 = _zbuffer_cached(a, planes, dt, cache, prm)
-    # a segment or a neighbour moved outside the sweeps (an undone sweep, a group move): decide again
-    for j in range(k):
-        if a[j] != afor[j]:
-            clean[j] = False
-            for t in range(nstart[j], nstart[j + 1]):
-                clean[nbr[t]] = False
     # the data terms of the candidates at the sweep's start, and their smoothness terms towards each neighbour's
     # plane at the start, in parallel (each segment's rows are written by one thread); the serial sweep below
     # reads them, and computes what its own changes made new: a new candidate, a neighbour that moved
@@ -879,7 +893,6 @@ def _sweep(a: I32, own: I64, planes: F64, dt: PixelData, g: GraphArrays, prm: Ke
                 clean[nbr[t]] = False
         else:
             clean[j] = True
-    afor[:] = a
     return changes
 
 
