@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from prismstereo.calibration.boards import to_gray as board_gray
+from prismstereo.calibration import boards
 from prismstereo.errors import ImageError
 from prismstereo.io.images import as_image, to_gray
 from prismstereo.matching.api import validate_pair
@@ -52,6 +52,10 @@ def test_bad_images_are_image_errors(bad: np.ndarray, what: str) -> None:
 
 def test_one_gray_conversion() -> None:
     """BT.601 luminance; the matchers' and the board detection's gray are this one (rounded for the boards)."""
+    def board_gray(image: np.ndarray) -> np.ndarray:
+        return as_image(image, channels=1)
+
+    assert not hasattr(boards, "to_gray")  # one public to_gray: the boards read as_image's 8-bit gray
     g = to_gray(IMG8)
     np.testing.assert_allclose(g, IMG8 @ np.array([0.299, 0.587, 0.114]), rtol=1e-5)
     assert cost_gray is to_gray

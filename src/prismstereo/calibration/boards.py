@@ -67,12 +67,6 @@ def parse_board(text: str, square: float) -> Board:
     return Board(int(m.group(1)), int(m.group(2)), float(square))
 
 
-def to_gray(image: np.ndarray) -> np.ndarray:
-    """(H, W) uint8 grey image of an RGB or grey image, for OpenCV's corner detection
-    (:func:`~prismstereo.io.images.as_image`: 16-bit and float images scaled, BT.601 luminance, rounded)."""
-    return as_image(image, channels=1)
-
-
 @dataclass(frozen=True)
 class Detection:
     """Inner corners found in one image (or sub-image).
@@ -210,7 +204,7 @@ def detect_board(
     -------
     Detection
     """
-    gray = to_gray(image)
+    gray = as_image(image, channels=1)
     flags = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
     found, corners = cv2.findChessboardCornersSB(gray, board.pattern_size, flags=flags)
     if not found or corners is None:

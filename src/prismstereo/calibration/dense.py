@@ -27,11 +27,11 @@ import logging
 import cv2
 import numpy as np
 
-from prismstereo.calibration.boards import to_gray
 from prismstereo.cameras import calibrate_rig
 from prismstereo.config import Rig
 from prismstereo.depth.apex_band import apex_band_views
 from prismstereo.errors import ConfigError
+from prismstereo.io.images import as_image
 from prismstereo.rectify import rectify_pair
 
 log = logging.getLogger(__name__)
@@ -135,7 +135,7 @@ def dense_pair_matches(image: np.ndarray, rig: Rig, *, faces: tuple[int, int], b
         raise ConfigError(f"faces: expected two distinct faces of the {rig.prism.faces}-face prism, got {faces}")
     by_face = {v.face: v for v in calibrate_rig(rig, method="fit")}
     pair = rectify_pair(rig, by_face[a], by_face[b])
-    gray = _to_u8(to_gray(image))
+    gray = _to_u8(as_image(image, channels=1))
     left, right = (np.ascontiguousarray(v) for v in pair.rectify_images(gray))
     kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * band_px + 1, 2 * band_px + 1))
     vl = cv2.erode(pair.valid_left.astype(np.uint8), kernel) > 0

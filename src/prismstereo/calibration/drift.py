@@ -19,11 +19,11 @@ from itertools import combinations
 import cv2
 import numpy as np
 
-from prismstereo.calibration.boards import to_gray
 from prismstereo.calibration.from_scene import consistent_matches, match_features, sift_features
 from prismstereo.cameras import calibrate_rig
 from prismstereo.config import Rig
 from prismstereo.errors import GeometryError, ImageError
+from prismstereo.io.images import as_image
 from prismstereo.rectify import rectify_pair
 
 log = logging.getLogger(__name__)
@@ -79,7 +79,7 @@ class RowCheck:
 
 def rectified_row_errors(pair: object, image: np.ndarray, *, erode_px: int = 4) -> np.ndarray:
     """(N,) signed y_left − y_right (px) of the consistent SIFT matches between a pair's rectified views."""
-    left, right = pair.rectify_images(to_gray(image))  # type: ignore[attr-defined]
+    left, right = pair.rectify_images(as_image(image, channels=1))  # type: ignore[attr-defined]
     kernel = np.ones((2 * erode_px + 1, 2 * erode_px + 1), np.uint8)
     vl, vr = (cv2.erode(np.asarray(v, np.uint8), kernel) > 0 for v in pair.valid_masks())  # type: ignore[attr-defined]
     pl, dl = sift_features(np.asarray(left), vl)

@@ -42,12 +42,12 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from prismstereo.calibration.boards import to_gray
 from prismstereo.calibration.dense import dense_pair_matches
 from prismstereo.calibration.prism import PARAMETERS, free_items, prism_values, with_prism_values
 from prismstereo.config import Rig
 from prismstereo.depth.apex_band import apex_band_real
 from prismstereo.errors import ConfigError, GeometryError, ImageError
+from prismstereo.io.images import as_image
 from prismstereo.optics import face_map, rays_from_pixels, trace_pixels, trace_rays
 from prismstereo.optics.distortion import undistort_points
 
@@ -276,7 +276,7 @@ def match_faces(
     """
     if dense not in DENSE_MODES:
         raise ConfigError(f"dense: expected one of {', '.join(DENSE_MODES)}, got {dense!r}")
-    gray = to_gray(image)
+    gray = as_image(image, channels=1)
     if gray.shape != (rig.camera.height, rig.camera.width):
         raise ImageError(f"expected captures of the rig's sensor size {rig.camera.width}×{rig.camera.height}, "
                          f"got {gray.shape[1]}×{gray.shape[0]}")

@@ -34,10 +34,11 @@ from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
 from scipy.spatial.transform import Rotation
 
-from prismstereo.calibration.boards import MAX_EDGE_WIDTH_PX, Board, detect_board, to_gray
+from prismstereo.calibration.boards import MAX_EDGE_WIDTH_PX, Board, detect_board
 from prismstereo.cameras.faces import thesis_camera
 from prismstereo.config import Rig
 from prismstereo.errors import ConfigError, GeometryError, ImageError
+from prismstereo.io.images import as_image
 from prismstereo.optics import face_map, project_exact, rays_from_pixels, trace_pixels, trace_rays
 
 log = logging.getLogger(__name__)
@@ -205,7 +206,7 @@ def detect_in_subimages(
     between the views may sit some pixels away from the input rig's); everything else is filled with the
     image's median grey. A board is credited to the face whose sub-image holds most of its corners.
     """
-    gray = to_gray(image)
+    gray = as_image(image, channels=1)
     if gray.shape != (rig.camera.height, rig.camera.width):
         raise ImageError(f"expected captures of the rig's sensor size {rig.camera.width}×{rig.camera.height}, "
                          f"got {gray.shape[1]}×{gray.shape[0]}")
