@@ -42,18 +42,9 @@ def _wrap(cap: dict[str, Any], folder: pathlib.Path) -> None:
         sgm_map, sgm_valid = self._sgm_map()
         self._sgm_map = lambda: (sgm_map, sgm_valid)  # the step reuses this run
         out = orig(self, s, final, p)
-        lab = s.labels.ravel()
-        sizes = np.bincount(lab, minlength=s.assign.size)
-        covered = np.bincount(lab, weights=self.evidence.ravel(), minlength=s.assign.size)
-        agree = self.evidence & (np.abs(final - self.initial) <= p.tol)
-        agreeing = np.bincount(lab, weights=agree.ravel(), minlength=s.assign.size)
-        thin = (sizes >= p.min_share * lab.size) & (covered < p.min_coverage * sizes)
-        bare = (sizes >= p.bare_share * lab.size) & (covered < p.bare_coverage * sizes)
-        against = ((sizes >= p.against_pixels) & (covered >= p.against_coverage * sizes)
-                   & (agreeing < p.max_agreement * covered))
         every = np.ones(final.shape, bool)
         cap.update(labels=s.labels.astype(np.int32), assign=s.assign, planes=s.planes, final_in=final.copy(),
-                   nonplanar=self.nonplanar, sparse=(thin | bare | against)[s.labels], evidence=self.evidence,
+                   nonplanar=self.nonplanar, sparse=self.sparse_segments(s, final, p), evidence=self.evidence,
                    initial=self.initial, reliable=self.reliable, bdisp=self.bdisp, brel=self.brel,
                    bdense=P.bpasw_dense_map(self.bvol, self.image, min_disp=self.min_disp, right_winner=self.bright,
                                             where=every, left_winner=self.bleft),

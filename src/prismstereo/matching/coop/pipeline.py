@@ -572,12 +572,9 @@ class _PairEvidence:
                                               self.brel, int(p.rematch_radius))
         return np.asarray(out, np.float32)
 
-    def fallback(self, s: PlaneLabels, final: F32, p: FallbackParams) -> F32:
-        # the segments that failed the plane support test are not planar; a segment the evidence covers only in
-        # part has its plane extrapolated over the rest, one it barely covers has its plane from the neighbours
-        # alone, and one whose map contradicts nearly all of its evidence was moved against it: the local map there
-        """The fallback step (:func:`segment_support_choice`): post-processing beyond the thesis, no equation of its
-        own."""
+    def sparse_segments(self, s: PlaneLabels, final: F32, p: FallbackParams) -> npt.NDArray[np.bool_]:
+        """(H, W) bool: the pixels of the segments whose evidence is thin, bare or against their map (the
+        fallback's test, :meth:`fallback`). Post-processing beyond the thesis, no equation of its own."""
         lab = s.labels.ravel()
         sizes = np.bincount(lab, minlength=s.assign.size)
         covered = np.bincount(lab, weights=self.evidence.ravel(), minlength=s.assign.size)
@@ -587,7 +584,15 @@ class _PairEvidence:
         bare = (sizes >= p.bare_share * lab.size) & (covered < p.bare_coverage * sizes)
         against = ((sizes >= p.against_pixels) & (covered >= p.against_coverage * sizes)
                    & (agreeing < p.max_agreement * covered))
-        sparse = (thin | bare | against)[s.labels]
+        return np.asarray((thin | bare | against)[s.labels], dtype=bool)
+
+    def fallback(self, s: PlaneLabels, final: F32, p: FallbackParams) -> F32:
+        # the segments that failed the plane support test are not planar; a segment the evidence covers only in
+        # part has its plane extrapolated over the rest, one it barely covers has its plane from the neighbours
+        # alone, and one whose map contradicts nearly all of its evidence was moved against it: the local map there
+        """The fallback step (:func:`segment_support_choice`): post-processing beyond the thesis, no equation of its
+        own."""
+        sparse = self.sparse_segments(s, final, p)
         local = self.nonplanar | sparse
         self.fallback_pixels = int(local.sum())
         if not local.any():
