@@ -202,6 +202,21 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
     return d_out, zncc, keep
 
 
+@njit(cache=True, inline="always")
+def _column_tap(R: np.ndarray, Rx: np.ndarray, VR: np.ndarray, ya: int, yb: int, nc: int, fc: int, fy: float,
+                xc: int) -> tuple[float, float, bool]:  # pragma: no cover - numba
+    """The taps R and Rx at column ``xc``, linear between the rows ``ya`` and ``yb`` (weight ``fy`` on ``yb``),
+    and whether the right view holds them (:func:`_masked_tap_sums`' rule on ``VR`` at the nearer row ``nc``
+    and the farther one ``fc``)."""
+    r = float(R[ya, xc])
+    j = float(Rx[ya, xc])
+    if fy != 0.0:
+        gy = 1.0 - fy
+        r = gy * r + fy * float(R[yb, xc])
+        j = gy * j + fy * float(Rx[yb, xc])
+    return r, j, VR[nc, xc] >= 2 and (fy == 0.0 or VR[fc, xc] >= 1)
+
+
 @njit(cache=True)
 def _masked_tap_sums(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray, VR: np.ndarray, y: int,
                      x: int, b0: int, radius: int, oy: int, fy: float) -> tuple[float, ...]:  # pragma: no cover - numba
@@ -238,24 +253,12 @@ def _masked_tap_sums(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarra
         yb = min(max(yr + 1, 0), h - 1)
         xa = b0 - radius
         xc = min(max(xa, 0), w - 1)
-        ra = float(R[ya, xc])
-        ja = float(Rx[ya, xc])
-        if fy != 0.0:
-            gy = 1.0 - fy
-            ra = gy * ra + fy * float(R[yb, xc])
-            ja = gy * ja + fy * float(Rx[yb, xc])
-        ok_a = VR[nc, xc] >= 2 and (fy == 0.0 or VR[fc, xc] >= 1)
+        ra, ja, ok_a = _column_tap(R, Rx, VR, ya, yb, nc, fc, fy, xc)
         for dx in range(-radius, radius + 1):
             xa = b0 + dx
             xl = x + dx
             xn = min(max(xa + 1, 0), w - 1)
-            rb = float(R[ya, xn])
-            jb = float(Rx[ya, xn])
-            if fy != 0.0:
-                gy = 1.0 - fy
-                rb = gy * rb + fy * float(R[yb, xn])
-                jb = gy * jb + fy * float(Rx[yb, xn])
-            ok_b = VR[nc, xn] >= 2 and (fy == 0.0 or VR[fc, xn] >= 1)
+            rb, jb, ok_b = _column_tap(R, Rx, VR, ya, yb, nc, fc, fy, xn)
             xlc = min(max(xl, 0), w - 1)
             counts = 0 <= xl < w and VL[yl, xlc] != 0 and 0 <= xa and xa + 1 < w and ok_a and ok_b
             v = 1.0 if counts else 0.0
