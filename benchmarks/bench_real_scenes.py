@@ -47,6 +47,7 @@ from prismstereo.calibration.from_scene import calibrate_from_scene
 from prismstereo.calibration.scene_uncertainty import unobserved_depth_error
 from prismstereo.config import Rig, load_rig, thesis_biprism
 from prismstereo.depth import DepthConfig, run_depth
+from prismstereo.depth.presets import apply_preset
 from prismstereo.errors import PrismStereoError
 from prismstereo.evaluation.depth_metrics import evaluate_depth
 from prismstereo.matching.registry import PRESETS
@@ -120,7 +121,7 @@ def board_calibrated(true: Rig, out: Path) -> tuple[Rig, dict[str, Any]]:
 
 def run_row(rig_used: Rig, true: Rig, image: np.ndarray, scene: Scene, preset: str) -> dict[str, Any]:
     t0 = time.perf_counter()
-    res = run_depth(rig_used, image, config=DepthConfig(method=PRESETS[preset]))
+    res = run_depth(rig_used, image, config=apply_preset(DepthConfig(), preset))
     secs = time.perf_counter() - t0
     judged = copy.copy(res)
     object.__setattr__(judged, "rig", true)  # the truth: the real pixels' rays through the true prism

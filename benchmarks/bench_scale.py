@@ -7,9 +7,9 @@ bi-prism rig (:func:`prismstereo.simulate.robot_scene`'s camera scaled: width W,
 subprocess (so that its peak memory is its own: ``resource.getrusage(RUSAGE_SELF).ru_maxrss``; tracemalloc
 misses numpy's and numba's allocations):
 
-1. ``run_depth(rig, capture, DepthConfig(method=PRESETS[p]))`` once (numba's cache loaded, the rig's set-up
-   computed and cached on disk), then again: the second run is the one measured, as ``prismstereo depth
-   RIG capture.png --preset P`` on a rig whose set-up is cached (its ``run.json`` ``timings_s``);
+1. ``run_depth(rig, capture, apply_preset(DepthConfig(), p))`` (the preset's profile) once (numba's cache
+   loaded, the rig's set-up computed and cached on disk), then again: the second run is the one measured, as
+   ``prismstereo depth RIG capture.png --preset P`` on a rig whose set-up is cached (its ``run.json`` ``timings_s``);
 2. OpenCV StereoSGBM (``MODE_SGBM_3WAY``, block 5, P1 = 8·3·25, P2 = 32·3·25) on the same rectified pair
    and disparity range, best of 3, in the same process;
 3. accuracy against the render's ground truth (:func:`~prismstereo.evaluation.depth_metrics.evaluate_depth`):
@@ -108,15 +108,15 @@ def _depth_child(folder: Path, what: str) -> dict[str, Any]:
 
     from prismstereo.config import load_rig
     from prismstereo.depth import DepthConfig, run_depth
+    from prismstereo.depth.presets import apply_preset
     from prismstereo.evaluation.depth_metrics import evaluate_depth, read_depth_gt
     from prismstereo.io import read_image
-    from prismstereo.matching import PRESETS as TABLE
 
     rig = load_rig(folder / "rig.toml")
     img = read_image(folder / "capture.png")
     gt = read_depth_gt(folder / "depth_gt.pfm", rig)
     preset, _, mode = what.partition(":")
-    cfg = DepthConfig(method=TABLE[preset], coarse_to_fine=mode or "auto")
+    cfg = apply_preset(DepthConfig(coarse_to_fine=mode or "auto"), preset, given=["coarse_to_fine"])
     t = time.perf_counter()
     run_depth(rig, img, config=cfg, progress=False)
     first = time.perf_counter() - t
@@ -143,6 +143,7 @@ def _stream_child(folder: Path, frames: int, given: bool = True) -> dict[str, An
     from prismstereo.batch.stream import run_stream
     from prismstereo.config import load_rig
     from prismstereo.depth import DepthConfig
+    from prismstereo.depth.presets import apply_preset
     from prismstereo.io import read_image
 
     rig = load_rig(folder / "rig.toml")
@@ -155,9 +156,9 @@ def _stream_child(folder: Path, frames: int, given: bool = True) -> dict[str, An
             vw.write(bgr)
         vw.release()
         # warm: numba's kernels loaded and the set-up cached, on the first frame
-        cfg = DepthConfig(method="sgm", depth_range=STREAM_RANGE_MM if given else None)
-        run_stream(rig, str(video), Path(tmp) / "warm", config=cfg, max_frames=1)
-        s = run_stream(rig, str(video), Path(tmp) / "out", config=cfg)
+        cfg = apply_preset(DepthConfig(depth_range=STREAM_RANGE_MM if given else None), "fast", given=["depth_range"])
+        run_stream(rig, str(video), Path(tmp) / "warm", config=cfg, max_frames=1, preset="fast")
+        s = run_stream(rig, str(video), Path(tmp) / "out", config=cfg, preset="fast")
         info = json.loads((Path(tmp) / "out" / "stream.json").read_text())
     return {"frames": s.frames, "frames_per_s": round(s.frames_per_s, 3), "stage_s": s.stage_s,
             "range": "given" if given else "narrowed by the first frame",

@@ -31,6 +31,7 @@ from prismstereo.config import Rig, load_rig
 from prismstereo.depth.memory import check_depth_memory
 from prismstereo.depth.outputs import write_depth_outputs
 from prismstereo.depth.pipeline import DepthConfig, DepthRun, run_depth, validate_config, validate_image
+from prismstereo.depth.presets import apply_preset, preset_record
 from prismstereo.errors import ConfigError, ImageError
 from prismstereo.evaluation.depth_metrics import evaluate_depth, read_depth_gt
 from prismstereo.io import (
@@ -43,7 +44,6 @@ from prismstereo.io import (
     write_pfm,
 )
 from prismstereo.io.memory import check_fits_in_memory
-from prismstereo.matching.registry import PRESETS
 from prismstereo.simulate import robot_scene
 from prismstereo.simulate.render import Capture, render_capture
 from prismstereo.simulate.scene import Scene
@@ -77,7 +77,8 @@ def _rig(rig: Rig | PathLike) -> Rig:
 # --------------------------------------------------------------------------- depth
 def depth_config(*, preset: str | None = None, config: DepthConfig | None = None, **options: Any) -> DepthConfig:
     """The configuration :func:`depth` runs: ``config`` (default :class:`DepthConfig()`), the ``preset``'s
-    matcher, then ``options`` (fields of :class:`DepthConfig`, :data:`DEPTH_OPTIONS`).
+    profile (its matcher and depth settings, :data:`prismstereo.depth.presets.PROFILES`), then ``options``
+    (fields of :class:`DepthConfig`, :data:`DEPTH_OPTIONS`): an option given explicitly wins over the preset.
 
     Raises
     ------
@@ -90,15 +91,9 @@ def depth_config(*, preset: str | None = None, config: DepthConfig | None = None
         raise ConfigError(f"{unknown[0]}: expected options of depth() among {', '.join(DEPTH_OPTIONS)}, got "
                           f"{', '.join(unknown)} (matcher parameters go in matcher_params={{...}})")
     changes = dict(options)
-    if preset is not None:
-        key = str(preset).lower()
-        if key not in PRESETS:
-            raise ConfigError(f"preset: expected one of {', '.join(PRESETS)}, got {preset!r}")
-        if "method" in changes:
-            raise ConfigError(f"preset: expected a preset or a method, got both (preset {key!r} means method "
-                              f"{PRESETS[key]!r})")
-        changes["method"] = PRESETS[key]
     base = config if config is not None else DepthConfig()
+    if preset is not None:
+        base = apply_preset(base, preset, given=changes)
     if "method" in changes and "matcher_params" not in changes and str(changes["method"]).lower() != base.method:
         changes["matcher_params"] = {}  # another matcher: the base's parameters are not its own
     return replace(base, **changes)
@@ -181,6 +176,8 @@ class DepthResult:
 
     def _extra(self) -> dict[str, Any]:
         extra: dict[str, Any] = {"inputs": dict(self.inputs), "preset": self.preset}
+        if self.preset is not None:
+            extra["preset_profile"] = preset_record(self.preset, self.run.config)
         if self.calibration is not None:
             report = {k: v for k, v in self.calibration.report().items() if k != "rig"}
             if self.unobserved is not None:
@@ -249,7 +246,9 @@ def depth(rig: Rig | PathLike, image: np.ndarray | PathLike, *, preset: str | No
     image : (H, W) or (H, W, 3) array, or path
         The capture, RGB, the rig camera's size (docs/conventions.md for the dtypes accepted).
     preset : {"fast", "balanced", "accurate"}, optional
-        The matcher by what a run may cost (:data:`prismstereo.matching.PRESETS`); not with ``method``.
+        A profile by what a run may cost: its matcher and the depth settings it implies
+        (:data:`prismstereo.depth.presets.PROFILES`; ``fast`` a video frame's refinement); not with
+        ``method``; options given explicitly win over its settings.
     config : DepthConfig, optional
         A base configuration (e.g. ``DepthConfig.from_dict(run_json["config"])``); ``options`` override it.
     ground_truth : (H, W) array or path, optional

@@ -294,8 +294,14 @@ def test_cli_preset_and_min_confidence(tmp_path, rig, frames_dir, capsys):
             "--min-confidence", "0.3", "--depth-range", "800,5000", "--outputs", "depth.pfm", "--in-process",
             "--workers", "1"]
     assert main(args) == 0
-    config = json.loads((out / "run.json").read_text())["config"]
+    run = json.loads((out / "run.json").read_text())
+    config = run["config"]
     assert config["method"] == "sgm" and config["min_confidence"] == 0.3
+    # the fast profile's refinement, the option given winning (recorded)
+    from prismstereo.depth.presets import PROFILES
+
+    assert all(config[k] == v for k, v in PROFILES["fast"].settings if k != "min_confidence")
+    assert run["preset_profile"]["overridden"] == ["min_confidence"]
     capsys.readouterr()
     for bad in (["--preset", "fast", "--method", "sad"], ["--preset", "quick"], ["--min-confidence", "2"]):
         out2 = tmp_path / "bad"

@@ -15,6 +15,7 @@ import pytest
 from prismstereo.apps.demo import demo_rig, plane_scene
 from prismstereo.batch.stream import open_source, run_stream, source_kind
 from prismstereo.depth import DepthConfig, prepare_depth
+from prismstereo.depth.presets import apply_preset
 from prismstereo.errors import ConfigError, ImageError
 from prismstereo.evaluation.depth_metrics import evaluate_depth
 from prismstereo.io import write_image
@@ -52,8 +53,10 @@ def test_video_stream_recovers_depth(tmp_path: Path, captures) -> None:  # type:
     rig, scenes, images = captures
     src = _video(tmp_path / "caps.avi", images)
     got: list = []
-    summary = run_stream(rig, str(src), tmp_path / "out", config=CONFIG, video=tmp_path / "depth.avi",
-                         on_frame=lambda name, res: got.append((name, res)))
+    # the fast preset's profile (what the stream command runs by default), recorded in stream.json
+    fast = apply_preset(CONFIG, "fast", given=["depth_range"])
+    summary = run_stream(rig, str(src), tmp_path / "out", config=fast, video=tmp_path / "depth.avi",
+                         on_frame=lambda name, res: got.append((name, res)), preset="fast")
     assert summary.frames == 3 and not summary.failed and not summary.interrupted
     assert summary.frames_per_s > 0 and set(summary.stage_s) == {"read", "depth", "write"}
     assert [n for n, _ in got] == [f"caps_{i:06d}" for i in range(3)]
@@ -64,7 +67,9 @@ def test_video_stream_recovers_depth(tmp_path: Path, captures) -> None:  # type:
         ok = res.valid
         assert np.abs(png[ok].astype(float) - res.depth[ok]).max() <= 0.5 + 1e-6
         assert (tmp_path / "out" / "frames" / name / "disparity.pfm").is_file()
-    assert (tmp_path / "out" / "stream.json").is_file()
+    info = json.loads((tmp_path / "out" / "stream.json").read_text())
+    assert info["preset_profile"]["name"] == "fast" and info["preset_profile"]["overridden"] == []
+    assert info["config"]["refine_radius"] == fast.refine_radius and info["config"]["depth_range"] == [1000, 1700]
     cap = cv2.VideoCapture(str(tmp_path / "depth.avi"))
     assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 3
     cap.release()

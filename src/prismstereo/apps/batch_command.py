@@ -26,22 +26,24 @@ def batch_command(rig_path: str, inputs: Sequence[str], out_dir: str, *, method:
                   calibration: str = "fit", refine: bool = True, outputs: str | None = None,
                   scheduler: str | None = None, workers: int | None = None, threads_per_worker: int = 1,
                   processes: bool = True, retries: int = 2, numba_threads: int | None = None,
-                  min_confidence: float | None = None) -> int:
-    """Run ``prismstereo batch``: print the summary, return the exit code (0, or 3 when frames failed)."""
+                  min_confidence: float | None = None, preset: str | None = None) -> int:
+    """Run ``prismstereo batch``: print the summary, return the exit code (0, or 3 when frames failed).
+    ``preset``: the profile ``method`` came from; its depth settings apply where no option sets them."""
     # imported when the command runs: ``prismstereo --help`` starts without Dask and the numerical packages
     from prismstereo.batch.runner import run_batch
     from prismstereo.config import load_rig
-    from prismstereo.depth.pipeline import DepthConfig
 
     rig = load_rig(rig_path)
     if views == "all":
         raise ConfigError("--views: expected a pair I,J for batch, got 'all' (the all-view sweep is depth-only)")
     if views is not None and len(views) != 2:
         raise ConfigError(f"--views: expected two faces I,J, got {','.join(map(str, views))}")
-    extra: dict[str, Any] = {} if min_confidence is None else {"min_confidence": min_confidence}
-    config = DepthConfig(method=method, matcher_params=dict(params or {}), depth_range=depth_range, roi=roi,
-                         views=None if views is None else (int(views[0]), int(views[1])),
-                         triangulation=triangulation, calibration=calibration, refine=refine, **extra)
+    given: dict[str, Any] = dict(matcher_params=dict(params or {}), depth_range=depth_range, roi=roi,
+                                 views=None if views is None else (int(views[0]), int(views[1])),
+                                 triangulation=triangulation, calibration=calibration, refine=refine)
+    if min_confidence is not None:
+        given["min_confidence"] = min_confidence
+    config = _configured(method, preset, given)
 
     if logging.getLogger("prismstereo").getEffectiveLevel() > logging.INFO:
         import distributed  # noqa: F401 - its import sets its loggers' levels: lower them afterwards
@@ -54,6 +56,15 @@ def batch_command(rig_path: str, inputs: Sequence[str], out_dir: str, *, method:
 
     summary = run_batch(rig, inputs, out_dir, config=config, outputs=outputs, scheduler=scheduler, workers=workers,
                         threads_per_worker=threads_per_worker, processes=processes, retries=retries,
-                        numba_threads=numba_threads, echo=echo)
+                        numba_threads=numba_threads, echo=echo, preset=preset)
     print(summary.text())
     return summary.exit_code
+
+
+def _configured(method: str, preset: str | None, given: dict[str, Any]) -> Any:
+    """The DepthConfig of the options ``given`` and the ``preset``'s settings where they name none."""
+    from prismstereo.depth.pipeline import DepthConfig
+    from prismstereo.depth.presets import apply_preset
+
+    config = DepthConfig(method=method, **given)
+    return config if preset is None else apply_preset(config, preset, given=given)

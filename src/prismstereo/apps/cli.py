@@ -294,7 +294,8 @@ def _add_depth(sub: argparse._SubParsersAction) -> None:
                         "override them")
     p.add_argument("--method", default=None, help="matcher name (any registered: bpasw (default), sgm, coop, ...)")
     p.add_argument("--preset", default=None, metavar="fast|balanced|accurate",
-                   help="fast = sgm, balanced = bpasw, accurate = coop (instead of --method)")
+                   help="fast = sgm and a video frame's refinement, balanced = bpasw, accurate = coop (instead of "
+                        "--method; options given explicitly win over the preset's settings; docs/cli.md)")
     p.add_argument("-p", "--param", action="append", metavar="KEY=VALUE", help="matcher tuning parameter")
     p.add_argument("--depth-range", default=None, metavar="MIN,MAX",
                    help="world depths to search, mm (MIN > the prism's back_distance); default: derived from the "
@@ -340,7 +341,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     method, preset = (args.method, None) if args.preset is None and args.config is not None \
         else resolve_preset(args.preset, args.method)
     _first_run(args.command, method or "bpasw")
-    print(depth_command(args.rig, args.image, args.output, method=method, preset=preset,
+    print(depth_command(args.rig, args.image, args.output, method=args.method, preset=preset,
                         params=_parse_params(args.param),
                         depth_range=depth_range, roi=_parse_roi(args.roi), views=views,
                         triangulation=args.triangulation, calibration=args.calibration, gt=args.gt,
@@ -479,7 +480,8 @@ def _add_batch(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--method", default=None,
                    help="matcher name (any registered: bpasw (default), sad, sgbm, coop, ...)")
     p.add_argument("--preset", default=None, metavar="fast|balanced|accurate",
-                   help="fast = sgm, balanced = bpasw, accurate = coop (instead of --method)")
+                   help="fast = sgm and a video frame's refinement, balanced = bpasw, accurate = coop (instead of "
+                        "--method; options given explicitly win over the preset's settings; docs/cli.md)")
     p.add_argument("--min-confidence", type=float, default=None, metavar="C",
                    help="keep points whose confidence (0..1) is at least C; 0 keeps every match (default: depth's)")
     p.add_argument("-p", "--param", action="append", metavar="KEY=VALUE", help="matcher tuning parameter")
@@ -512,8 +514,9 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     from prismstereo.matching.registry import resolve_preset
 
     depth_range = None if args.depth_range is None else parse_pair(args.depth_range, "--depth-range")
-    method, _ = resolve_preset(args.preset, args.method)
-    return batch_command(args.rig, args.inputs, args.output, method=method, params=_parse_params(args.param),
+    method, preset = resolve_preset(args.preset, args.method)
+    return batch_command(args.rig, args.inputs, args.output, method=method, preset=preset,
+                         params=_parse_params(args.param),
                          min_confidence=args.min_confidence,
                          depth_range=depth_range, roi=_parse_roi(args.roi), views=_parse_views(args.views),
                          triangulation=args.triangulation, calibration=args.calibration, refine=not args.no_refine,
@@ -540,7 +543,8 @@ def _add_stream(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--method", default=None, help="matcher name (default: the fast preset's, sgm)")
     p.add_argument("--preset", default=None, metavar="fast|balanced|accurate",
-                   help="fast = sgm (default), balanced = bpasw, accurate = coop (instead of --method)")
+                   help="fast (default: sgm and a video frame's refinement), balanced = bpasw, accurate = coop "
+                        "(instead of --method; docs/cli.md)")
     p.add_argument("-p", "--param", action="append", metavar="KEY=VALUE", help="matcher tuning parameter")
     p.add_argument("--depth-range", default=None, metavar="MIN,MAX", help="scene depths to search, mm")
     p.add_argument("--roi", default=None, metavar="X,Y,W,H", help="region of the rectified left view")
@@ -564,8 +568,11 @@ def _cmd_stream(args: argparse.Namespace) -> int:
     from prismstereo.matching.registry import resolve_preset
 
     depth_range = None if args.depth_range is None else parse_pair(args.depth_range, "--depth-range")
-    method, _ = resolve_preset(args.preset, args.method, default="sgm")
-    return stream_command(args.rig, args.source, args.output, method=method, params=_parse_params(args.param),
+    # no matcher named: the fast preset (its matcher and its refinement), what a video frame affords
+    method, preset = resolve_preset("fast" if args.preset is None and args.method is None else args.preset,
+                                    args.method)
+    return stream_command(args.rig, args.source, args.output, method=method, preset=preset,
+                          params=_parse_params(args.param),
                           depth_range=depth_range, roi=_parse_roi(args.roi), views=_parse_views(args.views),
                           triangulation=args.triangulation, refine=not args.no_refine,
                           min_confidence=args.min_confidence, outputs=args.outputs, video=args.video,

@@ -18,6 +18,7 @@ from typing import Any
 
 from prismstereo.config import Rig, load_rig, rig_from_dict
 from prismstereo.depth.pipeline import DepthConfig
+from prismstereo.depth.presets import apply_preset
 from prismstereo.errors import ConfigError
 
 __all__ = ["DepthOptions", "read_run_config", "replay_options"]
@@ -76,8 +77,10 @@ def replay_options(config_path: str | None, rig_path: str | None, image_path: st
                    preset: str | None = None, min_confidence: float | None = None,
                    coarse_to_fine: str | None = None, max_memory: int | None = None,
                    refine_fill: bool | None = None) -> DepthOptions:
-    """The options of a depth run: those given (not None) over the recorded run's (``config_path``), over the
-    defaults of :class:`~prismstereo.depth.pipeline.DepthConfig`.
+    """The options of a depth run: those given (not None) over the ``preset``'s profile
+    (:func:`~prismstereo.depth.presets.apply_preset`; a preset named here, not the recorded one, whose
+    settings the record holds resolved), over the recorded run's (``config_path``), over the defaults of
+    :class:`~prismstereo.depth.pipeline.DepthConfig`.
 
     ``views`` is a pair (i, j), ``"all"`` or None. Naming another ``method`` than the recorded one starts
     from that matcher's defaults; the recorded rig (as it was run, even if its file changed since) is used
@@ -90,6 +93,7 @@ def replay_options(config_path: str | None, rig_path: str | None, image_path: st
     """
     base = DepthConfig()
     rig: Rig | None = None
+    named = preset  # a preset named on this command line (a recorded one is already resolved in its record)
     if config_path is not None:
         record = read_run_config(config_path)
         base = DepthConfig.from_dict(record["config"])
@@ -108,6 +112,12 @@ def replay_options(config_path: str | None, rig_path: str | None, image_path: st
         rig = load_rig(rig_path)
     if image_path is None:
         raise ConfigError("expected a capture image (or --config run.json of an earlier run), got none")
+    options = {"depth_range": depth_range, "roi": roi, "triangulation": triangulation, "calibration": calibration,
+               "refine": refine, "min_confidence": min_confidence, "coarse_to_fine": coarse_to_fine,
+               "max_memory": max_memory, "refine_fill": refine_fill, "views": views, "method": method}
+    if named is not None:
+        given = [k for k, v in options.items() if v is not None] + (["matcher_params"] if params else [])
+        base = apply_preset(base, named, given=given)
     changes: dict[str, Any] = {}
     if method is not None:
         changes["method"] = method
@@ -115,13 +125,9 @@ def replay_options(config_path: str | None, rig_path: str | None, image_path: st
             changes["matcher_params"] = {}
     if params:
         changes["matcher_params"] = {**changes.get("matcher_params", base.matcher_params), **params}
-    for key, value in (("depth_range", depth_range), ("roi", roi), ("triangulation", triangulation),
-                       ("calibration", calibration), ("refine", refine), ("min_confidence", min_confidence),
-                       ("coarse_to_fine", coarse_to_fine), ("max_memory", max_memory), ("refine_fill", refine_fill)):
-        if value is not None:
+    for key, value in options.items():
+        if value is not None and key != "method":
             changes[key] = value
-    if views is not None:
-        changes["views"] = views
     return DepthOptions(rig=rig, rig_path=None if rig_path is None else str(rig_path), image_path=str(image_path),
                         gt=None if gt is None else str(gt), config=dataclasses.replace(base, **changes),
                         preset=preset)

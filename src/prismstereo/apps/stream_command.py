@@ -27,30 +27,41 @@ def stream_command(rig_path: str, source: str, out_dir: str, *, method: str = "s
                    roi: tuple[int, int, int, int] | None = None, views: Any = None, triangulation: str = "exact",
                    refine: bool = True, min_confidence: float | None = None, outputs: str | None = None,
                    video: str | None = None, video_fps: float = 10.0, idle_timeout: float = 10.0,
-                   max_frames: int | None = None) -> int:
+                   max_frames: int | None = None, preset: str | None = None) -> int:
     """Run ``prismstereo stream``: print the summary, return the exit code (0, 3 when frames failed, 130
-    when interrupted)."""
+    when interrupted). ``preset``: the profile ``method`` came from; its depth settings apply where no option
+    sets them."""
     from prismstereo.batch.stream import STREAM_OUTPUTS, run_stream
     from prismstereo.config import load_rig
-    from prismstereo.depth.pipeline import DepthConfig
 
     rig = load_rig(rig_path)
     if views == "all":
         raise ConfigError("--views: expected a pair I,J for a stream, got 'all' (the all-view sweep is depth-only)")
     if views is not None and len(views) != 2:
         raise ConfigError(f"--views: expected two faces I,J, got {','.join(map(str, views))}")
-    extra: dict[str, Any] = {} if min_confidence is None else {"min_confidence": min_confidence}
-    config = DepthConfig(method=method, matcher_params=dict(params or {}), depth_range=depth_range, roi=roi,
-                         views=None if views is None else (int(views[0]), int(views[1])),
-                         triangulation=triangulation, refine=refine, **extra)
+    given: dict[str, Any] = dict(matcher_params=dict(params or {}), depth_range=depth_range, roi=roi,
+                                 views=None if views is None else (int(views[0]), int(views[1])),
+                                 triangulation=triangulation, refine=refine)
+    if min_confidence is not None:
+        given["min_confidence"] = min_confidence
+    config = _configured(method, preset, given)
 
     def echo(line: str) -> None:
         print(line, file=sys.stderr, flush=True)
 
     chosen: Any = STREAM_OUTPUTS if outputs is None else ("" if outputs.strip().lower() == "none" else outputs)
     summary = run_stream(rig, source, out_dir, config=config, outputs=chosen, video=video, video_fps=video_fps,
-                         idle_timeout=idle_timeout, max_frames=max_frames, echo=echo)
+                         idle_timeout=idle_timeout, max_frames=max_frames, echo=echo, preset=preset)
     print(summary.text())
     if summary.interrupted:
         return 130
     return 3 if summary.failed else 0
+
+
+def _configured(method: str, preset: str | None, given: dict[str, Any]) -> Any:
+    """The DepthConfig of the options ``given`` and the ``preset``'s settings where they name none."""
+    from prismstereo.depth.pipeline import DepthConfig
+    from prismstereo.depth.presets import apply_preset
+
+    config = DepthConfig(method=method, **given)
+    return config if preset is None else apply_preset(config, preset, given=given)

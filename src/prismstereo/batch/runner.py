@@ -41,6 +41,7 @@ from prismstereo.batch.outputs import (
 )
 from prismstereo.config import Rig, load_rig
 from prismstereo.depth.pipeline import DepthConfig, DepthSetup, prepare_depth, run_depth_frame
+from prismstereo.depth.presets import preset_record
 from prismstereo.errors import ConfigError
 from prismstereo.io import to_jsonable, write_json
 from prismstereo.io.atomic import check_output_dir
@@ -359,7 +360,8 @@ def run_batch(rig: Rig | str | os.PathLike[str], inputs: Sequence[str | os.PathL
               workers: int | None = None, threads_per_worker: int = 1, processes: bool = True, retries: int = 2,
               numba_threads: int | None = None, progress: bool | None = None,
               echo: Callable[[str], None] | None = None,
-              on_frame: Callable[[dict[str, Any]], None] | None = None) -> BatchSummary:
+              on_frame: Callable[[dict[str, Any]], None] | None = None,
+              preset: str | None = None) -> BatchSummary:
     """Depth of every frame of ``inputs`` into ``out/frames/<name>/``, on Dask.
 
     Parameters
@@ -390,6 +392,9 @@ def run_batch(rig: Rig | str | os.PathLike[str], inputs: Sequence[str | os.PathL
         Receives one-line notices (cluster, dashboard link).
     on_frame : callable, optional
         Called with each frame's row as it completes (in completion order).
+    preset : str, optional
+        The preset ``config`` was resolved from (:func:`~prismstereo.depth.presets.apply_preset`), recorded in
+        ``run.json`` with its settings as resolved (``preset_profile``).
 
     Returns
     -------
@@ -433,6 +438,8 @@ def run_batch(rig: Rig | str | os.PathLike[str], inputs: Sequence[str | os.PathL
         "inputs": [os.fspath(i) for i in inputs], "frames": len(frames),
         "setup_s": {**{k: round(v, 4) for k, v in setup.timings.items()}, "total": round(t_setup, 4)},
     }
+    if preset is not None:
+        run["preset_profile"] = preset_record(preset, setup.config)
     frames_dir = out_dir / "frames"
     frames_dir.mkdir(parents=True, exist_ok=True)
     _check_resume(out_dir, run)

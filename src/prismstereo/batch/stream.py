@@ -66,6 +66,7 @@ from prismstereo.depth.pipeline import (
     search_region,
     validate_image,
 )
+from prismstereo.depth.presets import preset_record
 from prismstereo.errors import ConfigError, GeometryError, ImageError
 from prismstereo.io import read_image, write_json
 from prismstereo.io.atomic import check_output_dir
@@ -310,7 +311,7 @@ def run_stream(rig: Rig, source: str, out: str | os.PathLike[str], *, config: De
                video_fps: float = 10.0, idle_timeout: float = 10.0, poll_s: float = 0.2, queue_size: int = 2,
                max_frames: int | None = None, on_frame: Callable[[str, DepthRun], None] | None = None,
                echo: Callable[[str], None] | None = None, report_every: float = 2.0,
-               narrow_range: bool = True) -> StreamSummary:
+               narrow_range: bool = True, preset: str | None = None) -> StreamSummary:
     """Depth of every frame of ``source`` as it arrives, into ``out/frames/<name>/`` (module docstring).
 
     Parameters
@@ -339,6 +340,9 @@ def run_stream(rig: Rig, source: str, out: str | os.PathLike[str], *, config: De
     narrow_range : bool
         Without a configured depth range, narrow the rig's range with the frames' images (module
         docstring); False: every frame searches the rig's whole range.
+    preset : str, optional
+        The preset ``config`` was resolved from (:func:`~prismstereo.depth.presets.apply_preset`), recorded in
+        ``stream.json`` with its settings as resolved (``preset_profile``).
 
     Returns
     -------
@@ -377,9 +381,11 @@ def run_stream(rig: Rig, source: str, out: str | os.PathLike[str], *, config: De
     frames_dir.mkdir(parents=True, exist_ok=True)
     remove_partial(frames_dir)
     vid = None if video is None else _VideoOut(Path(video), video_fps, setup.depth_range)
-    write_json(out_dir / "stream.json", {"command": "stream", "source": str(source), "kind": kind,
-                                         "config": setup.config.to_dict(), "outputs": list(chosen),
-                                         "disparity_range": list(setup.disparity_range)})
+    record: dict[str, Any] = {"command": "stream", "source": str(source), "kind": kind,
+                              "config": setup.config.to_dict(), "outputs": list(chosen)}
+    if preset is not None:
+        record["preset_profile"] = preset_record(preset, setup.config)
+    write_json(out_dir / "stream.json", {**record, "disparity_range": list(setup.disparity_range)})
     in_q: queue.Queue[Any] = queue.Queue(maxsize=queue_size)
     out_q: queue.Queue[Any] = queue.Queue(maxsize=queue_size)
     sums = {"read": 0.0, "depth": 0.0, "write": 0.0}
@@ -482,9 +488,7 @@ def run_stream(rig: Rig, source: str, out: str | os.PathLike[str], *, config: De
     summary.wall_s = time.perf_counter() - t_start
     n = max(summary.frames, 1)
     summary.stage_s = {k: v / n for k, v in sums.items()}
-    write_json(out_dir / "stream.json", {"command": "stream", "source": str(source), "kind": kind,
-                                         "config": setup.config.to_dict(), "outputs": list(chosen),
-                                         "disparity_range": list(current.disparity_range),
+    write_json(out_dir / "stream.json", {**record, "disparity_range": list(current.disparity_range),
                                          "depth_range_mm": [round(z, 1) for z in current.depth_range],
                                          "depth_range_source": current.region.source,
                                          "range_searches": searches,

@@ -30,11 +30,11 @@ import numpy as np
 
 from prismstereo.config import Rig
 from prismstereo.depth.pipeline import DepthConfig, DepthRun, run_depth
+from prismstereo.depth.presets import apply_preset, get_preset
 from prismstereo.design.precision import DEFAULT_PRESET, disparity_precision_of
 from prismstereo.design.predict import Prediction, predict
 from prismstereo.errors import ConfigError
 from prismstereo.evaluation.depth_metrics import depth_accuracy, ground_truth_for_run
-from prismstereo.matching.registry import PRESETS
 from prismstereo.optics import project_exact
 from prismstereo.rectify import RectifiedPair
 from prismstereo.simulate import NoiseTexture, Plane, Scene, render_capture
@@ -144,14 +144,13 @@ def measure_at_depth(rig: Rig, depth_mm: float, *, preset: str = DEFAULT_PRESET,
                      depth_range: tuple[float, float] | None = None, views: tuple[int, int] | None = None,
                      abbe: float | None = None, seed: int = 5) -> Measurement:
     """Render the plane at ``depth_mm``, run the depth pipeline with ``preset`` and measure its errors."""
-    if preset not in PRESETS:
-        raise ConfigError(f"preset: expected one of {', '.join(PRESETS)}, got {preset!r}")
+    profile = get_preset(preset)
     scene = verify_scene(rig, depth_mm, seed=seed, abbe=abbe)
     t0 = time.perf_counter()
     cap = render_capture(rig, scene)
     t1 = time.perf_counter()
     rng = depth_range if depth_range is not None else (0.85 * depth_mm, 1.15 * depth_mm)
-    res = run_depth(rig, cap.image, config=DepthConfig(method=PRESETS[preset], depth_range=rng, views=views))
+    res = run_depth(rig, cap.image, config=apply_preset(DepthConfig(depth_range=rng, views=views), profile))
     t2 = time.perf_counter()
     gt = ground_truth_for_run(res, scene=scene)
     acc = depth_accuracy(res.depth, res.valid, gt)

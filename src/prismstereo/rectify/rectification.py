@@ -255,8 +255,9 @@ def _sample_map(map_xy: np.ndarray, pixels: np.ndarray) -> np.ndarray:
 def _remap_image(image: np.ndarray, map_xy: np.ndarray, valid: np.ndarray, fill: float) -> np.ndarray:
     img = np.asarray(image)
     src = img.astype(np.float32) if img.dtype not in (np.uint8, np.uint16, np.float32) else img
-    out = cv2.remap(src, map_xy[..., 0], map_xy[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                    borderValue=0)
+    # the (h, w, 2) table as one two-channel map: the same samples as two one-channel maps, without copying
+    # the strided x and y planes out of it on every call
+    out = cv2.remap(src, map_xy, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     if out.ndim == 2 and img.ndim == 3:
         out = out[:, :, None]
     if np.isnan(fill) and not np.issubdtype(out.dtype, np.floating):
