@@ -10,7 +10,7 @@ refinement and confidence defaults serve their precision). ``fast`` is a video f
 refinement and confidence values, every one set explicitly (they do not follow the defaults), chosen for
 a frame's CPU time (docs/EXPERIMENTS.md, issue 30, stop 34): one 11×11 refinement window with its sub-pixel
 left–right check, no wider retry window and no fill from the matcher's dense map (which the matcher then
-skips): about a fifth of the default refinement's CPU, at a similar median error and within-1 % share and
+skips): a sixth to a half of the default refinement's CPU, at a similar median error and within-1 % share and
 less coverage on weak texture.
 """
 
