@@ -50,6 +50,17 @@ def _wrap(cap: dict[str, Any], folder: pathlib.Path) -> None:
                                             where=every, left_winner=self.bleft),
                    bcheck=self._bpasw_checked(), sgm=sgm_map, sgm_valid=sgm_valid,
                    ratio=peak_ratio(self.bvol, self.bleft, every), left=self.image, right=self.right)
+        if self._fallback_right is not None:
+            # the offset-compensated pair's BPASW evidence (the fallback's dense map reads its volume)
+            vol = P.bpasw_volume(self.image, self._fallback_right, max_disp=self.max_disp, min_disp=self.min_disp)
+            cl, cr = vol.argmin(axis=2), P.selection.right_winner(vol, min_disp=self.min_disp)
+            md = self.min_disp
+            cap.update(bdense_c=P.bpasw_dense_map(vol, self.image, min_disp=md, right_winner=cr, where=every,
+                                                  left_winner=cl),
+                       bcheck_c=np.asarray(P.selection.cross_check((cl + md).astype(np.float32),
+                                                                   (cr + md).astype(np.float32), tolerance=1.0),
+                                           bool),
+                       ratio_c=peak_ratio(vol, cl, every), right_c=self._fallback_right)
         np.save(folder / f"{cap['name']}_bvol16.npy", self.bvol.astype(np.float16))
         return np.asarray(out)
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from prismstereo.errors import ConfigError
-from prismstereo.matching.coop.flatcost import flat_cost_segments, peak_ratio
+from prismstereo.matching.coop.flatcost import flat_cost_segments, outvoted_segments, peak_ratio
 from prismstereo.matching.coop.steps import FallbackParams
 
 
@@ -45,7 +45,37 @@ def test_flat_segments_take_sgm_only_where_its_check_holds() -> None:
     assert flat[:, 10:15].all() and not flat[:, 15:20].any()
 
 
-@pytest.mark.parametrize("kw", [{"flat_ratio": -0.1}, {"flat_min_support": 1.5}, {"flat_support_margin": -0.2}])
+def test_outvoted_segments_need_both_matchers_to_agree_far_from_the_plane() -> None:
+    labels = np.zeros((10, 40), np.int32)
+    labels[:, 20:] = 1
+    labels[:2, 38:] = 2  # a small segment (4 px of 400)
+    final = np.full((10, 40), 10.0, np.float32)
+    bp = np.full((10, 40), 10.0, np.float32)
+    bp[:1, :20] = 20.0  # segment 0: 20 of its 200 px are outvoted (both matchers at 20, checked)
+    bp[:, 20:] = 30.0  # segment 1: BPASW far from the plane everywhere...
+    bp[:2, 38:] = 30.0
+    sgm = bp.copy()
+    sgm[2:, 20:] = 10.0  # ... but sgm agrees with it on a few pixels only besides segment 2's
+    sgm[:2, 20:38] = 30.5
+    ok = np.ones((10, 40), bool)
+    kw = {"tol": 7.0, "min_share": 0.05, "min_size": 0.02}
+    out = outvoted_segments(labels, final, bp, ok, sgm, ok, **kw)
+    assert out[labels == 0].all() and out[labels == 1].all() and not out[labels == 2].any()
+    # within tol of the plane, unchecked, or the two maps apart: no vote
+    assert not outvoted_segments(labels, final, bp, ok, sgm, ok, **{**kw, "tol": 25.0}).any()
+    nochk = ok.copy()
+    nochk[:2, :] = False
+    assert not outvoted_segments(labels, final, bp, nochk, sgm, ok, **kw)[labels == 1].any()
+    assert not outvoted_segments(labels, final, bp, ok, sgm + 2.0, ok, **kw).any()
+    # a share threshold above the votes, or the rule off
+    assert not outvoted_segments(labels, final, bp, ok, sgm, ok, **{**kw, "min_share": 0.2})[labels == 0].any()
+    assert not outvoted_segments(labels, final, bp, ok, sgm, ok, **{**kw, "tol": 0.0}).any()
+    # the small segment counts once it is large enough
+    assert outvoted_segments(labels, final, bp, ok, sgm, ok, **{**kw, "min_size": 0.0})[labels == 2].all()
+
+
+@pytest.mark.parametrize("kw", [{"flat_ratio": -0.1}, {"flat_min_support": 1.5}, {"flat_support_margin": -0.2},
+                                {"outvoted_tol": -1.0}, {"outvoted_share": 1.5}, {"outvoted_min_size": -0.1}])
 def test_bad_flat_parameters_name_the_fallback(kw: dict) -> None:
     with pytest.raises(ConfigError, match="fallback"):
         FallbackParams(**kw)

@@ -9,6 +9,11 @@ segment, its map is the one with evidence.
 
 The flatness of a pixel's cost is the peak ratio ``(c2 - c1) / c1`` of the best cost ``c1`` and the best cost
 ``c2`` farther than one level from the winner (0: a second minimum as low as the first).
+
+A segment can also be outvoted: where the two local matchers, each passing its own left-right check, agree with
+each other within a pixel and both lie many pixels away from the segment's final disparity, the segment's plane
+was carried there by its neighbours or the smoothness term against two independent pieces of evidence
+(:func:`outvoted_segments`); such segments join the fallback.
 """
 
 from __future__ import annotations
@@ -17,7 +22,7 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit
 
-__all__ = ["flat_cost_segments", "peak_ratio"]
+__all__ = ["flat_cost_segments", "outvoted_segments", "peak_ratio"]
 
 F32 = npt.NDArray[np.float32]
 B = npt.NDArray[np.bool_]
@@ -116,3 +121,38 @@ def flat_cost_segments(labels: npt.NDArray[np.int32], where: B, ratio: F32, sgm_
     med = _segment_medians(lab, ratio[where].astype(np.float64), n)
     take = (med < max_ratio) & (s_sgm >= min_support) & (s_sgm >= s_bp - support_margin)
     return np.asarray(where & take[labels], np.bool_)
+
+
+def outvoted_segments(labels: npt.NDArray[np.int32], final: F32, bpasw: F32, bpasw_support: B, sgm: F32,
+                      sgm_support: B, *, tol: float, min_share: float, min_size: float) -> B:
+    """The pixels of the segments whose final map both local matchers contradict.
+
+    An addition to thesis §6.1 (module docstring) with no thesis equation of its own.
+
+    Parameters
+    ----------
+    labels : (H, W) int32  segments.
+    final : (H, W) float32  the map before the fallback.
+    bpasw, sgm : (H, W) float32  the two local matchers' dense maps.
+    bpasw_support, sgm_support : (H, W) bool  pixels each matcher's own left-right check keeps.
+    tol : float, keyword-only
+        A pixel votes against ``final`` when both checks keep it, the two maps agree within 1 px and both lie
+        more than ``tol`` px from ``final`` (0: never).
+    min_share, min_size : float, keyword-only
+        A segment is outvoted when at least ``min_share`` of its pixels vote against it and it covers at least
+        ``min_size`` of the image (small segments at depth edges are where both local maps fatten the foreground).
+
+    Returns
+    -------
+    (H, W) bool, every pixel of the outvoted segments.
+    """
+    if tol <= 0:
+        return np.zeros(labels.shape, np.bool_)
+    votes = (bpasw_support & sgm_support & (np.abs(bpasw - sgm) <= 1.0) & (np.abs(final - bpasw) > tol)
+             & (np.abs(final - sgm) > tol))
+    lab = labels.ravel().astype(np.int64)
+    n = int(labels.max()) + 1
+    sizes = np.bincount(lab, minlength=n).astype(np.float64)
+    against = np.bincount(lab, weights=votes.ravel().astype(np.float64), minlength=n)
+    take = (sizes >= min_size * lab.size) & (against >= min_share * np.maximum(sizes, 1.0)) & (against > 0)
+    return np.asarray(take[labels], np.bool_)

@@ -55,7 +55,7 @@ from prismstereo.matching.coop.cooperative import (
     build_segment_graph,
     cooperative_optimize,
 )
-from prismstereo.matching.coop.flatcost import flat_cost_segments, peak_ratio
+from prismstereo.matching.coop.flatcost import flat_cost_segments, outvoted_segments, peak_ratio
 from prismstereo.matching.coop.radiometry import RadiometryParams, compensate_right
 from prismstereo.matching.coop.slanted import SlantedParams, segment_plane_costs, segment_sweep_costs, slanted_pair
 from prismstereo.matching.coop.steps import (
@@ -502,6 +502,8 @@ class _PairEvidence:
         self._fallback_right = maps.fallback_right
         self.fallback_pixels = 0
         self.memo = CoopMemo()
+        self._sgm: tuple[F32, npt.NDArray[np.bool_]] | None = None  # the fallback's ``sgm`` run, made once
+        self._bpasw_dense: F32 | None = None  # the fallback's ``bpasw`` map at every pixel, when it was needed
 
     def optimise(self, s: PlaneLabels, assign: npt.NDArray[np.int32], planes: npt.NDArray[np.float64],
                  own: npt.NDArray[np.int64], *, neighbour_own_planes: bool = False
@@ -594,6 +596,12 @@ class _PairEvidence:
         own."""
         sparse = self.sparse_segments(s, final, p)
         local = self.nonplanar | sparse
+        if p.outvoted_tol > 0 and {"bpasw", "sgm"} <= set(p.candidates):
+            # a plane both local matchers contradict, where they agree and both checks hold, is not supported
+            sgm_map, sgm_valid = self._sgm_map()
+            local |= outvoted_segments(s.labels, final, self._fallback_bpasw_map(None), self._bpasw_checked(),
+                                       sgm_map, sgm_valid, tol=p.outvoted_tol, min_share=p.outvoted_share,
+                                       min_size=p.outvoted_min_size)
         self.fallback_pixels = int(local.sum())
         if not local.any():
             return final
@@ -626,16 +634,22 @@ class _PairEvidence:
             out[sel] = m[sel]
         return out
 
-    def _fallback_bpasw_map(self, local: npt.NDArray[np.bool_]) -> F32:
-        """The ``bpasw`` matcher's dense map (H, W) float32 at the ``local`` pixels, of the offset-compensated pair
-        when there is one (:class:`PairMaps` ``fallback_right``): post-processing beyond the thesis, no equation of
-        its own."""
+    def _fallback_bpasw_map(self, local: npt.NDArray[np.bool_] | None) -> F32:
+        """The ``bpasw`` matcher's dense map (H, W) float32 at the ``local`` pixels (None: at every pixel, kept for
+        the step's later reads), of the offset-compensated pair when there is one (:class:`PairMaps`
+        ``fallback_right``): post-processing beyond the thesis, no equation of its own."""
+        if self._bpasw_dense is not None:
+            return self._bpasw_dense
         if self._fallback_right is None:
-            return bpasw_dense_map(self.bvol, self.image, min_disp=self.min_disp, right_winner=self.bright,
-                                   where=local, left_winner=self.bleft)
-        # a brightness offset between the views moves a colour cost's minimum on weak texture (radiometry.py)
-        vol = bpasw_volume(self.image, self._fallback_right, max_disp=self.max_disp, min_disp=self.min_disp)
-        return bpasw_dense_map(vol, self.image, min_disp=self.min_disp, where=local)
+            out = bpasw_dense_map(self.bvol, self.image, min_disp=self.min_disp, right_winner=self.bright,
+                                  where=local, left_winner=self.bleft)
+        else:
+            # a brightness offset between the views moves a colour cost's minimum on weak texture (radiometry.py)
+            vol = bpasw_volume(self.image, self._fallback_right, max_disp=self.max_disp, min_disp=self.min_disp)
+            out = bpasw_dense_map(vol, self.image, min_disp=self.min_disp, where=local)
+        if local is None:
+            self._bpasw_dense = out
+        return out
 
     def _bpasw_checked(self) -> npt.NDArray[np.bool_]:
         # the BPASW matcher's own left-right check (1 px), the pixels its dense map keeps before filling
@@ -647,8 +661,10 @@ class _PairEvidence:
     def _sgm_map(self) -> tuple[F32, npt.NDArray[np.bool_]]:
         # the ``sgm`` matcher (census cost, 8 paths) with its defaults: its dense map and its checked pixels
         """The ``sgm`` matcher's map and checked pixels: a fallback beyond the thesis with no equation of its own."""
-        res = SGMMatcher().compute(self.image, self.right, max_disp=self.max_disp, min_disp=self.min_disp)
-        return np.asarray(res.disparity, np.float32), np.asarray(res.valid, bool)
+        if self._sgm is None:
+            res = SGMMatcher().compute(self.image, self.right, max_disp=self.max_disp, min_disp=self.min_disp)
+            self._sgm = (np.asarray(res.disparity, np.float32), np.asarray(res.valid, bool))
+        return self._sgm
 
 
 def segment_support_choice(labels: npt.NDArray[np.int32], where: npt.NDArray[np.bool_],

@@ -241,7 +241,11 @@ class FallbackParams:
     ``radiometry_offset`` grey levels that the pair's own compensation leaves in place
     (:class:`~prismstereo.matching.coop.radiometry.RadiometryParams` ``min_offset``), the ``bpasw`` map a
     segment takes is that of the offset-compensated pair (one more BPASW volume); the evidence of the choice
-    (the checks, the peak ratio) stays that of the pair the front end matched (0 = off)."""
+    (the checks, the peak ratio) stays that of the pair the front end matched (0 = off). With both ``bpasw``
+    and ``sgm`` among the candidates, an outvoted segment joins them too: one of at least ``outvoted_min_size``
+    of the image where at least ``outvoted_share`` of its pixels have both matchers' checks holding, their maps
+    within 1 px of each other and both more than ``outvoted_tol`` px from the segment's final map
+    (:func:`~prismstereo.matching.coop.flatcost.outvoted_segments`; ``outvoted_tol`` 0 = off)."""
 
     enabled: bool = True
     min_coverage: float = 0.4
@@ -258,10 +262,16 @@ class FallbackParams:
     flat_min_support: float = 0.4
     flat_support_margin: float = 0.3
     radiometry_offset: float = 1.0
+    outvoted_tol: float = 7.0
+    outvoted_share: float = 0.05
+    outvoted_min_size: float = 0.001
 
     def __post_init__(self) -> None:
         """Validate the fields; implementation helper with no thesis equation of its own."""
         _need(self.radiometry_offset >= 0, "fallback.radiometry_offset >= 0", self.radiometry_offset)
+        _need(self.outvoted_tol >= 0 and 0.0 <= self.outvoted_share <= 1.0 and 0.0 <= self.outvoted_min_size <= 1.0,
+              "fallback.outvoted_tol >= 0, outvoted_share and outvoted_min_size in [0, 1]",
+              (self.outvoted_tol, self.outvoted_share, self.outvoted_min_size))
         _need(self.flat_ratio >= 0 and 0.0 <= self.flat_min_support <= 1.0 and 0.0 <= self.flat_support_margin <= 1.0,
               "fallback.flat_ratio >= 0, flat_min_support and flat_support_margin in [0, 1]",
               (self.flat_ratio, self.flat_min_support, self.flat_support_margin))
