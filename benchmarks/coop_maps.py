@@ -4,6 +4,7 @@ Usage::
 
     NUMBA_CACHE_DIR=.numba_cache .venv/bin/python benchmarks/coop_maps.py save DIR     # on the reference code
     NUMBA_CACHE_DIR=.numba_cache .venv/bin/python benchmarks/coop_maps.py check DIR    # on the changed code
+    ... coop_maps.py save DIR --data ../shared/data/middlebury-2014 [--scenes Pipes,Piano]  # other scene sets
 
 For every v2 scene and every validation scene (``../shared/data/middlebury-extra``) ``coop_match`` runs with the
 default parameters; ``save`` writes its final, initial and plane maps to ``DIR/<scene>{,_init,_plane}.npy``,
@@ -32,16 +33,24 @@ def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("mode", choices=("save", "check"))
     ap.add_argument("folder", type=pathlib.Path)
+    ap.add_argument("--data", action="append", default=None,
+                    help="a scene folder to run instead of v2 + validation (repeatable; e.g. the 2014 scenes)")
+    ap.add_argument("--scenes", default=None, help="comma-separated subset of the scenes (default: all)")
     args = ap.parse_args()
     args.folder.mkdir(parents=True, exist_ok=True)
     differ = 0
     sources: list[str | None] = [None]
-    if EXTRA.is_dir():
+    if args.data:
+        sources = list(args.data)
+    elif EXTRA.is_dir():
         sources.append(str(EXTRA))
     else:
         print(f"(no validation scenes at {EXTRA}: v2 scenes only)")
+    wanted = set(args.scenes.split(",")) if args.scenes else None
     for data in sources:
         for name in list_scenes(data):
+            if wanted is not None and name not in wanted:
+                continue
             sc = load_scene(name, data)
             t, c = time.perf_counter(), time.process_time()
             r = coop_match(sc.left, sc.right, max_disp=sc.max_disp, min_disp=int(getattr(sc, "min_disp", 0)))

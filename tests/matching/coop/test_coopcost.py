@@ -10,10 +10,13 @@ from prismstereo.errors import MatchingError
 from prismstereo.matching.coop.coopcost import (
     CostParams,
     colour_term,
+    keep_outside,
     raw_cost,
     raw_cost_from,
+    shear_row_boxes,
     sheared_costs,
     sheared_inputs,
+    sheared_row_boxes,
     sheared_row_costs_at,
 )
 from prismstereo.matching.coop.cooperative import build_segment_graph, total_energy
@@ -109,6 +112,30 @@ def test_row_costs_from_the_data_terms_inputs_fill_the_other_pixels() -> None:
         sheared_row_costs_at(left, right, sel, out, max_disp=30, slopes=(0.0, 0.5, 1.0), radius=1, inputs=si)
     with pytest.raises(MatchingError, match="same params and slopes"):
         sheared_costs(left, right, max_disp=30, slopes=slopes, params=CostParams(census_rx=3), inputs=si)
+
+
+def test_row_boxes_are_the_row_only_volume_and_shear_into_the_sheared_volume_bit_for_bit() -> None:
+    """The front end keeps the sheared volumes' first pass for the sweep's row-only volume: the same bits as
+    ``sheared_costs(vertical=False)`` and, sheared, as ``sheared_costs``; the row-only volume at the selected
+    pixels with the data term elsewhere is then ``sheared_row_costs_at(..., fill=)``."""
+    left, right, _ = _steep_floor()
+    slopes = (-1.0, -0.5, 0.0, 0.5, 1.0)
+    si = sheared_inputs(left, right, slopes=slopes)
+    ad = colour_term(si, max_disp=30, min_disp=2)
+    for r in (1, 2):
+        boxes = sheared_row_boxes(si, ad, min_disp=2, radius=r)
+        np.testing.assert_array_equal(boxes, sheared_costs(left, right, max_disp=30, min_disp=2, slopes=slopes,
+                                                           radius=r, vertical=False))
+        data = sheared_costs(left, right, max_disp=30, min_disp=2, slopes=slopes, radius=r)
+        np.testing.assert_array_equal(shear_row_boxes(boxes, slopes, radius=r), data)
+        sel = np.random.default_rng(r).random(left.shape[:2]) < 0.4
+        ref = np.empty_like(data)
+        sheared_row_costs_at(left, right, sel, ref, max_disp=30, min_disp=2, slopes=slopes, radius=r, inputs=si,
+                             fill=data)
+        keep_outside(boxes, data, sel)
+        np.testing.assert_array_equal(boxes, ref)
+    with pytest.raises(MatchingError, match="one shape"):
+        keep_outside(boxes, data[:2], sel)
 
 
 def test_sheared_volume_prefers_the_true_steep_plane() -> None:

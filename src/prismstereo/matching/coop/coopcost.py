@@ -22,8 +22,9 @@ from prismstereo.checks import check_fields
 from prismstereo.errors import ConfigError, MatchingError
 from prismstereo.matching.local.costs import popcount64
 
-__all__ = ["CostParams", "ShearedInputs", "aggregated_costs", "colour_term", "guided_filter_volume", "raw_cost",
-           "raw_cost_from", "sheared_costs", "sheared_inputs", "sheared_row_costs_at"]
+__all__ = ["CostParams", "ShearedInputs", "aggregated_costs", "colour_term", "guided_filter_volume", "keep_outside",
+           "raw_cost", "raw_cost_from", "shear_row_boxes", "sheared_costs", "sheared_inputs", "sheared_row_boxes",
+           "sheared_row_costs_at"]
 
 F32 = npt.NDArray[np.float32]
 
@@ -913,6 +914,68 @@ def sheared_costs(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic],
         else:
             _census_row_box(ad, cl, cr, int(min_disp), p.lambda_census, r, every, out[i])
     return out
+
+
+def sheared_row_boxes(inputs: ShearedInputs, ad: npt.NDArray[np.float64], *, min_disp: int = 0,
+                      radius: int = 1) -> F32:
+    """The pixel costs of ``inputs`` boxed along the row (``2 radius + 1`` pixels), one volume per slope of
+    ``inputs``: :func:`sheared_costs` ``(..., vertical=False)`` bit for bit, from the pair's :func:`colour_term`
+    ``ad`` (H, W, D) float64. Returns (S, H, W, D) float32; :func:`shear_row_boxes` of it is :func:`sheared_costs`.
+
+    Sheared costs for surfaces slanted in ``y`` (an addition to thesis Eq. 6.21) with no thesis equation of its own.
+    """
+    cl = inputs.census_left
+    h, w = cl.shape
+    if ad.shape[:2] != (h, w):
+        raise MatchingError(f"expected ad of the pair's size {(h, w)}, got {ad.shape[:2]}")
+    out = np.empty((len(inputs.slopes), h, w, ad.shape[2]), np.float32)
+    every = np.ones((h, w), np.bool_)
+    for i in range(len(inputs.slopes)):
+        _census_row_box(ad, cl, inputs.census_right[i], int(min_disp), inputs.params.lambda_census,
+                        max(int(radius), 0), every, out[i])
+    return out
+
+
+def shear_row_boxes(boxes: F32, slopes: tuple[float, ...], *, radius: int = 1) -> F32:
+    """:func:`sheared_costs` (S, H, W, D) float32 from its row boxes ``boxes`` (:func:`sheared_row_boxes`, the
+    same ``slopes`` and ``radius``): each slope's rows boxed along its slant, the same arithmetic.
+
+    Sheared aggregation for surfaces slanted in ``y`` (an addition to thesis Eq. 6.21) with no thesis equation of its
+    own.
+    """
+    r = max(int(radius), 0)
+    if r == 0:
+        return boxes.copy()
+    out = np.empty_like(boxes)
+    for i, b in enumerate(slopes):
+        _shear_box_rows(boxes[i], float(b), r, out[i])
+    return out
+
+
+@njit(cache=True, parallel=True, nogil=True)
+def _keep_outside(out: F32, fill: F32, mask: npt.NDArray[np.bool_]) -> None:
+    """``out[:, y, x] = fill[:, y, x]`` (S, H, W, D) where ``mask[y, x]`` (H, W) is False.
+
+    Implementation helper (a masked copy) with no thesis equation of its own.
+    """
+    ns, h, w = out.shape[:3]
+    for y in prange(h):
+        for x in range(w):
+            if not mask[y, x]:
+                for i in range(ns):
+                    out[i, y, x, :] = fill[i, y, x, :]
+
+
+def keep_outside(out: F32, fill: F32, mask: npt.NDArray[np.bool_]) -> None:
+    """Copy ``fill`` into ``out`` (both (S, H, W, D) float32) at the pixels where ``mask`` (H, W) bool is False,
+    in place, without a temporary of the copied part.
+
+    Implementation helper (a masked copy) with no thesis equation of its own.
+    """
+    if out.shape != fill.shape or out.shape[1:3] != mask.shape:
+        raise MatchingError(f"expected out and fill of one shape and a mask of their pixels, got {out.shape}, "
+                            f"{fill.shape} and {mask.shape}")
+    _keep_outside(out, fill, np.ascontiguousarray(mask, dtype=np.bool_))
 
 
 def sheared_row_costs_at(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], selected: npt.NDArray[np.bool_],

@@ -43,10 +43,13 @@ from prismstereo.matching.coop.coopcost import (
     ShearedInputs,
     aggregated_costs,
     colour_term,
+    keep_outside,
     raw_cost,
     raw_cost_from,
+    shear_row_boxes,
     sheared_costs,
     sheared_inputs,
+    sheared_row_boxes,
     sheared_row_costs_at,
 )
 from prismstereo.matching.coop.cooperative import (
@@ -448,6 +451,9 @@ class PairMaps:
     sheared : ShearedInputs or None        the data term's pixel inputs, reused by the row-only volume.
     fallback_right : (H, W, 3) uint8 or None   the right view with a brightness offset removed, for the
         fallback's ``bpasw`` map only (:func:`_compensate_views`); None: the fallback reads ``bvol``.
+    row_boxes : (S, H, W, D) float32 or None   the data term's pixel costs boxed along the row only, radius
+        ``row_box_radius`` (:func:`~prismstereo.matching.coop.coopcost.sheared_row_boxes`, the sheared volumes'
+        first pass), taken over by the sweep's row-only volume of that radius; None: it computes its own.
     """
 
     data: F32
@@ -462,6 +468,8 @@ class PairMaps:
     bleft: npt.NDArray[np.int64] | None = None
     sheared: ShearedInputs | None = None
     fallback_right: npt.NDArray[np.uint8] | None = None
+    row_boxes: F32 | None = None
+    row_box_radius: int = -1
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -500,6 +508,7 @@ class _PairEvidence:
         self.cost, self.slopes = params.cost, params.slopes
         self.evidence = maps.evidence
         self._fallback_right = maps.fallback_right
+        self._row_boxes, self._row_box_radius = maps.row_boxes, maps.row_box_radius
         self.fallback_pixels = 0
         self.memo = CoopMemo()
         self._sgm: tuple[F32, npt.NDArray[np.bool_]] | None = None  # the fallback's ``sgm`` run, made once
@@ -539,10 +548,19 @@ class _PairEvidence:
             hb = box_filter_volume(raw_cost(self.image, self.right, **kw), p.row_box, vertical=False)  # type: ignore[arg-type]
             hb[~selected] = self.data[~selected]
         else:
-            # the other pixels keep the data term: copied by the same kernel, not first copied whole and overwritten
-            hb = np.empty_like(self.data)
-            sheared_row_costs_at(self.image, self.right, selected, hb, **kw,  # type: ignore[arg-type]
-                                 slopes=self.slopes, radius=p.row_box, inputs=self._sheared, fill=self.data)
+            kept = self._row_boxes if p.row_box == self._row_box_radius else None
+            self._row_boxes = None
+            if kept is not None:
+                hb = kept
+                # the front end's row boxes (the same pixel costs, the same radius): the other pixels take the
+                # data term, in place
+                keep_outside(hb, self.data, selected)
+            else:
+                # the other pixels keep the data term: copied by the same kernel, not first copied whole and
+                # overwritten
+                hb = np.empty_like(self.data)
+                sheared_row_costs_at(self.image, self.right, selected, hb, **kw,  # type: ignore[arg-type]
+                                     slopes=self.slopes, radius=p.row_box, inputs=self._sheared, fill=self.data)
         self.check_data, self.data = self.data, hb
 
     def segments(self, params: SegmentationParams) -> npt.NDArray[np.int32]:
@@ -758,10 +776,12 @@ def _guided_initial(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *
 
 
 def _data_volume(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, max_disp: int, min_disp: int,
-                 data: DataTermParams, cost: CostParams,
-                 shared: list[Any] | None = None) -> tuple[F32, ShearedInputs | None]:
-    """The data term's pixel-cost volume (Eqs. 6.21-6.22): sheared per slope, or one box-filtered volume; and
-    the sheared volumes' inputs (None without slopes). ``shared``: :func:`_shared_terms` of the pair, emptied here."""
+                 data: DataTermParams, cost: CostParams, shared: list[Any] | None = None,
+                 row_boxes: bool = False) -> tuple[F32, ShearedInputs | None, F32 | None]:
+    """The data term's pixel-cost volume (Eqs. 6.21-6.22): sheared per slope, or one box-filtered volume; the
+    sheared volumes' inputs (None without slopes); with ``row_boxes`` (and slopes, ``data.radius`` > 0) their
+    first pass, the pixel costs boxed along the row, (S, H, W, D) float32 (else None). ``shared``:
+    :func:`_shared_terms` of the pair, emptied here."""
     if data.slopes:
         ad = None
         if shared:
@@ -769,10 +789,16 @@ def _data_volume(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8], *, m
             shared.clear()
         else:
             si = sheared_inputs(left, right, params=data.cost or cost, slopes=data.slopes)
+        if row_boxes and data.radius > 0:
+            if ad is None:
+                ad = colour_term(si, max_disp=max_disp, min_disp=min_disp)
+            boxes = sheared_row_boxes(si, ad, min_disp=min_disp, radius=data.radius)
+            del ad  # the float64 colour term is not held while the sheared volumes are made
+            return shear_row_boxes(boxes, data.slopes, radius=data.radius), si, boxes
         return sheared_costs(left, right, max_disp=max_disp, min_disp=min_disp, params=data.cost or cost,
-                             slopes=data.slopes, radius=data.radius, inputs=si, ad=ad), si
+                             slopes=data.slopes, radius=data.radius, inputs=si, ad=ad), si, None
     raw = raw_cost(left, right, max_disp=max_disp, min_disp=min_disp, params=data.cost or cost)
-    return box_filter_volume(raw, data.radius), None
+    return box_filter_volume(raw, data.radius), None, None
 
 
 def _pair_agreement(reliable: npt.NDArray[np.bool_], initial: F32, brel: npt.NDArray[np.bool_], bdisp: F32,
@@ -849,8 +875,10 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
     fut_shared = pool.submit(_shared_terms, lft, rgt, max_disp=max_disp, min_disp=min_disp, data=dp, cost=cp)
     fut_init = pool.submit(_with_shared, fut_shared, _guided_initial, lft, rgt, max_disp=max_disp,
                            min_disp=min_disp, params=cp, tolerance=dp.check_tolerance)
+    # the sweep's row-only volume of the data term's radius is the sheared volumes' first pass: kept for it
+    boxes = st.sweep.frac > 0 and st.sweep.row_box == dp.radius
     fut_data = pool.submit(_with_shared, fut_shared, _data_volume, lft, rgt, max_disp=max_disp, min_disp=min_disp,
-                           data=dp, cost=cp)
+                           data=dp, cost=cp, row_boxes=boxes)
     # the fine step's segmentations read the image only
     fine_seg = [dataclasses.replace(sp, hr=float(hr), min_region=int(m)) for hr, m in st.fine.levels]
     ahead = {f: pool.submit(mean_shift_segment, lft, params=f) for f in fine_seg}
@@ -899,10 +927,11 @@ def coop_match(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], *,
 
     t = time.perf_counter()
     graph = build_segment_graph(labels, lft)
-    dcost, sheared = fut_data.result()
+    dcost, sheared, row_boxes = fut_data.result()
     maps = PairMaps(data=dcost, reliable=reliable, initial=initial, bvol=bvol, bdisp=bdisp0, brel=brel0,
                     nonplanar=nonplanar, evidence=evidence, bright=bright, bleft=bleft, sheared=sheared,
-                    fallback_right=fallback_right)
+                    fallback_right=fallback_right, row_boxes=row_boxes,
+                    row_box_radius=dp.radius if row_boxes is not None else -1)
     ev = _PairEvidence(lft, rgt, min_disp=min_disp, max_disp=max_disp, maps=maps,
                        params=PairSetup(coop=op, segmentation=sp, planes=pp, cost=dp.cost or cp,
                                          slopes=dp.slopes or None), segments=ahead)
