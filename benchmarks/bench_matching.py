@@ -8,6 +8,15 @@ nonocc for context. Cold whole-command times are a separate matter: time ``prism
     NUMBA_CACHE_DIR=.numba_cache .venv/bin/python benchmarks/bench_matching.py [--data DIR] [--repeat 3]
     ... bench_matching.py --cold      # whole `prismstereo match` commands on Teddy, wall and CPU seconds
     ... bench_matching.py --weights   # does the Weber–Fechner reading weight the right neighbours?
+    ... bench_matching.py --sgm-speed [--sets 2014] [--pairs DIR,DIR]   # sgm's stages against SGBM
+
+``--sgm-speed``: ``sgm`` (the ``fast`` preset's matcher, defaults) stage by stage (cost, the path costs with
+the selection of the winners, the speckle filter, fill + median) in CPU seconds (``time.process_time``, every
+thread) and wall seconds, min of ``--repeat``, beside OpenCV StereoSGBM-3WAY (block 5, P1 = 8·3·25,
+P2 = 32·3·25, as bench_scale) and the registered ``sgbm`` matcher (OpenCV MODE_HH, holes filled: issue 27's
+baseline) timed alternately in the same process, on the Middlebury 2014 Q scenes at their NDISP and on
+rectified pairs saved as ``left.npy``, ``right.npy`` and ``range.json`` (``[lo, hi]``) in each folder of
+``--pairs`` (e.g. the rectified robot captures of ``bench_scale.py``). The load average is printed on every row.
 """
 
 from __future__ import annotations
@@ -18,6 +27,8 @@ import resource
 import sys
 import time
 import tracemalloc
+from functools import partial
+from typing import Any
 
 import numpy as np
 
@@ -107,6 +118,117 @@ def cold_commands(data: str | None, methods: list[str], scene: str = "teddy") ->
             print(f"| {m} | {wall:.2f} | {cpu:.2f} |")
 
 
+def _sgm_stages(left: np.ndarray, right: np.ndarray, lo: int, hi: int) -> tuple[dict[str, tuple[float, float]],
+                                                                                np.ndarray]:
+    """``SGMMatcher().compute`` stage by stage: {stage: (CPU s, wall s)} and the dense map (checked against
+    ``compute``'s by the caller)."""
+    from prismstereo.matching.local import costs, selection
+    from prismstereo.matching.local.sgm import SGMMatcher, _speckle_filter, sgm_aggregate_select
+
+    m = SGMMatcher()
+    out: dict[str, tuple[float, float]] = {}
+    clock = [time.process_time(), time.perf_counter()]
+
+    def lap(name: str) -> None:
+        c, t = time.process_time(), time.perf_counter()
+        out[name] = (c - clock[0], t - clock[1])
+        clock[:] = [c, t]
+
+    vol = m.cost_volume(left, right, max_disp=hi, min_disp=lo)
+    lap("cost")
+    disp, _ = sgm_aggregate_select(vol, costs.to_gray(left), p1=m.p1, p2=m.p2, p2_gamma=m.p2_gamma, min_disp=lo,
+                                   uniqueness=m.uniqueness, tolerance=m.tolerance, subpixel=m.subpixel)
+    del vol
+    lap("paths + WTA")
+    disp = _speckle_filter(disp, window=min(m.speckle_window, disp.size // 20), max_diff=m.speckle_range)
+    lap("speckles")
+    valid = np.isfinite(disp)
+    dense = selection.fill_holes(disp, valid, median_radius=0)
+    dense = selection.weighted_median_filter(dense, left, radius=m.median_radius)
+    lap("fill")
+    return out, dense
+
+
+def _sgbm3way(left: np.ndarray, right: np.ndarray, lo: int, hi: int) -> None:
+    import cv2
+
+    b = 5
+    n = int(np.ceil((hi - lo + 1) / 16.0)) * 16
+    cv2.StereoSGBM_create(minDisparity=int(lo), numDisparities=n, blockSize=b, P1=8 * 3 * b * b,  # type: ignore[attr-defined]
+                          P2=32 * 3 * b * b, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY).compute(left, right)
+
+
+def _timed(fn: Any) -> tuple[float, float]:
+    c, t = time.process_time(), time.perf_counter()
+    fn()
+    return time.process_time() - c, time.perf_counter() - t
+
+
+def sgm_speed(pairs: list[tuple[str, np.ndarray, np.ndarray, int, int]], *, repeat: int) -> None:
+    """Print sgm's stages (CPU / wall s, min of ``repeat``) against SGBM-3WAY and the ``sgbm`` matcher."""
+    from prismstereo.matching.local.sgbm import _as_uint8
+    from prismstereo.matching.local.sgm import SGMMatcher
+
+    stages = ("cost", "paths + WTA", "speckles", "fill")
+    print(f"sgm (defaults) against OpenCV SGBM-3WAY and the registered `sgbm` (MODE_HH, filled), one process, "
+          f"min of {repeat} alternated; CPU s = time.process_time (all threads); {os.cpu_count()} cores\n")
+    print("| pair | size, disparities | sgm CPU s (" + " / ".join(stages) + ") | sgm CPU | sgm wall | "
+          "3WAY CPU / wall | × 3WAY CPU / wall | sgbm CPU / wall | × sgbm CPU / wall | load |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    tot = {"sgm": [0.0, 0.0], "3way": [0.0, 0.0], "sgbm": [0.0, 0.0]}
+    for name, left, right, lo, hi in pairs:
+        match(left, right, max_disp=hi, min_disp=lo, method="sgm")  # warm (numba's cache, the allocator)
+        best = {k: (np.inf, np.inf) for k in stages}
+        ref = {"3way": (np.inf, np.inf), "sgbm": (np.inf, np.inf)}
+        l8, r8 = _as_uint8(left), _as_uint8(right)
+        dense = None
+        for _ in range(repeat):
+            st, dense = _sgm_stages(left, right, lo, hi)
+            best = {k: (min(best[k][0], st[k][0]), min(best[k][1], st[k][1])) for k in stages}
+            for k, fn in (("3way", partial(_sgbm3way, l8, r8, lo, hi)),
+                          ("sgbm", partial(match, left, right, max_disp=hi, min_disp=lo, method="sgbm"))):
+                c, w = _timed(fn)
+                ref[k] = (min(ref[k][0], c), min(ref[k][1], w))
+        res = SGMMatcher().compute(left, right, max_disp=hi, min_disp=lo)
+        if dense is None or not np.array_equal(dense, res.disparity, equal_nan=True):
+            raise SystemExit(f"{name}: the staged sgm differs from SGMMatcher.compute")
+        cpu = sum(best[k][0] for k in stages)
+        wall = sum(best[k][1] for k in stages)
+        for k, v in (("sgm", (cpu, wall)), ("3way", ref["3way"]), ("sgbm", ref["sgbm"])):
+            tot[k][0] += v[0]
+            tot[k][1] += v[1]
+        h, w = left.shape[:2]
+        print(f"| {name} | {w}×{h}, {hi - lo + 1} | " + " / ".join(f"{best[k][0]:.3f}" for k in stages)
+              + f" | {cpu:.3f} | {wall:.3f} | {ref['3way'][0]:.3f} / {ref['3way'][1]:.3f} | "
+              f"{cpu / ref['3way'][0]:.1f}× / {wall / ref['3way'][1]:.1f}× | {ref['sgbm'][0]:.3f} / "
+              f"{ref['sgbm'][1]:.3f} | {cpu / ref['sgbm'][0]:.2f}× / {wall / ref['sgbm'][1]:.2f}× | "
+              f"{os.getloadavg()[0]:.1f} |", flush=True)
+    print(f"| **total** | | | {tot['sgm'][0]:.3f} | {tot['sgm'][1]:.3f} | {tot['3way'][0]:.3f} / "
+          f"{tot['3way'][1]:.3f} | {tot['sgm'][0] / tot['3way'][0]:.1f}× / {tot['sgm'][1] / tot['3way'][1]:.1f}× | "
+          f"{tot['sgbm'][0]:.3f} / {tot['sgbm'][1]:.3f} | {tot['sgm'][0] / tot['sgbm'][0]:.2f}× / "
+          f"{tot['sgm'][1] / tot['sgbm'][1]:.2f}× | {os.getloadavg()[0]:.1f} |")
+
+
+def _speed_pairs(sets: str, pairs: str) -> list[tuple[str, np.ndarray, np.ndarray, int, int]]:
+    import json
+    from pathlib import Path
+
+    from prismstereo.evaluation.middlebury import list_scenes
+
+    root = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+    folders = {"2014": "middlebury-2014", "v2": "middlebury", "validation": "middlebury-extra"}
+    out = []
+    for key in [s for s in sets.split(",") if s]:
+        data = root / folders[key]
+        for s in list_scenes(data):
+            sc = load_scene(s, data)
+            out.append((s, sc.left, sc.right, 0, sc.max_disp))
+    for f in [Path(p) for p in pairs.split(",") if p]:
+        lo, hi = json.loads((f / "range.json").read_text())
+        out.append((f.name, np.load(f / "left.npy"), np.load(f / "right.npy"), int(lo), int(hi)))
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", default=None, help="Middlebury folder")
@@ -114,7 +236,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--weights", action="store_true", help="only the BPASW weight-purity check")
     ap.add_argument("--cold", action="store_true", help="only whole-command timings on Teddy")
+    ap.add_argument("--sgm-speed", action="store_true", help="only sgm's stages against SGBM (see above)")
+    ap.add_argument("--sets", default="2014", help="with --sgm-speed: Middlebury sets (2014,v2,validation)")
+    ap.add_argument("--pairs", default="", help="with --sgm-speed: folders of rectified pairs (see above)")
     args = ap.parse_args(argv)
+    if args.sgm_speed:
+        sgm_speed(_speed_pairs(args.sets, args.pairs), repeat=args.repeat)
+        return 0
     if args.cold:
         cold_commands(args.data, [m for m in args.methods.split(",") if m])
         return 0

@@ -141,7 +141,7 @@ def test_the_plan_bounds_what_the_match_records_coarse_levels_and_what_the_calle
             assert got == plan, (name, got, plan)
     # what the caller holds counts against the budget: the same budget leaves the match less, so more strips
     free = match(left, right, max_disp=63, min_disp=4, method="sgm", scale=runs["strips"])
-    p = ScaleParams(coarse_to_fine="off", max_memory=one - 2 * 2**20, held=PROCESS_BASE + 16 * 2**20)
+    p = ScaleParams(coarse_to_fine="off", max_memory=one - 2 * 2**20, held=PROCESS_BASE + 4 * 2**20)
     held = match(left, right, max_disp=63, min_disp=4, method="sgm", scale=p)
     assert held.extras["scale"]["tiles"] > free.extras["scale"]["tiles"]
     assert held.extras["scale"]["estimate_bytes"] <= p.max_memory

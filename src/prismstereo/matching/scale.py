@@ -53,7 +53,7 @@ C2F_MODES = ("auto", "on", "off")
 #: peak-memory model per matcher: (bytes per pixel, bytes per pixel and disparity) of one match, on top of
 #: the process base; measured with ``ru_maxrss`` after a warm-up (``benchmarks/bench_memory.py``)
 _MEMORY_MODEL: dict[str, tuple[float, float]] = {
-    "sgm": (220.0, 6.5),
+    "sgm": (100.0, 4.0),  # the cost volume and one volume of path sums (uint16 each)
     "sgbm": (60.0, 4.5),
     "bpasw": (400.0, 13.5),
     "sad": (120.0, 9.0),

@@ -12,7 +12,7 @@ import pytest
 from prismstereo.errors import ConfigError
 from prismstereo.matching import available_matchers, get_matcher, match
 from prismstereo.matching.local import costs
-from prismstereo.matching.local.sgm import census_cost_volume, sgm_aggregate, sgm_select
+from prismstereo.matching.local.sgm import census_cost_volume, sgm_aggregate, sgm_aggregate_select, sgm_select
 
 
 def _texture(h: int, w: int, seed: int = 0) -> np.ndarray:
@@ -96,6 +96,23 @@ def test_aggregation_matches_literal_recursion(top: int, nd: int) -> None:
     # no penalties: every path is the cost itself
     f0, b0 = sgm_aggregate(cost, gray, p1=0, p2=0)
     np.testing.assert_array_equal(f0.astype(np.int64) + b0, 8 * cost.astype(np.int64))
+
+
+@pytest.mark.parametrize(("h", "w", "nd", "top"), [(1, 9, 4, 40), (2, 5, 1, 40), (3, 4, 2, 40), (7, 12, 19, 40),
+                                                   (6, 9, 6, 6000), (4, 1, 5, 40), (33, 40, 75, 80)])
+def test_aggregate_select_in_one_pass_gives_the_same_maps(h: int, w: int, nd: int, top: int) -> None:
+    # each scan selects the half it reaches second, right to left in the backward one: ties in the right view's
+    # winner (small integer costs) must still go to the leftmost pixel
+    rng = np.random.default_rng(h * 100 + nd)
+    cost = rng.integers(0, top, size=(h, w, nd)).astype(np.uint16)
+    gray = rng.uniform(0, 255, size=(h, w)).astype(np.float32)
+    for min_disp, uniqueness, tolerance, subpixel, gamma in ((0, 5, 1, True, 10.0), (2, 0, 0, False, 0.0)):
+        kw = dict(min_disp=min_disp, uniqueness=uniqueness, tolerance=tolerance, subpixel=subpixel)
+        fwd, bwd = sgm_aggregate(cost, gray, p1=3, p2=11, p2_gamma=gamma)
+        disp, code = sgm_select(fwd, bwd, **kw)  # type: ignore[arg-type]
+        one, code1 = sgm_aggregate_select(cost, gray, p1=3, p2=11, p2_gamma=gamma, **kw)  # type: ignore[arg-type]
+        np.testing.assert_array_equal(one, disp)
+        np.testing.assert_array_equal(code1, code)
 
 
 def test_select_checks_left_right() -> None:

@@ -13,6 +13,9 @@ The path costs follow Hirschmüller's recursion
 with ``P2`` lowered across intensity edges, ``P2' = max(P1, P2 / (1 + |I(p) - I(p-r)| / γ))``. The 8 paths
 are run as two raster scans (forward: left, up-left, up, up-right; backward: the opposite four), one per
 thread, each keeping only the previous image row of its path costs; the two partial sums stay ``uint16``.
+The matcher runs each scan first over the half of the image it reaches first, keeping those sums, then on
+into the other half, where it adds the other scan's sums and selects each pixel at once
+(:func:`sgm_aggregate_select`).
 
 Volumes are ``(H, W, D)`` with slice ``i`` = disparity ``min_disp + i`` and ``d = x_left - x_right``, as
 in :mod:`prismstereo.matching.local.costs`.
@@ -31,13 +34,13 @@ import numpy as np
 from prismstereo.checks import check_fields, fail
 from prismstereo.errors import ConfigError
 from prismstereo.matching.local import costs, selection
-from prismstereo.matching.local._sgm import census_codes, census_kernel, select_kernel, sgm_kernel
+from prismstereo.matching.local._sgm import census_codes, census_kernel, select_kernel, sgm_kernel, sgm_select_kernel
 from prismstereo.matching.local.matchers import BPASWMatcher, check_census_window
 from prismstereo.matching.registry import MatchResult, register_matcher
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SGMMatcher", "census_cost_volume", "sgm_aggregate", "sgm_select"]
+__all__ = ["SGMMatcher", "census_cost_volume", "sgm_aggregate", "sgm_aggregate_select", "sgm_select"]
 
 def census_cost_volume(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int = 0,
                        window: tuple[int, int] = (7, 9), scale: int = 1, grad_weight: float = 0.0,
@@ -100,15 +103,34 @@ def sgm_aggregate(cost: np.ndarray, gray: np.ndarray, *, p1: int, p2: int,
     (ndarray, ndarray), uint16, (H, W, D) each
         Sums of the four forward and of the four backward path costs; the aggregated cost is their sum.
     """
+    c = _checked_volume(cost, p1, p2)
+    return sgm_kernel(c, np.ascontiguousarray(gray, dtype=np.float32), int(p1), int(p2), float(p2_gamma))
+
+
+def _checked_volume(cost: np.ndarray, p1: int, p2: int) -> np.ndarray:
     c = np.ascontiguousarray(cost, dtype=np.uint16)
-    h, w, nd = c.shape
     top = int(c.max(initial=0)) + int(p2)
     if 4 * top > 65535:
         raise ConfigError(f"expected 4·(max cost + P2) <= 65535 for uint16 path sums, got {4 * top}")
     if not 0 <= p1 <= p2:
         raise ConfigError(f"expected 0 <= P1 <= P2, got P1={p1}, P2={p2}")
+    return c
 
-    return sgm_kernel(c, np.ascontiguousarray(gray, dtype=np.float32), int(p1), int(p2), float(p2_gamma))
+
+def sgm_aggregate_select(cost: np.ndarray, gray: np.ndarray, *, p1: int, p2: int, p2_gamma: float = 0.0,
+                         min_disp: int = 0, uniqueness: int = 10, tolerance: int = 1,
+                         subpixel: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sgm_select` of :func:`sgm_aggregate` in one pass, the same maps: each raster scan selects the
+    pixels of the half of the image it reaches second, so that selection runs on both threads and only one
+    uint16 volume of path sums (half of each scan's) is held.
+
+    Parameters and returns as those two functions'.
+    """
+    c = _checked_volume(cost, p1, p2)
+    disp, _, code = sgm_select_kernel(c, np.ascontiguousarray(gray, dtype=np.float32), int(p1), int(p2),
+                                      float(p2_gamma), int(min_disp), int(uniqueness), int(tolerance),
+                                      bool(subpixel))
+    return disp, code
 
 
 def sgm_select(fwd: np.ndarray, bwd: np.ndarray, *, min_disp: int = 0, uniqueness: int = 10,
@@ -231,13 +253,13 @@ class SGMMatcher:
         vol = self.cost_volume(left, right, max_disp=max_disp, min_disp=min_disp)
         timings["cost"] = time.perf_counter() - t
         t = time.perf_counter()
-        fwd, bwd = sgm_aggregate(vol, costs.to_gray(left), p1=self.p1, p2=self.p2, p2_gamma=self.p2_gamma)
+        # aggregation and the selection of the winners in one pass (sgm_aggregate_select)
+        disp, code = sgm_aggregate_select(vol, costs.to_gray(left), p1=self.p1, p2=self.p2, p2_gamma=self.p2_gamma,
+                                          min_disp=min_disp, uniqueness=self.uniqueness, tolerance=self.tolerance,
+                                          subpixel=self.subpixel)
         del vol
         timings["aggregation"] = time.perf_counter() - t
         t = time.perf_counter()
-        disp, code = sgm_select(fwd, bwd, min_disp=min_disp, uniqueness=self.uniqueness,
-                                tolerance=self.tolerance, subpixel=self.subpixel)
-        del fwd, bwd
         # a speckle is small against the image: on tiny images (a small region of interest) the window
         # would otherwise remove every region
         window = min(self.speckle_window, disp.size // 20)
