@@ -408,6 +408,9 @@ def test_growth_recovers_a_weak_slanted_plane_from_its_kept_neighbours_and_only_
     assert grown.sum() > 0.5 * (~blocks & inner).sum()  # most of the holes off the border
     assert np.mean(np.abs(d[grown] - true[grown]) < 0.5) > 0.97
     assert np.all((c[grown] >= 0.5) & (c[grown] <= 1.0))
+    # a second pass keeps the first one's values and grows from them only
+    d2, _ = confident_growth(left, right, kept, conf, filled, passes=2, **kw)
+    assert np.array_equal(d2[np.isfinite(d)], d[np.isfinite(d)]) and np.isfinite(d2).sum() >= np.isfinite(d).sum()
     # neighbours that say 1 px more than the refinement finds: their surface is not continued
     d_off, _ = confident_growth(left, right, kept + np.float32(1.0), conf, filled, **kw)
     assert (np.isfinite(d_off) & ~blocks & inner).sum() < 0.02 * (~blocks & inner).sum()

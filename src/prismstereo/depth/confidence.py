@@ -298,7 +298,7 @@ def neighbour_disparity(disparity: np.ndarray, *, sigma: float) -> tuple[np.ndar
 
 def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, confidence: np.ndarray,
                      filled: np.ndarray, *, grow_radius: int = 16, sigma: float = 8.0, agree: float = 0.3,
-                     min_support: float = 0.1, max_spread: float | None = 0.5,
+                     min_support: float = 0.1, max_spread: float | None = 0.5, passes: int = 1,
                      valid_right: np.ndarray | None = None, **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
     """Add the matcher's dense values that a wide window confirms and that continue the kept surface around
     them, where nothing was kept.
@@ -330,6 +330,8 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
         Least sum of the neighbours' weights (1: every pixel in reach has a kept value).
     max_spread : float or None
         Largest weighted standard deviation of the neighbours' values, px; None: any.
+    passes : int
+        How many times to grow: each pass's neighbours include the values the passes before it kept.
     valid_right : (H, W) bool, optional
         Valid region of the rectified right view (a value whose right pixel is outside is not tried).
     **kwargs
@@ -354,7 +356,23 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
     d = np.asarray(disparity, dtype=np.float32)
     conf = np.asarray(confidence, dtype=np.float32)
     f = np.asarray(filled, dtype=np.float32)
+    for _ in range(passes):
+        d2, c2 = _grown(left, right, d, f, grow_radius=grow_radius, sigma=sigma, agree=agree,
+                        min_support=min_support, max_spread=max_spread, valid_right=valid_right, **kwargs)
+        add = np.isfinite(d2)
+        if not add.any():
+            break
+        d, conf = np.where(add, d2, d).astype(np.float32), np.where(add, c2, conf).astype(np.float32)
+    return d, conf
+
+
+def _grown(left: np.ndarray, right: np.ndarray, d: np.ndarray, f: np.ndarray, *, grow_radius: int, sigma: float,
+           agree: float, min_support: float, max_spread: float | None, valid_right: np.ndarray | None,
+           **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) float32 disparities and confidences of one pass of :func:`confident_growth` (the values it adds,
+    NaN elsewhere)."""
     h, w = d.shape
+    nan = np.full((h, w), np.nan, dtype=np.float32)
     mean, support, spread = neighbour_disparity(d, sigma=sigma)
     with np.errstate(invalid="ignore"):
         cand = ~np.isfinite(d) & np.isfinite(f) & np.isfinite(mean) & (support >= min_support)
@@ -366,15 +384,15 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
     if valid_right is not None:
         inside[inside] &= np.asarray(valid_right, dtype=bool)[ys[inside], xr[inside]]
     if not inside.any():
-        return d, conf
-    seeds = np.full((h, w), np.nan, dtype=np.float32)
+        return nan, nan
+    seeds = nan.copy()
     seeds[ys[inside], xs[inside]] = f[ys[inside], xs[inside]]
     right_seeds = np.where(np.isfinite(d), d, f).astype(np.float32)
     d2, c2 = confident_matches(left, right, seeds, radius=grow_radius, valid_right=valid_right,
                                right_seeds=right_seeds, **kwargs)
     with np.errstate(invalid="ignore"):
         add = np.isfinite(d2) & (np.abs(d2 - mean) < agree)
-    return (np.where(add, d2, d).astype(np.float32), np.where(add, c2, conf).astype(np.float32))
+    return np.where(add, d2, nan).astype(np.float32), np.where(add, c2, nan).astype(np.float32)
 
 
 def remove_speckles(disparity: np.ndarray, *, max_size: int) -> np.ndarray:

@@ -196,6 +196,8 @@ class DepthConfig:
         windows. Needs ``refine`` and ``refine_max_lr_gap``; None: no such step.
     refine_grow_agree, refine_grow_sigma, refine_grow_spread : float, float, float or None
         See ``refine_grow_radius`` (``refine_grow_spread`` None: any spread).
+    refine_grow_passes : int
+        How many times to grow, each from the values kept before it.
     sweep : SweepParams
         The plane sweep of ``views="all"`` (:class:`~prismstereo.multiview.prism.SweepParams`).
     coarse_to_fine : {"auto", "on", "off"}
@@ -233,6 +235,7 @@ class DepthConfig:
     refine_grow_agree: float = 0.3
     refine_grow_sigma: float = 8.0
     refine_grow_spread: float | None = 0.5
+    refine_grow_passes: int = 2
     sweep: SweepParams = field(default_factory=SweepParams)
     coarse_to_fine: str = "auto"
     max_memory: int | None = None
@@ -246,7 +249,7 @@ class DepthConfig:
                             "refine_retry_radius": (1, 50), "refine_retry_below": (0.0, 1.0),
                             "refine_fill_agree": (0.0, None), "refine_grow_radius": (1, 50),
                             "refine_grow_agree": (0.0, None), "refine_grow_sigma": (0.0, 50.0),
-                            "refine_grow_spread": (0.0, None)},
+                            "refine_grow_spread": (0.0, None), "refine_grow_passes": (1, 10)},
                      positive=("max_gap_mm", "refine_max_shift", "refine_fill_agree", "refine_grow_agree",
                                "refine_grow_sigma", "refine_grow_spread"))
         if not isinstance(self.method, str):
@@ -857,7 +860,8 @@ def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, dis
         assert config.refine_grow_radius is not None
         disp, conf = confident_growth(left, right, disp, conf, filled, grow_radius=config.refine_grow_radius,
                                       sigma=config.refine_grow_sigma, agree=config.refine_grow_agree,
-                                      max_spread=config.refine_grow_spread, valid_right=vr_fill, **kw)
+                                      max_spread=config.refine_grow_spread, passes=config.refine_grow_passes,
+                                      valid_right=vr_fill, **kw)
     return disp, conf
 
 
