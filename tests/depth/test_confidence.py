@@ -371,3 +371,74 @@ def test_an_agreeing_fill_keeps_the_filled_values_both_windows_confirm_alike():
     assert np.isfinite(d_ag[14:-14, 124:-20]).mean() > 0.9  # the strong texture is kept (off its border)
     with pytest.raises(ConfigError, match="agree"):
         confident_fill(left, right, none, none, filled, agree=0.5, radius=5, max_lr_gap=0.45)
+
+
+def _weak_slanted_plane(seed: int = 5, h: int = 90, w: int = 160) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A weak texture under sensor noise on a plane slanted along the rows: true disparity 7.3 px at the
+    middle row, 0.02 px more per row down; returns left, right and the true disparity."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    base = cv2.GaussianBlur(rng.random((h, w + 40)).astype(np.float32) * 255, (0, 0), 1.2) * 0.08
+    true = (7.3 + 0.02 * (np.arange(h, dtype=np.float32) - h / 2))[:, None] * np.ones((1, w), np.float32)
+    xs = np.arange(w, dtype=np.float32)
+    left = base[:, 20:20 + w] + rng.normal(0.0, 1.5, (h, w))
+    right = np.stack([np.interp(xs + 20 + true[y, 0], np.arange(w + 40), base[y]) for y in range(h)])
+    right = right + rng.normal(0.0, 1.5, (h, w))
+    return left.astype(np.float32), right.astype(np.float32), true
+
+
+def test_growth_recovers_a_weak_slanted_plane_from_its_kept_neighbours_and_only_where_they_agree():
+    from prismstereo.depth.confidence import confident_growth, neighbour_disparity
+    from prismstereo.errors import ConfigError
+
+    left, right, true = _weak_slanted_plane()
+    h, w = true.shape
+    # kept values on every other 12-px block (what the two windows kept), none elsewhere
+    blocks = ((np.arange(h)[:, None] // 12 + np.arange(w)[None, :] // 12) % 2 == 0)
+    kept = np.where(blocks, true, np.nan).astype(np.float32)
+    conf = np.where(blocks, np.float32(0.9), np.float32(np.nan))
+    filled = np.rint(true).astype(np.float32)  # the matcher's integer guesses
+    kw = dict(min_confidence=0.5, max_lr_gap=0.45)
+    d, c = confident_growth(left, right, kept, conf, filled, **kw)
+    assert np.array_equal(d[blocks], kept[blocks]) and np.array_equal(c[blocks], conf[blocks])
+    inner = np.zeros((h, w), dtype=bool)
+    inner[20:-20, 30:-30] = True
+    grown = np.isfinite(d) & ~blocks & inner
+    assert grown.sum() > 0.5 * (~blocks & inner).sum()  # most of the holes off the border
+    assert np.mean(np.abs(d[grown] - true[grown]) < 0.5) > 0.97
+    assert np.all((c[grown] >= 0.5) & (c[grown] <= 1.0))
+    # a second pass keeps the first one's values and grows from them only
+    d2, _ = confident_growth(left, right, kept, conf, filled, passes=2, **kw)
+    assert np.array_equal(d2[np.isfinite(d)], d[np.isfinite(d)]) and np.isfinite(d2).sum() >= np.isfinite(d).sum()
+    # neighbours that say 1 px more than the refinement finds: their surface is not continued
+    d_off, _ = confident_growth(left, right, kept + np.float32(1.0), conf, filled, **kw)
+    assert (np.isfinite(d_off) & ~blocks & inner).sum() < 0.02 * (~blocks & inner).sum()
+    # neighbours on two surfaces 3 px apart (a depth edge): none where they are mixed
+    step = np.where(np.arange(w)[None, :] < w // 2, kept, kept + np.float32(3.0)).astype(np.float32)
+    _, _, spread = neighbour_disparity(step, sigma=8.0)
+    d_step, _ = confident_growth(left, right, step, conf, np.where(np.isfinite(step), step, filled), **kw)
+    assert not (np.isfinite(d_step) & ~blocks & (spread >= 0.5)).any()
+    with pytest.raises(ConfigError, match="max_lr_gap"):
+        confident_growth(left, right, kept, conf, filled, max_lr_gap=None)
+
+
+def test_neighbour_disparity_is_the_weighted_mean_and_spread_of_the_finite_values():
+    from prismstereo.depth.confidence import neighbour_disparity
+
+    d = np.full((30, 30), np.nan, dtype=np.float32)
+    d[:, :15] = 80.0
+    d[:, 15:] = 84.0
+    d[10:20, 10:20] = np.nan
+    mean, support, spread = neighbour_disparity(d, sigma=3.0)
+    assert np.allclose(mean[5:25, :6], 80.0, atol=1e-4) and np.allclose(spread[5:25, :6], 0.0, atol=1e-2)
+    import cv2
+
+    g = cv2.getGaussianKernel(19, 3.0).astype(np.float64)
+    wts = (g @ g.T) * np.isfinite(d[6:25, 6:25])  # the finite values in reach of (15, 15)
+    vals = np.nan_to_num(d[6:25, 6:25].astype(np.float64))
+    ref = (wts * vals).sum() / wts.sum()
+    ref_sd = np.sqrt((wts * (vals - ref) ** 2).sum() / wts.sum())
+    assert abs(float(mean[15, 15]) - ref) < 1e-3 and abs(float(spread[15, 15]) - ref_sd) < 1e-2
+    assert abs(float(support[15, 15]) - wts.sum()) < 1e-4
+    assert support[15, 15] < 0.5 < support[15, 5]  # a hole's middle has few finite values in reach

@@ -153,10 +153,13 @@ def test_the_steps_compose_to_run_depth(plane_capture, plane_run):
     left, right = pl.rectify_capture(pair, img)
     region = pl.search_region(rig, pair, cfg, left, right)
     matched = pl.match_pair(left, right, pair, region, cfg)
-    # the default refinement tries the dense map where no match was kept (refine_fill_agree): it is computed
+    # the default refinement tries the dense map where no match was kept (refine_fill_agree, refine_grow_radius):
+    # it is computed
     assert pl.needs_dense_map(cfg) and matched.filled is not None
-    bare = dataclasses.replace(cfg, refine_fill_agree=None)
+    bare = dataclasses.replace(cfg, refine_fill_agree=None, refine_grow_radius=None)
     assert not pl.needs_dense_map(bare) and pl.needs_dense_map(dataclasses.replace(bare, refine_fill=True))
+    assert pl.needs_dense_map(dataclasses.replace(bare, refine_grow_radius=16))
+    assert not pl.needs_dense_map(dataclasses.replace(bare, refine_grow_radius=16, refine_max_lr_gap=None))
     # a run that reads no dense map skips the matcher's hole filling; the cross-checked matches are the same
     no_dense = pl.match_pair(left, right, pair, region, bare)
     assert no_dense.filled is None and no_dense.info["dense_map"] is False

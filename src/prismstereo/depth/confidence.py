@@ -24,6 +24,10 @@ The pipeline's ``refine`` and ``speckles`` steps are these plain functions on ar
   confidence threshold confirm or drop each of them. With ``agree`` a filled value is kept only where the
   two windows (``radius`` and ``retry_radius``), each confirmed on its own, agree: the dense map's
   values are guesses, and two independent sub-pixel values that agree are what tells a right one.
+- :func:`confident_growth` tries once more where neither kept a value, with a wider window, and keeps a
+  value only where it agrees with what the kept neighbours around it say (their Gaussian-weighted mean):
+  on texture too weak for the two windows, a value that the wide window confirms on its own and that
+  continues the surface around it is right far more often than one that only a window confirms.
 """
 
 from __future__ import annotations
@@ -37,7 +41,7 @@ from prismstereo.depth.refine import refine_disparity
 from prismstereo.errors import ConfigError
 from prismstereo.rectify.epipolar import EpipolarTable
 
-__all__ = ["confident_fill", "confident_matches", "remove_speckles"]
+__all__ = ["confident_fill", "confident_growth", "confident_matches", "neighbour_disparity", "remove_speckles"]
 
 
 def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, *, radius: int = 5,
@@ -251,6 +255,144 @@ def _agreeing(left: np.ndarray, right: np.ndarray, seeds: np.ndarray, right_seed
     nan = np.float32(np.nan)
     return (np.where(both, np.where(first, d1, d2), nan).astype(np.float32),
             np.where(both, np.where(first, c1, c2), nan).astype(np.float32))
+
+
+def neighbour_disparity(disparity: np.ndarray, *, sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What the finite disparities around each pixel say of it: their Gaussian-weighted mean, the weights'
+    sum and the weighted spread (standard deviation) about that mean.
+
+    Parameters
+    ----------
+    disparity : (H, W) float array
+        Px, NaN = none.
+    sigma : float
+        Standard deviation of the Gaussian weights, px (the kernel reaches 3 sigma).
+
+    Returns
+    -------
+    mean, support, spread : (H, W) float32
+        The weighted mean (NaN where no finite value is in reach), the sum of the weights of the finite
+        values (1 where every pixel in reach has one) and the weighted standard deviation (NaN with the mean).
+    """
+    d = np.asarray(disparity, dtype=np.float32)
+    finite = np.isfinite(d)
+    v = finite.astype(np.float32)
+    # about the map's median: the second moment of disparities of ~100 px in float32 would lose the spread
+    ref = np.float32(np.median(d[finite])) if finite.any() else np.float32(0.0)
+    x = np.where(finite, d - ref, np.float32(0.0)).astype(np.float32)
+    k = 2 * int(np.ceil(3.0 * sigma)) + 1
+
+    def blur(a: np.ndarray) -> np.ndarray:
+        return np.asarray(cv2.GaussianBlur(a, (k, k), float(sigma), borderType=cv2.BORDER_CONSTANT))
+
+    support = blur(v)
+    ok = support > 1e-3
+    den = np.maximum(support, np.float32(1e-6))
+    m1 = blur(x) / den
+    m2 = blur(x * x) / den
+    nan = np.float32(np.nan)
+    mean = np.where(ok, m1 + ref, nan).astype(np.float32)
+    spread = np.where(ok, np.sqrt(np.maximum(m2 - m1 * m1, 0.0)), nan).astype(np.float32)
+    return mean, support.astype(np.float32), spread
+
+
+def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, confidence: np.ndarray,
+                     filled: np.ndarray, *, grow_radius: int = 16, sigma: float = 8.0, agree: float = 0.3,
+                     min_support: float = 0.1, max_spread: float | None = 0.5, passes: int = 1,
+                     valid_right: np.ndarray | None = None, **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Add the matcher's dense values that a wide window confirms and that continue the kept surface around
+    them, where nothing was kept.
+
+    Each pixel without a kept value whose kept neighbours are enough (:func:`neighbour_disparity`: weights
+    ``min_support`` or more) and alike (spread below ``max_spread`` px: not across a depth edge) is refined
+    from its ``filled`` value with one ``grow_radius`` window and checked as any match (refinement within
+    ``max_shift``, the sub-pixel left–right check against the kept map, completed by ``filled`` where it
+    has no value, ``min_confidence``); it is kept where the refined value lies within ``agree`` px of its
+    neighbours' weighted mean. A window wide enough for the weakest texture is noisy only where the
+    neighbours do not bound it, and its wrong values (a window pulled across a depth edge, a weak match
+    locked one pixel off) mostly break with the surface around them.
+
+    Parameters
+    ----------
+    left, right : (H, W) or (H, W, 3) arrays
+        The rectified pair.
+    disparity, confidence : (H, W) float32
+        The kept matches so far (:func:`confident_matches`, :func:`confident_fill`; NaN = none).
+    filled : (H, W) float array
+        The matcher's dense disparities, px, NaN outside the searched region.
+    grow_radius : int
+        Half-size of the window, px.
+    sigma : float
+        Standard deviation of the neighbours' Gaussian weights, px.
+    agree : float
+        Largest distance of the refined value from the neighbours' weighted mean, px.
+    min_support : float
+        Least sum of the neighbours' weights (1: every pixel in reach has a kept value).
+    max_spread : float or None
+        Largest weighted standard deviation of the neighbours' values, px; None: any.
+    passes : int
+        How many times to grow: each pass's neighbours include the values the passes before it kept.
+    valid_right : (H, W) bool, optional
+        Valid region of the rectified right view (a value whose right pixel is outside is not tried).
+    **kwargs
+        The other keyword arguments of :func:`confident_matches` (its ``radius`` and second window are not
+        used; ``max_lr_gap`` must not be None).
+
+    Returns
+    -------
+    disparity, confidence : (H, W) float32
+        ``disparity`` and ``confidence`` with the grown values added.
+
+    Raises
+    ------
+    ConfigError
+        ``max_lr_gap`` None.
+    """
+    if kwargs.get("max_lr_gap", 0.45) is None:
+        raise ConfigError("confident_growth max_lr_gap: expected a number of px (the sub-pixel left–right check "
+                          "is what tests a grown value), got None; pass the pipeline's refine_max_lr_gap")
+    for key in ("radius", "retry_radius", "retry_below", "retry_drop", "right_seeds"):
+        kwargs.pop(key, None)
+    d = np.asarray(disparity, dtype=np.float32)
+    conf = np.asarray(confidence, dtype=np.float32)
+    f = np.asarray(filled, dtype=np.float32)
+    for _ in range(passes):
+        d2, c2 = _grown(left, right, d, f, grow_radius=grow_radius, sigma=sigma, agree=agree,
+                        min_support=min_support, max_spread=max_spread, valid_right=valid_right, **kwargs)
+        add = np.isfinite(d2)
+        if not add.any():
+            break
+        d, conf = np.where(add, d2, d).astype(np.float32), np.where(add, c2, conf).astype(np.float32)
+    return d, conf
+
+
+def _grown(left: np.ndarray, right: np.ndarray, d: np.ndarray, f: np.ndarray, *, grow_radius: int, sigma: float,
+           agree: float, min_support: float, max_spread: float | None, valid_right: np.ndarray | None,
+           **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) float32 disparities and confidences of one pass of :func:`confident_growth` (the values it adds,
+    NaN elsewhere)."""
+    h, w = d.shape
+    nan = np.full((h, w), np.nan, dtype=np.float32)
+    mean, support, spread = neighbour_disparity(d, sigma=sigma)
+    with np.errstate(invalid="ignore"):
+        cand = ~np.isfinite(d) & np.isfinite(f) & np.isfinite(mean) & (support >= min_support)
+        if max_spread is not None:
+            cand &= spread < max_spread
+    ys, xs = np.nonzero(cand)
+    xr = np.rint(xs - f[ys, xs]).astype(np.int64)
+    inside = (xr >= 0) & (xr < w)
+    if valid_right is not None:
+        inside[inside] &= np.asarray(valid_right, dtype=bool)[ys[inside], xr[inside]]
+    if not inside.any():
+        return nan, nan
+    seeds = nan.copy()
+    seeds[ys[inside], xs[inside]] = f[ys[inside], xs[inside]]
+    right_seeds = np.where(np.isfinite(d), d, f).astype(np.float32)
+    d2, c2 = confident_matches(left, right, seeds, radius=grow_radius, valid_right=valid_right,
+                               right_seeds=right_seeds, **kwargs)
+    with np.errstate(invalid="ignore"):
+        add = np.isfinite(d2) & (np.abs(d2 - mean) < agree)
+    return np.where(add, d2, nan).astype(np.float32), np.where(add, c2, nan).astype(np.float32)
 
 
 def remove_speckles(disparity: np.ndarray, *, max_size: int) -> np.ndarray:

@@ -45,7 +45,7 @@ from prismstereo.cameras import VirtualView, calibrate_rig
 from prismstereo.checks import check_fields, fail
 from prismstereo.config import DEFAULT_DEPTH_RANGE_MM, Rig
 from prismstereo.depth.apex_band import apex_band_info, apex_band_views
-from prismstereo.depth.confidence import confident_fill, confident_matches
+from prismstereo.depth.confidence import confident_fill, confident_growth, confident_matches
 from prismstereo.depth.confidence import remove_speckles as drop_small_patches
 from prismstereo.depth.memory import check_depth_memory, estimate_depth_memory, resident_bytes
 from prismstereo.depth.search_range import (
@@ -187,6 +187,17 @@ class DepthConfig:
         A match whose ``refine_radius`` window stayed below ``refine_retry_below`` and whose wider window
         is not confirmed gets confidence 0 (``min_confidence`` drops it) instead of keeping the small
         window's result (``retry_drop`` of :func:`~prismstereo.depth.confidence.confident_matches`).
+    refine_grow_radius : int or None
+        Where neither the matches nor the fill kept a value, refine the matcher's dense value once more with
+        a window of this half-size and keep it where it lies within ``refine_grow_agree`` px of the
+        Gaussian-weighted mean (standard deviation ``refine_grow_sigma`` px) of the kept values around it,
+        and those are alike (weighted spread below ``refine_grow_spread`` px)
+        (:func:`~prismstereo.depth.confidence.confident_growth`): on texture too weak for the two
+        windows. Needs ``refine`` and ``refine_max_lr_gap``; None: no such step.
+    refine_grow_agree, refine_grow_sigma, refine_grow_spread : float, float, float or None
+        See ``refine_grow_radius`` (``refine_grow_spread`` None: any spread).
+    refine_grow_passes : int
+        How many times to grow, each from the values kept before it.
     sweep : SweepParams
         The plane sweep of ``views="all"`` (:class:`~prismstereo.multiview.prism.SweepParams`).
     coarse_to_fine : {"auto", "on", "off"}
@@ -220,6 +231,11 @@ class DepthConfig:
     refine_retry_below: float = 0.95
     refine_retry_drop: bool = True
     refine_fill_agree: float | None = 0.5
+    refine_grow_radius: int | None = 16
+    refine_grow_agree: float = 0.3
+    refine_grow_sigma: float = 8.0
+    refine_grow_spread: float | None = 0.5
+    refine_grow_passes: int = 2
     sweep: SweepParams = field(default_factory=SweepParams)
     coarse_to_fine: str = "auto"
     max_memory: int | None = None
@@ -231,8 +247,11 @@ class DepthConfig:
                             "refine_min_texture": (0.0, None), "refine_max_lr_gap": (0.0, None),
                             "refine_prefilter": (0.0, 5.0),
                             "refine_retry_radius": (1, 50), "refine_retry_below": (0.0, 1.0),
-                            "refine_fill_agree": (0.0, None)},
-                     positive=("max_gap_mm", "refine_max_shift", "refine_fill_agree"))
+                            "refine_fill_agree": (0.0, None), "refine_grow_radius": (1, 50),
+                            "refine_grow_agree": (0.0, None), "refine_grow_sigma": (0.0, 50.0),
+                            "refine_grow_spread": (0.0, None), "refine_grow_passes": (1, 10)},
+                     positive=("max_gap_mm", "refine_max_shift", "refine_fill_agree", "refine_grow_agree",
+                               "refine_grow_sigma", "refine_grow_spread"))
         if not isinstance(self.method, str):
             fail(self, "method", "a matcher name", self.method)
         if not isinstance(self.matcher_params, Mapping):
@@ -756,7 +775,7 @@ def needs_dense_map(config: DepthConfig) -> bool:
     """Whether a pair run reads the matcher's dense (hole-filled) map: it triangulates it (``use_filled``) or
     tries its values where no match was kept (:func:`_fill_rule`: ``refine_fill`` or ``refine_fill_agree``, with
     the refinement and its sub-pixel check)."""
-    return bool(config.use_filled or (config.refine and _fill_rule(config)[0]))
+    return bool(config.use_filled or (config.refine and (_fill_rule(config)[0] or _grows(config))))
 
 
 def match_pair(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, region: SearchRegion,
@@ -834,10 +853,21 @@ def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, dis
                               retry_below=config.refine_retry_below, retry_drop=config.refine_retry_drop)
     disp, conf = confident_matches(left, right, disparity, valid_right=vr, **kw)
     fill, agree = _fill_rule(config)
+    vr_fill = vr if right_excluded is None else np.asarray(vr, dtype=bool) & ~right_excluded
     if filled is not None and fill:
-        vr_fill = vr if right_excluded is None else np.asarray(vr, dtype=bool) & ~right_excluded
         disp, conf = confident_fill(left, right, disp, conf, filled, valid_right=vr_fill, agree=agree, **kw)
+    if filled is not None and _grows(config):
+        assert config.refine_grow_radius is not None
+        disp, conf = confident_growth(left, right, disp, conf, filled, grow_radius=config.refine_grow_radius,
+                                      sigma=config.refine_grow_sigma, agree=config.refine_grow_agree,
+                                      max_spread=config.refine_grow_spread, passes=config.refine_grow_passes,
+                                      valid_right=vr_fill, **kw)
     return disp, conf
+
+
+def _grows(config: DepthConfig) -> bool:
+    """Whether :func:`refine_matches` grows from the kept values (``refine_grow_radius``, with the check)."""
+    return config.refine_grow_radius is not None and config.refine_max_lr_gap is not None
 
 
 def _fill_rule(config: DepthConfig) -> tuple[bool, float | None]:

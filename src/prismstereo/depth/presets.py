@@ -9,8 +9,8 @@ preset's. :func:`preset_record` is what a run records of it (``run.json``'s ``pr
 refinement and confidence defaults serve their precision). ``fast`` is a video frame's profile: its own
 refinement and confidence values, every one set explicitly (they do not follow the defaults), chosen for
 a frame's CPU time (docs/EXPERIMENTS.md, issue 30, stop 34): one 11×11 refinement window with its sub-pixel
-left–right check, no wider retry window and no fill from the matcher's dense map (which the matcher then
-skips): a sixth to a half of the default refinement's CPU, at a similar median error and within-1 % share and
+left–right check, no wider retry window, no fill or growth from the matcher's dense map (which the matcher
+then skips): a sixth to a half of the default refinement's CPU, at a similar median error and within-1 % share and
 less coverage on weak texture.
 """
 
@@ -75,6 +75,7 @@ PROFILES: dict[str, Preset] = {
         ("refine_retry_radius", None),
         ("refine_retry_below", 0.95),
         ("refine_retry_drop", False),
+        ("refine_grow_radius", None),
         ("min_confidence", 0.5),
         ("speckle_fraction", 0.001),
     )),
