@@ -59,6 +59,7 @@ from prismstereo.depth.search_range import (
     scene_coverage,
 )
 from prismstereo.depth.setup_cache import load_range, load_rays, load_setup, save_range, save_rays, save_setup
+from prismstereo.depth.smoothed import smoothed_config
 from prismstereo.depth.triangulation import TRIANGULATIONS, RayTable, ray_table, triangulate_matches
 from prismstereo.errors import ConfigError, GeometryError, ImageError
 from prismstereo.io.images import as_image
@@ -198,6 +199,15 @@ class DepthConfig:
         See ``refine_grow_radius`` (``refine_grow_spread`` None: any spread).
     refine_grow_passes : int
         How many times to grow, each from the values kept before it.
+    refine_smoothed_below : float or None
+        A capture whose pixel-scale noise (:func:`~prismstereo.depth.smoothed.pixel_noise`, grey levels)
+        is below this has lost its finest scale to compression or demosaicing (a real camera's capture):
+        its refinement gets ``refine_retry_below`` = ``refine_smoothed_retry_below`` (the wider window for
+        every match below that ZNCC) and ``refine_fill_agree`` = ``refine_smoothed_fill_agree``
+        (:func:`~prismstereo.depth.smoothed.smoothed_config`; the run's ``config`` records what was used).
+        None: never.
+    refine_smoothed_retry_below, refine_smoothed_fill_agree : float, float or None
+        See ``refine_smoothed_below`` (None: the fill agreement is left as it is).
     sweep : SweepParams
         The plane sweep of ``views="all"`` (:class:`~prismstereo.multiview.prism.SweepParams`).
     coarse_to_fine : {"auto", "on", "off"}
@@ -236,6 +246,9 @@ class DepthConfig:
     refine_grow_sigma: float = 8.0
     refine_grow_spread: float | None = 0.5
     refine_grow_passes: int = 2
+    refine_smoothed_below: float | None = 0.5
+    refine_smoothed_retry_below: float = 0.99
+    refine_smoothed_fill_agree: float | None = 1.0
     sweep: SweepParams = field(default_factory=SweepParams)
     coarse_to_fine: str = "auto"
     max_memory: int | None = None
@@ -249,9 +262,11 @@ class DepthConfig:
                             "refine_retry_radius": (1, 50), "refine_retry_below": (0.0, 1.0),
                             "refine_fill_agree": (0.0, None), "refine_grow_radius": (1, 50),
                             "refine_grow_agree": (0.0, None), "refine_grow_sigma": (0.0, 50.0),
-                            "refine_grow_spread": (0.0, None), "refine_grow_passes": (1, 10)},
+                            "refine_grow_spread": (0.0, None), "refine_grow_passes": (1, 10),
+                            "refine_smoothed_below": (0.0, None),
+                            "refine_smoothed_retry_below": (0.0, 1.0), "refine_smoothed_fill_agree": (0.0, None)},
                      positive=("max_gap_mm", "refine_max_shift", "refine_fill_agree", "refine_grow_agree",
-                               "refine_grow_sigma", "refine_grow_spread"))
+                               "refine_grow_sigma", "refine_grow_spread", "refine_smoothed_fill_agree"))
         if not isinstance(self.method, str):
             fail(self, "method", "a matcher name", self.method)
         if not isinstance(self.matcher_params, Mapping):
@@ -1005,7 +1020,7 @@ def _finish(result: DepthRun, clock: _Clock, t0: float) -> DepthRun:
 
 def _run_frame(setup: DepthSetup, image: np.ndarray, left: np.ndarray, right: np.ndarray, clock: _Clock,
                t0: float) -> DepthRun:
-    cfg, pair, region = setup.config, setup.pair, setup.region
+    cfg, pair, region = smoothed_config(setup.config, image), setup.pair, setup.region
     r0, r1, c0, c1 = _roi_box(region.mask)
     lo, hi = region.disparity_range
     # the plan again with the range the capture narrowed (the one before it was read bounds the rig's whole range)
