@@ -32,6 +32,7 @@ def batch_command(rig_path: str, inputs: Sequence[str], out_dir: str, *, method:
     # imported when the command runs: ``prismstereo --help`` starts without Dask and the numerical packages
     from prismstereo.batch.runner import run_batch
     from prismstereo.config import load_rig
+    from prismstereo.depth.presets import config_with_preset
 
     rig = load_rig(rig_path)
     if views == "all":
@@ -43,7 +44,7 @@ def batch_command(rig_path: str, inputs: Sequence[str], out_dir: str, *, method:
                                  triangulation=triangulation, calibration=calibration, refine=refine)
     if min_confidence is not None:
         given["min_confidence"] = min_confidence
-    config = _configured(method, preset, given)
+    config = config_with_preset(method, preset, given)
 
     if logging.getLogger("prismstereo").getEffectiveLevel() > logging.INFO:
         import distributed  # noqa: F401 - its import sets its loggers' levels: lower them afterwards
@@ -60,11 +61,3 @@ def batch_command(rig_path: str, inputs: Sequence[str], out_dir: str, *, method:
     print(summary.text())
     return summary.exit_code
 
-
-def _configured(method: str, preset: str | None, given: dict[str, Any]) -> Any:
-    """The DepthConfig of the options ``given`` and the ``preset``'s settings where they name none."""
-    from prismstereo.depth.pipeline import DepthConfig
-    from prismstereo.depth.presets import apply_preset
-
-    config = DepthConfig(method=method, **given)
-    return config if preset is None else apply_preset(config, preset, given=given)

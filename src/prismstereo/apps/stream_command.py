@@ -33,6 +33,7 @@ def stream_command(rig_path: str, source: str, out_dir: str, *, method: str = "s
     sets them."""
     from prismstereo.batch.stream import STREAM_OUTPUTS, run_stream
     from prismstereo.config import load_rig
+    from prismstereo.depth.presets import config_with_preset
 
     rig = load_rig(rig_path)
     if views == "all":
@@ -44,7 +45,7 @@ def stream_command(rig_path: str, source: str, out_dir: str, *, method: str = "s
                                  triangulation=triangulation, refine=refine)
     if min_confidence is not None:
         given["min_confidence"] = min_confidence
-    config = _configured(method, preset, given)
+    config = config_with_preset(method, preset, given)
 
     def echo(line: str) -> None:
         print(line, file=sys.stderr, flush=True)
@@ -57,11 +58,3 @@ def stream_command(rig_path: str, source: str, out_dir: str, *, method: str = "s
         return 130
     return 3 if summary.failed else 0
 
-
-def _configured(method: str, preset: str | None, given: dict[str, Any]) -> Any:
-    """The DepthConfig of the options ``given`` and the ``preset``'s settings where they name none."""
-    from prismstereo.depth.pipeline import DepthConfig
-    from prismstereo.depth.presets import apply_preset
-
-    config = DepthConfig(method=method, **given)
-    return config if preset is None else apply_preset(config, preset, given=given)

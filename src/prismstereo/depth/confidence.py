@@ -209,22 +209,13 @@ def confident_fill(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, c
     ConfigError
         ``max_lr_gap`` None, or ``agree`` without a ``retry_radius`` other than ``radius``.
     """
-    if kwargs.get("max_lr_gap", 0.45) is None:
-        raise ConfigError("confident_fill max_lr_gap: expected a number of px (the sub-pixel left–right "
-                          "check is what tests a filled value), got None; pass the pipeline's refine_max_lr_gap")
+    _require_lr_check(kwargs, "confident_fill", "a filled value")
     if agree is not None and kwargs.get("retry_radius") in (None, kwargs.get("radius", 5)):
         raise ConfigError(f"confident_fill agree: needs a second window (retry_radius other than radius), got "
                           f"retry_radius {kwargs.get('retry_radius')!r}; pass agree=None for one window")
     d = np.asarray(disparity, dtype=np.float32)
     f = np.asarray(filled, dtype=np.float32)
-    h, w = d.shape
-    ys, xs = np.nonzero(np.isfinite(f))
-    xr = np.rint(xs - f[ys, xs]).astype(np.int64)
-    inside = (xr >= 0) & (xr < w)
-    if valid_right is not None:
-        inside[inside] &= np.asarray(valid_right, dtype=bool)[ys[inside], xr[inside]]
-    seeds = np.full((h, w), np.nan, dtype=np.float32)
-    seeds[ys[inside], xs[inside]] = f[ys[inside], xs[inside]]
+    seeds = _seeds_seen(f, np.isfinite(f), valid_right)
     retry = np.where(~np.isfinite(d), seeds, np.float32(np.nan))
     if not np.isfinite(retry).any():
         return d, np.asarray(confidence, dtype=np.float32)
@@ -348,9 +339,7 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
     ConfigError
         ``max_lr_gap`` None.
     """
-    if kwargs.get("max_lr_gap", 0.45) is None:
-        raise ConfigError("confident_growth max_lr_gap: expected a number of px (the sub-pixel left–right check "
-                          "is what tests a grown value), got None; pass the pipeline's refine_max_lr_gap")
+    _require_lr_check(kwargs, "confident_growth", "a grown value")
     for key in ("radius", "retry_radius", "retry_below", "retry_drop", "right_seeds"):
         kwargs.pop(key, None)
     d = np.asarray(disparity, dtype=np.float32)
@@ -371,28 +360,42 @@ def _grown(left: np.ndarray, right: np.ndarray, d: np.ndarray, f: np.ndarray, *,
            **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
     """(H, W) float32 disparities and confidences of one pass of :func:`confident_growth` (the values it adds,
     NaN elsewhere)."""
-    h, w = d.shape
-    nan = np.full((h, w), np.nan, dtype=np.float32)
+    nan = np.full(d.shape, np.nan, dtype=np.float32)
     mean, support, spread = neighbour_disparity(d, sigma=sigma)
     with np.errstate(invalid="ignore"):
         cand = ~np.isfinite(d) & np.isfinite(f) & np.isfinite(mean) & (support >= min_support)
         if max_spread is not None:
             cand &= spread < max_spread
-    ys, xs = np.nonzero(cand)
-    xr = np.rint(xs - f[ys, xs]).astype(np.int64)
-    inside = (xr >= 0) & (xr < w)
-    if valid_right is not None:
-        inside[inside] &= np.asarray(valid_right, dtype=bool)[ys[inside], xr[inside]]
-    if not inside.any():
+    seeds = _seeds_seen(f, cand, valid_right)
+    if not np.isfinite(seeds).any():
         return nan, nan
-    seeds = nan.copy()
-    seeds[ys[inside], xs[inside]] = f[ys[inside], xs[inside]]
     right_seeds = np.where(np.isfinite(d), d, f).astype(np.float32)
     d2, c2 = confident_matches(left, right, seeds, radius=grow_radius, valid_right=valid_right,
                                right_seeds=right_seeds, **kwargs)
     with np.errstate(invalid="ignore"):
         add = np.isfinite(d2) & (np.abs(d2 - mean) < agree)
     return np.where(add, d2, nan).astype(np.float32), np.where(add, c2, nan).astype(np.float32)
+
+
+def _require_lr_check(kwargs: dict[str, Any], function: str, tested: str) -> None:
+    """Refuse ``max_lr_gap=None`` among ``kwargs``: the sub-pixel left–right check is what tests ``tested``."""
+    if kwargs.get("max_lr_gap", 0.45) is None:
+        raise ConfigError(f"{function} max_lr_gap: expected a number of px (the sub-pixel left–right check is what "
+                          f"tests {tested}), got None; pass the pipeline's refine_max_lr_gap")
+
+
+def _seeds_seen(filled: np.ndarray, candidates: np.ndarray, valid_right: np.ndarray | None) -> np.ndarray:
+    """(H, W) float32: ``filled`` (px) at the ``candidates`` (H, W) bool whose right pixel ``x − filled`` lies
+    inside the view and in ``valid_right`` (None: any), NaN elsewhere."""
+    h, w = filled.shape
+    ys, xs = np.nonzero(candidates)
+    xr = np.rint(xs - filled[ys, xs]).astype(np.int64)
+    inside = (xr >= 0) & (xr < w)
+    if valid_right is not None:
+        inside[inside] &= np.asarray(valid_right, dtype=bool)[ys[inside], xr[inside]]
+    seeds = np.full((h, w), np.nan, dtype=np.float32)
+    seeds[ys[inside], xs[inside]] = filled[ys[inside], xs[inside]]
+    return seeds
 
 
 def remove_speckles(disparity: np.ndarray, *, max_size: int) -> np.ndarray:

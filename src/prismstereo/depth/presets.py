@@ -25,7 +25,7 @@ from prismstereo.depth.pipeline import DepthConfig
 from prismstereo.errors import ConfigError
 from prismstereo.matching.registry import PRESETS
 
-__all__ = ["PROFILES", "Preset", "apply_preset", "get_preset", "preset_record"]
+__all__ = ["PROFILES", "Preset", "apply_preset", "config_with_preset", "get_preset", "preset_record"]
 
 
 @dataclass(frozen=True)
@@ -130,6 +130,14 @@ def apply_preset(config: DepthConfig, preset: str | Preset, *, given: Iterable[s
         if "matcher_params" not in keep:
             changes["matcher_params"] = {}  # another matcher: the base's parameters are not its own
     return dataclasses.replace(config, **changes)
+
+
+def config_with_preset(method: str, preset: str | Preset | None, given: Mapping[str, Any]) -> DepthConfig:
+    """The :class:`~prismstereo.depth.pipeline.DepthConfig` of the options ``given`` (field -> value, set
+    explicitly) and ``method``, with the ``preset``'s settings (None: none) for the fields ``given`` does not
+    name."""
+    config = DepthConfig(method=method, **given)
+    return config if preset is None else apply_preset(config, preset, given=given)
 
 
 def preset_record(preset: str | Preset, config: Mapping[str, Any] | DepthConfig) -> dict[str, Any]:
