@@ -90,7 +90,9 @@ def test_folder_stream_takes_new_images_and_skips_bad_ones(tmp_path: Path, captu
         if name == "a":  # a frame that arrives while the stream runs, after its first listing of the folder
             write_image(folder / "e_late.png", images[2])
 
-    summary = run_stream(rig, str(folder), tmp_path / "out", config=CONFIG, idle_timeout=3.0, poll_s=0.05,
+    # the late frame is written after frame a's depth, which the idle clock (started at the first listing)
+    # must outlast on a loaded 2-core machine: the default idle timeout, not a shorter one
+    summary = run_stream(rig, str(folder), tmp_path / "out", config=CONFIG, idle_timeout=10.0, poll_s=0.05,
                          on_frame=on_frame)
     assert [n for n, _ in got] == ["a", "b", "e_late"]
     assert sorted(n for n, _ in summary.failed) == ["c_small", "d_corrupt"]
