@@ -413,5 +413,32 @@ def test_fallback_takes_sgm_where_the_bpasw_cost_is_flat() -> None:
     out = ev.fallback(state, wrong, FallbackParams(**kw))  # type: ignore[arg-type]
     np.testing.assert_array_equal(out, SGMMatcher().compute(left, right, max_disp=16).disparity)
     ev = _fallback_evidence(left, right, flat, wrong, evidence)
-    out = ev.fallback(state, wrong, FallbackParams(**kw, flat_ratio=0.0))  # type: ignore[arg-type]
+    out = ev.fallback(state, wrong, FallbackParams(**kw, flat_ratio=0.0, contradicted_share=0.0))  # type: ignore[arg-type]
+    assert np.mean(np.abs(out - (d_true + 3)) <= 1.0) > 0.9
+
+
+def test_fallback_takes_sgm_where_the_two_checks_contradict() -> None:
+    """A segment whose BPASW volume has a distinct minimum 3 px off (a radiometric bias moves it; BPASW's own
+    check keeps it everywhere, its cost is not flat) while ``sgm``'s check keeps the true disparity: both checks
+    hold on two disparities, so the segment takes ``sgm``'s map; ``contradicted_share`` 0: BPASW's."""
+    from prismstereo.matching.coop.steps import FallbackParams
+    from prismstereo.matching.local.sgm import SGMMatcher
+
+    d_true = 6
+    h, w = 70, 100
+    left, right, _vol, _local = _fallback_pair(3, h, w)
+    biased = np.ones((h, w, 17), np.float32)
+    biased[:, :, d_true + 3] = 0.5  # peak ratio 1: a distinct minimum
+    state = _plane_state(np.zeros((h, w), np.int32), d_true + 3.0)
+    wrong = np.full((h, w), d_true + 3.0, np.float32)
+    evidence = np.zeros((h, w), bool)
+    evidence[:20] = True
+    kw = {"max_agreement": 0.0, "candidates": ("bpasw", "sgm")}
+    sgm = SGMMatcher().compute(left, right, max_disp=16)
+    assert np.mean(np.asarray(sgm.valid) & (np.abs(sgm.disparity - d_true) <= 1.0)) > 0.5
+    ev = _fallback_evidence(left, right, biased, wrong, evidence)
+    out = ev.fallback(state, wrong, FallbackParams(**kw))  # type: ignore[arg-type]
+    np.testing.assert_array_equal(out, sgm.disparity)
+    ev = _fallback_evidence(left, right, biased, wrong, evidence)
+    out = ev.fallback(state, wrong, FallbackParams(**kw, contradicted_share=0.0))  # type: ignore[arg-type]
     assert np.mean(np.abs(out - (d_true + 3)) <= 1.0) > 0.9

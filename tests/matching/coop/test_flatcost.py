@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from prismstereo.errors import ConfigError
-from prismstereo.matching.coop.flatcost import flat_cost_segments, outvoted_segments, peak_ratio
+from prismstereo.matching.coop.flatcost import contradicted_segments, flat_cost_segments, outvoted_segments, peak_ratio
 from prismstereo.matching.coop.steps import FallbackParams
 
 
@@ -75,7 +75,36 @@ def test_outvoted_segments_need_both_matchers_to_agree_far_from_the_plane() -> N
 
 
 @pytest.mark.parametrize("kw", [{"flat_ratio": -0.1}, {"flat_min_support": 1.5}, {"flat_support_margin": -0.2},
-                                {"outvoted_tol": -1.0}, {"outvoted_share": 1.5}, {"outvoted_min_size": -0.1}])
+                                {"outvoted_tol": -1.0}, {"outvoted_share": 1.5}, {"outvoted_min_size": -0.1},
+                                {"contradicted_share": 1.5}, {"contradicted_min_size": -0.1}])
 def test_bad_flat_parameters_name_the_fallback(kw: dict) -> None:
     with pytest.raises(ConfigError, match="fallback"):
         FallbackParams(**kw)
+
+
+def test_contradicted_segments_need_both_checks_on_two_disparities() -> None:
+    labels = np.zeros((10, 40), np.int32)
+    labels[:, 20:] = 1
+    labels[:2, 38:] = 2  # a small segment (4 px of 400)
+    bp = np.full((10, 40), 10.0, np.float32)
+    sgm = bp.copy()
+    sgm[:5, :20] = 14.0  # segment 0: half its pixels 4 px apart
+    sgm[:2, 20:] = 14.0  # segment 1: 36 of its 196 px apart; segment 2 all apart
+    ok = np.ones((10, 40), bool)
+    where = np.ones((10, 40), bool)
+    kw = {"min_share": 0.4, "min_size": 0.02}
+    out = contradicted_segments(labels, where, bp, ok, sgm, ok, **kw)
+    assert out[labels == 0].all() and not out[labels == 1].any() and not out[labels == 2].any()
+    # a check failing where the maps differ, the maps within 1 px, or the rule off: not contradicted
+    nochk = ok.copy()
+    nochk[:3, :20] = False
+    assert not contradicted_segments(labels, where, bp, nochk, sgm, ok, **kw).any()
+    assert not contradicted_segments(labels, where, bp, ok, sgm, nochk, **kw).any()
+    assert not contradicted_segments(labels, where, bp, ok, np.minimum(sgm, 11.0), ok, **kw).any()
+    assert not contradicted_segments(labels, where, bp, ok, sgm, ok, **{**kw, "min_share": 0.0}).any()
+    # shares of the replaced pixels only, and only those are returned; the small segment once large enough
+    part = where.copy()
+    part[2:, 20:] = False  # segment 1: its 36 replaced pixels are all apart
+    out = contradicted_segments(labels, part, bp, ok, sgm, ok, **{**kw, "min_size": 0.0})
+    assert out[:2, 20:].all() and not out[2:, 20:].any()
+    assert contradicted_segments(labels, where, bp, ok, sgm, ok, **{**kw, "min_size": 0.0})[labels == 2].all()

@@ -14,6 +14,14 @@ A segment can also be outvoted: where the two local matchers, each passing its o
 each other within a pixel and both lie many pixels away from the segment's final disparity, the segment's plane
 was carried there by its neighbours or the smoothness term against two independent pieces of evidence
 (:func:`outvoted_segments`); such segments join the fallback.
+
+The two matchers' checks can also contradict each other: in a fallback segment where both left-right checks hold
+on many pixels but the two maps lie more than a pixel apart there, a check passed for two different disparities,
+so it cannot tell which is right. The colour cost's check is the weaker one: a radiometric difference between the
+views (a brightness offset, a shading gradient, a glow on a bare wall) moves the minimum of BPASW's colour cost,
+and both views read the same biased volume, so its check passes at the moved minimum; ``sgm``'s census cost is
+unchanged by such differences and its paths carry the disparity of the surface's textured border inward
+(:func:`contradicted_segments`); such segments take ``sgm``'s map.
 """
 
 from __future__ import annotations
@@ -22,7 +30,7 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit
 
-__all__ = ["flat_cost_segments", "outvoted_segments", "peak_ratio"]
+__all__ = ["contradicted_segments", "flat_cost_segments", "outvoted_segments", "peak_ratio"]
 
 F32 = npt.NDArray[np.float32]
 B = npt.NDArray[np.bool_]
@@ -156,3 +164,36 @@ def outvoted_segments(labels: npt.NDArray[np.int32], final: F32, bpasw: F32, bpa
     against = np.bincount(lab, weights=votes.ravel().astype(np.float64), minlength=n)
     take = (sizes >= min_size * lab.size) & (against >= min_share * np.maximum(sizes, 1.0)) & (against > 0)
     return np.asarray(take[labels], np.bool_)
+
+
+def contradicted_segments(labels: npt.NDArray[np.int32], where: B, bpasw: F32, bpasw_support: B, sgm: F32,
+                          sgm_support: B, *, min_share: float, min_size: float) -> B:
+    """The segments whose ``where`` pixels should take ``sgm``'s map because the two matchers' checks contradict.
+
+    An addition to thesis §6.1 (module docstring) with no thesis equation of its own.
+
+    Parameters
+    ----------
+    labels : (H, W) int32  segments.
+    where : (H, W) bool  the pixels being replaced.
+    bpasw, sgm : (H, W) float32  the two local matchers' dense maps (read at ``where``).
+    bpasw_support, sgm_support : (H, W) bool  pixels each matcher's own left-right check keeps.
+    min_share : float, keyword-only
+        A segment qualifies when at least this share of its ``where`` pixels have both checks holding and the two
+        maps more than 1 px apart (0: never)...
+    min_size : float, keyword-only
+        ... and its ``where`` pixels cover at least this share of the image.
+
+    Returns
+    -------
+    (H, W) bool, the ``where`` pixels of the qualifying segments.
+    """
+    if min_share <= 0 or not where.any():
+        return np.zeros(labels.shape, np.bool_)
+    both = where & bpasw_support & sgm_support & (np.abs(bpasw - sgm) > 1.0)
+    lab = labels[where].astype(np.int64)
+    n = int(labels.max()) + 1
+    cnt = np.bincount(lab, minlength=n).astype(np.float64)
+    against = np.bincount(labels[both].astype(np.int64), minlength=n).astype(np.float64)
+    take = (cnt >= min_size * labels.size) & (against >= min_share * np.maximum(cnt, 1.0)) & (against > 0)
+    return np.asarray(where & take[labels], np.bool_)

@@ -58,7 +58,7 @@ from prismstereo.matching.coop.cooperative import (
     build_segment_graph,
     cooperative_optimize,
 )
-from prismstereo.matching.coop.flatcost import flat_cost_segments, outvoted_segments, peak_ratio
+from prismstereo.matching.coop.flatcost import contradicted_segments, flat_cost_segments, outvoted_segments, peak_ratio
 from prismstereo.matching.coop.radiometry import RadiometryParams, compensate_right
 from prismstereo.matching.coop.slanted import SlantedParams, segment_plane_costs, segment_sweep_costs, slanted_pair
 from prismstereo.matching.coop.steps import (
@@ -646,6 +646,13 @@ class _PairEvidence:
                                       support[ib], max_ratio=p.flat_ratio, min_support=p.flat_min_support,
                                       support_margin=p.flat_support_margin)
             pick = np.where(flat, isg, pick)
+        if p.contradicted_share > 0 and {"bpasw", "sgm"} <= set(p.candidates):
+            # both checks holding on two different disparities: BPASW's colour cost is the one a radiometric
+            # difference between the views moves (flatcost.py)
+            ib, isg = p.candidates.index("bpasw"), p.candidates.index("sgm")
+            both = contradicted_segments(s.labels, local, maps[ib], support[ib], maps[isg], support[isg],
+                                         min_share=p.contradicted_share, min_size=p.contradicted_min_size)
+            pick = np.where(both, isg, pick)
         out = final.copy()
         for i, m in enumerate(maps):
             sel = local & (pick == i)

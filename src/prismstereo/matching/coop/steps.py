@@ -245,7 +245,11 @@ class FallbackParams:
     and ``sgm`` among the candidates, an outvoted segment joins them too: one of at least ``outvoted_min_size``
     of the image where at least ``outvoted_share`` of its pixels have both matchers' checks holding, their maps
     within 1 px of each other and both more than ``outvoted_tol`` px from the segment's final map
-    (:func:`~prismstereo.matching.coop.flatcost.outvoted_segments`; ``outvoted_tol`` 0 = off)."""
+    (:func:`~prismstereo.matching.coop.flatcost.outvoted_segments`; ``outvoted_tol`` 0 = off). With both
+    among the candidates, a segment whose replaced pixels cover at least ``contradicted_min_size`` of the image
+    takes ``sgm``'s map when on at least ``contradicted_share`` of them both matchers' checks hold and the two maps
+    lie more than 1 px apart (:func:`~prismstereo.matching.coop.flatcost.contradicted_segments`;
+    ``contradicted_share`` 0 = off)."""
 
     enabled: bool = True
     min_coverage: float = 0.4
@@ -265,6 +269,8 @@ class FallbackParams:
     outvoted_tol: float = 7.0
     outvoted_share: float = 0.05
     outvoted_min_size: float = 0.001
+    contradicted_share: float = 0.4
+    contradicted_min_size: float = 0.001
 
     def __post_init__(self) -> None:
         """Validate the fields; implementation helper with no thesis equation of its own."""
@@ -272,6 +278,9 @@ class FallbackParams:
         _need(self.outvoted_tol >= 0 and 0.0 <= self.outvoted_share <= 1.0 and 0.0 <= self.outvoted_min_size <= 1.0,
               "fallback.outvoted_tol >= 0, outvoted_share and outvoted_min_size in [0, 1]",
               (self.outvoted_tol, self.outvoted_share, self.outvoted_min_size))
+        _need(0.0 <= self.contradicted_share <= 1.0 and 0.0 <= self.contradicted_min_size <= 1.0,
+              "fallback.contradicted_share and contradicted_min_size in [0, 1]",
+              (self.contradicted_share, self.contradicted_min_size))
         _need(self.flat_ratio >= 0 and 0.0 <= self.flat_min_support <= 1.0 and 0.0 <= self.flat_support_margin <= 1.0,
               "fallback.flat_ratio >= 0, flat_min_support and flat_support_margin in [0, 1]",
               (self.flat_ratio, self.flat_min_support, self.flat_support_margin))
