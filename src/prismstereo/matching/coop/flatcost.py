@@ -158,12 +158,19 @@ def outvoted_segments(labels: npt.NDArray[np.int32], final: F32, bpasw: F32, bpa
         return np.zeros(labels.shape, np.bool_)
     votes = (bpasw_support & sgm_support & (np.abs(bpasw - sgm) <= 1.0) & (np.abs(final - bpasw) > tol)
              & (np.abs(final - sgm) > tol))
-    lab = labels.ravel().astype(np.int64)
-    n = int(labels.max()) + 1
-    sizes = np.bincount(lab, minlength=n).astype(np.float64)
-    against = np.bincount(lab, weights=votes.ravel().astype(np.float64), minlength=n)
-    take = (sizes >= min_size * lab.size) & (against >= min_share * np.maximum(sizes, 1.0)) & (against > 0)
+    take = _voted_segments(labels, np.ones(labels.shape, np.bool_), votes, min_share=min_share, min_size=min_size)
     return np.asarray(take[labels], np.bool_)
+
+
+def _voted_segments(labels: npt.NDArray[np.int32], where: B, votes: B, *, min_share: float,
+                    min_size: float) -> B:
+    """(n_segments,) bool: the segments whose ``where`` pixels cover at least ``min_size`` of the image and are
+    ``votes`` on at least ``min_share`` of them (and on one at least)."""
+    n = int(labels.max()) + 1
+    cnt = np.bincount(labels[where].astype(np.int64), minlength=n).astype(np.float64)
+    against = np.bincount(labels[where & votes].astype(np.int64), minlength=n).astype(np.float64)
+    return np.asarray((cnt >= min_size * labels.size) & (against >= min_share * np.maximum(cnt, 1.0))
+                      & (against > 0), np.bool_)
 
 
 def contradicted_segments(labels: npt.NDArray[np.int32], where: B, bpasw: F32, bpasw_support: B, sgm: F32,
@@ -190,10 +197,6 @@ def contradicted_segments(labels: npt.NDArray[np.int32], where: B, bpasw: F32, b
     """
     if min_share <= 0 or not where.any():
         return np.zeros(labels.shape, np.bool_)
-    both = where & bpasw_support & sgm_support & (np.abs(bpasw - sgm) > 1.0)
-    lab = labels[where].astype(np.int64)
-    n = int(labels.max()) + 1
-    cnt = np.bincount(lab, minlength=n).astype(np.float64)
-    against = np.bincount(labels[both].astype(np.int64), minlength=n).astype(np.float64)
-    take = (cnt >= min_size * labels.size) & (against >= min_share * np.maximum(cnt, 1.0)) & (against > 0)
+    both = bpasw_support & sgm_support & (np.abs(bpasw - sgm) > 1.0)
+    take = _voted_segments(labels, where, both, min_share=min_share, min_size=min_size)
     return np.asarray(where & take[labels], np.bool_)
