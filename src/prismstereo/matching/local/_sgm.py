@@ -79,16 +79,24 @@ def _path_update(c: np.ndarray, prev: np.ndarray, pk: int, px: int, pmin: int, p
     return int(best)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _step(p: np.ndarray, k: int, x: int, d: int, q1: int, jump: int) -> int:  # pragma: no cover - numba
-    """min(L(d), L(d±1) + P1, min L + P2) of path ``k`` at ``x`` for an inner disparity ``d``."""
-    return min(min(p[k, x, d], p[k, x, d - 1] + q1), min(p[k, x, d + 1] + q1, jump))
+    """min(L(d), L(d±1) + P1, min L + P2) of path ``k`` at ``x`` for an inner disparity ``d``, in the work
+    type: each sum wrapped back to it (no sum overflows it, :func:`_pad_layout`), so that the minima are taken
+    on its lanes (numba widens a sum of two int16 to int64: 4× fewer lanes).
+
+    A plain ``njit`` function that LLVM inlines, NOT numba's ``inline="always"``: inlined at numba's IR level
+    (array arguments inside the loop), it left a call in :func:`_four_updates`'s loop when LLVM's vectoriser
+    ran ("call instruction cannot be vectorized"), so that loop ran one disparity at a time."""
+    t = p.dtype.type
+    return min(min(p[k, x, d], t(p[k, x, d - 1] + q1)), min(t(p[k, x, d + 1] + q1), jump))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _end(p: np.ndarray, k: int, x: int, d: int, e: int, q1: int, jump: int) -> int:  # pragma: no cover - numba
     """The same at an end ``d`` of the range, whose one neighbour is ``e``."""
-    return min(min(p[k, x, d], p[k, x, e] + q1), jump)
+    t = p.dtype.type
+    return min(min(p[k, x, d], t(p[k, x, e] + q1)), jump)
 
 
 @njit(cache=True, inline="always")
