@@ -169,3 +169,41 @@ def test_rig_range_round_trip_and_same_region(cache: Path, computed) -> None:
     without = pl.search_region(rig, pair, cfg)
     assert np.array_equal(with_known.mask, without.mask)
     assert with_known.disparity_range == without.disparity_range and with_known.depth_range == without.depth_range
+
+
+def test_common_view_round_trip_and_other_depths_miss(cache: Path, computed) -> None:
+    from prismstereo.depth.setup_cache import load_view, save_view
+    from prismstereo.rectify import common_view
+
+    rig, cfg, views, pair, epi = computed
+    shape = (pair.size[1], pair.size[0])
+    region, disp = common_view(pair, 300.0, 900.0)
+    assert load_view(rig, cfg.views, cfg.calibration, depth_mm=(300.0, 900.0), shape=shape) is None
+    path = save_view(rig, cfg.views, cfg.calibration, depth_mm=(300.0, 900.0), region=region, disparity_px=disp)
+    assert path is not None and path.name.startswith("view-")
+    got = load_view(rig, cfg.views, cfg.calibration, depth_mm=(300.0, 900.0), shape=shape)
+    assert got is not None and np.array_equal(got[0], region) and got[1] == disp
+    assert load_view(rig, cfg.views, cfg.calibration, depth_mm=(300.0, 901.0), shape=shape) is None
+    assert load_view(rig, cfg.views, cfg.calibration, depth_mm=(300.0, 900.0), shape=(1, 1)) is None
+    path.write_bytes(b"PK\x03\x04 truncated")
+    assert load_view(rig, cfg.views, cfg.calibration, depth_mm=(300.0, 900.0), shape=shape) is None
+
+
+def test_search_region_reads_the_cached_view_with_the_same_region(cache: Path, computed, monkeypatch) -> None:
+    rig, _, views, pair, epi = computed
+    cfg = pl.validate_config(rig, DepthConfig(method="sad", depth_range=(300.0, 900.0)))
+    plain = pl.search_region(rig, pair, cfg)
+    first = pl.search_region(rig, pair, cfg, cached=True)
+    assert len(list(cache.glob("view-*.npz"))) == 1
+
+    def fail(*a, **k):
+        raise AssertionError("common_view computed again")
+
+    monkeypatch.setattr(pl, "common_view", fail)
+    second = pl.search_region(rig, pair, cfg, cached=True)
+    for got in (first, second):
+        assert np.array_equal(got.mask, plain.mask)
+        assert got.disparity_range == plain.disparity_range and got.depth_range == plain.depth_range
+    other = pl.validate_config(rig, DepthConfig(method="sad", depth_range=(300.0, 950.0)))
+    with pytest.raises(AssertionError, match="computed again"):
+        pl.search_region(rig, pair, other, cached=True)

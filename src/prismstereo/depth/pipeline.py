@@ -58,7 +58,16 @@ from prismstereo.depth.search_range import (
     rig_range,
     scene_coverage,
 )
-from prismstereo.depth.setup_cache import load_range, load_rays, load_setup, save_range, save_rays, save_setup
+from prismstereo.depth.setup_cache import (
+    load_range,
+    load_rays,
+    load_setup,
+    load_view,
+    save_range,
+    save_rays,
+    save_setup,
+    save_view,
+)
 from prismstereo.depth.smoothed import smoothed_config
 from prismstereo.depth.triangulation import TRIANGULATIONS, RayTable, ray_table, triangulate_matches
 from prismstereo.errors import ConfigError, GeometryError, ImageError
@@ -726,8 +735,23 @@ def rectify_capture(pair: RectifiedPair, image: np.ndarray) -> tuple[np.ndarray,
     return np.asarray(left), np.asarray(right)
 
 
+def _cached_common_view(rig: Rig, pair: RectifiedPair, config: DepthConfig, zmin: float, zmax: float
+                        ) -> tuple[np.ndarray, tuple[int, int]]:
+    """:func:`~prismstereo.rectify.common_view` of ``pair`` over ``zmin``..``zmax``, read from the set-up cache
+    (keyed by the set-up and the two depths' exact bits) or computed and stored there: the same arrays."""
+    faces = _pair_faces(config)
+    shape = (pair.size[1], pair.size[0])
+    depth = (float(zmin), float(zmax))
+    found = load_view(rig, faces, config.calibration, depth_mm=depth, shape=shape)
+    if found is None:
+        found = common_view(pair, zmin, zmax)
+        save_view(rig, faces, config.calibration, depth_mm=depth, region=found[0], disparity_px=found[1])
+    return found
+
+
 def search_region(rig: Rig, pair: RectifiedPair, config: DepthConfig, left: np.ndarray | None = None,
-                  right: np.ndarray | None = None, *, known: RigRange | None = None) -> SearchRegion:
+                  right: np.ndarray | None = None, *, known: RigRange | None = None,
+                  cached: bool = False) -> SearchRegion:
     """The pixels and disparities to search.
 
     With the configuration's depth range: its common view; without one, the range the rig allows,
@@ -735,6 +759,7 @@ def search_region(rig: Rig, pair: RectifiedPair, config: DepthConfig, left: np.n
     (:func:`~prismstereo.depth.search_range.auto_search_range`; a sequence passes none, since one frame's
     content says nothing of the next's). ``known``: the pair's rig-only range
     (:func:`~prismstereo.depth.search_range.rig_range`), if the caller has it: the same region, sooner.
+    ``cached``: read and store the common view in the set-up cache (:func:`_cached_common_view`).
 
     Raises
     ------
@@ -747,14 +772,15 @@ def search_region(rig: Rig, pair: RectifiedPair, config: DepthConfig, left: np.n
     if config.depth_range is None and left is not None and right is not None:
         found = auto_search_range(pair, rig.prism.back_distance, left, right, rig=known)
         zmin, zmax = found.depth_mm
-        common, _ = common_view(pair, zmin, zmax)
+        common, _ = _cached_common_view(rig, pair, config, zmin, zmax) if cached else common_view(pair, zmin, zmax)
         lo, hi = found.disparity_px
         source, warnings = found.source, tuple(found.warnings)
     else:
         source = "given" if config.depth_range is not None else "rig"
         if config.depth_range is not None:
             zmin, zmax = config.depth_range
-            common, (lo, hi) = common_view(pair, zmin, zmax)
+            common, (lo, hi) = (_cached_common_view(rig, pair, config, zmin, zmax) if cached
+                                else common_view(pair, zmin, zmax))
         else:
             everything = known if known is not None else rig_range(pair, rig.prism.back_distance)
             (zmin, zmax), common, (lo, hi) = everything.depth_mm, everything.region, everything.disparity_px
@@ -1124,7 +1150,7 @@ def run_depth(rig: Rig, image: Any, *, config: DepthConfig | None = None,
     views, pair, epipolar, rays, known = _geometry(rig, cfg, clock)
     with clock.step("rectify"):
         left, right = rectify_capture(pair, img)
-        region = search_region(rig, pair, cfg, left, right, known=known)
+        region = search_region(rig, pair, cfg, left, right, known=known, cached=True)
     setup = DepthSetup(rig=rig, config=cfg, views=views, pair=pair, region=region, epipolar=epipolar,
                        rays=rays, rig_range=known, timings={"validate": validated, **clock.timings})
     return _run_frame(setup, img, left, right, clock, t0)

@@ -49,7 +49,8 @@ from prismstereo.rectify.epipolar import EpipolarTable
 log = logging.getLogger(__name__)
 T = TypeVar("T")
 
-__all__ = ["cache_folder", "load_range", "load_rays", "load_setup", "save_range", "save_rays", "save_setup",
+__all__ = ["cache_folder", "load_range", "load_rays", "load_setup", "load_view", "save_range", "save_rays",
+           "save_setup", "save_view",
            "setup_key"]
 
 _OFF = {"0", "off", "no", "false"}
@@ -184,6 +185,41 @@ def save_range(rig: Rig, faces: tuple[int, int], calibration: str, found: RigRan
     return None if path is None else _write(path, found.to_arrays())
 
 
+def _view_path(rig: Rig, faces: tuple[int, int], calibration: str, depth_mm: tuple[float, float]) -> Path | None:
+    """The ``view-*.npz`` entry of a set-up and a depth range (the two depths' exact float64 bits)."""
+    folder = cache_folder()
+    if folder is None:
+        return None
+    bits = np.asarray(depth_mm, dtype=np.float64).tobytes().hex()
+    return folder / f"view-{setup_key(rig, faces, calibration)}-{bits}.npz"
+
+
+def load_view(rig: Rig, faces: tuple[int, int], calibration: str, *, depth_mm: tuple[float, float],
+              shape: tuple[int, int]) -> tuple[np.ndarray, tuple[int, int]] | None:
+    """The cached :func:`~prismstereo.rectify.common_view` of a set-up over ``depth_mm`` (region of ``shape``
+    (h, w), disparity pair), or None (no entry, unreadable, another shape, disabled)."""
+    path = _view_path(rig, faces, calibration, depth_mm)
+    if path is None or not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            region, pair = np.asarray(z["region"], dtype=bool), z["disparity_px"]
+            if region.shape != tuple(shape) or pair.shape != (2,):
+                raise ValueError(f"of shape {region.shape}, expected {tuple(shape)}")
+            return region, (int(pair[0]), int(pair[1]))
+    except (OSError, ValueError, KeyError, TypeError, IndexError, EOFError, zipfile.BadZipFile) as exc:
+        log.info("common view cache entry %s unreadable (%s): computing it again", path, exc)
+        return None
+
+
+def save_view(rig: Rig, faces: tuple[int, int], calibration: str, *, depth_mm: tuple[float, float],
+              region: np.ndarray, disparity_px: tuple[int, int]) -> Path | None:
+    """Store a set-up's common view over ``depth_mm`` (best effort, as :func:`save_setup`)."""
+    path = _view_path(rig, faces, calibration, depth_mm)
+    return None if path is None else _write(path, {"region": np.asarray(region, dtype=bool),
+                                                   "disparity_px": np.asarray(disparity_px, dtype=np.int64)})
+
+
 def _load_entry(path: Path | None, from_arrays: Callable[[dict[str, np.ndarray]], T],
                 shape_of: Callable[[T], tuple[int, ...]], *, shape: tuple[int, int], what: str) -> T | None:
     """An entry read back with ``from_arrays``, or None (no entry, unreadable, of another shape, disabled)."""
@@ -227,7 +263,7 @@ def _prune(folder: Path) -> None:
     """Keep the :data:`MAX_ENTRIES` most recently written entries (each edit of the geometry code or rig makes
     a new key; the old files would otherwise stay)."""
     try:
-        for kind in ("setup", "rays", "range"):
+        for kind in ("setup", "rays", "range", "view"):
             entries = sorted(folder.glob(f"{kind}-*.npz"), key=lambda p: p.stat().st_mtime, reverse=True)
             for old in entries[MAX_ENTRIES:]:
                 old.unlink()
