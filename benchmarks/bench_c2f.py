@@ -4,11 +4,13 @@ For every scene of v2 (``../shared/data/middlebury``), the validation scenes (``
 Middlebury 2014 Q (``middlebury-2014``), each method runs twice on the scene's own range: the full search
 (``scale=None``, the matcher called once) and :func:`~prismstereo.matching.scale.match_scaled` with
 ``coarse_to_fine="on"`` (the images are below the automatic size, so it is forced) and 96 px tiles (``--tile``;
-the default 256 would give these small images only 2-4 tiles). Printed per data set:
+the default 256 would give these small images only 2-4 tiles) and ``--band`` (``segment``: a band per row segment
+for the matchers that take one, ``tile``: one per tile). Printed per data set:
 bad > 1 px nonocc (%), the median absolute disparity error over nonocc (px), coverage (cross-checked pixels
 over nonocc, %) and the seconds of each, and the averages; with ``--json`` the table as JSON.
 
     PYTHONPATH=src NUMBA_CACHE_DIR=.numba_cache .venv/bin/python benchmarks/bench_c2f.py --methods sgm,bpasw
+    ... --methods bpasw --band tile        # the band per tile (before stop 38)
 """
 
 from __future__ import annotations
@@ -49,9 +51,11 @@ def main() -> int:
     ap.add_argument("--json", default=None)
     ap.add_argument("--factor", type=int, default=2)
     ap.add_argument("--tile", type=int, default=96, help="core tile side (default 96: several tiles per scene)")
+    ap.add_argument("--band", default="segment", choices=("segment", "tile"),
+                    help="ScaleParams.band: a band per row segment (default) or per tile")
     args = ap.parse_args()
-    out: dict[str, object] = {"loadavg": open("/proc/loadavg").read().split()[:3]}
-    scale = ScaleParams(coarse_to_fine="on", factor=args.factor, tile=args.tile)
+    out: dict[str, object] = {"loadavg": open("/proc/loadavg").read().split()[:3], "band": args.band}
+    scale = ScaleParams(coarse_to_fine="on", factor=args.factor, tile=args.tile, band=args.band)
     for method in args.methods.split(","):
         for group in args.sets.split(","):
             root = Path(args.data) / SETS[group]

@@ -103,6 +103,21 @@ class ScaleParams:
     min_valid : float
         Fraction of the region's coarse pixels that must have passed the coarse left–right check; below
         it the tile searches the whole range (the coarse map is not trusted there).
+    band : {"segment", "tile"}
+        ``segment``: a matcher that searches a band per row segment (``supports_band``, e.g. ``bpasw``) gets,
+        for every ``segment`` columns of a row, the coarse map's min…max over ``band_radius`` full-resolution
+        pixels around them (± ``margin``; the tile's band where fewer than ``min_valid`` of those coarse pixels
+        passed the coarse check), and only the tile's core dilated by ``band_context`` pixels is matched
+        (the rest of the context is read by the windows, not matched); ``tile``: one band per tile.
+    band_radius, segment, band_context : int
+        See ``band`` (full-resolution pixels).
+    band_tile_cols : int
+        Width of a core tile with ``band="segment"`` (``tile`` rows high; narrower where the budget asks): the
+        tiles' context, which every tile's weights and costs cover again, is then above and below only.
+    band_pixels : int
+        With ``band="segment"`` and a matcher that takes it, a coarse level of at least this many pixels (and
+        ``auto_range`` disparities) is itself coarse-to-fine (its bands from a coarser level), whatever ``auto``
+        decides for its size.
     max_memory : int or None
         Peak-memory budget of the process in bytes (what it holds, ``held``, and the match); None:
         :func:`default_memory_budget`.
@@ -120,6 +135,12 @@ class ScaleParams:
     tile: int = 256
     overlap: int = 32
     min_valid: float = 0.25
+    band: str = "segment"
+    band_radius: int = 16
+    segment: int = 32
+    band_context: int = 16
+    band_pixels: int = 250_000
+    band_tile_cols: int = 2048
     max_memory: int | None = None
     held: int | None = None
 
@@ -132,6 +153,13 @@ class ScaleParams:
         if self.auto_pixels < 0 or self.auto_range < 0 or self.auto_bytes < 0 or not 0.0 <= self.min_valid <= 1.0:
             raise ConfigError(f"expected auto_pixels >= 0, auto_range >= 0, auto_bytes >= 0 and 0 <= min_valid <= 1, "
                               f"got {self.auto_pixels}, {self.auto_range}, {self.auto_bytes}, {self.min_valid}")
+        if self.band not in ("segment", "tile"):
+            raise ConfigError(f"expected band 'segment' or 'tile', got {self.band!r}")
+        if (self.band_radius < 0 or self.segment < 1 or self.band_context < 0 or self.band_pixels < 0
+                or self.band_tile_cols < 16):
+            raise ConfigError(f"expected band_radius >= 0, segment >= 1, band_context >= 0, band_pixels >= 0 and "
+                              f"band_tile_cols >= 16, got {self.band_radius}, {self.segment}, {self.band_context}, "
+                              f"{self.band_pixels}, {self.band_tile_cols}")
         if self.max_memory is not None and self.max_memory <= 0:
             raise ConfigError(f"expected max_memory > 0 bytes (or None for the machine's), got {self.max_memory}")
         if self.held is not None and self.held < 0:
@@ -248,22 +276,132 @@ def _tile_estimate(method: str, t: _Tile, h: int, w: int, overlap: int) -> int:
     return estimate_memory(method, rows, max(b - a, 1), t.hi - t.lo + 1, base=False)
 
 
-def _run_tiles(matcher: Matcher, left: np.ndarray, right: np.ndarray, tiles: list[_Tile],
-               overlap: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, dict[str, float]]:
+@dataclass(frozen=True)
+class _PixelBand:
+    """Full-resolution disparity band per pixel from the coarse map (:func:`_pixel_bands`)."""
+
+    lo: np.ndarray  # (h, w) int32, inclusive
+    hi: np.ndarray  # (h, w) int32, inclusive
+    local: np.ndarray  # (h, w) bool: from the ``band_radius`` window (else the tile-sized one, or the range)
+
+
+def _window_band(cd: np.ndarray, cv: np.ndarray, r: int, min_valid: float) -> tuple[np.ndarray, np.ndarray,
+                                                                                      np.ndarray]:
+    """min and max of the finite coarse disparities within ``r`` coarse pixels, and where at least ``min_valid``
+    of those coarse pixels passed the coarse check (and one is finite)."""
+    k = 2 * r + 1
+    finite = np.isfinite(cd)
+    big = np.float32(1e9)
+    kernel = np.ones((k, k), np.uint8)
+    cmin = cv2.erode(np.where(finite, cd, big).astype(np.float32), kernel, borderType=cv2.BORDER_REPLICATE)
+    cmax = cv2.dilate(np.where(finite, cd, -big).astype(np.float32), kernel, borderType=cv2.BORDER_REPLICATE)
+    ok = np.asarray(cv, dtype=np.float32)
+    n_ok = cv2.boxFilter(ok, -1, (k, k), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    n_all = cv2.boxFilter(np.ones_like(ok), -1, (k, k), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    trusted = (n_ok >= min_valid * n_all - 1e-3) & (cmin < big / 2) & (n_ok > 0)
+    return cmin, cmax, trusted
+
+
+def _pixel_bands(coarse: MatchResult, f: int, h: int, w: int, lo: int, hi: int, p: ScaleParams) -> _PixelBand:
+    """Per full-resolution pixel: the coarse map's min…max (× ``f``, ± ``p.margin``, within ``[lo, hi]``) over
+    the coarse pixels within ``p.band_radius`` full-resolution pixels; where fewer than ``p.min_valid`` of them
+    passed the coarse left–right check, the same over a tile's region (``p.tile / 2 + p.overlap``: what one band
+    per tile would search), and where that is not trusted either, the whole range."""
+    cd = np.asarray(coarse.disparity, dtype=np.float32)
+    cv = np.asarray(coarse.valid, dtype=bool)
+    ch, cw = cd.shape
+    n1, x1, t1 = _window_band(cd, cv, -(-p.band_radius // f), p.min_valid)
+    n2, x2, t2 = _window_band(cd, cv, -(-(p.tile // 2 + p.overlap) // f), p.min_valid)
+    cmin = np.where(t1, n1, np.where(t2, n2, np.float32(lo) / f))
+    cmax = np.where(t1, x1, np.where(t2, x2, np.float32(hi) / f))
+    wide = ~t1 & ~t2
+    c_lo = np.clip(np.where(wide, lo, np.floor(cmin * f) - p.margin), lo, hi).astype(np.int32)
+    c_hi = np.clip(np.where(wide, hi, np.ceil(cmax * f) + p.margin), lo, hi).astype(np.int32)
+    rows = np.minimum(np.arange(h) // f, ch - 1)
+    cols = np.minimum(np.arange(w) // f, cw - 1)
+    ix = np.ix_(rows, cols)
+    return _PixelBand(lo=c_lo[ix], hi=c_hi[ix], local=t1[ix])
+
+
+def _segment_band(t: _Tile, pb: _PixelBand, h: int, w: int, p: ScaleParams) -> tuple[_Tile, np.ndarray | None]:
+    """Tile ``t`` with its band narrowed to the union of its pixels' (the core dilated by ``p.band_context``), and
+    the slice band per row segment of its crop (:func:`_crop_cols`; ``(rows, segments, 2)`` inclusive); None
+    where no pixel of the crop is matched.
+
+    The dilated core's pixels search their own band. So that the right view's winners (the left–right check)
+    see every candidate they would see with one band per tile, a crop pixel left or right of it searches the
+    part of its band that lands on a right pixel the dilated core's bands reach (``x - d`` within the row's
+    ``[min(x - hi), max(x - lo)]`` over the dilated core); rows outside the dilated core search nothing."""
+    ctx = min(p.band_context, p.overlap)  # within the crop
+    ry0, ry1 = max(t.y0 - ctx, 0), min(t.y1 + ctx, h)
+    rx0, rx1 = max(t.x0 - ctx, 0), min(t.x1 + ctx, w)
+
+    def bands(c0: int, c1: int, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
+        region = (slice(ry0, ry1), slice(c0, c1))
+        return np.maximum(pb.lo[region], lo), np.minimum(pb.hi[region], hi)
+
+    ilo, ihi = bands(rx0, rx1, t.lo, t.hi)
+    t2 = dataclasses.replace(t, lo=int(ilo.min()), hi=int(ihi.max()))
+    a, b = _crop_cols(t2, w, p.overlap)
+    ya, yb = max(t2.y0 - p.overlap, 0), min(t2.y1 + p.overlap, h)
+    if b <= a or min(rx1, b) <= max(rx0, a):
+        return t2, None
+    plo, phi = bands(a, b, t2.lo, t2.hi)
+    xs = np.arange(a, b)[None, :]
+    inner = (xs >= rx0) & (xs < rx1)
+    big = np.int64(2**40)
+    r_min = np.where(inner, xs - phi, big).min(axis=1, keepdims=True)
+    r_max = np.where(inner, xs - plo, -big).max(axis=1, keepdims=True)
+    plo = np.where(xs >= rx1, np.maximum(plo, xs - r_max), plo)
+    phi = np.where(xs < rx0, np.minimum(phi, xs - r_min), phi)
+    seg = p.segment
+    nseg = -(-(b - a) // seg)
+    clo = np.full((yb - ya, nseg * seg), big, np.int64)
+    chi = np.full((yb - ya, nseg * seg), -big, np.int64)
+    keep = plo <= phi
+    clo[ry0 - ya:ry1 - ya, :b - a] = np.where(keep, plo - t2.lo, big)
+    chi[ry0 - ya:ry1 - ya, :b - a] = np.where(keep, phi - t2.lo, -big)
+    nd = min(t2.hi - t2.lo, b - a - 1)
+    bounds = np.empty((yb - ya, nseg, 2), np.int64)
+    bounds[:, :, 0] = clo.reshape(yb - ya, nseg, seg).min(axis=2)
+    bounds[:, :, 1] = np.minimum(chi.reshape(yb - ya, nseg, seg).max(axis=2), nd)
+    empty = bounds[:, :, 0] > bounds[:, :, 1]
+    bounds[empty] = (1, 0)
+    return t2, bounds
+
+
+def _run_tiles(matcher: Matcher, left: np.ndarray, right: np.ndarray, tiles: list[_Tile], overlap: int,
+               pixel_band: _PixelBand | None = None, p: ScaleParams | None = None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, dict[str, float], list[_Tile], int]:
+    """Match every tile and stitch the cores; with ``pixel_band`` (and ``p``) each tile searches its band per
+    row segment (:func:`_segment_band`). Returns the maps, the summed timings, the tiles as run and the
+    pixel·disparities searched (the crops' with one band per tile)."""
     h, w = left.shape[:2]
     disp = np.full((h, w), np.nan, dtype=np.float32)
     raw: np.ndarray | None = None
     valid = np.zeros((h, w), dtype=bool)
     timings: dict[str, float] = {}
+    ran: list[_Tile] = []
+    searched = 0
     for t in tiles:
+        kw: dict[str, Any] = {}
+        if pixel_band is not None and p is not None:
+            t, bounds = _segment_band(t, pixel_band, h, w, p)
+            if bounds is None:
+                continue
+            from prismstereo.matching.local.aggregation import SegmentBand
+
+            kw["band"] = SegmentBand(bounds=bounds, segment=p.segment)
+        ran.append(t)
         a, b = _crop_cols(t, w, overlap)
         if b <= a or t.x1 <= a:
             continue
         ya, yb = max(t.y0 - overlap, 0), min(t.y1 + overlap, h)
+        searched += kw["band"].pixels(yb - ya, b - a) if kw else (yb - ya) * (b - a) * (t.hi - t.lo + 1)
         lt = np.ascontiguousarray(left[ya:yb, a:b])
         rt = np.ascontiguousarray(right[ya:yb, a - t.lo:b - t.lo])
         nd = min(t.hi - t.lo, b - a - 1)
-        res = matcher.compute(lt, rt, max_disp=nd, min_disp=0)
+        res = matcher.compute(lt, rt, max_disp=nd, min_disp=0, **kw)
         for k, v in res.timings.items():
             timings[k] = timings.get(k, 0.0) + float(v)
         cx0 = max(t.x0, a)
@@ -277,7 +415,7 @@ def _run_tiles(matcher: Matcher, left: np.ndarray, right: np.ndarray, tiles: lis
         elif raw is not None:
             raw[t.y0:t.y1, cx0:t.x1] = np.where(res.valid[sy, sx], res.disparity[sy, sx] + np.float32(t.lo),
                                                 np.nan)
-    return disp, valid, raw, timings
+    return disp, valid, raw, timings, ran, searched
 
 
 def _strip_tiles(method: str, h: int, w: int, lo: int, hi: int, budget: int, overlap: int,
@@ -303,8 +441,8 @@ def _strip_tiles(method: str, h: int, w: int, lo: int, hi: int, budget: int, ove
 
 
 def _band_tiles(method: str, coarse: MatchResult, f: int, h: int, w: int, lo: int, hi: int, p: ScaleParams,
-                budget: int) -> list[_Tile]:
-    """Tiles of side ``p.tile`` (smaller where the budget asks) with their coarse band."""
+                budget: int, cols: int | None = None) -> list[_Tile]:
+    """Tiles of side ``p.tile`` (``cols`` wide if given; smaller where the budget asks) with their coarse band."""
     cd = coarse.disparity
     cv = coarse.valid
     ch, cw = cd.shape
@@ -323,7 +461,7 @@ def _band_tiles(method: str, coarse: MatchResult, f: int, h: int, w: int, lo: in
         return _Tile(y0, y1, x0, x1, min(t_lo, t_hi), t_hi, False)
 
     out: list[_Tile] = []
-    stack = [(y0, y1, x0, x1) for y0, y1 in _grid(h, p.tile) for x0, x1 in _grid(w, p.tile)]
+    stack = [(y0, y1, x0, x1) for y0, y1 in _grid(h, p.tile) for x0, x1 in _grid(w, cols or p.tile)]
     while stack:
         y0, y1, x0, x1 = stack.pop()
         t = band(y0, y1, x0, x1)
@@ -424,9 +562,11 @@ def match_scaled(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp
     -------
     MatchResult
         As the matcher's, with ``extras["scale"]``: whether coarse-to-fine ran (``coarse_to_fine``), the
-        levels, tiles, mean band, tiles that fell back to the whole range, the memory estimate and budget
-        (bytes). The matcher's own extras are kept only for an untiled run. ``timings`` adds ``coarse``
-        (seconds of the coarse levels) to the matcher's stages summed over the tiles.
+        levels, tiles, mean band (of the tiles as run), tiles that fell back to the whole range, the memory
+        estimate and budget (bytes), ``band`` (``segment`` or ``tile``, as run) and ``searched_per_pixel``
+        (pixel·disparities the full resolution's tiles searched, over its pixels). The matcher's own extras
+        are kept only for an untiled run. ``timings`` adds ``coarse`` (seconds of the coarse levels) to the
+        matcher's stages summed over the tiles.
 
     Raises
     ------
@@ -442,6 +582,11 @@ def match_scaled(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp
     nd = hi - lo + 1
     est_full = p.base + estimate_memory(method, h, w, nd, base=False)
     c2f = _use_c2f(p, h, w, nd, est_full > budget, method, _level == 0)
+    banded = p.band == "segment" and bool(getattr(matcher, "supports_band", False))
+    if banded and _level > 0 and not c2f and p.coarse_to_fine != "off" and h * w >= p.band_pixels:
+        # a coarse level of a banded matcher: its own bands cost less than its full search
+        c2f = _use_c2f(dataclasses.replace(p, coarse_to_fine="on"), h, w, nd, False, method, False) \
+            and nd >= p.auto_range
     info: dict[str, Any] = {"coarse_to_fine": c2f, "mode": p.coarse_to_fine, "levels": _level + 1,
                             "estimate_bytes": est_full, "budget_bytes": int(budget), "tiles": 1,
                             "band_mean": float(nd), "full_range_tiles": 0}
@@ -453,10 +598,12 @@ def match_scaled(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp
             res = matcher.compute(left, right, max_disp=hi, min_disp=lo)
             return dataclasses.replace(res, extras={**res.extras, "scale": info})
         tiles = _strip_tiles(method, h, w, lo, hi, budget, p.overlap, p.base)
+        pixel_band: _PixelBand | None = None
         coarse_s = 0.0
         coarse_est = 0
     else:
         f = p.factor
+        pixel_band = None
         t0 = time.perf_counter()
         cl, cr = _downsample(left, f), _downsample(right, f)
         clo, chi = _coarse_range(lo, hi, f, cl.shape[1])
@@ -469,7 +616,10 @@ def match_scaled(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp
         info["levels"] = int(coarse.extras.get("scale", {}).get("levels", _level + 2))
         # the coarse levels ran first, in the same process: the run's peak is the larger of theirs and the tiles'
         coarse_est = int(coarse.extras.get("scale", {}).get("estimate_bytes", 0))
-        tiles = _band_tiles(method, coarse, f, h, w, lo, hi, p, budget)
+        # a banded matcher's tiles are wide: their weights and costs are computed once per row, not per tile
+        tiles = _band_tiles(method, coarse, f, h, w, lo, hi, p, budget, p.band_tile_cols if banded else None)
+        if banded:
+            pixel_band = _pixel_bands(coarse, f, h, w, lo, hi, p)
         del coarse
     est = max(coarse_est, p.base + int(_STITCH_PER_PIXEL * h * w) + max(_tile_estimate(method, t, h, w, p.overlap)
                                                                         for t in tiles))
@@ -477,11 +627,13 @@ def match_scaled(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp
         log.info("match %s %d×%d, %d disparities: %s, %d tiles, peak memory estimate %.2f GiB (budget %.2f "
                  "GiB; untiled full search %.2f GiB)", method, w, h, nd,
                  "coarse-to-fine" if c2f else "strips", len(tiles), est / 2**30, budget / 2**30, est_full / 2**30)
-    disp, valid, raw, timings = _run_tiles(matcher, left, right, tiles, p.overlap)
+    disp, valid, raw, timings, tiles, searched = _run_tiles(matcher, left, right, tiles, p.overlap, pixel_band, p)
     timings["coarse"] = coarse_s
     areas = np.array([(t.y1 - t.y0) * (t.x1 - t.x0) for t in tiles], dtype=np.float64)
     bands = np.array([t.hi - t.lo + 1 for t in tiles], dtype=np.float64)
     info.update({"tiles": len(tiles), "estimate_bytes": est,
                  "band_mean": round(float((areas * bands).sum() / areas.sum()), 2),
-                 "full_range_tiles": int(sum(t.full for t in tiles)) if c2f else 0})
+                 "full_range_tiles": int(sum(t.full for t in tiles)) if c2f else 0,
+                 "band": p.band if pixel_band is not None else "tile",
+                 "searched_per_pixel": round(searched / max(h * w, 1), 2)})
     return MatchResult(disparity=disp, valid=valid, disparity_raw=raw, timings=timings, extras={"scale": info})

@@ -36,6 +36,7 @@ computed once per row and reused for all disparities.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Literal
 
 import cv2
@@ -45,7 +46,52 @@ from numba import njit, prange
 
 from prismstereo.errors import MatchingError
 
-__all__ = ["aggregate_box", "aggregate_bpasw", "to_lab", "weber_fechner_weight", "window_offsets"]
+__all__ = ["SegmentBand", "aggregate_box", "aggregate_bpasw", "to_lab", "weber_fechner_weight", "window_offsets"]
+
+
+@dataclass(frozen=True, eq=False)
+class SegmentBand:
+    """The slices a banded aggregation computes: per row and per ``segment`` columns, one inclusive range.
+
+    Attributes
+    ----------
+    bounds : ndarray, int64, (H, ceil(W / segment), 2)
+        ``bounds[y, s] = (lo, hi)``: slices ``lo..hi`` of the cost volume are computed for the pixels of row ``y``,
+        columns ``[s·segment, (s + 1)·segment)``; ``lo > hi``: none.
+    segment : int
+        Columns per segment.
+    """
+
+    bounds: np.ndarray
+    segment: int
+
+    def __post_init__(self) -> None:
+        b = np.asarray(self.bounds)
+        if b.ndim != 3 or b.shape[2] != 2 or self.segment < 1:
+            raise MatchingError(f"expected bounds of shape (H, segments, 2) and segment >= 1, got shape {b.shape} "
+                                f"and segment {self.segment}")
+
+    def check(self, height: int, width: int) -> np.ndarray:
+        """The bounds as contiguous int64 for an ``height × width`` volume (MatchingError when they do not fit)."""
+        b = np.ascontiguousarray(self.bounds, dtype=np.int64)
+        if b.shape[0] != height or b.shape[1] != -(-width // self.segment):
+            raise MatchingError(f"expected band bounds for {height} rows and {-(-width // self.segment)} segments "
+                                f"of {self.segment} columns, got shape {b.shape}")
+        return b
+
+    def mask(self, height: int, width: int) -> np.ndarray:
+        """Pixels whose band holds at least one slice, bool ``(H, W)``."""
+        b = self.check(height, width)
+        busy = b[:, :, 0] <= b[:, :, 1]
+        return np.repeat(busy, self.segment, axis=1)[:, :width]
+
+    def pixels(self, height: int, width: int) -> int:
+        """Pixel·slices inside the band."""
+        b = self.check(height, width)
+        n = np.maximum(b[:, :, 1] - b[:, :, 0] + 1, 0)
+        widths = np.full(b.shape[1], self.segment, np.int64)
+        widths[-1] = width - self.segment * (b.shape[1] - 1)
+        return int((n * widths[None, :]).sum())
 
 
 def aggregate_box(cost: np.ndarray, *, radius: int) -> np.ndarray:
@@ -402,6 +448,185 @@ def _bpasw_symmetric_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarr
     return out
 
 
+# fused multiply-adds as in _accumulate_row, no reassociation
+@njit(cache=True, fastmath={"contract", "nnan", "ninf", "nsz", "arcp", "afn"}, nogil=True)
+def _accumulate_runs(num: np.ndarray, den: np.ndarray, wl: np.ndarray, wr: np.ndarray, ct: np.ndarray, y: int,
+                     dys: np.ndarray, dxs: np.ndarray, min_disp: int, pad: int, run_lo: np.ndarray,
+                     run_hi: np.ndarray, nruns: np.ndarray) -> None:  # pragma: no cover - numba
+    """:func:`_accumulate_row` on the columns of each disparity's runs only (``[run_lo[i, r], run_hi[i, r])`` for
+    ``r < nruns[i]``): every sum it computes adds the same terms in the same order, so it equals
+    :func:`_accumulate_row`'s bit for bit; the others are left as they are."""
+    h = ct.shape[0]
+    nd = ct.shape[1]
+    w = ct.shape[2] - 2 * pad
+    nk = dys.shape[0]
+    k = 0
+    while k < nk:
+        qy = y + dys[k]
+        n = 1
+        while n < 4 and k + n < nk and dys[k + n] == dys[k]:
+            n += 1
+        if qy < 0 or qy >= h:
+            k += n
+            continue
+        for i in range(nd):
+            if nruns[i] == 0:
+                continue
+            d = min_disp + i
+            cr = ct[qy, i]
+            if n == 4:
+                for r in range(nruns[i]):
+                    lo = max(max(0, d), run_lo[i, r])
+                    hi = min(min(w, w + d), run_hi[i, r])
+                    if hi <= lo:
+                        continue
+                    ns = num[i, lo:hi]
+                    ds = den[i, lo:hi]
+                    o = lo + pad
+                    a0, b0, c0 = wl[k, lo:hi], wr[k, lo - d:hi - d], cr[o + dxs[k]:o + dxs[k] + hi - lo]
+                    a1, b1, c1 = (wl[k + 1, lo:hi], wr[k + 1, lo - d:hi - d],
+                                  cr[o + dxs[k + 1]:o + dxs[k + 1] + hi - lo])
+                    a2, b2, c2 = (wl[k + 2, lo:hi], wr[k + 2, lo - d:hi - d],
+                                  cr[o + dxs[k + 2]:o + dxs[k + 2] + hi - lo])
+                    a3, b3, c3 = (wl[k + 3, lo:hi], wr[k + 3, lo - d:hi - d],
+                                  cr[o + dxs[k + 3]:o + dxs[k + 3] + hi - lo])
+                    for j in range(hi - lo):
+                        nn = ns[j]
+                        dd = ds[j]
+                        ww = a0[j] * b0[j]
+                        nn += ww * c0[j]
+                        dd += ww
+                        ww = a1[j] * b1[j]
+                        nn += ww * c1[j]
+                        dd += ww
+                        ww = a2[j] * b2[j]
+                        nn += ww * c2[j]
+                        dd += ww
+                        ww = a3[j] * b3[j]
+                        nn += ww * c3[j]
+                        dd += ww
+                        ns[j] = nn
+                        ds[j] = dd
+                continue
+            for kk in range(k, k + n):
+                dx = dxs[kk]
+                for r in range(nruns[i]):
+                    lo = max(max(max(0, -dx), d), run_lo[i, r])
+                    hi = min(min(min(w, w - dx), w + d), run_hi[i, r])
+                    if hi <= lo:
+                        continue
+                    wls = wl[kk, lo:hi]
+                    wrs = wr[kk, lo - d:hi - d]
+                    cs = cr[lo + dx + pad:hi + dx + pad]
+                    ns = num[i, lo:hi]
+                    ds = den[i, lo:hi]
+                    for j in range(hi - lo):
+                        ww = wls[j] * wrs[j]
+                        ns[j] += ww * cs[j]
+                        ds[j] += ww
+        k += n
+
+
+@njit(cache=True, nogil=True)
+def _row_runs(band: np.ndarray, y: int, seg: int, w: int, run_lo: np.ndarray, run_hi: np.ndarray,
+              nruns: np.ndarray) -> int:  # pragma: no cover - numba
+    """Row ``y``'s runs of consecutive segments whose band holds slice ``i``, per slice (into the three arrays);
+    returns how many slices have at least one."""
+    nseg = band.shape[1]
+    nd = nruns.shape[0]
+    busy = 0
+    for i in range(nd):
+        nr = 0
+        open_ = False
+        for s in range(nseg):
+            inside = band[y, s, 0] <= i <= band[y, s, 1]
+            if inside and not open_:
+                run_lo[i, nr] = s * seg
+                open_ = True
+            elif not inside and open_:
+                run_hi[i, nr] = s * seg
+                nr += 1
+                open_ = False
+        if open_:
+            run_hi[i, nr] = w
+            nr += 1
+        nruns[i] = nr
+        if nr > 0:
+            busy += 1
+    return busy
+
+
+@njit(cache=True, parallel=True, fastmath=True, nogil=True)
+def _bpasw_banded_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, lab3_l: np.ndarray,
+                         lab3_r: np.ndarray, dys: np.ndarray, dxs: np.ndarray, prox: np.ndarray, min_disp: int,
+                         kernel: int, s0: float, s_min: float, mirror: np.ndarray, nbands: int,
+                         ct: np.ndarray, pad: int, band: np.ndarray, seg: int, y_a: int,
+                         y_b: int) -> np.ndarray:  # pragma: no cover - numba
+    """:func:`_bpasw_symmetric_kernel` inside a band of slices per row segment (``band[y, s] = (lo, hi)``,
+    inclusive slice indices, columns ``[s·seg, (s + 1)·seg)``; ``lo > hi``: none), on the rows ``[y_a, y_b)``
+    that hold one; every other entry is +inf. The entries inside equal :func:`_bpasw_symmetric_kernel`'s."""
+    h, w, nd = cost.shape
+    nk = dys.shape[0]
+    nseg = band.shape[1]
+    log_norm = 1.0 / np.log(s0 / s_min) if kernel == 0 else 1.0
+    out = np.full((h, w, nd), np.inf, dtype=np.float32)
+    nrows = _kept_rows(dys, mirror)
+    back = nrows - 1
+    rows = max(0, y_b - y_a)
+    band_rows = (rows + nbands - 1) // nbands
+    for bi in prange(nbands):
+        y0 = y_a + bi * band_rows
+        y1 = min(y_b, y0 + band_rows)
+        if y1 <= y0:
+            continue
+        tl = np.zeros((nrows, nk, w), dtype=np.float32)
+        tr = np.zeros((nrows, nk, w), dtype=np.float32)
+        wbuf = np.empty(w, dtype=np.float32)
+        for y in range(max(0, y0 - back), y0):
+            _weight_row(tl, y % nrows, lab_l, lab3_l, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min,
+                        log_norm, False, y < y0, wbuf)
+            _weight_row(tr, y % nrows, lab_r, lab3_r, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min,
+                        log_norm, False, y < y0, wbuf)
+        num = np.empty(nd, dtype=np.float32)
+        den = np.empty(nd, dtype=np.float32)
+        numr = np.empty((nd, w), dtype=np.float32)
+        denr = np.empty((nd, w), dtype=np.float32)
+        run_lo = np.empty((nd, nseg + 1), dtype=np.int64)
+        run_hi = np.empty((nd, nseg + 1), dtype=np.int64)
+        nruns = np.empty(nd, dtype=np.int64)
+        for y in range(y0, y1):
+            slot = y % nrows
+            _weight_row(tl, slot, lab_l, lab3_l, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min, log_norm,
+                        False, y < y0, wbuf)
+            _weight_row(tr, slot, lab_r, lab3_r, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min,
+                        log_norm, False, y < y0, wbuf)
+            if _row_runs(band, y, seg, w, run_lo, run_hi, nruns) == 0:
+                continue
+            numr[:] = 0.0
+            denr[:] = 0.0
+            _accumulate_runs(numr, denr, tl[slot], tr[slot], ct, y, dys, dxs, min_disp, pad, run_lo, run_hi, nruns)
+            for x in range(w):
+                s = x // seg
+                blo = max(band[y, s, 0], 0)
+                bhi = min(band[y, s, 1], nd - 1)
+                if blo > bhi:
+                    continue
+                # the whole pixel's quotients in _bpasw_symmetric_kernel's loop (the same vectorised division, so
+                # the same bits), then +inf outside the band
+                nvalid = min(nd, x - min_disp + 1)
+                for i in range(nd):
+                    num[i] = numr[i, x]
+                    den[i] = denr[i, x]
+                for i in range(nd):
+                    if i < nvalid and den[i] > 0.0:
+                        out[y, x, i] = num[i] / den[i]
+                    else:
+                        out[y, x, i] = cost[y, x, i]
+                out[y, x, :blo] = np.inf
+                out[y, x, bhi + 1:] = np.inf
+    return out
+
+
 @njit(cache=True, parallel=True, fastmath=True, nogil=True)
 def _bpasw_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, lab3_l: np.ndarray,
                   lab3_r: np.ndarray, dys: np.ndarray,
@@ -500,7 +725,8 @@ def aggregate_bpasw(cost: np.ndarray, left: np.ndarray, right: np.ndarray | None
                     kernel: Literal["weber", "exp"] = "weber", similarity_s0: float = 28.0,
                     similarity_s_min: float = 1.0, proximity_s0: float | None = None,
                     gamma_color: float = 7.0, gamma_proximity: float = 17.5,
-                    prior: np.ndarray | None = None, continuity_weight: float = 0.2) -> np.ndarray:
+                    prior: np.ndarray | None = None, continuity_weight: float = 0.2,
+                    band: SegmentBand | None = None) -> np.ndarray:
     """BPASW aggregation of a cost volume with symmetric adaptive support weights (thesis Eqs. 5.7–5.14).
 
     ``C(p, d) = Σ_q w_l(p, q) w_r(p̄, q̄) c(q, d) / Σ_q w_l(p, q) w_r(p̄, q̄)`` with ``p̄ = p - (d, 0)``,
@@ -532,6 +758,9 @@ def aggregate_bpasw(cost: np.ndarray, left: np.ndarray, right: np.ndarray | None
         A current disparity estimate (slice index, ``-1`` unknown) enabling the continuity law
         (Eqs. 5.9, 5.12): neighbours whose prior differs from the candidate by more than 1 px are
         weighted by ``continuity_weight``.
+    band : SegmentBand, optional
+        Compute only these slices (symmetric weights, no ``prior``); the others are +inf. The entries computed
+        equal those of the whole volume's aggregation.
 
     Returns
     -------
@@ -570,6 +799,19 @@ def aggregate_bpasw(cost: np.ndarray, left: np.ndarray, right: np.ndarray | None
     # planar Lab for the weights' vectorised rows
     lab3_l = np.ascontiguousarray(lab_l.transpose(2, 0, 1))
     lab3_r = np.ascontiguousarray(lab_r.transpose(2, 0, 1)) if symmetric else lab3_l
+    if band is not None:
+        if not symmetric or use_prior:
+            raise MatchingError("expected a band only with both images' weights and no continuity prior")
+        bounds = band.check(vol.shape[0], vol.shape[1])
+        busy = np.flatnonzero((bounds[:, :, 0] <= bounds[:, :, 1]).any(axis=1))
+        if busy.size == 0:
+            return np.full(vol.shape, np.inf, dtype=np.float32)
+        y_a, y_b = int(busy[0]), int(busy[-1]) + 1
+        nb = nt * max(1, min(4, (y_b - y_a) // (nt * (4 * radius + 4))))
+        pad = int(np.abs(dxs).max())
+        return _bpasw_banded_kernel(vol, lab_l, lab_r, lab3_l, lab3_r, dys, dxs, prox.astype(np.float64),
+                                    int(min_disp), kid, s0, s_min, _mirrors(dys, dxs), nb,
+                                    _disparity_major(vol, pad), pad, bounds, int(band.segment), y_a, y_b)
     if symmetric and not use_prior:
         pad = int(np.abs(dxs).max())
         return _bpasw_symmetric_kernel(vol, lab_l, lab_r, lab3_l, lab3_r, dys, dxs, prox.astype(np.float64),

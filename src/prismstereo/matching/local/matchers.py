@@ -15,7 +15,9 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 
 from prismstereo.checks import Range, check_fields, fail
+from prismstereo.errors import MatchingError
 from prismstereo.matching.local import aggregation, costs, selection
+from prismstereo.matching.local.aggregation import SegmentBand
 from prismstereo.matching.registry import MatchResult, register_matcher
 
 log = logging.getLogger(__name__)
@@ -61,13 +63,27 @@ class LocalMatcher:
     def __post_init__(self) -> None:
         check_fields(self, {"tolerance": (0.0, None), **self._RANGES}, positive=self._POSITIVE)
 
+    @property
+    def supports_band(self) -> bool:
+        """Whether :meth:`compute` takes a ``band`` (a search per row segment)."""
+        return False
+
     def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
                     min_disp: int) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def banded_cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int,
+                           band: SegmentBand) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
     def compute(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
-                min_disp: int = 0) -> MatchResult:
-        """Disparity of ``left`` (float32 H×W, NaN invalid) for ``min_disp <= d <= max_disp``."""
+                min_disp: int = 0, band: SegmentBand | None = None) -> MatchResult:
+        """Disparity of ``left`` (float32 H×W, NaN invalid) for ``min_disp <= d <= max_disp``.
+
+        ``band`` (where :attr:`supports_band`): only its slices are searched, per row segment; the pixels it
+        gives none are invalid, and the hole filling and final median run on the box of the others."""
+        if band is not None:
+            return self._compute_banded(left, right, max_disp=max_disp, min_disp=min_disp, band=band)
         timings: dict[str, float] = {}
         t = time.perf_counter()
         vol = self.cost_volume(left, right, max_disp=max_disp, min_disp=min_disp)
@@ -89,6 +105,43 @@ class LocalMatcher:
             dense = selection.fill_holes(raw, valid, image=left if self.weighted_median else None)
             if self.final_median and self.weighted_median and np.isfinite(dense).all():
                 dense = selection.weighted_median_filter(dense, left, radius=9)
+            timings["fill"] = time.perf_counter() - t
+            return MatchResult(dense, valid, raw, timings, extras)
+        return MatchResult(raw, valid, None, timings, extras)
+
+    def _compute_banded(self, left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int,
+                        band: SegmentBand) -> MatchResult:
+        """:meth:`compute` inside ``band``."""
+        if not self.supports_band:
+            raise MatchingError(f"expected no band for {type(self).__name__} (it searches every slice), got one")
+        h, w = left.shape[:2]
+        busy = band.mask(h, w)
+        timings: dict[str, float] = {}
+        t = time.perf_counter()
+        vol = self.banded_cost_volume(left, right, max_disp=max_disp, min_disp=min_disp, band=band)
+        timings["cost+aggregation"] = time.perf_counter() - t
+        t = time.perf_counter()
+        disp = selection.winner_take_all(vol, min_disp=min_disp)
+        if self.cross_check:
+            disp_r = selection.right_disparity(vol, min_disp=min_disp)
+            valid = selection.cross_check(disp, disp_r, tolerance=self.tolerance) & busy
+        else:
+            valid = busy.copy()
+        if self.subpixel:
+            disp = selection.subpixel_refine(vol, disp, min_disp=min_disp)
+        timings["selection"] = time.perf_counter() - t
+        raw = np.where(valid, disp, np.float32(np.nan)).astype(np.float32)
+        extras: dict[str, object] = {"cost": vol} if self.keep_cost else {}
+        rows, cols = np.flatnonzero(busy.any(axis=1)), np.flatnonzero(busy.any(axis=0))
+        if self.fill and self.cross_check and rows.size and not valid[busy].all():
+            t = time.perf_counter()
+            box = (slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1))
+            img = left[box] if self.weighted_median else None
+            sub = selection.fill_holes(raw[box], valid[box], image=img, median_where=busy[box])
+            if self.final_median and self.weighted_median and np.isfinite(sub).all():
+                sub = selection.weighted_median_filter(sub, left[box], mask=busy[box], radius=9)
+            dense = np.full((h, w), np.float32(np.nan), dtype=np.float32)
+            dense[box] = sub
             timings["fill"] = time.perf_counter() - t
             return MatchResult(dense, valid, raw, timings, extras)
         return MatchResult(raw, valid, None, timings, extras)
@@ -216,6 +269,20 @@ class BPASWMatcher(LocalMatcher):
         return costs.cost_s_ad_census(left, right, max_disp=max_disp, min_disp=min_disp, omega=self.omega,
                                       tau_color=self.tau_color, tau_gradient=self.tau_gradient,
                                       census_weight=self.census_weight)
+
+    @property
+    def supports_band(self) -> bool:
+        """A band per row segment (not with the continuity pass, which reads every slice's winner)."""
+        return not self.continuity
+
+    def banded_cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int,
+                           band: SegmentBand) -> np.ndarray:
+        """:meth:`cost_volume`'s entries inside ``band`` (the same values), +inf outside."""
+        vol = self.pixel_cost(left, right, max_disp=max_disp, min_disp=min_disp)
+        return aggregation.aggregate_bpasw(vol, left, right, radius=self.radius, dilation=self.dilation,
+                                           min_disp=min_disp, kernel=self.kernel, similarity_s0=self.similarity_s0,
+                                           gamma_color=self.gamma_color, gamma_proximity=self.gamma_proximity,
+                                           band=band)
 
     def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
                     min_disp: int) -> np.ndarray:

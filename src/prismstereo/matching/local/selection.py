@@ -162,7 +162,7 @@ def subpixel_refine(cost: np.ndarray, disp: np.ndarray, *, min_disp: int = 0) ->
     """Parabola fit through the cost at ``d-1, d, d+1`` around each integer disparity.
 
     The offset ``(c₋ - c₊) / (2 (c₋ - 2c₀ + c₊))`` is clipped to ±0.5; pixels at the ends of the range,
-    with a non-convex fit or NaN disparity are left unchanged.
+    with a non-convex fit, a non-finite neighbour cost or NaN disparity are left unchanged.
 
     Returns
     -------
@@ -184,7 +184,7 @@ def subpixel_refine(cost: np.ndarray, disp: np.ndarray, *, min_disp: int = 0) ->
     cm = vol[ys, xs, i - 1].astype(np.float64)
     cp = vol[ys, xs, i + 1].astype(np.float64)
     denom = cm - 2.0 * c0 + cp
-    good = denom > 1e-12
+    good = np.isfinite(denom) & (denom > 1e-12)  # a banded volume's +inf outside the band: left unchanged
     offset = np.zeros_like(c0)
     offset[good] = np.clip((cm[good] - cp[good]) / (2.0 * denom[good]), -0.5, 0.5)
     out[ys, xs] = (d[ys, xs] + offset).astype(np.float32)
