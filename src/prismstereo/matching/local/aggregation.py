@@ -285,88 +285,6 @@ def _weight_row(tab: np.ndarray, slot: int, lab: np.ndarray, lab3: np.ndarray, y
                 row[x] = buf[x]
 
 
-# fused multiply-adds as with fastmath=True, but no reassociation: the fused loop adds four terms to a sum per
-# step, which must stay in the order of k
-@njit(cache=True, fastmath={"contract", "nnan", "ninf", "nsz", "arcp", "afn"}, nogil=True)
-def _accumulate_row(num: np.ndarray, den: np.ndarray, wl: np.ndarray, wr: np.ndarray, ct: np.ndarray, y: int,
-                    dys: np.ndarray, dxs: np.ndarray, min_disp: int, pad: int) -> None:  # pragma: no cover - numba
-    """Row ``y``'s sums of Eq. 5.14 with symmetric weights, disparity-major: ``num[i, x] = Σ_k wl[k, x]
-    wr[k, x - d] c(q, d)`` and ``den[i, x] = Σ_k wl[k, x] wr[k, x - d]`` (``d = min_disp + i``, ``q = (y, x) +
-    o_k``; ``ct`` the cost volume as (H, D, W + 2 pad), columns shifted by ``pad >= max |dx|``, zero outside);
-    only the terms with ``q`` and ``x - d`` inside the images.
-
-    The inner loop runs along the row (hundreds of pixels, contiguous in every array) instead of over the
-    disparities of one pixel, and each sum still adds its terms in the order of ``k``; a zero weight adds
-    ``0·c = 0``, so the sums equal those that skip it. Up to four consecutive offsets on one window row (the same
-    ``q`` row) are added in one pass over the row, so that ``num`` and ``den`` are read and written once per
-    four terms: the pass runs over every ``x`` with ``x - d`` inside the image, and a term whose ``q`` lies
-    outside adds ``0·0`` (its left weight is 0 there, the padded cost too), which leaves the sum unchanged bit
-    for bit (it starts at +0, so it is never -0)."""
-    h = ct.shape[0]
-    nd = ct.shape[1]
-    w = ct.shape[2] - 2 * pad
-    nk = dys.shape[0]
-    k = 0
-    while k < nk:
-        qy = y + dys[k]
-        n = 1
-        while n < 4 and k + n < nk and dys[k + n] == dys[k]:
-            n += 1
-        if qy < 0 or qy >= h:
-            k += n
-            continue
-        for i in range(nd):
-            d = min_disp + i
-            if n == 4:
-                lo = max(0, d)
-                hi = min(w, w + d)
-                if hi <= lo:
-                    continue
-                # slices aligned on x: plain unit-stride indexing, which vectorises
-                ns = num[i, lo:hi]
-                ds = den[i, lo:hi]
-                cr = ct[qy, i]
-                o = lo + pad
-                a0, b0, c0 = wl[k, lo:hi], wr[k, lo - d:hi - d], cr[o + dxs[k]:o + dxs[k] + hi - lo]
-                a1, b1, c1 = wl[k + 1, lo:hi], wr[k + 1, lo - d:hi - d], cr[o + dxs[k + 1]:o + dxs[k + 1] + hi - lo]
-                a2, b2, c2 = wl[k + 2, lo:hi], wr[k + 2, lo - d:hi - d], cr[o + dxs[k + 2]:o + dxs[k + 2] + hi - lo]
-                a3, b3, c3 = wl[k + 3, lo:hi], wr[k + 3, lo - d:hi - d], cr[o + dxs[k + 3]:o + dxs[k + 3] + hi - lo]
-                for j in range(hi - lo):
-                    nn = ns[j]
-                    dd = ds[j]
-                    ww = a0[j] * b0[j]
-                    nn += ww * c0[j]
-                    dd += ww
-                    ww = a1[j] * b1[j]
-                    nn += ww * c1[j]
-                    dd += ww
-                    ww = a2[j] * b2[j]
-                    nn += ww * c2[j]
-                    dd += ww
-                    ww = a3[j] * b3[j]
-                    nn += ww * c3[j]
-                    dd += ww
-                    ns[j] = nn
-                    ds[j] = dd
-                continue
-            for kk in range(k, k + n):
-                dx = dxs[kk]
-                lo = max(max(0, -dx), d)
-                hi = min(min(w, w - dx), w + d)
-                if hi <= lo:
-                    continue
-                wls = wl[kk, lo:hi]
-                wrs = wr[kk, lo - d:hi - d]
-                cs = ct[qy, i, lo + dx + pad:hi + dx + pad]
-                ns = num[i, lo:hi]
-                ds = den[i, lo:hi]
-                for j in range(hi - lo):
-                    ww = wls[j] * wrs[j]
-                    ns[j] += ww * cs[j]
-                    ds[j] += ww
-        k += n
-
-
 @njit(cache=True, parallel=True, nogil=True)
 def _disparity_major(cost: np.ndarray, pad: int) -> np.ndarray:  # pragma: no cover - numba
     """(H, W, D) -> (H, D, W + 2 pad) copy, columns shifted by ``pad``, zero in the margins."""
@@ -391,71 +309,25 @@ def _kept_rows(dys: np.ndarray, mirror: np.ndarray) -> int:  # pragma: no cover 
     return back + 1
 
 
-@njit(cache=True, parallel=True, fastmath=True, nogil=True)
-def _bpasw_symmetric_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, lab3_l: np.ndarray,
-                            lab3_r: np.ndarray, dys: np.ndarray, dxs: np.ndarray, prox: np.ndarray, min_disp: int,
-                            kernel: int, s0: float, s_min: float, mirror: np.ndarray, nbands: int,
-                            ct: np.ndarray, pad: int) -> np.ndarray:  # pragma: no cover - numba
-    """Eq. 5.14 with symmetric weights and no continuity prior (the ``bpasw`` matcher's aggregation): the sums
-    run along the rows of the disparity-major volume ``ct`` (:func:`_accumulate_row`). The path of
-    :func:`_bpasw_kernel` for this case, compiled on its own: a first run compiles only what it calls."""
-    h, w, nd = cost.shape
-    nk = dys.shape[0]
-    log_norm = 1.0 / np.log(s0 / s_min) if kernel == 0 else 1.0
-    out = np.empty((h, w, nd), dtype=np.float32)
-    # rows run in bands, each in order, so that a row's weights towards the rows above are read from the
-    # weights those rows computed towards it (mirror); a band first computes the rows above it it reads
-    nrows = _kept_rows(dys, mirror)
-    back = nrows - 1
-    band = (h + nbands - 1) // nbands
-    for bi in prange(nbands):
-        y0 = bi * band
-        y1 = min(h, y0 + band)
-        # weights of the rows kept, left and right image (the symmetric sums read the right weights forwards)
-        tl = np.zeros((nrows, nk, w), dtype=np.float32)
-        tr = np.zeros((nrows, nk, w), dtype=np.float32)
-        wbuf = np.empty(w, dtype=np.float32)
-        # (``y < y0``: the rows above the band need only their forward offsets; a run-time flag, so that
-        # _weight_row is compiled for one signature)
-        for y in range(max(0, y0 - back), y0):  # only their weights the band's rows read
-            _weight_row(tl, y % nrows, lab_l, lab3_l, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min,
-                        log_norm, False, y < y0, wbuf)
-            _weight_row(tr, y % nrows, lab_r, lab3_r, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min,
-                        log_norm, False, y < y0, wbuf)
-        num = np.empty(nd, dtype=np.float32)
-        den = np.empty(nd, dtype=np.float32)
-        numr = np.empty((nd, w), dtype=np.float32)
-        denr = np.empty((nd, w), dtype=np.float32)
-        for y in range(y0, y1):
-            slot = y % nrows
-            _weight_row(tl, slot, lab_l, lab3_l, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min, log_norm,
-                        False, y < y0, wbuf)
-            _weight_row(tr, slot, lab_r, lab3_r, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min,
-                        log_norm, False, y < y0, wbuf)
-            numr[:] = 0.0
-            denr[:] = 0.0
-            _accumulate_row(numr, denr, tl[slot], tr[slot], ct, y, dys, dxs, min_disp, pad)
-            for x in range(w):
-                nvalid = min(nd, x - min_disp + 1)
-                for i in range(nd):
-                    num[i] = numr[i, x]
-                    den[i] = denr[i, x]
-                for i in range(nd):
-                    if i < nvalid and den[i] > 0.0:
-                        out[y, x, i] = num[i] / den[i]
-                    else:
-                        out[y, x, i] = cost[y, x, i]
-    return out
-
-
-# fused multiply-adds as in _accumulate_row, no reassociation
+# fused multiply-adds as with fastmath=True, but no reassociation: the fused loop adds four terms to a sum per
+# step, which must stay in the order of k
 @njit(cache=True, fastmath={"contract", "nnan", "ninf", "nsz", "arcp", "afn"}, nogil=True)
 def _accumulate_runs(num: np.ndarray, den: np.ndarray, wl: np.ndarray, wr: np.ndarray, ct: np.ndarray, y: int,
                      dys: np.ndarray, dxs: np.ndarray, min_disp: int, pad: int, run_lo: np.ndarray,
                      run_hi: np.ndarray, nruns: np.ndarray) -> None:  # pragma: no cover - numba
-    """:func:`_accumulate_row` on the columns of each disparity's runs only (``[run_lo[i, r], run_hi[i, r])`` for
-    ``r < nruns[i]``): every sum it computes adds the same terms in the same order, so it equals
-    :func:`_accumulate_row`'s bit for bit; the others are left as they are."""
+    """Row ``y``'s sums of Eq. 5.14 with symmetric weights, disparity-major: ``num[i, x] = Σ_k wl[k, x]
+    wr[k, x - d] c(q, d)`` and ``den[i, x] = Σ_k wl[k, x] wr[k, x - d]`` (``d = min_disp + i``, ``q = (y, x) +
+    o_k``; ``ct`` the cost volume as (H, D, W + 2 pad), columns shifted by ``pad >= max |dx|``, zero outside);
+    only the terms with ``q`` and ``x - d`` inside the images, and only on slice ``i``'s runs of columns
+    ``[run_lo[i, r], run_hi[i, r])``, ``r < nruns[i]`` (the others are left as they are).
+
+    The inner loop runs along the row (hundreds of pixels, contiguous in every array) instead of over the
+    disparities of one pixel, and each sum still adds its terms in the order of ``k``; a zero weight adds
+    ``0·c = 0``, so the sums equal those that skip it, and a sum does not depend on the runs it lies in. Up to
+    four consecutive offsets on one window row (the same ``q`` row) are added in one pass over the run, so that
+    ``num`` and ``den`` are read and written once per four terms: the pass runs over every ``x`` with ``x - d``
+    inside the image, and a term whose ``q`` lies outside adds ``0·0`` (its left weight is 0 there, the padded
+    cost too), which leaves the sum unchanged bit for bit (it starts at +0, so it is never -0)."""
     h = ct.shape[0]
     nd = ct.shape[1]
     w = ct.shape[2] - 2 * pad
@@ -557,19 +429,24 @@ def _row_runs(band: np.ndarray, y: int, seg: int, w: int, run_lo: np.ndarray, ru
 
 
 @njit(cache=True, parallel=True, fastmath=True, nogil=True)
-def _bpasw_banded_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, lab3_l: np.ndarray,
-                         lab3_r: np.ndarray, dys: np.ndarray, dxs: np.ndarray, prox: np.ndarray, min_disp: int,
-                         kernel: int, s0: float, s_min: float, mirror: np.ndarray, nbands: int,
-                         ct: np.ndarray, pad: int, band: np.ndarray, seg: int, y_a: int,
-                         y_b: int) -> np.ndarray:  # pragma: no cover - numba
-    """:func:`_bpasw_symmetric_kernel` inside a band of slices per row segment (``band[y, s] = (lo, hi)``,
-    inclusive slice indices, columns ``[s·seg, (s + 1)·seg)``; ``lo > hi``: none), on the rows ``[y_a, y_b)``
-    that hold one; every other entry is +inf. The entries inside equal :func:`_bpasw_symmetric_kernel`'s."""
+def _bpasw_symmetric_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, lab3_l: np.ndarray,
+                            lab3_r: np.ndarray, dys: np.ndarray, dxs: np.ndarray, prox: np.ndarray, min_disp: int,
+                            kernel: int, s0: float, s_min: float, mirror: np.ndarray, nbands: int,
+                            ct: np.ndarray, pad: int, band: np.ndarray, seg: int, y_a: int,
+                            y_b: int) -> np.ndarray:  # pragma: no cover - numba
+    """Eq. 5.14 with symmetric weights and no continuity prior (the ``bpasw`` matcher's aggregation), inside a
+    band of slices per row segment (``band[y, s] = (lo, hi)``, inclusive slice indices, columns ``[s·seg, (s +
+    1)·seg)``; ``lo > hi``: none) on the rows ``[y_a, y_b)``; every other entry is +inf. The sums run along
+    the rows of the disparity-major volume ``ct`` (:func:`_accumulate_runs`), so an entry does not depend on
+    the band: a band over every slice is the whole volume's aggregation. The path of :func:`_bpasw_kernel` for
+    this case, compiled on its own: a first run compiles only what it calls."""
     h, w, nd = cost.shape
     nk = dys.shape[0]
     nseg = band.shape[1]
     log_norm = 1.0 / np.log(s0 / s_min) if kernel == 0 else 1.0
     out = np.full((h, w, nd), np.inf, dtype=np.float32)
+    # rows run in bands, each in order, so that a row's weights towards the rows above are read from the
+    # weights those rows computed towards it (mirror); a band first computes the rows above it it reads
     nrows = _kept_rows(dys, mirror)
     back = nrows - 1
     rows = max(0, y_b - y_a)
@@ -579,10 +456,13 @@ def _bpasw_banded_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray,
         y1 = min(y_b, y0 + band_rows)
         if y1 <= y0:
             continue
+        # weights of the rows kept, left and right image (the symmetric sums read the right weights forwards)
         tl = np.zeros((nrows, nk, w), dtype=np.float32)
         tr = np.zeros((nrows, nk, w), dtype=np.float32)
         wbuf = np.empty(w, dtype=np.float32)
-        for y in range(max(0, y0 - back), y0):
+        # (``y < y0``: the rows above the band need only their forward offsets; a run-time flag, so that
+        # _weight_row is compiled for one signature)
+        for y in range(max(0, y0 - back), y0):  # only their weights the band's rows read
             _weight_row(tl, y % nrows, lab_l, lab3_l, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min,
                         log_norm, False, y < y0, wbuf)
             _weight_row(tr, y % nrows, lab_r, lab3_r, y, dys, dxs, prox, mirror, nrows, kernel, s0, s_min,
@@ -611,8 +491,8 @@ def _bpasw_banded_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray,
                 bhi = min(band[y, s, 1], nd - 1)
                 if blo > bhi:
                     continue
-                # the whole pixel's quotients in _bpasw_symmetric_kernel's loop (the same vectorised division, so
-                # the same bits), then +inf outside the band
+                # the whole pixel's quotients in one loop over the slices (vectorised: its division rounds as
+                # the whole volume's does), then +inf outside the band
                 nvalid = min(nd, x - min_disp + 1)
                 for i in range(nd):
                     num[i] = numr[i, x]
@@ -799,23 +679,22 @@ def aggregate_bpasw(cost: np.ndarray, left: np.ndarray, right: np.ndarray | None
     # planar Lab for the weights' vectorised rows
     lab3_l = np.ascontiguousarray(lab_l.transpose(2, 0, 1))
     lab3_r = np.ascontiguousarray(lab_r.transpose(2, 0, 1)) if symmetric else lab3_l
-    if band is not None:
-        if not symmetric or use_prior:
-            raise MatchingError("expected a band only with both images' weights and no continuity prior")
-        bounds = band.check(vol.shape[0], vol.shape[1])
-        busy = np.flatnonzero((bounds[:, :, 0] <= bounds[:, :, 1]).any(axis=1))
-        if busy.size == 0:
-            return np.full(vol.shape, np.inf, dtype=np.float32)
-        y_a, y_b = int(busy[0]), int(busy[-1]) + 1
-        nb = nt * max(1, min(4, (y_b - y_a) // (nt * (4 * radius + 4))))
-        pad = int(np.abs(dxs).max())
-        return _bpasw_banded_kernel(vol, lab_l, lab_r, lab3_l, lab3_r, dys, dxs, prox.astype(np.float64),
-                                    int(min_disp), kid, s0, s_min, _mirrors(dys, dxs), nb,
-                                    _disparity_major(vol, pad), pad, bounds, int(band.segment), y_a, y_b)
+    if band is not None and (not symmetric or use_prior):
+        raise MatchingError("expected a band only with both images' weights and no continuity prior")
     if symmetric and not use_prior:
+        h, w, nd = vol.shape
+        if band is None:  # every slice of every row: one segment per row
+            bounds, seg, y_a, y_b = np.tile(np.array([0, nd - 1], np.int64), (h, 1, 1)), max(w, 1), 0, h
+        else:
+            bounds, seg = band.check(h, w), int(band.segment)
+            busy = np.flatnonzero((bounds[:, :, 0] <= bounds[:, :, 1]).any(axis=1))
+            if busy.size == 0:
+                return np.full(vol.shape, np.inf, dtype=np.float32)
+            y_a, y_b = int(busy[0]), int(busy[-1]) + 1
+            nbands = nt * max(1, min(4, (y_b - y_a) // (nt * (4 * radius + 4))))
         pad = int(np.abs(dxs).max())
         return _bpasw_symmetric_kernel(vol, lab_l, lab_r, lab3_l, lab3_r, dys, dxs, prox.astype(np.float64),
                                        int(min_disp), kid, s0, s_min, _mirrors(dys, dxs), nbands,
-                                       _disparity_major(vol, pad), pad)
+                                       _disparity_major(vol, pad), pad, bounds, seg, y_a, y_b)
     return _bpasw_kernel(vol, lab_l, lab_r, lab3_l, lab3_r, dys, dxs, prox.astype(np.float64), int(min_disp), kid,
                          s0, s_min, pr, use_prior, float(continuity_weight), symmetric, _mirrors(dys, dxs), nbands)
