@@ -11,7 +11,10 @@ Every matcher builds an ``H × W × D`` cost volume, so its time and memory grow
    region's coarse pixels passed the coarse left–right check — occlusions, thin structures, no texture)
    the tile falls back to the full range. The matcher then runs on the tile plus its context with the
    right image shifted by ``lo`` (``min_disp = 0``, ``max_disp = hi - lo``), so a tile costs
-   ``(tile + context) × band`` instead of ``tile × range``;
+   ``(tile + context) × band`` instead of ``tile × range``. A matcher that takes a band per row segment
+   (``bpasw``; ``ScaleParams.band = "segment"``) gets one per ``segment`` columns of each row instead (the
+   coarse map's min…max around them), in tiles that span the row, and only those slices are summed
+   (:class:`~prismstereo.matching.local.aggregation.SegmentBand`);
 3. **stitching** — each output pixel comes from the one tile whose core holds it; the core's context (the
    ``overlap`` on every side, plus ``hi - lo`` columns to the left for the right view) is matched but
    dropped, so aggregation windows, SGM paths and segments see the same neighbourhood on both sides of a
@@ -106,9 +109,11 @@ class ScaleParams:
     band : {"segment", "tile"}
         ``segment``: a matcher that searches a band per row segment (``supports_band``, e.g. ``bpasw``) gets,
         for every ``segment`` columns of a row, the coarse map's min…max over ``band_radius`` full-resolution
-        pixels around them (± ``margin``; the tile's band where fewer than ``min_valid`` of those coarse pixels
-        passed the coarse check), and only the tile's core dilated by ``band_context`` pixels is matched
-        (the rest of the context is read by the windows, not matched); ``tile``: one band per tile.
+        pixels around them (± ``margin``; where fewer than ``min_valid`` of those coarse pixels passed the
+        coarse check, the same over a tile's region, and where that is not trusted either, the whole range);
+        only the rows of the tile's core dilated by ``band_context`` pixels are matched, and the context
+        columns beside them only where they compete for the core's right pixels (:func:`_segment_band`);
+        ``tile``: one band per tile (the min…max over the tile and its context).
     band_radius, segment, band_context : int
         See ``band`` (full-resolution pixels).
     band_tile_cols : int
@@ -282,7 +287,6 @@ class _PixelBand:
 
     lo: np.ndarray  # (h, w) int32, inclusive
     hi: np.ndarray  # (h, w) int32, inclusive
-    local: np.ndarray  # (h, w) bool: from the ``band_radius`` window (else the tile-sized one, or the range)
 
 
 def _window_band(cd: np.ndarray, cv: np.ndarray, r: int, min_valid: float) -> tuple[np.ndarray, np.ndarray,
@@ -320,7 +324,7 @@ def _pixel_bands(coarse: MatchResult, f: int, h: int, w: int, lo: int, hi: int, 
     rows = np.minimum(np.arange(h) // f, ch - 1)
     cols = np.minimum(np.arange(w) // f, cw - 1)
     ix = np.ix_(rows, cols)
-    return _PixelBand(lo=c_lo[ix], hi=c_hi[ix], local=t1[ix])
+    return _PixelBand(lo=c_lo[ix], hi=c_hi[ix])
 
 
 def _segment_band(t: _Tile, pb: _PixelBand, h: int, w: int, p: ScaleParams) -> tuple[_Tile, np.ndarray | None]:
