@@ -599,8 +599,11 @@ def refine_disparity(
     vl_in, vr_in = (vl, vr) if min_pixels is None else (_inner(vl), _inner(vr))
     if prefilter is not None and prefilter > 0.0:
         # over the region without its outermost ring too, which would spread into the windows
-        L = _low_pass(L, None if valid_left is None else _inner(vl), float(prefilter))
-        R = _low_pass(R, None if valid_right is None else _inner(vr), float(prefilter))
+        # (with cut windows that is vl_in / vr_in already)
+        L = _low_pass(L, None if valid_left is None else vl_in if min_pixels is not None else _inner(vl),
+                      float(prefilter))
+        R = _low_pass(R, None if valid_right is None else vr_in if min_pixels is not None else _inner(vr),
+                      float(prefilter))
     # the pixels whose whole window may be refined: off the left view's edge, the window inside the image
     static = np.zeros((h, w), dtype=bool)
     static[radius:h - radius, radius:w - radius] = True
