@@ -229,7 +229,13 @@ def test_cut_window_sums_count_only_the_pixels_inside_both_views() -> None:
 
 def _select_reference(d0, static, vl, whole_r, offs, cut_mode):  # noqa: ANN001, ANN202
     """The pixel selection of ``_select_pixels`` in numpy (the rule the refinement used before the kernel)."""
-    from prismstereo.depth.refine import _split_rows
+
+    def _split_rows(offset, ys, xs):  # noqa: ANN001, ANN202
+        if offset is None:
+            return np.zeros(ys.size, dtype=np.int64), np.zeros(ys.size, dtype=np.float64)
+        off = np.nan_to_num(offset[ys, xs].astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+        base = np.floor(off)
+        return base.astype(np.int64), (off - base).astype(np.float64)
 
     h, w = d0.shape
     finite = np.isfinite(d0)

@@ -369,19 +369,9 @@ def _inner(valid: np.ndarray) -> np.ndarray:
     return cv2.erode(valid.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
 
 
-def _split_rows(offset: np.ndarray | None, ys: np.ndarray, xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The row offsets at pixels ``(ys, xs)`` (0 where None or not finite) → integer part (int64) and fraction
-    in [0, 1) (float64); only the pixels asked are converted (the map is the whole view)."""
-    if offset is None:
-        return np.zeros(ys.size, dtype=np.int64), np.zeros(ys.size, dtype=np.float64)
-    off = np.nan_to_num(offset[ys, xs].astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
-    base = np.floor(off)
-    return base.astype(np.int64), (off - base).astype(np.float64)
-
-
 @njit(cache=True, inline="always")
 def _row_split(v: float) -> tuple[int, float]:  # pragma: no cover - numba
-    """:func:`_split_rows` of one offset (float64): integer part and fraction, 0 where not finite."""
+    """A row offset (float64) → integer part and fraction in [0, 1); 0 where not finite."""
     if not np.isfinite(v):
         v = 0.0
     b = np.floor(v)
@@ -392,7 +382,7 @@ def _row_split(v: float) -> tuple[int, float]:  # pragma: no cover - numba
 def _select_pixels(d0: np.ndarray, static: np.ndarray, vl: np.ndarray, whole_r: np.ndarray, offs: np.ndarray,
                    has_offs: bool, cut_mode: bool) -> tuple[np.ndarray, ...]:  # pragma: no cover - numba
     """The pixels :func:`refine_disparity` refines, in row-major order, with their row offsets split
-    (:func:`_split_rows`): those whose whole window is refined (finite, ``static``: inside the image and off
+    (:func:`_row_split`): those whose whole window is refined (finite, ``static``: inside the image and off
     the left view's edge, and with ``cut_mode`` whose right window stays in ``whole_r`` at the matcher's
     disparity on both rows it reads) and, with ``cut_mode``, the cut ones (finite, in ``vl``, not whole).
     Returns ys, xs, oy, fy of the whole ones, then of the cut ones."""
