@@ -225,3 +225,86 @@ def test_cut_window_sums_count_only_the_pixels_inside_both_views() -> None:
         # products of float32 pixels are float32 in the kernel (numba's float() keeps the type): a pixel counted
         # wrongly moves a sum by a whole term, ≥ 1e-3 of it here
         np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-6)
+
+
+def _select_reference(d0, static, vl, whole_r, offs, cut_mode):  # noqa: ANN001, ANN202
+    """The pixel selection of ``_select_pixels`` in numpy (the rule the refinement used before the kernel)."""
+
+    def _split_rows(offset, ys, xs):  # noqa: ANN001, ANN202
+        if offset is None:
+            return np.zeros(ys.size, dtype=np.int64), np.zeros(ys.size, dtype=np.float64)
+        off = np.nan_to_num(offset[ys, xs].astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+        base = np.floor(off)
+        return base.astype(np.int64), (off - base).astype(np.float64)
+
+    h, w = d0.shape
+    finite = np.isfinite(d0)
+    ok = finite & static
+    if cut_mode:
+        ys0, xs0 = np.nonzero(ok)
+        xr0 = np.rint(xs0 - d0[ys0, xs0]).astype(np.int64)
+        oy0, fy0 = _split_rows(offs, ys0, xs0)
+        yr0 = ys0 + oy0
+        yr1 = yr0 + (fy0 > 0.0)
+        inside = (xr0 >= 0) & (xr0 < w) & (yr0 >= 0) & (yr1 < h)
+        stay = np.zeros(ys0.size, dtype=bool)
+        stay[inside] = whole_r[yr0[inside], xr0[inside]] & whole_r[yr1[inside], xr0[inside]]
+        ok[ys0[~stay], xs0[~stay]] = False
+    cut = finite & vl & ~ok if cut_mode else np.zeros((h, w), dtype=bool)
+    out = []
+    for m in (ok, cut):
+        ys, xs = np.nonzero(m)
+        out += [ys, xs, *_split_rows(offs, ys, xs)]
+    return out
+
+
+@pytest.mark.parametrize("cut_mode", [False, True])
+@pytest.mark.parametrize("with_offsets", [False, True])
+def test_the_pixel_selection_kernel_is_the_numpy_rule(cut_mode: bool, with_offsets: bool) -> None:
+    """``_select_pixels`` picks the same whole and cut windows, in the same order, with the same split row offsets
+    (integer part and fraction, 0 where not finite), as the numpy rule: matches off the image, NaN and infinite
+    offsets, offsets that move the right window off the top and bottom rows."""
+    from prismstereo.depth.refine import _select_pixels
+
+    rng = np.random.default_rng(5)
+    h, w = 40, 60
+    d0 = rng.uniform(-5, 30, (h, w)).astype(np.float32)
+    d0[rng.uniform(size=(h, w)) < 0.2] = np.nan
+    static = rng.uniform(size=(h, w)) > 0.3
+    vl = rng.uniform(size=(h, w)) > 0.2
+    whole_r = rng.uniform(size=(h, w)) > 0.25
+    offs = rng.normal(0, 1.5, (h, w)).astype(np.float32)
+    offs[rng.uniform(size=(h, w)) < 0.05] = np.nan
+    offs[0, :5] = np.inf
+    offs[1, :5] = -np.inf
+    offs[2, :5] = np.float32(2.0)  # integer offsets: fraction 0, one row read
+    got = _select_pixels(d0, static, vl, whole_r, offs if with_offsets else np.zeros((1, 1), np.float32),
+                         with_offsets, cut_mode)
+    want = _select_reference(d0, static, vl, whole_r, offs if with_offsets else None, cut_mode)
+    assert got[0].size > 100 and (not cut_mode or got[4].size > 100)
+    for g, r in zip(got, want, strict=True):
+        assert g.dtype == r.dtype
+        np.testing.assert_array_equal(g, r)
+
+
+def test_the_low_pass_select_kernel_is_the_numpy_formula() -> None:
+    """``_low_pass_select`` gives numpy's float32 result bit for bit, the thresholds' float32 values included
+    (a weight of exactly float32(1e-3) is not above 1e-3 in float32, though it is in float64)."""
+    from prismstereo.depth.refine import _low_pass_select
+
+    rng = np.random.default_rng(6)
+    h, w = 30, 50
+    img = rng.uniform(0, 255, (h, w)).astype(np.float32)
+    num = rng.uniform(0, 255, (h, w)).astype(np.float32)
+    den = rng.uniform(0, 1, (h, w)).astype(np.float32)
+    den.flat[::7] = np.float32(1e-3)
+    den.flat[1::7] = np.float32(1.0 - 1e-3)
+    den.flat[2::11] = 0.0
+    den.flat[3::11] = 1.0
+    valid = rng.uniform(size=(h, w)) > 0.3
+    cut = valid & (den < 1.0 - 1e-3)
+    want = np.where(cut, img, np.where(den > 1e-3, num / np.maximum(den, 1e-6), img)).astype(np.float32)
+    got = _low_pass_select(img, num, den, valid)
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got, want)
+    assert not np.array_equal(np.where(den > np.float64(1e-3), 1, 0), np.where(den > 1e-3, 1, 0))

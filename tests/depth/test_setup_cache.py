@@ -135,12 +135,34 @@ def test_ray_table_round_trip_and_bad_entries(cache: Path, computed) -> None:
     assert load_rays(rig, cfg.views, cfg.calibration, shape=(shape[0] + 1, shape[1])) is None  # another size
     path.write_bytes(path.read_bytes()[:1000])  # truncated: missing, not an error
     assert load_rays(rig, cfg.views, cfg.calibration, shape=shape) is None
+    np.save(path, np.zeros((3, *shape, 3)))  # another layout: missing
+    assert load_rays(rig, cfg.views, cfg.calibration, shape=shape) is None
+    np.save(path, np.zeros((4, *shape, 3), dtype=np.float32))
+    assert load_rays(rig, cfg.views, cfg.calibration, shape=shape) is None
+
+
+def test_the_ray_table_maps_its_file_copy_on_write(cache: Path, computed) -> None:
+    """The loaded table's arrays are views of the mapped entry (no read of the whole file); writing to them
+    leaves the file as it was."""
+    from prismstereo.depth.setup_cache import load_rays, save_rays
+    from prismstereo.depth.triangulation import ray_table
+
+    rig, cfg, views, pair, epi = computed
+    shape = (pair.size[1], pair.size[0])
+    path = save_rays(rig, cfg.views, cfg.calibration, ray_table(rig, pair))
+    assert path is not None and path.suffix == ".npy"
+    before = path.read_bytes()
+    got = load_rays(rig, cfg.views, cfg.calibration, shape=shape)
+    assert got is not None
+    assert isinstance(got.left_origins.base, np.memmap) and got.left_origins.flags.writeable
+    got.right_directions[0, 0, 0] = 12345.0
+    assert path.read_bytes() == before
 
 
 def test_run_depth_caches_the_ray_table(cache: Path) -> None:
     rig = demo_rig()
     s1 = pl.prepare_depth(rig, config=DepthConfig(method="sad"))
-    assert s1.rays is not None and list(cache.glob("rays-*.npz"))
+    assert s1.rays is not None and list(cache.glob("rays-*.npy"))
     s2 = pl.prepare_depth(rig, config=DepthConfig(method="sad"))
     assert s2.rays is not None and np.array_equal(s2.rays.right_directions, s1.rays.right_directions,
                                                   equal_nan=True)

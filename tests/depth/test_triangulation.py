@@ -162,3 +162,31 @@ def test_ray_table_off_the_view_is_invalid(demo_setup) -> None:  # type: ignore[
     assert np.array_equal(back.left_origins, s.rays.left_origins, equal_nan=True)
     with pytest.raises(ValueError):
         RayTable.from_arrays({**s.rays.to_arrays(), "rays_right_d": np.zeros((2, 2, 3))})
+
+
+def test_points_on_grid_places_the_kept_points_as_numpy_indexing_does() -> None:
+    """``points_on_grid`` gives the arrays of the scatter it replaces (fancy indexing of the kept points, depth as
+    float32 z), bit for bit, NaN points and a kept gap of NaN included."""
+    from prismstereo.depth.triangulation import points_on_grid
+
+    rng = np.random.default_rng(4)
+    h, w = 23, 31
+    flat = rng.choice(h * w, size=300, replace=False)
+    ys, xs = flat // w, flat % w
+    pts = rng.normal(0, 1000, (300, 3))
+    pts[::17] = np.nan
+    gaps = rng.uniform(0, 3, 300)
+    gaps[::13] = np.nan
+    keep = rng.uniform(size=300) > 0.3
+    points = np.full((h, w, 3), np.nan)
+    gap = np.full((h, w), np.nan, dtype=np.float32)
+    points[ys[keep], xs[keep]] = pts[keep]
+    gap[ys[keep], xs[keep]] = gaps[keep]
+    valid = np.zeros((h, w), dtype=bool)
+    valid[ys[keep], xs[keep]] = True
+    depth = np.where(valid, points[..., 2], np.nan).astype(np.float32)
+    got = points_on_grid((h, w), ys, xs, pts, gaps, keep)
+    for g, want in zip(got, (points, depth, gap, valid), strict=True):
+        assert g.dtype == want.dtype and g.shape == want.shape
+        np.testing.assert_array_equal(g, want)
+    assert valid.sum() > 150

@@ -69,7 +69,7 @@ from prismstereo.depth.setup_cache import (
     save_view,
 )
 from prismstereo.depth.smoothed import smoothed_config
-from prismstereo.depth.triangulation import TRIANGULATIONS, RayTable, ray_table, triangulate_matches
+from prismstereo.depth.triangulation import TRIANGULATIONS, RayTable, points_on_grid, ray_table, triangulate_matches
 from prismstereo.errors import ConfigError, GeometryError, ImageError
 from prismstereo.io.images import as_image
 from prismstereo.io.jsonio import library_versions
@@ -945,13 +945,7 @@ def triangulate_disparity(rig: Rig, pair: RectifiedPair, views: Sequence[Virtual
     if config.max_gap_mm is not None:
         ok &= ~(tri.gaps > config.max_gap_mm)
     ok &= tri.points[:, 2] > rig.prism.back_distance
-    points = np.full((h, w, 3), np.nan)
-    gaps = np.full((h, w), np.nan, dtype=np.float32)
-    points[ys[ok], xs[ok]] = tri.points[ok]
-    gaps[ys[ok], xs[ok]] = tri.gaps[ok]
-    valid = np.zeros((h, w), dtype=bool)
-    valid[ys[ok], xs[ok]] = True
-    depth = np.where(valid, points[..., 2], np.nan).astype(np.float32)
+    points, depth, gaps, valid = points_on_grid((h, w), ys, xs, tri.points, tri.gaps, ok)
     return Points(points=points, depth=depth, gaps=gaps, valid=valid)
 
 

@@ -369,21 +369,102 @@ def _inner(valid: np.ndarray) -> np.ndarray:
     return cv2.erode(valid.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
 
 
-def _split_rows(offset: np.ndarray | None, ys: np.ndarray, xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The row offsets at pixels ``(ys, xs)`` (0 where None or not finite) → integer part (int64) and fraction
-    in [0, 1) (float64); only the pixels asked are converted (the map is the whole view)."""
-    if offset is None:
-        return np.zeros(ys.size, dtype=np.int64), np.zeros(ys.size, dtype=np.float64)
-    off = np.nan_to_num(offset[ys, xs].astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
-    base = np.floor(off)
-    return base.astype(np.int64), (off - base).astype(np.float64)
+@njit(cache=True, inline="always")
+def _row_split(v: float) -> tuple[int, float]:  # pragma: no cover - numba
+    """A row offset (float64) → integer part and fraction in [0, 1); 0 where not finite."""
+    if not np.isfinite(v):
+        v = 0.0
+    b = np.floor(v)
+    return int(b), v - b
+
+
+@njit(cache=True)
+def _select_pixels(d0: np.ndarray, static: np.ndarray, vl: np.ndarray, whole_r: np.ndarray, offs: np.ndarray,
+                   has_offs: bool, cut_mode: bool) -> tuple[np.ndarray, ...]:  # pragma: no cover - numba
+    """The pixels :func:`refine_disparity` refines, in row-major order, with their row offsets split
+    (:func:`_row_split`): those whose whole window is refined (finite, ``static``: inside the image and off
+    the left view's edge, and with ``cut_mode`` whose right window stays in ``whole_r`` at the matcher's
+    disparity on both rows it reads) and, with ``cut_mode``, the cut ones (finite, in ``vl``, not whole).
+    Returns ys, xs, oy, fy of the whole ones, then of the cut ones."""
+    h, w = d0.shape
+    kind = np.zeros((h, w), dtype=np.uint8)
+    n_whole = 0
+    n_cut = 0
+    for y in range(h):
+        for x in range(w):
+            v = d0[y, x]
+            if not np.isfinite(v):
+                continue
+            whole = static[y, x]
+            if whole and cut_mode:
+                oy, fy = _row_split(float(offs[y, x]) if has_offs else 0.0)
+                xr = np.rint(float(x) - float(v))
+                yr0 = y + oy
+                yr1 = yr0 + (1 if fy > 0.0 else 0)
+                if 0.0 <= xr < w and yr0 >= 0 and yr1 < h:
+                    xi = int(xr)
+                    whole = whole_r[yr0, xi] and whole_r[yr1, xi]
+                else:
+                    whole = False
+            if whole:
+                kind[y, x] = 1
+                n_whole += 1
+            elif cut_mode and vl[y, x]:
+                kind[y, x] = 2
+                n_cut += 1
+    ys = np.empty(n_whole, dtype=np.int64)
+    xs = np.empty(n_whole, dtype=np.int64)
+    oys = np.zeros(n_whole, dtype=np.int64)
+    fys = np.zeros(n_whole, dtype=np.float64)
+    cys = np.empty(n_cut, dtype=np.int64)
+    cxs = np.empty(n_cut, dtype=np.int64)
+    coys = np.zeros(n_cut, dtype=np.int64)
+    cfys = np.zeros(n_cut, dtype=np.float64)
+    i = 0
+    j = 0
+    for y in range(h):
+        for x in range(w):
+            k = kind[y, x]
+            if k == 0:
+                continue
+            oy, fy = _row_split(float(offs[y, x]) if has_offs else 0.0)
+            if k == 1:
+                ys[i] = y
+                xs[i] = x
+                oys[i] = oy
+                fys[i] = fy
+                i += 1
+            else:
+                cys[j] = y
+                cxs[j] = x
+                coys[j] = oy
+                cfys[j] = fy
+                j += 1
+    return ys, xs, oys, fys, cys, cxs, coys, cfys
+
+
+@njit(cache=True)
+def _scatter(out: np.ndarray, conf: np.ndarray, ys: np.ndarray, xs: np.ndarray, d: np.ndarray, zncc: np.ndarray,
+             keep: np.ndarray, allowed: np.ndarray, check: bool) -> None:  # pragma: no cover - numba
+    """Write the kept refinements into ``out`` and ``conf``; with ``check`` only those whose match
+    ``rint(x − d)`` lies inside the row and in ``allowed``."""
+    w = out.shape[1]
+    for i in range(ys.size):
+        if not keep[i]:
+            continue
+        if check:
+            xr = np.rint(float(xs[i]) - float(d[i]))
+            if not (0.0 <= xr < w) or not allowed[ys[i], int(xr)]:
+                continue
+        out[ys[i], xs[i]] = d[i]
+        conf[ys[i], xs[i]] = zncc[i]
 
 
 def _gray(img: np.ndarray) -> np.ndarray:
     a = np.asarray(img)
     if a.ndim == 3:
         a = cv2.cvtColor(a.astype(np.float32), cv2.COLOR_RGB2GRAY)
-    return a.astype(np.float32)
+    return np.ascontiguousarray(a, dtype=np.float32)
 
 
 def _low_pass(img: np.ndarray, valid: np.ndarray | None, sigma: float) -> np.ndarray:
@@ -409,9 +490,30 @@ def _low_pass(img: np.ndarray, valid: np.ndarray | None, sigma: float) -> np.nda
     # a kernel cut by the region's edge would shift the texture (its weights are one-sided): those pixels
     # stay as they are; the pixels just outside get the blur from the inside (the gradient at the edge
     # reads them, and the fill or a blended rim would otherwise)
-    cut = valid & (den < 1.0 - 1e-3)
-    out = np.where(den > 1e-3, num / np.maximum(den, 1e-6), img)
-    return np.where(cut, img, out).astype(np.float32)
+    return _low_pass_select(img, num, den, valid)
+
+
+_CUT_BELOW = np.float32(1.0 - 1e-3)
+_DEN_ABOVE = np.float32(1e-3)
+_DEN_FLOOR = np.float32(1e-6)
+
+
+@njit(cache=True)
+def _low_pass_select(img: np.ndarray, num: np.ndarray, den: np.ndarray,
+                     valid: np.ndarray) -> np.ndarray:  # pragma: no cover - numba
+    """:func:`_low_pass`' result from the blurred ``img · valid`` (``num``) and ``valid`` (``den``): the
+    image where the kernel is cut inside ``valid`` or ``den`` is (almost) 0, else ``num / den`` (float32
+    arithmetic and float32 thresholds, as numpy's on these arrays)."""
+    h, w = img.shape
+    out = np.empty((h, w), dtype=np.float32)
+    for y in range(h):
+        for x in range(w):
+            dd = den[y, x]
+            if (valid[y, x] and dd < _CUT_BELOW) or not dd > _DEN_ABOVE:
+                out[y, x] = img[y, x]
+            else:
+                out[y, x] = num[y, x] / max(dd, _DEN_FLOOR)
+    return out
 
 
 def refine_disparity(
@@ -474,13 +576,12 @@ def refine_disparity(
     """
     L = _gray(left)
     R = _gray(right)
-    d0 = np.asarray(disparity, dtype=np.float32)
+    d0 = np.ascontiguousarray(disparity, dtype=np.float32)
     h, w = d0.shape
     out = d0.copy()
     conf = np.full(d0.shape, np.nan, dtype=np.float32)
-    finite = np.isfinite(d0)
     k = 2 * radius + 1
-    offs = None if row_offset is None else np.asarray(row_offset)
+    offs = None if row_offset is None else np.ascontiguousarray(row_offset)
     vl = np.ones((h, w), dtype=bool) if valid_left is None else np.asarray(valid_left, dtype=bool)
     vr = np.ones((h, w), dtype=bool) if valid_right is None else np.asarray(valid_right, dtype=bool)
     # window content: with cut windows, not the outermost pixel of a view's valid region either (its
@@ -488,64 +589,43 @@ def refine_disparity(
     vl_in, vr_in = (vl, vr) if min_pixels is None else (_inner(vl), _inner(vr))
     if prefilter is not None and prefilter > 0.0:
         # over the region without its outermost ring too, which would spread into the windows
-        L = _low_pass(L, None if valid_left is None else _inner(vl), float(prefilter))
-        R = _low_pass(R, None if valid_right is None else _inner(vr), float(prefilter))
-    ok = finite.copy()
+        # (with cut windows that is vl_in / vr_in already)
+        L = _low_pass(L, None if valid_left is None else vl_in if min_pixels is not None else _inner(vl),
+                      float(prefilter))
+        R = _low_pass(R, None if valid_right is None else vr_in if min_pixels is not None else _inner(vr),
+                      float(prefilter))
+    # the pixels whose whole window may be refined: off the left view's edge, the window inside the image
+    static = np.zeros((h, w), dtype=bool)
+    static[radius:h - radius, radius:w - radius] = True
     if valid_left is not None:
-        bad = cv2.dilate((~vl_in).astype(np.uint8), np.ones((k, k), np.uint8)) > 0
-        ok &= ~bad
-    # keep windows inside the image
-    ok[:radius] = ok[h - radius:] = False
-    ok[:, :radius] = ok[:, w - radius:] = False
-    cut = np.zeros((h, w), dtype=bool)
-    if min_pixels is not None:
+        static &= cv2.dilate((~vl_in).astype(np.uint8), np.ones((k, k), np.uint8)) == 0
+    cut_mode = min_pixels is not None
+    whole_r = np.zeros((1, 1), dtype=bool)
+    if cut_mode:
         # the whole window must stay in the right view for every disparity the update may reach (taps
         # included), else it is a cut window
         reach = radius + int(np.ceil(max_shift)) + 2
         whole_r = cv2.erode(vr_in.astype(np.uint8), np.ones((k, 2 * reach + 1), np.uint8),
                             borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
-        ys0, xs0 = np.nonzero(ok)
-        xr0 = np.rint(xs0 - d0[ys0, xs0]).astype(np.int64)
-        # the right window's rows: those of the left one moved by the row offset, and the next ones when
-        # it has a fraction
-        oy0, fy0 = _split_rows(offs, ys0, xs0)
-        yr0 = ys0 + oy0
-        yr1 = yr0 + (fy0 > 0.0)
-        inside = (xr0 >= 0) & (xr0 < w) & (yr0 >= 0) & (yr1 < h)
-        stay = np.zeros(ys0.size, dtype=bool)
-        stay[inside] = whole_r[yr0[inside], xr0[inside]] & whole_r[yr1[inside], xr0[inside]]
-        ok[ys0[~stay], xs0[~stay]] = False
-        cut = finite & vl & ~ok
+    ys, xs, oy, fy, cys, cxs, coy, cfy = _select_pixels(
+        d0, static, vl, whole_r, np.zeros((1, 1), dtype=np.float32) if offs is None else offs, offs is not None,
+        cut_mode)
     Rx = cv2.Sobel(R, cv2.CV_32F, 1, 0, ksize=3, scale=1.0 / 8.0)
-    ys, xs = np.nonzero(ok)
     if ys.size:
-        oy, fy = _split_rows(offs, ys, xs)
-        d, zncc, keep = _refine_kernel(L, R, Rx, ys.astype(np.int64), xs.astype(np.int64), d0, oy, fy,
-                                       int(radius), int(iterations), float(max_shift), float(min_texture))
-        if valid_right is not None and min_pixels is None:
-            bad_r = cv2.dilate((~vr).astype(np.uint8), np.ones((k, k), np.uint8)) > 0
-            xr = np.rint(xs - d).astype(np.int64)
-            inside = (xr >= 0) & (xr < w)
-            hit = np.ones(ys.size, dtype=bool)
-            hit[inside] = bad_r[ys[inside], xr[inside]]
-            keep &= ~hit
-        out[ys[keep], xs[keep]] = d[keep]
-        conf[ys[keep], xs[keep]] = zncc[keep]
-    ys, xs = np.nonzero(cut)
-    if ys.size and min_pixels is not None:
-        oy, fy = _split_rows(offs, ys, xs)
+        d, zncc, keep = _refine_kernel(L, R, Rx, ys, xs, d0, oy, fy, int(radius), int(iterations),
+                                       float(max_shift), float(min_texture))
+        check = valid_right is not None and min_pixels is None
+        # the match must not land next to the right view's edge (its window would read beyond it)
+        allowed = (cv2.dilate((~vr).astype(np.uint8), np.ones((k, k), np.uint8)) == 0 if check
+                   else np.zeros((1, 1), dtype=bool))
+        _scatter(out, conf, ys, xs, d, zncc, keep, allowed, check)
+    if cys.size and min_pixels is not None:
         vr_levels = vr_in.astype(np.uint8) + vr.astype(np.uint8)  # 2 inside, 1 outermost pixels, 0 outside
-        d, zncc, keep = _refine_cut_kernel(L, R, Rx, vl_in.astype(np.uint8), vr_levels,
-                                           ys.astype(np.int64), xs.astype(np.int64), d0, oy, fy, int(radius),
-                                           int(iterations), float(max_shift), float(min_texture),
+        d, zncc, keep = _refine_cut_kernel(L, R, Rx, vl_in.astype(np.uint8), vr_levels, cys, cxs, d0, coy, cfy,
+                                           int(radius), int(iterations), float(max_shift), float(min_texture),
                                            int(min_pixels))
         # the match itself must stay inside the right view
-        xr = np.rint(xs - d).astype(np.int64)
-        inside = (xr >= 0) & (xr < w)
-        keep[inside] &= vr[ys[inside], xr[inside]]
-        keep &= inside
-        out[ys[keep], xs[keep]] = d[keep]
-        conf[ys[keep], xs[keep]] = zncc[keep]
+        _scatter(out, conf, cys, cxs, d, zncc, keep, vr, True)
     return out, conf
 
 

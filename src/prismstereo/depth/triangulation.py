@@ -35,6 +35,7 @@ __all__ = [
     "RayTable",
     "Triangulation",
     "depth_from_disparity",
+    "points_on_grid",
     "ray_table",
     "rectified_to_world",
     "reproject_disparity",
@@ -542,3 +543,55 @@ def triangulate_table(table: RayTable, ys: np.ndarray, xs: np.ndarray, d: np.nda
                                      table.right_directions, np.asarray(ys, dtype=np.int64),
                                      np.asarray(xs, dtype=np.int64), np.asarray(d, dtype=np.float64))
     return Triangulation(points=pts, gaps=gaps, valid=valid)
+
+
+@njit(cache=True)
+def _on_grid(h: int, w: int, ys: np.ndarray, xs: np.ndarray, points: np.ndarray, gaps: np.ndarray,
+             keep: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - numba
+    """:func:`points_on_grid` in one pass over the kept points."""
+    grid = np.full((h, w, 3), np.nan)
+    depth = np.full((h, w), np.nan, dtype=np.float32)
+    gap = np.full((h, w), np.nan, dtype=np.float32)
+    valid = np.zeros((h, w), dtype=np.bool_)
+    for i in range(ys.size):
+        if not keep[i]:
+            continue
+        y, x = ys[i], xs[i]
+        for k in range(3):
+            grid[y, x, k] = points[i, k]
+        depth[y, x] = np.float32(points[i, 2])
+        gap[y, x] = np.float32(gaps[i])
+        valid[y, x] = True
+    return grid, depth, gap, valid
+
+
+def points_on_grid(shape: tuple[int, int], ys: np.ndarray, xs: np.ndarray, points: np.ndarray, gaps: np.ndarray,
+                   keep: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The kept points of pixels ``(ys, xs)`` on the (h, w) grid they come from.
+
+    Parameters
+    ----------
+    shape : (h, w)
+    ys, xs : (N,) int
+        Distinct pixels inside the grid.
+    points : (N, 3) float
+        Their points (mm).
+    gaps : (N,) float
+        Their rays' gaps (mm).
+    keep : (N,) bool
+        The points to place.
+
+    Returns
+    -------
+    points : (h, w, 3) float64
+        NaN where no point is kept.
+    depth : (h, w) float32
+        The points' z, NaN where none.
+    gaps : (h, w) float32
+        NaN where none.
+    valid : (h, w) bool
+    """
+    h, w = int(shape[0]), int(shape[1])
+    return _on_grid(h, w, np.asarray(ys, dtype=np.int64), np.asarray(xs, dtype=np.int64),
+                    np.ascontiguousarray(points, dtype=np.float64), np.asarray(gaps, dtype=np.float64),
+                    np.asarray(keep, dtype=np.bool_))
