@@ -179,6 +179,43 @@ def test_the_steps_compose_to_run_depth(plane_capture, plane_run):
         plane_run.depth = pts.depth  # type: ignore[misc]
 
 
+def test_a_map_without_a_cross_check_is_refined_with_confirmed_right_seeds(plane_capture, plane_run, monkeypatch):
+    """match_pair records whether its matches passed the matcher's left–right check (a matcher without one, coop,
+    marks every pixel valid; ``use_filled`` refines the dense map); the run's refinement is told so."""
+    import dataclasses
+
+    from prismstereo.depth import pipeline as pl
+    from prismstereo.matching.registry import MatchResult
+
+    rig, _, cap = plane_capture
+    img, cfg = pl.validate_inputs(rig, cap.image, DepthConfig())
+    views = pl.virtual_cameras(rig, cfg)
+    pair = pl.rectify_geometry(rig, views, cfg)
+    left, right = pl.rectify_capture(pair, img)
+    region = pl.search_region(rig, pair, cfg, left, right)
+    assert pl.match_pair(left, right, pair, region, cfg).info["cross_checked"] is True
+    assert pl.match_pair(left, right, pair, region, dataclasses.replace(cfg, use_filled=True)).info[
+        "cross_checked"] is False
+    real_match = pl.match
+
+    def unchecked(*args, **kwargs):  # the matcher's dense map, every pixel valid, as coop returns it
+        res = real_match(*args, **kwargs)
+        return MatchResult(disparity=res.disparity, valid=np.ones(res.disparity.shape, dtype=bool))
+
+    monkeypatch.setattr(pl, "match", unchecked)
+    seen: list[bool] = []
+    real_cm = pl.confident_matches
+
+    def recording(*args, **kwargs):
+        seen.append(kwargs["seeds_checked"])
+        return real_cm(*args, **kwargs)
+
+    monkeypatch.setattr(pl, "confident_matches", recording)
+    res = pl.run_depth(rig, cap.image, config=DepthConfig())
+    assert res.match_info["cross_checked"] is False and seen == [False]
+    assert res.valid.sum() > 0.9 * plane_run.valid.sum()  # the dense map's right values are kept
+
+
 def test_coarse_to_fine_depth_matches_the_full_search(plane_capture):
     """Issue 30: the depth run with coarse-to-fine forced on keeps the full search's accuracy and coverage,
     and run.json records what ran; a memory budget too small for any tile is refused."""
