@@ -180,29 +180,13 @@ def test_the_steps_compose_to_run_depth(plane_capture, plane_run):
 
 
 def test_a_map_without_a_cross_check_is_refined_with_confirmed_right_seeds(plane_capture, plane_run, monkeypatch):
-    """match_pair records whether its matches passed the matcher's left–right check (a matcher without one, coop,
-    marks every pixel valid; ``use_filled`` refines the dense map); the run's refinement is told so."""
-    import dataclasses
-
+    """match_pair records whether its matches passed the matcher's left–right check (coop's map has none;
+    ``use_filled`` refines the dense map); the run's refinement is told so."""
     from prismstereo.depth import pipeline as pl
-    from prismstereo.matching.registry import MatchResult
 
     rig, _, cap = plane_capture
-    img, cfg = pl.validate_inputs(rig, cap.image, DepthConfig())
-    views = pl.virtual_cameras(rig, cfg)
-    pair = pl.rectify_geometry(rig, views, cfg)
-    left, right = pl.rectify_capture(pair, img)
-    region = pl.search_region(rig, pair, cfg, left, right)
-    assert pl.match_pair(left, right, pair, region, cfg).info["cross_checked"] is True
-    assert pl.match_pair(left, right, pair, region, dataclasses.replace(cfg, use_filled=True)).info[
-        "cross_checked"] is False
-    real_match = pl.match
-
-    def unchecked(*args, **kwargs):  # the matcher's dense map, every pixel valid, as coop returns it
-        res = real_match(*args, **kwargs)
-        return MatchResult(disparity=res.disparity, valid=np.ones(res.disparity.shape, dtype=bool))
-
-    monkeypatch.setattr(pl, "match", unchecked)
+    assert plane_run.match_info["cross_checked"] is True  # bpasw's cross-checked matches
+    assert pl.run_depth(rig, cap.image, config=DepthConfig(use_filled=True)).match_info["cross_checked"] is False
     seen: list[bool] = []
     real_cm = pl.confident_matches
 
@@ -211,9 +195,10 @@ def test_a_map_without_a_cross_check_is_refined_with_confirmed_right_seeds(plane
         return real_cm(*args, **kwargs)
 
     monkeypatch.setattr(pl, "confident_matches", recording)
+    monkeypatch.setattr(pl, "UNCHECKED_MATCHERS", frozenset({"bpasw"}))  # bpasw's map taken as unchecked
     res = pl.run_depth(rig, cap.image, config=DepthConfig())
     assert res.match_info["cross_checked"] is False and seen == [False]
-    assert res.valid.sum() > 0.9 * plane_run.valid.sum()  # the dense map's right values are kept
+    assert res.valid.sum() >= 0.99 * plane_run.valid.sum()  # its confirmed values stand for the right view
 
 
 def test_coarse_to_fine_depth_matches_the_full_search(plane_capture):

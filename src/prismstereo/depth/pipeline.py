@@ -116,6 +116,12 @@ __all__ = [
 ]
 
 
+#: matchers whose map has no left–right check of its own (every value is a match): the sub-pixel check seeds the
+#: right view with their values only where their own window confirms them (``seeds_checked`` of
+#: :func:`~prismstereo.depth.confidence.confident_matches`)
+UNCHECKED_MATCHERS = frozenset({"coop"})
+
+
 @dataclass(frozen=True, kw_only=True)
 class DepthConfig:
     """Configuration of one depth run (all of it, resolved, goes into ``run.json``).
@@ -866,8 +872,8 @@ def match_pair(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, region:
     src = src.copy()
     src[bad] = np.nan
     info = dict(res.extras.get("scale", {}))
-    # the matches passed a left–right check (a matcher without one, coop, marks every pixel valid)
-    info["cross_checked"] = not config.use_filled and not bool(np.all(res.valid))
+    # the matches passed the matcher's left–right check (coop's map has none: every value is a match)
+    info["cross_checked"] = not config.use_filled and config.method not in UNCHECKED_MATCHERS
     if not dense:
         info["dense_map"] = False
     return Disparities(disparity=src, filled=dense_map if dense else None, raw=raw, timings=dict(res.timings),
