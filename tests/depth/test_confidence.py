@@ -281,6 +281,44 @@ def test_the_left_right_check_refines_only_what_it_reads_with_the_same_result():
         assert np.array_equal(disp[keep], d0[keep]) and np.array_equal(conf[keep], c0[keep])
 
 
+def test_unconfirmed_values_of_an_unchecked_map_do_not_stand_for_the_right_view_in_the_check():
+    """A map without a cross-check (coop's) also has values where the scene is not seen in the right view; with
+    ``seeds_checked=False`` those whose own window does not match do not win the right pixels of true matches
+    (the largest disparity wins there) and so do not make the check drop them; as cross-checked seeds they do."""
+    import cv2
+
+    from prismstereo.depth import confidence as cm
+
+    left, right = _shifted_pair(7.3, seed=7)
+    rng = np.random.default_rng(8)
+    left = left.copy()
+    unseen = rng.random((left.shape[0], left.shape[1] - 70)).astype(np.float32) * 255
+    left[:, 70:] = cv2.GaussianBlur(unseen, (0, 0), 1.2)  # not in the right view
+    dense = np.full(left.shape, 7.0, dtype=np.float32)
+    dense[:, 70:] = 40.0  # a guess there, landing on the right pixels of columns 37..79
+    checked = dense.copy()
+    checked[:, 70:] = np.nan  # what a cross-check would have kept
+    kw = dict(radius=5, min_confidence=0.5, max_lr_gap=0.45)
+    d_new, _ = confident_matches(left, right, dense, seeds_checked=False, **kw)
+    d_old, _ = confident_matches(left, right, dense, seeds_checked=True, **kw)
+    d_checked, _ = confident_matches(left, right, checked, **kw)
+    hit = (slice(8, -8), slice(40, 62))  # true matches whose right pixels the guesses land on
+    assert np.isfinite(d_new[hit]).mean() > 0.95 and np.nanmax(np.abs(d_new[hit] - 7.3)) < 0.05
+    assert np.isfinite(d_old[hit]).mean() < 0.1  # the guesses as right seeds: the check drops the true matches
+    # as if the map had been cross-checked, but for the few guesses a random window confirms by chance
+    assert (np.isfinite(d_new[:, :62]) != np.isfinite(d_checked[:, :62])).mean() < 0.02
+    assert np.isfinite(d_new[:, 76:]).mean() < 0.05  # the guesses themselves are not confirmed
+    # a confirmed value wins its right pixel; an unconfirmed one only where no confirmed one lands
+    seeds = np.array([[np.nan, 1.0, 2.0, np.nan, 2.0, np.nan]], dtype=np.float32)  # right pixels -, 0, 0, -, 2, -
+    ok = np.array([[False, True, False, False, False, False]])
+    assert np.array_equal(cm._seen_from_right(seeds), [[2.0, np.nan, 2.0, np.nan, np.nan, np.nan]], equal_nan=True)
+    assert np.array_equal(cm._seen_confirmed(seeds, seeds, ok), [[1.0, np.nan, 2.0, np.nan, np.nan, np.nan]],
+                          equal_nan=True)
+    other = seeds.copy()
+    other[0, 2] = 2.5  # refined from another value than the seed's: its window says nothing of the seed
+    assert cm._seen_confirmed(seeds, other, ok)[0, 0] == 2.0
+
+
 def test_confident_fill_adds_the_filled_values_the_check_confirms_and_only_those():
     from prismstereo.depth.confidence import confident_fill
     from prismstereo.errors import ConfigError

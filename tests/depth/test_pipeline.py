@@ -179,6 +179,28 @@ def test_the_steps_compose_to_run_depth(plane_capture, plane_run):
         plane_run.depth = pts.depth  # type: ignore[misc]
 
 
+def test_a_map_without_a_cross_check_is_refined_with_confirmed_right_seeds(plane_capture, plane_run, monkeypatch):
+    """match_pair records whether its matches passed the matcher's left–right check (coop's map has none;
+    ``use_filled`` refines the dense map); the run's refinement is told so."""
+    from prismstereo.depth import pipeline as pl
+
+    rig, _, cap = plane_capture
+    assert plane_run.match_info["cross_checked"] is True  # bpasw's cross-checked matches
+    assert pl.run_depth(rig, cap.image, config=DepthConfig(use_filled=True)).match_info["cross_checked"] is False
+    seen: list[bool] = []
+    real_cm = pl.confident_matches
+
+    def recording(*args, **kwargs):
+        seen.append(kwargs["seeds_checked"])
+        return real_cm(*args, **kwargs)
+
+    monkeypatch.setattr(pl, "confident_matches", recording)
+    monkeypatch.setattr(pl, "UNCHECKED_MATCHERS", frozenset({"bpasw"}))  # bpasw's map taken as unchecked
+    res = pl.run_depth(rig, cap.image, config=DepthConfig())
+    assert res.match_info["cross_checked"] is False and seen == [False]
+    assert res.valid.sum() >= 0.99 * plane_run.valid.sum()  # its confirmed values stand for the right view
+
+
 def test_coarse_to_fine_depth_matches_the_full_search(plane_capture):
     """Issue 30: the depth run with coarse-to-fine forced on keeps the full search's accuracy and coverage,
     and run.json records what ran; a memory budget too small for any tile is refused."""

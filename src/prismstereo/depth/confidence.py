@@ -55,7 +55,8 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
                       right_seeds: np.ndarray | None = None,
                       retry_radius: int | None = None,
                       retry_below: float = 0.95,
-                      retry_drop: bool = False) -> tuple[np.ndarray, np.ndarray]:
+                      retry_drop: bool = False,
+                      seeds_checked: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Refine matches, rate them and keep the confident ones.
 
     With ``retry_radius``, every match whose ``radius`` window did not reach a confidence of ``retry_below``
@@ -85,8 +86,8 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
         as a full ``border_radius`` window, (2·border_radius + 1)²; None: such matches are not refined.
     max_lr_gap : float or None
         Sub-pixel left–right check: the right view's disparities are refined too (from the matches seen
-        from the right) and a match whose refined disparity differs from the right view's at ``x − d`` by
-        more than this (px) gets confidence 0. A window across a depth edge is pulled towards the
+        from the right, ``seeds_checked``) and a match whose refined disparity differs from the right view's
+        at ``x − d`` by more than this (px) gets confidence 0. A window across a depth edge is pulled towards the
         surface with more texture differently from the two sides; the check finds those. None: no check.
     valid_left, valid_right : (H, W) bool, optional
         Valid regions of the rectified views.
@@ -108,6 +109,12 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
         A retried match that the wider window does not confirm gets confidence 0 (so ``min_confidence``
         drops it) instead of keeping its first window's result: its small window was weak, and the wide
         one, with four times the pixels, failed the refinement or the sub-pixel check.
+    seeds_checked : bool
+        The values of ``right_seeds`` passed a left–right check of their own (the matcher's integer
+        cross-check): every one stands for the right view in the sub-pixel check. False (a dense map:
+        ``coop``'s, which has no cross-check, or a hole-filled one): at each right pixel the largest value
+        landing there that its own window confirms stands for it (refined, ``min_confidence`` reached
+        before the check), an unconfirmed one only where none does (:func:`_seen_confirmed`).
 
     Returns
     -------
@@ -120,7 +127,8 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
     kw: dict[str, Any] = dict(iterations=iterations, max_shift=max_shift, min_texture=min_texture,
                               border_radius=border_radius, max_lr_gap=max_lr_gap, valid_left=valid_left,
                               valid_right=valid_right, epipolar=epipolar, prefilter=prefilter,
-                              right_seeds=disparity if right_seeds is None else right_seeds)
+                              right_seeds=disparity if right_seeds is None else right_seeds,
+                              seeds_checked=seeds_checked)
     disp, conf = _rated(left, right, disparity, radius=radius, min_confidence=min_confidence, **kw)
     if retry_radius is not None and retry_radius != radius:
         d_in = np.asarray(disparity, dtype=np.float32)
@@ -140,8 +148,8 @@ def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
 def _rated(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, *, radius: int, iterations: int,
            max_shift: float, min_texture: float, min_confidence: float | None, border_radius: int | None,
            max_lr_gap: float | None, valid_left: np.ndarray | None, valid_right: np.ndarray | None,
-           epipolar: EpipolarTable | None, prefilter: float | None, right_seeds: np.ndarray
-           ) -> tuple[np.ndarray, np.ndarray]:
+           epipolar: EpipolarTable | None, prefilter: float | None, right_seeds: np.ndarray,
+           seeds_checked: bool) -> tuple[np.ndarray, np.ndarray]:
     """One window: (H, W) float32 refined disparities (the input value where the refinement could not
     confirm it, NaN where there is no match) and their confidence (0 where unconfirmed or failing the
     check, NaN where there is no match); nothing dropped yet."""
@@ -158,7 +166,8 @@ def _rated(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, *, radius
         # on the mirrored pair, where the right view is the left one; only at the right pixels the check
         # reads (each pixel is refined on its own, so the others change nothing)
         asked = conf > 0.0 if min_confidence is None else conf >= max(min_confidence, np.nextafter(0.0, 1.0))
-        seen = _seen_from_right(right_seeds)
+        seen = (_seen_from_right(right_seeds) if seeds_checked
+                else _seen_confirmed(right_seeds, disparity, asked & matched))
         disp_r = _right_refined(left, right, seen, disp, asked & matched, epipolar, radius=radius,
                                 iterations=iterations, max_shift=max_shift, min_texture=min_texture,
                                 min_pixels=min_pixels, valid_left=valid_left, valid_right=valid_right,
@@ -210,6 +219,7 @@ def confident_fill(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, c
         ``max_lr_gap`` None, or ``agree`` without a ``retry_radius`` other than ``radius``.
     """
     _require_lr_check(kwargs, "confident_fill", "a filled value")
+    kwargs.pop("seeds_checked", None)  # the dense map's values are not cross-checked
     if agree is not None and kwargs.get("retry_radius") in (None, kwargs.get("radius", 5)):
         raise ConfigError(f"confident_fill agree: needs a second window (retry_radius other than radius), got "
                           f"retry_radius {kwargs.get('retry_radius')!r}; pass agree=None for one window")
@@ -220,7 +230,8 @@ def confident_fill(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, c
     if not np.isfinite(retry).any():
         return d, np.asarray(confidence, dtype=np.float32)
     if agree is None:
-        d2, c2 = confident_matches(left, right, retry, valid_right=valid_right, right_seeds=seeds, **kwargs)
+        d2, c2 = confident_matches(left, right, retry, valid_right=valid_right, right_seeds=seeds,
+                                   seeds_checked=False, **kwargs)
     else:
         d2, c2 = _agreeing(left, right, retry, seeds, valid_right=valid_right, agree=agree, **kwargs)
     add = ~np.isfinite(d) & np.isfinite(d2)
@@ -237,9 +248,9 @@ def _agreeing(left: np.ndarray, right: np.ndarray, seeds: np.ndarray, right_seed
     small = int(kwargs.pop("radius", 5))
     kwargs.pop("retry_drop", None)
     d1, c1 = confident_matches(left, right, seeds, radius=small, valid_right=valid_right, right_seeds=right_seeds,
-                               **kwargs)
+                               seeds_checked=False, **kwargs)
     d2, c2 = confident_matches(left, right, seeds, radius=wide, valid_right=valid_right, right_seeds=right_seeds,
-                               **kwargs)
+                               seeds_checked=False, **kwargs)
     with np.errstate(invalid="ignore"):
         both = (c1 > 0.0) & (c2 > 0.0) & (np.abs(d1 - d2) < agree)
     first = c1 >= below
@@ -340,7 +351,7 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
         ``max_lr_gap`` None.
     """
     _require_lr_check(kwargs, "confident_growth", "a grown value")
-    for key in ("radius", "retry_radius", "retry_below", "retry_drop", "right_seeds"):
+    for key in ("radius", "retry_radius", "retry_below", "retry_drop", "right_seeds", "seeds_checked"):
         kwargs.pop(key, None)
     d = np.asarray(disparity, dtype=np.float32)
     conf = np.asarray(confidence, dtype=np.float32)
@@ -371,7 +382,7 @@ def _grown(left: np.ndarray, right: np.ndarray, d: np.ndarray, f: np.ndarray, *,
         return nan, nan
     right_seeds = np.where(np.isfinite(d), d, f).astype(np.float32)
     d2, c2 = confident_matches(left, right, seeds, radius=grow_radius, valid_right=valid_right,
-                               right_seeds=right_seeds, **kwargs)
+                               right_seeds=right_seeds, seeds_checked=False, **kwargs)
     with np.errstate(invalid="ignore"):
         add = np.isfinite(d2) & (np.abs(d2 - mean) < agree)
     return np.where(add, d2, nan).astype(np.float32), np.where(add, c2, nan).astype(np.float32)
@@ -458,6 +469,26 @@ def _right_row_offsets(epipolar: EpipolarTable, disparity_right: np.ndarray) -> 
     d = disparity_right[ys, xs]
     out[ys, xs] = -epipolar.row_offset(ys, xs + d, d)
     return out
+
+
+def _seen_confirmed(right_seeds: np.ndarray, disparity: np.ndarray, confirmed: np.ndarray) -> np.ndarray:
+    """(H, W) float32: the right view's seeds of the check, :func:`_seen_from_right` of ``right_seeds``, but
+    at each right pixel the largest of the values landing there that this window confirmed, where one did.
+    A value that this window refined from the same value (``disparity``) and did not confirm (``confirmed``
+    False: not refined, or below the confidence threshold before the check) stands for the right view only
+    where no confirmed one lands. A map without a cross-check of its own (``coop``'s, a dense map) has
+    values wherever the region reaches, also where the scene is not seen in the right view; moved to
+    x − d they win right pixels (the largest disparity wins) from the true matches there, and the check
+    then drops those: a value whose own window does not match is no evidence of what the right view sees."""
+    rs = np.asarray(right_seeds, dtype=np.float32)
+    d = np.asarray(disparity, dtype=np.float32)
+    with np.errstate(invalid="ignore"):
+        drop = np.isfinite(d) & ~confirmed & (d == rs)
+    every = _seen_from_right(rs)
+    if not drop.any():
+        return every
+    seen = _seen_from_right(np.where(drop, np.float32(np.nan), rs))
+    return np.where(np.isfinite(seen), seen, every).astype(np.float32)
 
 
 def _seen_from_right(disparity: np.ndarray) -> np.ndarray:

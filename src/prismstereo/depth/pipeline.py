@@ -116,6 +116,12 @@ __all__ = [
 ]
 
 
+#: matchers whose map has no left–right check of its own (every value is a match): the sub-pixel check seeds the
+#: right view with their values only where their own window confirms them (``seeds_checked`` of
+#: :func:`~prismstereo.depth.confidence.confident_matches`)
+UNCHECKED_MATCHERS = frozenset({"coop"})
+
+
 @dataclass(frozen=True, kw_only=True)
 class DepthConfig:
     """Configuration of one depth run (all of it, resolved, goes into ``run.json``).
@@ -866,6 +872,8 @@ def match_pair(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, region:
     src = src.copy()
     src[bad] = np.nan
     info = dict(res.extras.get("scale", {}))
+    # the matches passed the matcher's left–right check (coop's map has none: every value is a match)
+    info["cross_checked"] = not config.use_filled and config.method not in UNCHECKED_MATCHERS
     if not dense:
         info["dense_map"] = False
     return Disparities(disparity=src, filled=dense_map if dense else None, raw=raw, timings=dict(res.timings),
@@ -874,13 +882,16 @@ def match_pair(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, region:
 
 def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, disparity: np.ndarray,
                    config: DepthConfig, *, epipolar: EpipolarTable | None,
-                   filled: np.ndarray | None = None, right_excluded: np.ndarray | None = None
-                   ) -> tuple[np.ndarray, np.ndarray]:
+                   filled: np.ndarray | None = None, right_excluded: np.ndarray | None = None,
+                   checked: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Sub-pixel refinement, confidence and the confidence filter
     (:func:`~prismstereo.depth.confidence.confident_matches`), the right windows on the epipolar curves of
     ``epipolar`` (:func:`epipolar_curves`; None: on the left pixels' rows); with ``filled`` (the matcher's
     dense map) and ``refine_fill`` or ``refine_fill_agree``, a second try from it where none was kept
-    (:func:`~prismstereo.depth.confidence.confident_fill`; none lands on ``right_excluded``); returns
+    (:func:`~prismstereo.depth.confidence.confident_fill`; none lands on ``right_excluded``); ``checked``:
+    ``disparity`` passed the matcher's left–right check (False: a map without one, ``coop``'s; its values stand
+    for the right view in the sub-pixel check only where their window confirms them, ``seeds_checked`` of
+    :func:`~prismstereo.depth.confidence.confident_matches`); returns
     (disparity, confidence in [0, 1], 0 for every match when the refinement is off, NaN where there is no
     match)."""
     if not config.refine:
@@ -892,7 +903,7 @@ def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, dis
                               max_lr_gap=config.refine_max_lr_gap, valid_left=vl, epipolar=epipolar,
                               prefilter=config.refine_prefilter, retry_radius=config.refine_retry_radius,
                               retry_below=config.refine_retry_below, retry_drop=config.refine_retry_drop)
-    disp, conf = confident_matches(left, right, disparity, valid_right=vr, **kw)
+    disp, conf = confident_matches(left, right, disparity, valid_right=vr, seeds_checked=checked, **kw)
     fill, agree = _fill_rule(config)
     vr_fill = vr if right_excluded is None else np.asarray(vr, dtype=bool) & ~right_excluded
     if filled is not None and fill:
@@ -1052,7 +1063,8 @@ def _run_frame(setup: DepthSetup, image: np.ndarray, left: np.ndarray, right: np
     with clock.step("refine"):
         filled = None if cfg.use_filled else matched.filled
         disp, conf = refine_matches(left, right, pair, matched.disparity, cfg, epipolar=setup.epipolar,
-                                    filled=filled, right_excluded=region.right_excluded)
+                                    filled=filled, right_excluded=region.right_excluded,
+                                    checked=bool(matched.info.get("cross_checked", True)))
     if cfg.refine:
         counts["refined"] = int(np.isfinite(disp).sum())
     with clock.step("speckles"):
