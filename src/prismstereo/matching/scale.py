@@ -43,6 +43,7 @@ import cv2
 import numpy as np
 
 from prismstereo.errors import ConfigError, MatchingError
+from prismstereo.matching.local.aggregation import SegmentBand
 from prismstereo.matching.registry import Matcher, MatchResult, get_matcher
 
 log = logging.getLogger(__name__)
@@ -393,8 +394,6 @@ def _run_tiles(matcher: Matcher, left: np.ndarray, right: np.ndarray, tiles: lis
             t, bounds = _segment_band(t, pixel_band, h, w, p)
             if bounds is None:
                 continue
-            from prismstereo.matching.local.aggregation import SegmentBand
-
             kw["band"] = SegmentBand(bounds=bounds, segment=p.segment)
         ran.append(t)
         a, b = _crop_cols(t, w, overlap)
