@@ -46,59 +46,84 @@ def _sample(img: np.ndarray, y: int, xf: float, fy: float) -> float:  # pragma: 
 
 
 @njit(cache=True, inline="always")
-def _tap_sums(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, y: int, x: int, b0: int, lmean: float,
-              radius: int, oy: int, fy: float) -> tuple[float, ...]:  # pragma: no cover - numba
-    """Window sums of the two integer taps ``a = b0 + dx`` and ``b = a + 1`` of R and Rx, against the left
-    window less its mean ``lz``: Σ Ra, Σ Rb, Σ Ja, Σ Jb, Σ lz·Ja, Σ lz·Jb, Σ Ra·Ja, Σ Ra·Jb, Σ Rb·Ja, Σ Rb·Jb,
-    Σ Ja², Σ Ja·Jb, Σ Jb², Σ Ra², Σ Ra·Rb, Σ Rb², Σ lz·Ra, Σ lz·Rb (the window inside the row). The right
-    window's rows are those of the left one moved by ``oy + fy`` (the epipolar curve's row offset)."""
+def _strip(img: np.ndarray, T: np.ndarray, D: np.ndarray | None, y0: int, k: int, c0: int,
+           c1: int) -> None:  # pragma: no cover - numba
+    """The rows ``y0`` … ``y0 + k − 1`` of ``img`` (clamped to the image) at the columns ``c0`` … ``c1 − 1``,
+    column-major: ``T[c·k + j] = img[y0 + j, c]``; with ``D``, the difference to the next row there too
+    (``img[y0 + j + 1, c] − T[c·k + j]``, both rows clamped: 0 past the image's edge). A window of columns
+    is then one contiguous run of ``T``, and its next column ``k`` elements further on."""
+    h = img.shape[0]
+    for j in range(k):
+        ya = min(max(y0 + j, 0), h - 1)
+        yb = min(max(y0 + j + 1, 0), h - 1)
+        for c in range(c0, c1):
+            v = float(img[ya, c])
+            T[c * k + j] = v
+            if D is not None:
+                D[c * k + j] = float(img[yb, c]) - v
+
+
+@njit(cache=True, inline="always")
+def _window_sums(TL: np.ndarray, TR: np.ndarray, TD: np.ndarray, TJ: np.ndarray, TE: np.ndarray, ul: int,
+                 ur: int, uk: int, m: int, lmean: float, fy: float, out: np.ndarray,
+                 j: int) -> None:  # pragma: no cover - numba
+    """Window sums of the two integer taps ``a`` and ``b = a + 1`` of R and Rx against the left window less
+    its mean ``lz`` into ``out[j]``: Σ Ra, Σ Rb, Σ Ja, Σ Jb, Σ lz·Ja, Σ lz·Jb, Σ Ra·Ja, Σ Ra·Jb, Σ Rb·Ja,
+    Σ Rb·Jb, Σ Ja², Σ Ja·Jb, Σ Jb², Σ Ra², Σ Ra·Rb, Σ Rb², Σ lz·Ra, Σ lz·Rb, from column-major strips
+    (:func:`_strip`): the left window is ``TL[ul:ul + m]``, tap a of R ``TR[ur:ur + m] + fy·TD[ur:ur + m]``
+    (linear between two rows), Rx alike from ``TJ``, ``TE``, and tap b the same ``uk`` further on. One flat
+    loop over the window, so that it vectorises; unsigned offsets (numba then skips its test for negative
+    indices, which keeps the loads contiguous)."""
     sra = srb = sja = sjb = slja = sljb = 0.0
     sraja = srajb = srbja = srbjb = sjaja = sjajb = sjbjb = 0.0
     srara = srarb = srbrb = slra = slrb = 0.0
-    h = R.shape[0]
-    gy = 1.0 - fy
-    for dy in range(-radius, radius + 1):
-        yy = y + dy
-        # R and Rx linear between rows ya and yb, each column sampled once: tap b of one column is tap a of
-        # the next
-        ya = min(max(yy + oy, 0), h - 1)
-        yb = min(max(yy + oy + 1, 0), h - 1)
-        xa = b0 - radius
-        ra = float(R[ya, xa])
-        ja = float(Rx[ya, xa])
-        if fy != 0.0:
-            ra = gy * ra + fy * float(R[yb, xa])
-            ja = gy * ja + fy * float(Rx[yb, xa])
-        for dx in range(-radius, radius + 1):
-            xb = b0 + dx + 1
-            rb = float(R[ya, xb])
-            jb = float(Rx[ya, xb])
-            if fy != 0.0:
-                rb = gy * rb + fy * float(R[yb, xb])
-                jb = gy * jb + fy * float(Rx[yb, xb])
-            lz = L[yy, x + dx] - lmean
-            sra += ra
-            srb += rb
-            sja += ja
-            sjb += jb
-            slja += lz * ja
-            sljb += lz * jb
-            sraja += ra * ja
-            srajb += ra * jb
-            srbja += rb * ja
-            srbjb += rb * jb
-            sjaja += ja * ja
-            sjajb += ja * jb
-            sjbjb += jb * jb
-            srara += ra * ra
-            srarb += ra * rb
-            srbrb += rb * rb
-            slra += lz * ra
-            slrb += lz * rb
-            ra = rb
-            ja = jb
-    return (sra, srb, sja, sjb, slja, sljb, sraja, srajb, srbja, srbjb, sjaja, sjajb, sjbjb,
-            srara, srarb, srbrb, slra, slrb)
+    ua = np.uint64(ur)
+    ub = np.uint64(ur + uk)
+    u0 = np.uint64(ul)
+    for q in range(m):
+        uq = np.uint64(q)
+        a = TR[ua + uq] + fy * TD[ua + uq]
+        b = TR[ub + uq] + fy * TD[ub + uq]
+        ja = TJ[ua + uq] + fy * TE[ua + uq]
+        jb = TJ[ub + uq] + fy * TE[ub + uq]
+        z = TL[u0 + uq] - lmean
+        sra += a
+        srb += b
+        sja += ja
+        sjb += jb
+        slja += z * ja
+        sljb += z * jb
+        sraja += a * ja
+        srajb += a * jb
+        srbja += b * ja
+        srbjb += b * jb
+        sjaja += ja * ja
+        sjajb += ja * jb
+        sjbjb += jb * jb
+        srara += a * a
+        srarb += a * b
+        srbrb += b * b
+        slra += z * a
+        slrb += z * b
+    o = out[j]
+    o[0] = sra
+    o[1] = srb
+    o[2] = sja
+    o[3] = sjb
+    o[4] = slja
+    o[5] = sljb
+    o[6] = sraja
+    o[7] = srajb
+    o[8] = srbja
+    o[9] = srbjb
+    o[10] = sjaja
+    o[11] = sjajb
+    o[12] = sjbjb
+    o[13] = srara
+    o[14] = srarb
+    o[15] = srbrb
+    o[16] = slra
+    o[17] = slrb
 
 
 @njit(cache=True, parallel=True, fastmath=True, nogil=True)
@@ -111,94 +136,162 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
     ``Σ r·Jz = Σ Lz·J - (Σ R·J - m·mean R·mean J)`` and ``Σ Jz² = Σ J² - m·mean J²`` (``Σ Lz = 0``).
     Every window pixel is shifted by the same d, so its samples are ``R = fb·Ra + fa·Rb`` (and J alike)
     with one pair of integer taps and one fraction for the whole window: each sum is a polynomial in
-    ``fa`` whose coefficients are sums over the integer taps (:func:`_tap_sums`). These are computed once
-    per integer position ``b0`` the iterations visit (mostly one or two) instead of once per iteration.
+    ``fa`` whose coefficients are sums over the integer taps (:func:`_window_sums`). These are computed
+    once per integer position ``b0`` the iterations visit (mostly one or two) instead of once per iteration.
     The right window's rows are moved by the pixel's row offset ``oys[i] + fys[i]`` (integer part, fraction
     in [0, 1)), sampled linearly between two rows.
+
+    The pixels (``ys`` ascending) are taken a row and an integer row offset at a time: the left window's rows
+    and the right window's rows with their differences to the next row are copied once into column-major
+    strips (:func:`_strip`) that every pixel of the row reads its windows from, and each Gauss–Newton
+    iteration runs over all these pixels before the next (their updates are independent, so the processor
+    overlaps them instead of waiting on one pixel's chain of dependent steps).
     Returns the refined disparities, the final ZNCC and whether the pixel may keep its refinement.
     """
     n = ys.size
-    m = (2 * radius + 1) ** 2
+    h, w = R.shape
+    k = 2 * radius + 1
+    m = k * k
     d_out = np.empty(n, dtype=np.float32)
     zncc = np.empty(n, dtype=np.float32)
     keep = np.zeros(n, dtype=np.bool_)
-    w = R.shape[1]
-    for i in prange(n):
-        y, x = ys[i], xs[i]
-        oy, fy = oys[i], fys[i]
-        init = float(d0[y, x])
-        sl = 0.0
-        sl2 = 0.0
-        for dy in range(-radius, radius + 1):
-            for dx in range(-radius, radius + 1):
-                lv = float(L[y + dy, x + dx])
-                sl += lv
-                sl2 += lv * lv
-        lmean = sl / m
-        sll = max(sl2 - sl * lmean, 0.0)
-        d = init
-        textured = True
-        cached = -1
-        S: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
-                                0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        for _ in range(iterations):
-            xf0 = x - d
-            b0 = int(np.floor(xf0))
-            fa = xf0 - b0
-            fb = 1.0 - fa
-            if b0 - radius >= 0 and b0 + radius + 1 <= w - 1:
-                if b0 != cached:
-                    S = _tap_sums(L, R, Rx, y, x, b0, lmean, radius, oy, fy)
-                    cached = b0
-                sr = fb * S[0] + fa * S[1]
-                sj = fb * S[2] + fa * S[3]
-                slj = fb * S[4] + fa * S[5]
-                srj = fb * fb * S[6] + fb * fa * (S[7] + S[8]) + fa * fa * S[9]
-                sjj = fb * fb * S[10] + 2.0 * fb * fa * S[11] + fa * fa * S[12]
-            else:
-                # the window leaves the row: the edge-replicating sampler, pixel by pixel
-                sr = sj = slj = srj = sjj = 0.0
-                for dy in range(-radius, radius + 1):
-                    for dx in range(-radius, radius + 1):
-                        xf = x + dx - d
-                        rv = _sample(R, y + dy + oy, xf, fy)
-                        jv = _sample(Rx, y + dy + oy, xf, fy)
-                        lz = L[y + dy, x + dx] - lmean
-                        sr += rv
-                        sj += jv
-                        slj += lz * jv
-                        srj += rv * jv
-                        sjj += jv * jv
-            num = slj - (srj - sr * sj / m)
-            den = sjj - sj * sj / m
-            textured = den > min_texture * m
-            step = num / den if textured else 0.0
-            step = min(max(step, -0.5), 0.5)
-            d = min(max(d - step, init - max_shift), init + max_shift)
-        xf0 = x - d
-        b0 = int(np.floor(xf0))
-        fa = xf0 - b0
-        fb = 1.0 - fa
-        if b0 - radius >= 0 and b0 + radius + 1 <= w - 1:
-            if b0 != cached:
-                S = _tap_sums(L, R, Rx, y, x, b0, lmean, radius, oy, fy)
-            sr = fb * S[0] + fa * S[1]
-            srr = fb * fb * S[13] + 2.0 * fb * fa * S[14] + fa * fa * S[15]
-            slr = fb * S[16] + fa * S[17]
-        else:
-            sr = srr = slr = 0.0
-            for dy in range(-radius, radius + 1):
-                for dx in range(-radius, radius + 1):
-                    rv = _sample(R, y + dy + oy, x + dx - d, fy)
-                    lz = L[y + dy, x + dx] - lmean
-                    sr += rv
-                    srr += rv * rv
-                    slr += lz * rv
-        var_r = srr - sr * sr / m
-        den = np.sqrt(sll * var_r)
-        zncc[i] = slr / den if den > 0.0 else np.nan
-        d_out[i] = d
-        keep[i] = textured and np.isfinite(d) and abs(d - init) < max_shift - 1e-3
+    starts = np.searchsorted(ys, np.arange(h + 1))
+    reach = int(np.ceil(max_shift)) + 1
+    for y in prange(h):
+        i0, i1 = starts[y], starts[y + 1]
+        if i0 == i1:
+            continue
+        TL = np.empty(w * k, dtype=np.float64)
+        TR = np.empty(w * k, dtype=np.float64)
+        TD = np.empty(w * k, dtype=np.float64)
+        TJ = np.empty(w * k, dtype=np.float64)
+        TE = np.empty(w * k, dtype=np.float64)
+        S = np.empty((i1 - i0, 18), dtype=np.float64)
+        lms = np.empty(i1 - i0, dtype=np.float64)
+        slls = np.empty(i1 - i0, dtype=np.float64)
+        ds = np.empty(i1 - i0, dtype=np.float64)
+        cached = np.empty(i1 - i0, dtype=np.int64)
+        textured = np.ones(i1 - i0, dtype=np.bool_)
+        sel = np.empty(i1 - i0, dtype=np.int64)
+        lo, hi = w, 0
+        oy_lo, oy_hi = oys[i0], oys[i0]
+        for i in range(i0, i1):
+            lo = min(lo, xs[i])
+            hi = max(hi, xs[i])
+            oy_lo = min(oy_lo, oys[i])
+            oy_hi = max(oy_hi, oys[i])
+        _strip(L, TL, None, y - radius, k, max(lo - radius, 0), min(hi + radius + 1, w))
+        for oy in range(oy_lo, oy_hi + 1):
+            # this offset's pixels, and the columns their taps may reach
+            npx = 0
+            c0, c1 = w, 0
+            for i in range(i0, i1):
+                if oys[i] == oy:
+                    sel[npx] = i
+                    npx += 1
+                    b = int(np.floor(xs[i] - float(d0[y, xs[i]])))
+                    c0 = min(c0, b - reach - radius)
+                    c1 = max(c1, b + reach + radius + 2)
+            if npx == 0:
+                continue
+            _strip(R, TR, TD, y + oy - radius, k, max(c0, 0), min(c1, w))
+            _strip(Rx, TJ, TE, y + oy - radius, k, max(c0, 0), min(c1, w))
+            for j in range(npx):
+                i = sel[j]
+                x = xs[i]
+                ul = (x - radius) * k
+                sl = 0.0
+                sl2 = 0.0
+                for q in range(m):
+                    lv = TL[np.uint64(ul) + np.uint64(q)]
+                    sl += lv
+                    sl2 += lv * lv
+                lmean = sl / m
+                lms[j] = lmean
+                slls[j] = max(sl2 - sl * lmean, 0.0)
+                d = float(d0[y, x])
+                ds[j] = d
+                b0 = int(np.floor(x - d))
+                cached[j] = -1
+                if b0 - radius >= 0 and b0 + radius + 1 <= w - 1:
+                    _window_sums(TL, TR, TD, TJ, TE, ul, (b0 - radius) * k, k, m, lmean, fys[i], S, j)
+                    cached[j] = b0
+            for _ in range(iterations):
+                for j in range(npx):
+                    i = sel[j]
+                    x = xs[i]
+                    fy = fys[i]
+                    d = ds[j]
+                    init = float(d0[y, x])
+                    xf0 = x - d
+                    b0 = int(np.floor(xf0))
+                    fa = xf0 - b0
+                    fb = 1.0 - fa
+                    if b0 - radius >= 0 and b0 + radius + 1 <= w - 1:
+                        if b0 != cached[j]:
+                            _window_sums(TL, TR, TD, TJ, TE, (x - radius) * k, (b0 - radius) * k, k, m, lms[j], fy,
+                                         S, j)
+                            cached[j] = b0
+                        Sj = S[j]
+                        sr = fb * Sj[0] + fa * Sj[1]
+                        sj = fb * Sj[2] + fa * Sj[3]
+                        slj = fb * Sj[4] + fa * Sj[5]
+                        srj = fb * fb * Sj[6] + fb * fa * (Sj[7] + Sj[8]) + fa * fa * Sj[9]
+                        sjj = fb * fb * Sj[10] + 2.0 * fb * fa * Sj[11] + fa * fa * Sj[12]
+                    else:
+                        # the window leaves the row: the edge-replicating sampler, pixel by pixel
+                        lmean = lms[j]
+                        sr = sj = slj = srj = sjj = 0.0
+                        for dy in range(-radius, radius + 1):
+                            for dx in range(-radius, radius + 1):
+                                xf = x + dx - d
+                                rv = _sample(R, y + dy + oy, xf, fy)
+                                jv = _sample(Rx, y + dy + oy, xf, fy)
+                                lz = L[y + dy, x + dx] - lmean
+                                sr += rv
+                                sj += jv
+                                slj += lz * jv
+                                srj += rv * jv
+                                sjj += jv * jv
+                    num = slj - (srj - sr * sj / m)
+                    den = sjj - sj * sj / m
+                    tex = den > min_texture * m
+                    textured[j] = tex
+                    step = num / den if tex else 0.0
+                    step = min(max(step, -0.5), 0.5)
+                    ds[j] = min(max(d - step, init - max_shift), init + max_shift)
+            for j in range(npx):
+                i = sel[j]
+                x = xs[i]
+                fy = fys[i]
+                d = ds[j]
+                init = float(d0[y, x])
+                lmean = lms[j]
+                xf0 = x - d
+                b0 = int(np.floor(xf0))
+                fa = xf0 - b0
+                fb = 1.0 - fa
+                if b0 - radius >= 0 and b0 + radius + 1 <= w - 1:
+                    if b0 != cached[j]:
+                        _window_sums(TL, TR, TD, TJ, TE, (x - radius) * k, (b0 - radius) * k, k, m, lmean, fy, S, j)
+                    Sj = S[j]
+                    sr = fb * Sj[0] + fa * Sj[1]
+                    srr = fb * fb * Sj[13] + 2.0 * fb * fa * Sj[14] + fa * fa * Sj[15]
+                    slr = fb * Sj[16] + fa * Sj[17]
+                else:
+                    sr = srr = slr = 0.0
+                    for dy in range(-radius, radius + 1):
+                        for dx in range(-radius, radius + 1):
+                            rv = _sample(R, y + dy + oy, x + dx - d, fy)
+                            lz = L[y + dy, x + dx] - lmean
+                            sr += rv
+                            srr += rv * rv
+                            slr += lz * rv
+                var_r = srr - sr * sr / m
+                den = np.sqrt(slls[j] * var_r)
+                zncc[i] = slr / den if den > 0.0 else np.nan
+                d_out[i] = d
+                keep[i] = textured[j] and np.isfinite(d) and abs(d - init) < max_shift - 1e-3
     return d_out, zncc, keep
 
 
@@ -220,7 +313,7 @@ def _column_tap(R: np.ndarray, Rx: np.ndarray, VR: np.ndarray, ya: int, yb: int,
 @njit(cache=True)
 def _masked_tap_sums(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray, VR: np.ndarray, y: int,
                      x: int, b0: int, radius: int, oy: int, fy: float) -> tuple[float, ...]:  # pragma: no cover - numba
-    """:func:`_tap_sums` over the window pixels that count, on the raw left window: m, Σ L, Σ L², then Σ Ra,
+    """:func:`_window_sums` over the window pixels that count, on the raw left window: m, Σ L, Σ L², then Σ Ra,
     Σ Rb, Σ Ja, Σ Jb, Σ L·Ja, Σ L·Jb, Σ Ra·Ja, Σ Ra·Jb, Σ Rb·Ja, Σ Rb·Jb, Σ Ja², Σ Ja·Jb, Σ Jb², Σ Ra²,
     Σ Ra·Rb, Σ Rb², Σ L·Ra, Σ L·Rb (the taps R, Rx linear between the rows ``yr = y + dy + oy`` and ``yr + 1``,
     clamped to the image, at the columns ``b0 + dx`` and ``b0 + dx + 1``).
