@@ -51,16 +51,26 @@ def _strip(img: np.ndarray, T: np.ndarray, D: np.ndarray | None, y0: int, k: int
     """The rows ``y0`` … ``y0 + k − 1`` of ``img`` (clamped to the image) at the columns ``c0`` … ``c1 − 1``,
     column-major: ``T[c·k + j] = img[y0 + j, c]``; with ``D``, the difference to the next row there too
     (``img[y0 + j + 1, c] − T[c·k + j]``, both rows clamped: 0 past the image's edge). A window of columns
-    is then one contiguous run of ``T``, and its next column ``k`` elements further on."""
-    h = img.shape[0]
-    for j in range(k):
-        ya = min(max(y0 + j, 0), h - 1)
-        yb = min(max(y0 + j + 1, 0), h - 1)
-        for c in range(c0, c1):
-            v = float(img[ya, c])
-            T[c * k + j] = v
+    is then one contiguous run of ``T``, and its next column ``k`` elements further on. Unsigned indices
+    (no test for negative ones)."""
+    h, w = img.shape
+    flat = img.ravel()
+    rows = np.empty(k + 1, dtype=np.uint64)
+    for j in range(k + 1):
+        rows[j] = np.uint64(min(max(y0 + j, 0), h - 1) * w)
+    uk = np.uint64(k)
+    for c in range(c0, c1):
+        # a column's k values are consecutive in T: stores in order, loads from k + 1 row streams
+        uc = np.uint64(c)
+        o = uc * uk
+        v = float(flat[rows[0] + uc])
+        for j in range(k):
+            uj = np.uint64(j)
+            T[o + uj] = v
+            nxt = float(flat[rows[j + 1] + uc])
             if D is not None:
-                D[c * k + j] = float(img[yb, c]) - v
+                D[o + uj] = nxt - v
+            v = nxt
 
 
 @njit(cache=True, inline="always")
