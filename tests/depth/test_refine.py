@@ -308,3 +308,83 @@ def test_the_low_pass_select_kernel_is_the_numpy_formula() -> None:
     assert got.dtype == np.float32
     np.testing.assert_array_equal(got, want)
     assert not np.array_equal(np.where(den > np.float64(1e-3), 1, 0), np.where(den > 1e-3, 1, 0))
+
+
+def _bilinear(img: np.ndarray, yr: int, fy: float, xf: float) -> float:
+    """``img`` at column ``xf``, linear between the rows ``yr`` and ``yr + 1`` (weight ``fy`` on ``yr + 1``),
+    edge-replicated (the sampler the refinement's spec names: cv2 BORDER_REPLICATE)."""
+    h, w = img.shape
+    x0 = int(np.floor(xf))
+    a = xf - x0
+    xa, xb = min(max(x0, 0), w - 1), min(max(x0 + 1, 0), w - 1)
+    ya, yb = min(max(yr, 0), h - 1), min(max(yr + 1, 0), h - 1)
+    row = [(1.0 - a) * float(img[yy, xa]) + a * float(img[yy, xb]) for yy in (ya, yb)]
+    return (1.0 - fy) * row[0] + fy * row[1]
+
+
+def _gauss_newton_reference(L, R, Rx, y, x, init, oy, fy, r, iterations, max_shift, min_texture):  # noqa: ANN001, ANN202
+    """One pixel's refinement written directly: each iteration samples the right window at the current d
+    (bilinear, on the rows moved by ``oy + fy``), steps by ``Σ r·Jz / Σ Jz²`` on the zero-mean windows
+    (``r = Lz − Rz``, J sampled from ``Rx``), clamped to ±0.5 and to ±``max_shift`` around ``init``; the
+    confidence is the ZNCC of the final windows."""
+    dys, dxs = np.mgrid[-r:r + 1, -r:r + 1]
+    lw = np.array([float(L[y + a, x + b]) for a, b in zip(dys.ravel(), dxs.ravel())])
+    lz = lw - lw.mean()
+    m = lw.size
+
+    def windows(d: float) -> tuple[np.ndarray, np.ndarray]:
+        rw = np.array([_bilinear(R, y + a + oy, fy, x + b - d) for a, b in zip(dys.ravel(), dxs.ravel())])
+        jw = np.array([_bilinear(Rx, y + a + oy, fy, x + b - d) for a, b in zip(dys.ravel(), dxs.ravel())])
+        return rw, jw
+
+    d, textured = init, True
+    for _ in range(iterations):
+        rw, jw = windows(d)
+        jz = jw - jw.mean()
+        num = float(np.sum((lz - (rw - rw.mean())) * jz))
+        den = float(np.sum(jz * jz))
+        textured = den > min_texture * m
+        step = min(max(num / den if textured else 0.0, -0.5), 0.5)
+        d = min(max(d - step, init - max_shift), init + max_shift)
+    rw, _ = windows(d)
+    rz = rw - rw.mean()
+    zncc = float(np.sum(lz * rz) / np.sqrt(np.sum(lz * lz) * np.sum(rz * rz)))
+    return d, zncc, textured and abs(d - init) < max_shift - 1e-3
+
+
+def test_the_whole_window_kernel_is_a_direct_gauss_newton_and_zncc() -> None:
+    """``_refine_kernel`` (window sums from column-major strips, shared by a row's pixels, the iterations
+    interleaved over them) gives the direct numpy Gauss–Newton and ZNCC of every pixel on random images:
+    several pixels a row with different integer row offsets and fractions (0 included), starts up to 0.8 px
+    off (the iterations move to other integer taps), windows at the image's left and right edges (the
+    edge-replicating path) and on the top and bottom rows' offsets (rows clamped). Tolerance: d to 2e-5 px,
+    the ZNCC to 1e-5 (float32 outputs; the kernel's float64 sums are in another order)."""
+    from prismstereo.depth.refine import _refine_kernel
+
+    rng = np.random.default_rng(11)
+    h, w, r = 30, 70, 3
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    texture = 128 + 50 * np.sin(0.7 * xx + 0.3 * yy) + 30 * np.sin(0.31 * xx - 0.5 * yy)
+    L = (texture + rng.normal(0, 4, (h, w))).astype(np.float32)
+    R = (np.roll(texture, -6, axis=1) + rng.normal(0, 4, (h, w))).astype(np.float32)
+    Rx = cv2.Sobel(R, cv2.CV_32F, 1, 0, ksize=3, scale=1.0 / 8.0)
+    pix = sorted({(int(rng.integers(r, h - r)), int(rng.integers(r, w - r))) for _ in range(160)})
+    pix += [(r, 3), (r + 1, w - r - 1), (h - r - 1, 4), (h - r - 1, w - 5)]
+    pix = sorted(set(pix))
+    ys = np.array([p[0] for p in pix], dtype=np.int64)
+    xs = np.array([p[1] for p in pix], dtype=np.int64)
+    d0 = np.full((h, w), np.nan, dtype=np.float32)
+    d0[ys, xs] = (6.0 + rng.uniform(-0.8, 0.8, ys.size)).astype(np.float32)
+    d0[ys[-4:], xs[-4:]] = np.array([5.8, -1.2, 6.1, -1.7], dtype=np.float32)  # windows that leave the row on one side or the other
+    oys = rng.integers(-1, 2, ys.size).astype(np.int64)
+    fys = rng.choice(np.array([0.0, 0.25, 0.5, 0.9]), ys.size)
+    oys[-4:] = np.array([-1, 1, 1, -1])  # right rows off the top and bottom edges: clamped
+    kw = dict(r=r, iterations=6, max_shift=0.85, min_texture=0.01)
+    d, zncc, keep = _refine_kernel(L, R, Rx, ys, xs, d0, oys, fys, r, 6, 0.85, 0.01)
+    want = np.array([_gauss_newton_reference(L, R, Rx, int(y), int(x), float(d0[y, x]), int(oy), float(fy), **kw)
+                     for y, x, oy, fy in zip(ys, xs, oys, fys, strict=True)], dtype=np.float64)
+    assert 0.2 < np.mean(np.floor(xs - want[:, 0]) != np.floor(xs - d0[ys, xs])) < 0.9  # taps move
+    np.testing.assert_allclose(d, want[:, 0], rtol=0, atol=2e-5)
+    np.testing.assert_allclose(zncc, want[:, 1], rtol=0, atol=1e-5)
+    np.testing.assert_array_equal(keep, want[:, 2].astype(bool))
+    assert keep.mean() > 0.5
