@@ -46,23 +46,24 @@ def _sample(img: np.ndarray, y: int, xf: float, fy: float) -> float:  # pragma: 
 
 
 @njit(cache=True, inline="always")
-def _strip(img: np.ndarray, T: np.ndarray, D: np.ndarray | None, y0: int, k: int, c0: int,
-           c1: int) -> None:  # pragma: no cover - numba
-    """The rows ``y0`` … ``y0 + k − 1`` of ``img`` (clamped to the image) at the columns ``c0`` … ``c1 − 1``,
-    column-major: ``T[c·k + j] = img[y0 + j, c]``; with ``D``, the difference to the next row there too
-    (``img[y0 + j + 1, c] − T[c·k + j]``, both rows clamped: 0 past the image's edge). A window of columns
-    is then one contiguous run of ``T``, and its next column ``k`` elements further on. Unsigned indices
-    (no test for negative ones)."""
+def _strip(img: np.ndarray, T: np.ndarray, D: np.ndarray | None, y0: int, k: int, c0: int, c1: int,
+           pad: int) -> None:  # pragma: no cover - numba
+    """The rows ``y0`` … ``y0 + k − 1`` of ``img`` (clamped to the image) at the columns ``c0`` … ``c1 − 1``
+    (inside it), column-major and ``pad`` columns on: ``T[(c + pad)·k + j] = img[y0 + j, c]``; with ``D``, the
+    difference to the next row there too (``img[y0 + j + 1, c] − T[…]``, both rows clamped: 0 past the
+    image's edge). A window of columns is then one contiguous run of ``T``, and its next column ``k``
+    elements further on. Unsigned indices (no test for negative ones)."""
     h, w = img.shape
     flat = img.ravel()
     rows = np.empty(k + 1, dtype=np.uint64)
     for j in range(k + 1):
         rows[j] = np.uint64(min(max(y0 + j, 0), h - 1) * w)
     uk = np.uint64(k)
+    up = np.uint64(pad)
     for c in range(c0, c1):
         # a column's k values are consecutive in T: stores in order, loads from k + 1 row streams
         uc = np.uint64(c)
-        o = uc * uk
+        o = (uc + up) * uk
         v = float(flat[rows[0] + uc])
         for j in range(k):
             uj = np.uint64(j)
@@ -190,7 +191,7 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
             hi = max(hi, xs[i])
             oy_lo = min(oy_lo, oys[i])
             oy_hi = max(oy_hi, oys[i])
-        _strip(L, TL, None, y - radius, k, max(lo - radius, 0), min(hi + radius + 1, w))
+        _strip(L, TL, None, y - radius, k, max(lo - radius, 0), min(hi + radius + 1, w), 0)
         for oy in range(oy_lo, oy_hi + 1):
             # this offset's pixels, and the columns their taps may reach
             npx = 0
@@ -204,8 +205,8 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
                     c1 = max(c1, b + reach + radius + 2)
             if npx == 0:
                 continue
-            _strip(R, TR, TD, y + oy - radius, k, max(c0, 0), min(c1, w))
-            _strip(Rx, TJ, TE, y + oy - radius, k, max(c0, 0), min(c1, w))
+            _strip(R, TR, TD, y + oy - radius, k, max(c0, 0), min(c1, w), 0)
+            _strip(Rx, TJ, TE, y + oy - radius, k, max(c0, 0), min(c1, w), 0)
             for j in range(npx):
                 i = sel[j]
                 x = xs[i]
@@ -306,164 +307,239 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
 
 
 @njit(cache=True, inline="always")
-def _column_tap(R: np.ndarray, Rx: np.ndarray, VR: np.ndarray, ya: int, yb: int, nc: int, fc: int, fy: float,
-                xc: int) -> tuple[float, float, bool]:  # pragma: no cover - numba
-    """The taps R and Rx at column ``xc``, linear between the rows ``ya`` and ``yb`` (weight ``fy`` on ``yb``),
-    and whether the right view holds them (:func:`_masked_tap_sums`' rule on ``VR`` at the nearer row ``nc``
-    and the farther one ``fc``)."""
-    r = float(R[ya, xc])
-    j = float(Rx[ya, xc])
-    if fy != 0.0:
-        gy = 1.0 - fy
-        r = gy * r + fy * float(R[yb, xc])
-        j = gy * j + fy * float(Rx[yb, xc])
-    return r, j, VR[nc, xc] >= 2 and (fy == 0.0 or VR[fc, xc] >= 1)
+def _weight_strip(V: np.ndarray, T: np.ndarray, y0: int, k: int, c0: int, c1: int, pad: int, near: int,
+                  near_min: int, far: int, far_min: int) -> None:  # pragma: no cover - numba
+    """Which window pixels a view holds, column-major as :func:`_strip` (1.0 or 0.0): at row ``y0 + j`` and
+    column ``c``, ``V`` at the row ``near`` rows on is at least ``near_min`` and, with ``far_min`` > 0, ``V``
+    at the row ``far`` rows on at least ``far_min``, each row inside the image."""
+    h = V.shape[0]
+    for c in range(c0, c1):
+        o = (c + pad) * k
+        for j in range(k):
+            yn = y0 + j + near
+            ok = 0 <= yn < h and V[min(max(yn, 0), h - 1), c] >= near_min
+            if far_min > 0:
+                yf = y0 + j + far
+                ok = ok and 0 <= yf < h and V[min(max(yf, 0), h - 1), c] >= far_min
+            T[np.uint64(o + j)] = 1.0 if ok else 0.0
 
 
-@njit(cache=True)
-def _masked_tap_sums(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray, VR: np.ndarray, y: int,
-                     x: int, b0: int, radius: int, oy: int, fy: float) -> tuple[float, ...]:  # pragma: no cover - numba
-    """:func:`_window_sums` over the window pixels that count, on the raw left window: m, Σ L, Σ L², then Σ Ra,
-    Σ Rb, Σ Ja, Σ Jb, Σ L·Ja, Σ L·Jb, Σ Ra·Ja, Σ Ra·Jb, Σ Rb·Ja, Σ Rb·Jb, Σ Ja², Σ Ja·Jb, Σ Jb², Σ Ra²,
-    Σ Ra·Rb, Σ Rb², Σ L·Ra, Σ L·Rb (the taps R, Rx linear between the rows ``yr = y + dy + oy`` and ``yr + 1``,
-    clamped to the image, at the columns ``b0 + dx`` and ``b0 + dx + 1``).
+@njit(cache=True, inline="always")
+def _masked_window_sums(TL: np.ndarray, WL: np.ndarray, TR: np.ndarray, TD: np.ndarray, TJ: np.ndarray,
+                        TE: np.ndarray, WR: np.ndarray, ul: int, ur: int, uk: int, m: int, fy: float,
+                        out: np.ndarray) -> None:  # pragma: no cover - numba
+    """:func:`_window_sums` over the window pixels that count, on the raw left window, into ``out``: m, Σ L,
+    Σ L², then Σ Ra, Σ Rb, Σ Ja, Σ Jb, Σ L·Ja, Σ L·Jb, Σ Ra·Ja, Σ Ra·Jb, Σ Rb·Ja, Σ Rb·Jb, Σ Ja², Σ Ja·Jb,
+    Σ Jb², Σ Ra², Σ Ra·Rb, Σ Rb², Σ L·Ra, Σ L·Rb. A window pixel counts when the left view holds it
+    (``WL``) and the right view both its taps (``WR`` at tap a and at tap b, ``uk`` further on): each term is
+    weighted by that (1.0 or 0.0); the strips' columns off the image hold 0 in ``WL`` / ``WR`` and finite
+    values in the others."""
+    sm = sl = sll = 0.0
+    sra = srb = sja = sjb = slja = sljb = 0.0
+    sraja = srajb = srbja = srbjb = sjaja = sjajb = sjbjb = 0.0
+    srara = srarb = srbrb = slra = slrb = 0.0
+    ua = np.uint64(ur)
+    ub = np.uint64(ur + uk)
+    u0 = np.uint64(ul)
+    for q in range(m):
+        uq = np.uint64(q)
+        a = TR[ua + uq] + fy * TD[ua + uq]
+        b = TR[ub + uq] + fy * TD[ub + uq]
+        ja = TJ[ua + uq] + fy * TE[ua + uq]
+        jb = TJ[ub + uq] + fy * TE[ub + uq]
+        lv = TL[u0 + uq]
+        v = WL[u0 + uq] * WR[ua + uq] * WR[ub + uq]
+        wa = v * a
+        wb = v * b
+        wja = v * ja
+        wjb = v * jb
+        wl = v * lv
+        sm += v
+        sl += wl
+        sll += wl * lv
+        sra += wa
+        srb += wb
+        sja += wja
+        sjb += wjb
+        slja += wl * ja
+        sljb += wl * jb
+        sraja += wa * ja
+        srajb += wa * jb
+        srbja += wb * ja
+        srbjb += wb * jb
+        sjaja += wja * ja
+        sjajb += wja * jb
+        sjbjb += wjb * jb
+        srara += wa * a
+        srarb += wa * b
+        srbrb += wb * b
+        slra += wl * a
+        slrb += wl * b
+    out[0] = sm
+    out[1] = sl
+    out[2] = sll
+    out[3] = sra
+    out[4] = srb
+    out[5] = sja
+    out[6] = sjb
+    out[7] = slja
+    out[8] = sljb
+    out[9] = sraja
+    out[10] = srajb
+    out[11] = srbja
+    out[12] = srbjb
+    out[13] = sjaja
+    out[14] = sjajb
+    out[15] = sjbjb
+    out[16] = srara
+    out[17] = srarb
+    out[18] = srbrb
+    out[19] = slra
+    out[20] = slrb
+
+
+@njit(cache=True, inline="always")
+def _cut_sums(TL: np.ndarray, WL: np.ndarray, TR: np.ndarray, TD: np.ndarray, TJ: np.ndarray, TE: np.ndarray,
+              WR: np.ndarray, x: int, b0: int, radius: int, pad: int, w: int, fy: float,
+              S: np.ndarray) -> None:  # pragma: no cover - numba
+    """:func:`_masked_window_sums` of the window at ``x`` with taps from ``b0`` into ``S`` (strips ``pad``
+    columns on); taps whose columns all lie past the strips' padding (so off the image): all 0."""
+    k = 2 * radius + 1
+    if b0 - radius < -pad or b0 + radius + 1 >= w + pad:
+        S[:] = 0.0
+    else:
+        _masked_window_sums(TL, WL, TR, TD, TJ, TE, WR, (x - radius + pad) * k, (b0 - radius + pad) * k, k, k * k,
+                            fy, S)
+
+
+@njit(cache=True, parallel=True, fastmath=True, nogil=True)
+def _refine_cut_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray, VR: np.ndarray,
+                       ys: np.ndarray, xs: np.ndarray, d0: np.ndarray, oys: np.ndarray, fys: np.ndarray,
+                       radius: int, iterations: int, max_shift: float, min_texture: float,
+                       min_pixels: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - numba
+    """Gauss–Newton of the pixels whose windows are cut by an edge: the sums run over the window's pixels
+    that lie in both views (re-selected at each tap position, since the right taps move with d); the means,
+    the texture test and the ZNCC are those of these pixels. Fewer than ``min_pixels`` of them: not
+    refined. The sums come from :func:`_masked_window_sums`, once per integer tap position visited (as in
+    :func:`_refine_kernel`).
 
     A window pixel counts when it lies inside the image and the left view (``VL`` ≠ 0) and both its right taps
     inside the right view: ``VR`` is 2 inside it, 1 on its outermost pixels, 0 outside; of the rows ``yr`` and
     ``yr + 1`` (weight ``fy`` on ``yr + 1``) the nearer one must be inside (2), the other one, weighted less
     than half, in the view (≥ 1; not read when ``fy`` is 0). With the taps at ``b0 + dx`` the set is the same
-    for every fraction.
-
-    Branch-free along a window row: each pixel's terms are weighted by whether it counts (1.0 or 0.0, so
-    the sums are those of the pixels that count, in the same order, bit for bit), and the taps and the right
-    view's test of a column are carried to the next one (tap b of one column is tap a of the next); loads
-    are clamped to the image (what they read off it is weighted 0)."""
-    h, w = VL.shape
-    m = sl = sll = 0.0
-    sra = srb = sja = sjb = slja = sljb = 0.0
-    sraja = srajb = srbja = srbjb = sjaja = sjajb = sjbjb = 0.0
-    srara = srarb = srbrb = slra = slrb = 0.0
-    for dy in range(-radius, radius + 1):
-        yl = y + dy
-        yr = yl + oy
-        near, far = (yr, yr + 1) if fy < 0.5 else (yr + 1, yr)
-        if not (0 <= yl < h and 0 <= near < h and (fy == 0.0 or 0 <= far < h)):
-            continue  # no pixel of this row counts
-        nc = min(max(near, 0), h - 1)
-        fc = min(max(far, 0), h - 1)
-        # the rows of the taps, clamped
-        ya = min(max(yr, 0), h - 1)
-        yb = min(max(yr + 1, 0), h - 1)
-        xa = b0 - radius
-        xc = min(max(xa, 0), w - 1)
-        ra, ja, ok_a = _column_tap(R, Rx, VR, ya, yb, nc, fc, fy, xc)
-        for dx in range(-radius, radius + 1):
-            xa = b0 + dx
-            xl = x + dx
-            xn = min(max(xa + 1, 0), w - 1)
-            rb, jb, ok_b = _column_tap(R, Rx, VR, ya, yb, nc, fc, fy, xn)
-            xlc = min(max(xl, 0), w - 1)
-            counts = 0 <= xl < w and VL[yl, xlc] != 0 and 0 <= xa and xa + 1 < w and ok_a and ok_b
-            v = 1.0 if counts else 0.0
-            lv = float(L[yl, xlc])
-            m += v
-            sl += v * lv
-            sll += v * (lv * lv)
-            sra += v * ra
-            srb += v * rb
-            sja += v * ja
-            sjb += v * jb
-            slja += v * (lv * ja)
-            sljb += v * (lv * jb)
-            sraja += v * (ra * ja)
-            srajb += v * (ra * jb)
-            srbja += v * (rb * ja)
-            srbjb += v * (rb * jb)
-            sjaja += v * (ja * ja)
-            sjajb += v * (ja * jb)
-            sjbjb += v * (jb * jb)
-            srara += v * (ra * ra)
-            srarb += v * (ra * rb)
-            srbrb += v * (rb * rb)
-            slra += v * (lv * ra)
-            slrb += v * (lv * rb)
-            ra = rb
-            ja = jb
-            ok_a = ok_b
-    return (m, sl, sll, sra, srb, sja, sjb, slja, sljb, sraja, srajb, srbja, srbjb, sjaja, sjajb, sjbjb,
-            srara, srarb, srbrb, slra, slrb)
-
-
-@njit(cache=True)
-def _refine_masked(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray, VR: np.ndarray, y: int, x: int,
-                   init: float, oy: int, fy: float, radius: int, iterations: int, max_shift: float, min_texture: float,
-                   min_pixels: int) -> tuple[float, float, bool]:  # pragma: no cover - numba
-    """Gauss–Newton of one pixel whose window is cut by an edge: the sums run over the window's pixels that
-    lie in both views (re-selected at each tap position, since the right taps move with d); the means, the texture
-    test and the ZNCC are those of these pixels. Fewer than ``min_pixels`` of them: not refined. The sums
-    come from :func:`_masked_tap_sums`, once per integer tap position visited (as in :func:`_refine_kernel`)."""
-    d = init
-    textured = True
-    cached = int(np.floor(x - d))
-    S = _masked_tap_sums(L, R, Rx, VL, VR, y, x, cached, radius, oy, fy)
-    for _ in range(iterations):
-        xf0 = x - d
-        b0 = int(np.floor(xf0))
-        if b0 != cached:
-            S = _masked_tap_sums(L, R, Rx, VL, VR, y, x, b0, radius, oy, fy)
-            cached = b0
-        m = S[0]
-        if m < min_pixels:
-            return d, np.nan, False
-        fa = xf0 - b0
-        fb = 1.0 - fa
-        sl = S[1]
-        sr = fb * S[3] + fa * S[4]
-        sj = fb * S[5] + fa * S[6]
-        slj = fb * S[7] + fa * S[8]
-        srj = fb * fb * S[9] + fb * fa * (S[10] + S[11]) + fa * fa * S[12]
-        sjj = fb * fb * S[13] + 2.0 * fb * fa * S[14] + fa * fa * S[15]
-        num = (slj - sl * sj / m) - (srj - sr * sj / m)
-        den = sjj - sj * sj / m
-        textured = den > min_texture * m
-        step = num / den if textured else 0.0
-        step = min(max(step, -0.5), 0.5)
-        d = min(max(d - step, init - max_shift), init + max_shift)
-    xf0 = x - d
-    b0 = int(np.floor(xf0))
-    if b0 != cached:
-        S = _masked_tap_sums(L, R, Rx, VL, VR, y, x, b0, radius, oy, fy)
-    m = S[0]
-    if m < min_pixels:
-        return d, np.nan, False
-    fa = xf0 - b0
-    fb = 1.0 - fa
-    sl = S[1]
-    sr = fb * S[3] + fa * S[4]
-    srr = fb * fb * S[16] + 2.0 * fb * fa * S[17] + fa * fa * S[18]
-    slr = fb * S[19] + fa * S[20]
-    den = np.sqrt(max(S[2] - sl * sl / m, 0.0) * max(srr - sr * sr / m, 0.0))
-    zncc = (slr - sl * sr / m) / den if den > 0.0 else np.nan
-    keep = textured and np.isfinite(d) and abs(d - init) < max_shift - 1e-3
-    return d, zncc, keep
-
-
-@njit(cache=True, parallel=True, nogil=True)
-def _refine_cut_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray, VR: np.ndarray,
-                       ys: np.ndarray, xs: np.ndarray, d0: np.ndarray, oys: np.ndarray, fys: np.ndarray,
-                       radius: int, iterations: int, max_shift: float, min_texture: float,
-                       min_pixels: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - numba
-    """:func:`_refine_masked` over the given pixels (the windows cut by an edge)."""
+    for every fraction. The pixels (``ys`` ascending) are taken a row at a time with strips as in
+    :func:`_refine_kernel`, ``k + 1`` columns of padding on each side (the windows may leave the image),
+    and the right view's weights per integer row offset and kind of fraction (0, below one half, above).
+    """
     n = ys.size
+    h, w = R.shape
+    k = 2 * radius + 1
+    pad = k + 1
+    wp = w + 2 * pad
     d_out = np.empty(n, dtype=np.float32)
     zncc = np.empty(n, dtype=np.float32)
     keep = np.zeros(n, dtype=np.bool_)
-    for i in prange(n):
-        d, z, k = _refine_masked(L, R, Rx, VL, VR, ys[i], xs[i], float(d0[ys[i], xs[i]]), oys[i], fys[i], radius,
-                                 iterations, max_shift, min_texture, min_pixels)
-        d_out[i] = d
-        zncc[i] = z
-        keep[i] = k
+    starts = np.searchsorted(ys, np.arange(h + 1))
+    reach = int(np.ceil(max_shift)) + 1
+    for y in prange(h):
+        i0, i1 = starts[y], starts[y + 1]
+        if i0 == i1:
+            continue
+        TL = np.empty(wp * k, dtype=np.float64)
+        WL = np.empty(wp * k, dtype=np.float64)
+        TR = np.empty(wp * k, dtype=np.float64)
+        TD = np.empty(wp * k, dtype=np.float64)
+        TJ = np.empty(wp * k, dtype=np.float64)
+        TE = np.empty(wp * k, dtype=np.float64)
+        WR = np.empty(wp * k, dtype=np.float64)
+        # the padding: finite values, weight 0
+        for q in range(pad * k):
+            TL[q] = WL[q] = TR[q] = TD[q] = TJ[q] = TE[q] = WR[q] = 0.0
+        for q in range((w + pad) * k, wp * k):
+            TL[q] = WL[q] = TR[q] = TD[q] = TJ[q] = TE[q] = WR[q] = 0.0
+        S = np.empty(21, dtype=np.float64)
+        lo, hi = w, 0
+        oy_lo, oy_hi = oys[i0], oys[i0]
+        for i in range(i0, i1):
+            lo = min(lo, xs[i])
+            hi = max(hi, xs[i])
+            oy_lo = min(oy_lo, oys[i])
+            oy_hi = max(oy_hi, oys[i])
+        cl0, cl1 = max(lo - radius, 0), min(hi + radius + 1, w)
+        _strip(L, TL, None, y - radius, k, cl0, cl1, pad)
+        _weight_strip(VL, WL, y - radius, k, cl0, cl1, pad, 0, 1, 0, 0)
+        for oy in range(oy_lo, oy_hi + 1):
+            c0, c1 = w, 0
+            for i in range(i0, i1):
+                if oys[i] == oy:
+                    b = int(np.floor(xs[i] - float(d0[y, xs[i]])))
+                    c0 = min(c0, b - reach - radius)
+                    c1 = max(c1, b + reach + radius + 2)
+            c0, c1 = max(c0, 0), min(c1, w)
+            if c1 <= c0:
+                c0 = c1 = 0  # every tap off the image: weights 0 from the padding
+            _strip(R, TR, TD, y + oy - radius, k, c0, c1, pad)
+            _strip(Rx, TJ, TE, y + oy - radius, k, c0, c1, pad)
+            for kind in range(3):
+                # the rows the right view must hold: fy 0 reads one, below one half the nearer is the first
+                near = 1 if kind == 2 else 0
+                _weight_strip(VR, WR, y + oy - radius, k, c0, c1, pad, near, 2, 1 - near, 0 if kind == 0 else 1)
+                for i in range(i0, i1):
+                    fy = fys[i]
+                    if oys[i] != oy or (0 if fy == 0.0 else 1 if fy < 0.5 else 2) != kind:
+                        continue
+                    x = xs[i]
+                    init = float(d0[y, x])
+                    d = init
+                    textured = True
+                    cached = int(np.floor(x - d))
+                    _cut_sums(TL, WL, TR, TD, TJ, TE, WR, x, cached, radius, pad, w, fy, S)
+                    refined = True
+                    for _ in range(iterations):
+                        xf0 = x - d
+                        b0 = int(np.floor(xf0))
+                        if b0 != cached:
+                            _cut_sums(TL, WL, TR, TD, TJ, TE, WR, x, b0, radius, pad, w, fy, S)
+                            cached = b0
+                        m = S[0]
+                        if m < min_pixels:
+                            refined = False
+                            break
+                        fa = xf0 - b0
+                        fb = 1.0 - fa
+                        sl = S[1]
+                        sr = fb * S[3] + fa * S[4]
+                        sj = fb * S[5] + fa * S[6]
+                        slj = fb * S[7] + fa * S[8]
+                        srj = fb * fb * S[9] + fb * fa * (S[10] + S[11]) + fa * fa * S[12]
+                        sjj = fb * fb * S[13] + 2.0 * fb * fa * S[14] + fa * fa * S[15]
+                        num = (slj - sl * sj / m) - (srj - sr * sj / m)
+                        den = sjj - sj * sj / m
+                        textured = den > min_texture * m
+                        step = num / den if textured else 0.0
+                        step = min(max(step, -0.5), 0.5)
+                        d = min(max(d - step, init - max_shift), init + max_shift)
+                    z = np.nan
+                    kept = False
+                    if refined:
+                        xf0 = x - d
+                        b0 = int(np.floor(xf0))
+                        if b0 != cached:
+                            _cut_sums(TL, WL, TR, TD, TJ, TE, WR, x, b0, radius, pad, w, fy, S)
+                        m = S[0]
+                        if m >= min_pixels:
+                            fa = xf0 - b0
+                            fb = 1.0 - fa
+                            sl = S[1]
+                            sr = fb * S[3] + fa * S[4]
+                            srr = fb * fb * S[16] + 2.0 * fb * fa * S[17] + fa * fa * S[18]
+                            slr = fb * S[19] + fa * S[20]
+                            den = np.sqrt(max(S[2] - sl * sl / m, 0.0) * max(srr - sr * sr / m, 0.0))
+                            z = (slr - sl * sr / m) / den if den > 0.0 else np.nan
+                            kept = textured and np.isfinite(d) and abs(d - init) < max_shift - 1e-3
+                    d_out[i] = d
+                    zncc[i] = z
+                    keep[i] = kept
     return d_out, zncc, keep
 
 
