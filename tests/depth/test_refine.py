@@ -205,12 +205,15 @@ def _masked_sums_reference(L, R, Rx, VL, VR, y, x, b0, r, oy, fy):  # noqa: ANN0
 
 
 def test_cut_window_sums_count_only_the_pixels_inside_both_views() -> None:
-    """The branch-free masked sums of the cut windows equal the pixel-by-pixel rule, at the image's edges, across
-    holes of both views, with and without a row fraction (fy below and above one half)."""
-    from prismstereo.depth.refine import _masked_tap_sums
+    """The masked sums of the cut windows, from the padded column-major strips the cut kernel builds a row at a
+    time, equal the pixel-by-pixel rule, at the image's edges (windows and taps off it), across holes of both
+    views, with and without a row fraction (fy below and above one half)."""
+    from prismstereo.depth.refine import _cut_sums, _strip, _weight_strip
 
     rng = np.random.default_rng(3)
     h, w, r = 24, 30, 3
+    k = 2 * r + 1
+    pad = k + 1
     L = rng.uniform(0, 255, (h, w)).astype(np.float32)
     R = rng.uniform(0, 255, (h, w)).astype(np.float32)
     Rx = rng.normal(0, 20, (h, w)).astype(np.float32)
@@ -220,11 +223,23 @@ def test_cut_window_sums_count_only_the_pixels_inside_both_views() -> None:
         y, x = int(rng.integers(0, h)), int(rng.integers(0, w))
         b0, oy = x - int(rng.integers(-2, 6)), int(rng.integers(-2, 2))
         fy = float(rng.choice([0.0, 0.3, 0.8]))
-        got = np.array(_masked_tap_sums(L, R, Rx, VL, VR, y, x, b0, r, oy, fy))
+        strips = [np.full((w + 2 * pad) * k, np.nan) for _ in range(7)]
+        for s in strips:  # the padding as the kernel sets it, the columns it does not build left NaN
+            s[:pad * k] = 0.0
+            s[(w + pad) * k:] = 0.0
+        TL, WL, TR, TD, TJ, TE, WR = strips
+        _strip(L, TL, None, y - r, k, max(x - r, 0), min(x + r + 1, w), pad)
+        _weight_strip(VL, WL, y - r, k, max(x - r, 0), min(x + r + 1, w), pad, 0, 1, 0, 0)
+        c0, c1 = max(b0 - r, 0), min(b0 + r + 2, w)
+        _strip(R, TR, TD, y + oy - r, k, c0, c1, pad)
+        _strip(Rx, TJ, TE, y + oy - r, k, c0, c1, pad)
+        near = 1 if fy >= 0.5 else 0
+        _weight_strip(VR, WR, y + oy - r, k, c0, c1, pad, near, 2, 1 - near, 0 if fy == 0.0 else 1)
+        got = np.empty(21)
+        _cut_sums(TL, WL, TR, TD, TJ, TE, WR, x, b0, r, pad, w, fy, got)
         want = _masked_sums_reference(L, R, Rx, VL, VR, y, x, b0, r, oy, fy)
-        # products of float32 pixels are float32 in the kernel (numba's float() keeps the type): a pixel counted
-        # wrongly moves a sum by a whole term, ≥ 1e-3 of it here
-        np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-6)
+        # a pixel counted wrongly moves a sum by a whole term, ≥ 1e-3 of it here
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-6)
 
 
 def _select_reference(d0, static, vl, whole_r, offs, cut_mode):  # noqa: ANN001, ANN202

@@ -64,11 +64,12 @@ def _strip(img: np.ndarray, T: np.ndarray, D: np.ndarray | None, y0: int, k: int
         # a column's k values are consecutive in T: stores in order, loads from k + 1 row streams
         uc = np.uint64(c)
         o = (uc + up) * uk
-        v = float(flat[rows[0] + uc])
+        # np.float64, not float(): numba's float() keeps a float32, and the row difference must not round
+        v = np.float64(flat[rows[0] + uc])
         for j in range(k):
             uj = np.uint64(j)
             T[o + uj] = v
-            nxt = float(flat[rows[j + 1] + uc])
+            nxt = np.float64(flat[rows[j + 1] + uc])
             if D is not None:
                 D[o + uj] = nxt - v
             v = nxt
