@@ -428,9 +428,10 @@ def _refine_cut_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndar
     inside the right view: ``VR`` is 2 inside it, 1 on its outermost pixels, 0 outside; of the rows ``yr`` and
     ``yr + 1`` (weight ``fy`` on ``yr + 1``) the nearer one must be inside (2), the other one, weighted less
     than half, in the view (≥ 1; not read when ``fy`` is 0). With the taps at ``b0 + dx`` the set is the same
-    for every fraction. The pixels (``ys`` ascending) are taken a row at a time with strips as in
-    :func:`_refine_kernel`, ``k + 1`` columns of padding on each side (the windows may leave the image),
-    and the right view's weights per integer row offset and kind of fraction (0, below one half, above).
+    for every fraction. The pixels (``ys`` ascending, ``xs`` ascending along a row) are taken a run of nearby
+    pixels of a row at a time with strips as in :func:`_refine_kernel` over the run's columns, ``k + 1``
+    columns of padding on each side (the windows may leave the image), and the right view's weights per
+    integer row offset and kind of fraction (0, below one half, above).
     """
     n = ys.size
     h, w = R.shape
@@ -442,6 +443,7 @@ def _refine_cut_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndar
     keep = np.zeros(n, dtype=np.bool_)
     starts = np.searchsorted(ys, np.arange(h + 1))
     reach = int(np.ceil(max_shift)) + 1
+    gap = 2 * (k + reach)
     for y in prange(h):
         i0, i1 = starts[y], starts[y + 1]
         if i0 == i1:
@@ -459,88 +461,96 @@ def _refine_cut_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndar
         for q in range((w + pad) * k, wp * k):
             TL[q] = WL[q] = TR[q] = TD[q] = TJ[q] = TE[q] = WR[q] = 0.0
         S = np.empty(21, dtype=np.float64)
-        lo, hi = w, 0
-        oy_lo, oy_hi = oys[i0], oys[i0]
-        for i in range(i0, i1):
-            lo = min(lo, xs[i])
-            hi = max(hi, xs[i])
-            oy_lo = min(oy_lo, oys[i])
-            oy_hi = max(oy_hi, oys[i])
-        cl0, cl1 = max(lo - radius, 0), min(hi + radius + 1, w)
-        _strip(L, TL, None, y - radius, k, cl0, cl1, pad)
-        _weight_strip(VL, WL, y - radius, k, cl0, cl1, pad, 0, 1, 0, 0)
-        for oy in range(oy_lo, oy_hi + 1):
-            c0, c1 = w, 0
-            for i in range(i0, i1):
-                if oys[i] == oy:
-                    b = int(np.floor(xs[i] - float(d0[y, xs[i]])))
-                    c0 = min(c0, b - reach - radius)
-                    c1 = max(c1, b + reach + radius + 2)
-            c0, c1 = max(c0, 0), min(c1, w)
-            if c1 <= c0:
-                c0 = c1 = 0  # every tap off the image: weights 0 from the padding
-            _strip(R, TR, TD, y + oy - radius, k, c0, c1, pad)
-            _strip(Rx, TJ, TE, y + oy - radius, k, c0, c1, pad)
-            for kind in range(3):
-                # the rows the right view must hold: fy 0 reads one, below one half the nearer is the first
-                near = 1 if kind == 2 else 0
-                _weight_strip(VR, WR, y + oy - radius, k, c0, c1, pad, near, 2, 1 - near, 0 if kind == 0 else 1)
-                for i in range(i0, i1):
-                    fy = fys[i]
-                    if oys[i] != oy or (0 if fy == 0.0 else 1 if fy < 0.5 else 2) != kind:
-                        continue
-                    x = xs[i]
-                    init = float(d0[y, x])
-                    d = init
-                    textured = True
-                    cached = int(np.floor(x - d))
-                    _cut_sums(TL, WL, TR, TD, TJ, TE, WR, x, cached, radius, pad, w, fy, S)
-                    refined = True
-                    for _ in range(iterations):
-                        xf0 = x - d
-                        b0 = int(np.floor(xf0))
-                        if b0 != cached:
-                            _cut_sums(TL, WL, TR, TD, TJ, TE, WR, x, b0, radius, pad, w, fy, S)
-                            cached = b0
-                        m = S[0]
-                        if m < min_pixels:
-                            refined = False
-                            break
-                        fa = xf0 - b0
-                        fb = 1.0 - fa
-                        sl = S[1]
-                        sr = fb * S[3] + fa * S[4]
-                        sj = fb * S[5] + fa * S[6]
-                        slj = fb * S[7] + fa * S[8]
-                        srj = fb * fb * S[9] + fb * fa * (S[10] + S[11]) + fa * fa * S[12]
-                        sjj = fb * fb * S[13] + 2.0 * fb * fa * S[14] + fa * fa * S[15]
-                        num = (slj - sl * sj / m) - (srj - sr * sj / m)
-                        den = sjj - sj * sj / m
-                        textured = den > min_texture * m
-                        step = num / den if textured else 0.0
-                        step = min(max(step, -0.5), 0.5)
-                        d = min(max(d - step, init - max_shift), init + max_shift)
-                    z = np.nan
-                    kept = False
-                    if refined:
-                        xf0 = x - d
-                        b0 = int(np.floor(xf0))
-                        if b0 != cached:
-                            _cut_sums(TL, WL, TR, TD, TJ, TE, WR, x, b0, radius, pad, w, fy, S)
-                        m = S[0]
-                        if m >= min_pixels:
+        g0 = i0
+        while g0 < i1:
+            # a run of the row's pixels whose windows lie close together: the strips are built over its
+            # columns only (the cut windows of a row are few, at the views' edges)
+            g1 = g0 + 1
+            while g1 < i1 and xs[g1] - xs[g1 - 1] <= gap:
+                g1 += 1
+            lo, hi = w, 0
+            oy_lo, oy_hi = oys[g0], oys[g0]
+            for i in range(g0, g1):
+                lo = min(lo, xs[i])
+                hi = max(hi, xs[i])
+                oy_lo = min(oy_lo, oys[i])
+                oy_hi = max(oy_hi, oys[i])
+            cl0, cl1 = max(lo - radius, 0), min(hi + radius + 1, w)
+            _strip(L, TL, None, y - radius, k, cl0, cl1, pad)
+            _weight_strip(VL, WL, y - radius, k, cl0, cl1, pad, 0, 1, 0, 0)
+            for oy in range(oy_lo, oy_hi + 1):
+                c0, c1 = w, 0
+                for i in range(g0, g1):
+                    if oys[i] == oy:
+                        b = int(np.floor(xs[i] - float(d0[y, xs[i]])))
+                        c0 = min(c0, b - reach - radius)
+                        c1 = max(c1, b + reach + radius + 2)
+                c0, c1 = max(c0, 0), min(c1, w)
+                if c1 <= c0:
+                    c0 = c1 = 0  # every tap off the image: weights 0 from the padding
+                _strip(R, TR, TD, y + oy - radius, k, c0, c1, pad)
+                _strip(Rx, TJ, TE, y + oy - radius, k, c0, c1, pad)
+                for kind in range(3):
+                    # the rows the right view must hold: fy 0 reads one, below one half the nearer is the first
+                    near = 1 if kind == 2 else 0
+                    _weight_strip(VR, WR, y + oy - radius, k, c0, c1, pad, near, 2, 1 - near, 0 if kind == 0 else 1)
+                    for i in range(g0, g1):
+                        fy = fys[i]
+                        if oys[i] != oy or (0 if fy == 0.0 else 1 if fy < 0.5 else 2) != kind:
+                            continue
+                        x = xs[i]
+                        init = float(d0[y, x])
+                        d = init
+                        textured = True
+                        cached = int(np.floor(x - d))
+                        _cut_sums(TL, WL, TR, TD, TJ, TE, WR, x, cached, radius, pad, w, fy, S)
+                        refined = True
+                        for _ in range(iterations):
+                            xf0 = x - d
+                            b0 = int(np.floor(xf0))
+                            if b0 != cached:
+                                _cut_sums(TL, WL, TR, TD, TJ, TE, WR, x, b0, radius, pad, w, fy, S)
+                                cached = b0
+                            m = S[0]
+                            if m < min_pixels:
+                                refined = False
+                                break
                             fa = xf0 - b0
                             fb = 1.0 - fa
                             sl = S[1]
                             sr = fb * S[3] + fa * S[4]
-                            srr = fb * fb * S[16] + 2.0 * fb * fa * S[17] + fa * fa * S[18]
-                            slr = fb * S[19] + fa * S[20]
-                            den = np.sqrt(max(S[2] - sl * sl / m, 0.0) * max(srr - sr * sr / m, 0.0))
-                            z = (slr - sl * sr / m) / den if den > 0.0 else np.nan
-                            kept = textured and np.isfinite(d) and abs(d - init) < max_shift - 1e-3
-                    d_out[i] = d
-                    zncc[i] = z
-                    keep[i] = kept
+                            sj = fb * S[5] + fa * S[6]
+                            slj = fb * S[7] + fa * S[8]
+                            srj = fb * fb * S[9] + fb * fa * (S[10] + S[11]) + fa * fa * S[12]
+                            sjj = fb * fb * S[13] + 2.0 * fb * fa * S[14] + fa * fa * S[15]
+                            num = (slj - sl * sj / m) - (srj - sr * sj / m)
+                            den = sjj - sj * sj / m
+                            textured = den > min_texture * m
+                            step = num / den if textured else 0.0
+                            step = min(max(step, -0.5), 0.5)
+                            d = min(max(d - step, init - max_shift), init + max_shift)
+                        z = np.nan
+                        kept = False
+                        if refined:
+                            xf0 = x - d
+                            b0 = int(np.floor(xf0))
+                            if b0 != cached:
+                                _cut_sums(TL, WL, TR, TD, TJ, TE, WR, x, b0, radius, pad, w, fy, S)
+                            m = S[0]
+                            if m >= min_pixels:
+                                fa = xf0 - b0
+                                fb = 1.0 - fa
+                                sl = S[1]
+                                sr = fb * S[3] + fa * S[4]
+                                srr = fb * fb * S[16] + 2.0 * fb * fa * S[17] + fa * fa * S[18]
+                                slr = fb * S[19] + fa * S[20]
+                                den = np.sqrt(max(S[2] - sl * sl / m, 0.0) * max(srr - sr * sr / m, 0.0))
+                                z = (slr - sl * sr / m) / den if den > 0.0 else np.nan
+                                kept = textured and np.isfinite(d) and abs(d - init) < max_shift - 1e-3
+                        d_out[i] = d
+                        zncc[i] = z
+                        keep[i] = kept
+            g0 = g1
     return d_out, zncc, keep
 
 
