@@ -343,13 +343,13 @@ def _gauss_newton_reference(L, R, Rx, y, x, init, oy, fy, r, iterations, max_shi
     (``r = Lz − Rz``, J sampled from ``Rx``), clamped to ±0.5 and to ±``max_shift`` around ``init``; the
     confidence is the ZNCC of the final windows."""
     dys, dxs = np.mgrid[-r:r + 1, -r:r + 1]
-    lw = np.array([float(L[y + a, x + b]) for a, b in zip(dys.ravel(), dxs.ravel())])
+    lw = np.array([float(L[y + a, x + b]) for a, b in zip(dys.ravel(), dxs.ravel(), strict=True)])
     lz = lw - lw.mean()
     m = lw.size
 
     def windows(d: float) -> tuple[np.ndarray, np.ndarray]:
-        rw = np.array([_bilinear(R, y + a + oy, fy, x + b - d) for a, b in zip(dys.ravel(), dxs.ravel())])
-        jw = np.array([_bilinear(Rx, y + a + oy, fy, x + b - d) for a, b in zip(dys.ravel(), dxs.ravel())])
+        rw = np.array([_bilinear(R, y + a + oy, fy, x + b - d) for a, b in zip(dys.ravel(), dxs.ravel(), strict=True)])
+        jw = np.array([_bilinear(Rx, y + a + oy, fy, x + b - d) for a, b in zip(dys.ravel(), dxs.ravel(), strict=True)])
         return rw, jw
 
     d, textured = init, True
@@ -390,7 +390,8 @@ def test_the_whole_window_kernel_is_a_direct_gauss_newton_and_zncc() -> None:
     xs = np.array([p[1] for p in pix], dtype=np.int64)
     d0 = np.full((h, w), np.nan, dtype=np.float32)
     d0[ys, xs] = (6.0 + rng.uniform(-0.8, 0.8, ys.size)).astype(np.float32)
-    d0[ys[-4:], xs[-4:]] = np.array([5.8, -1.2, 6.1, -1.7], dtype=np.float32)  # windows that leave the row on one side or the other
+    # windows that leave the row on one side or the other
+    d0[ys[-4:], xs[-4:]] = np.array([5.8, -1.2, 6.1, -1.7], dtype=np.float32)
     oys = rng.integers(-1, 2, ys.size).astype(np.int64)
     fys = rng.choice(np.array([0.0, 0.25, 0.5, 0.9]), ys.size)
     oys[-4:] = np.array([-1, 1, 1, -1])  # right rows off the top and bottom edges: clamped
