@@ -7,8 +7,11 @@ nearest allowed disparity and the run reports success. Instead the range is deri
    (:func:`~prismstereo.rectify.view_overlap`, the sampled form of
    :func:`~prismstereo.rectify.common_view`: at least a quarter of the largest shared fraction, up to 100 m), and
 2. from the images: a coarse OpenCV SGBM match over that whole range on downsampled rectified views;
-   the 1st–99th percentiles of its consistent disparities, padded, give the range actually searched
-   (:func:`estimate_disparity_range`).
+   of the clusters its consistent disparities form, those the images confirm (the right view warped by
+   the coarse map reproduces the left view there) are the scene's, and their 1st–99th percentiles,
+   padded, give the range actually searched (:func:`estimate_disparity_range`). A tri-prism's common view
+   over the rig's depths is several times the scene's, and the coarse matches on its unlit part form
+   false clusters far from the scene that plain percentiles would take in.
 
 When the images give too little support (noise, a photo that is no prism capture, no texture) the rig
 range is kept and a warning says so. :func:`depth_warnings` turns coverage, match confidence and the
@@ -242,7 +245,7 @@ def disparity_clusters(values: np.ndarray, *, gap: int = CLUSTER_GAP) -> list[tu
     breaks = np.flatnonzero(np.diff(bins) > gap + 1)
     starts = np.concatenate([[0], breaks + 1])
     ends = np.concatenate([breaks, [bins.size - 1]])
-    return [(int(bins[a]), int(bins[b])) for a, b in zip(starts, ends)]
+    return [(int(bins[a]), int(bins[b])) for a, b in zip(starts, ends, strict=True)]
 
 
 def _coarse_match(left: np.ndarray, right: np.ndarray, region: np.ndarray, *, lo: int, hi: int,
