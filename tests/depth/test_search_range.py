@@ -3,6 +3,7 @@ on a tri-prism capture whose wide common view gathers false coarse matches."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 
@@ -13,7 +14,7 @@ import pytest
 from prismstereo.apps.demo import robot_scene, scaled_rig
 from prismstereo.config import thesis_triprism
 from prismstereo.depth import DepthConfig, prepare_depth, run_depth
-from prismstereo.depth.pipeline import rectify_capture
+from prismstereo.depth.pipeline import diagnose, rectify_capture
 from prismstereo.depth.search_range import (
     MIN_SCENE_POINTS,
     confident_coarse,
@@ -72,12 +73,44 @@ def triprism_robot():
     return rig, render_capture(rig, robot_scene())
 
 
-def test_a_good_triprism_capture_does_not_warn_and_noise_does(triprism_robot):
+@pytest.fixture(scope="module")
+def robot_run(triprism_robot):
+    rig, cap = triprism_robot
+    return run_depth(rig, cap.image, config=DepthConfig(method="sgm"), progress=False)
+
+
+def test_an_unchecked_map_counts_the_limits_where_points_were_kept(robot_run):
+    """A map without a left–right check (coop) has a value at every pixel; values piled at the far limit on
+    pixels that kept no point say nothing of the scene, the same pile on kept pixels does."""
+    res = robot_run
+    lo = res.disparity_range[0]
+    kept = res.valid & np.isfinite(res.disparity)
+    raw = np.asarray(res.raw_disparity, dtype=np.float32)
+    assert not any("farthest searched depth" in w for w in diagnose(res))
+    unchecked = {**res.match_info, "cross_checked": False}
+
+    def piled(where):
+        out = raw.copy()
+        ys, xs = np.nonzero(where)
+        pick = np.random.default_rng(0).choice(ys.size, size=int(0.1 * np.isfinite(raw).sum()), replace=False)
+        out[ys[pick], xs[pick]] = lo
+        return out
+
+    off = piled(~kept & res.searched())
+    assert any("farthest searched depth" in w for w in diagnose(dataclasses.replace(res, raw_disparity=off)))
+    assert not any("farthest searched depth" in w
+                   for w in diagnose(dataclasses.replace(res, raw_disparity=off, match_info=unchecked)))
+    on = piled(kept)
+    assert any("farthest searched depth" in w
+               for w in diagnose(dataclasses.replace(res, raw_disparity=on, match_info=unchecked)))
+
+
+def test_a_good_triprism_capture_does_not_warn_and_noise_does(triprism_robot, robot_run):
     """The robot (fronts at 1.50–1.54 m) before its wall (2 m) on the tri-prism: the range found keeps both
     and is a fraction of the rig's (the far false coarse matches of the rig's wide common view left out);
     the coverage is of the common view at the depths found, and the warning stays for noise."""
     rig, cap = triprism_robot
-    res = run_depth(rig, cap.image, config=DepthConfig(method="sgm"), progress=False)
+    res = robot_run
     rig_lo, rig_hi = prepare_depth(rig, config=DepthConfig()).rig_range.disparity_px  # type: ignore[union-attr]
     lo, hi = res.disparity_range
     assert res.depth_range_source == "rig+images" and hi - lo < 0.3 * (rig_hi - rig_lo)

@@ -454,7 +454,8 @@ def depth_warnings(*, points: int, region_pixels: int, matched: int, confident: 
     points : valid triangulated points.  region_pixels : pixels of the matched region.
     matched : matches that passed the matcher's left–right check.  confident : of those, the refined
         confident ones (None when refinement was off).
-    disparity, valid : the matcher's raw disparity and its consistency mask (for the limit shares).
+    disparity, valid : the matcher's raw disparity and the pixels whose values count for the limit shares
+        (None: every finite one).
     disparity_range, depth_range : what was searched.
     coverage : the share of the common view at the depths found (:func:`scene_coverage`); None: points over
         ``region_pixels``.
