@@ -119,16 +119,21 @@ def board_calibrated(true: Rig, out: Path) -> tuple[Rig, dict[str, Any]]:
     return pc.rig, info
 
 
-def run_row(rig_used: Rig, true: Rig, image: np.ndarray, scene: Scene, preset: str) -> dict[str, Any]:
+def run_row(rig_used: Rig, true: Rig, image: np.ndarray, scene: Scene, preset: str,
+            max_memory: int | None = None) -> dict[str, Any]:
     t0 = time.perf_counter()
-    res = run_depth(rig_used, image, config=apply_preset(DepthConfig(), preset))
+    c0 = time.process_time()
+    res = run_depth(rig_used, image, config=apply_preset(DepthConfig(max_memory=max_memory), preset))
     secs = time.perf_counter() - t0
+    cpu = time.process_time() - c0
     judged = copy.copy(res)
     object.__setattr__(judged, "rig", true)  # the truth: the real pixels' rays through the true prism
     acc = evaluate_depth(judged, scene=scene)
     return {"median_pct": 100 * acc["median_rel"], "within_1pct": 100 * acc["within_1pct"],
             "coverage_pct": 100 * acc["coverage"], "p95_pct": 100 * acc["p95_rel"], "n_points": acc["n_points"],
-            "n_common": acc["n_common"], "depth_s": secs, "warnings": list(res.warnings)}
+            "n_common": acc["n_common"], "depth_s": secs, "cpu_s": cpu, "warnings": list(res.warnings),
+            "disparity_range": list(res.disparity_range), "depth_range": [round(v, 1) for v in res.depth_range],
+            "range_source": res.depth_range_source, "tiles": res.match_info.get("tiles")}
 
 
 def _key(r: dict[str, Any]) -> tuple[str, ...]:
@@ -139,11 +144,12 @@ def _fmt(r: dict[str, Any]) -> str:
     if "error" in r:
         return f"| {r['scene']} | {r['rig']} | {r['realism']} | {r['calib']} | {r['preset']} | failed: {r['error']} |"
     return (f"| {r['scene']} | {r['rig']} | {r['realism']} | {r['calib']} | {r['preset']} | {r['median_pct']:.3f} | "
-            f"{r['within_1pct']:.1f} | {r['coverage_pct']:.1f} | {r['depth_s']:.0f} | {len(r['warnings'])} |")
+            f"{r['within_1pct']:.1f} | {r['coverage_pct']:.1f} | {r['depth_s']:.0f} | {len(r['warnings'])} | "
+            f"{'–'.join(str(v) for v in r.get('disparity_range', ()))} |")
 
 
-HEADER = ("| scene | rig | realism | calib | preset | median % | within 1 % | coverage % | depth s | warnings |\n"
-          "|---|---|---|---|---|---|---|---|---|---|")
+HEADER = ("| scene | rig | realism | calib | preset | median % | within 1 % | coverage % | depth s | warnings | "
+          "searched px |\n|---|---|---|---|---|---|---|---|---|---|---|")
 
 
 def _csv(v: str, allowed: tuple[str, ...], what: str) -> list[str]:
@@ -185,6 +191,9 @@ def main() -> None:
     ap.add_argument("--calib", default="none,board,self", help="for the misaligned rig")
     ap.add_argument("--center-depth", type=float, default=1400.0)
     ap.add_argument("--fill", type=float, default=1.3, help="scene width / one half-sensor view at the centre depth")
+    ap.add_argument("--max-memory", type=float, default=None,
+                    help="DepthConfig.max_memory, bytes (default: 80 %% of the free memory, which varies on a shared "
+                         "machine, and coop's map depends on the tiling it sets)")
     args = ap.parse_args()
     data = Path(args.data) if args.data else default_data()
     scenes = _csv(args.scenes, EXTRA + MB2014, "scenes")
@@ -240,7 +249,8 @@ def main() -> None:
                                 raise PrismStereoError(self_err)
                             rig_used = self_rig
                         assert rig_used is not None
-                        row = {**base, **run_row(rig_used, true, image, scene, preset)}
+                        row = {**base, **run_row(rig_used, true, image, scene, preset,
+                                                  None if args.max_memory is None else int(args.max_memory))}
                         if calib == "self":
                             row["self_calibration"] = self_info
                     except PrismStereoError as exc:

@@ -971,11 +971,19 @@ def coverage_of(result: DepthRun) -> Coverage | None:
 
 def diagnose(result: DepthRun) -> tuple[str, ...]:
     """One-line warnings about a finished run (:func:`~prismstereo.depth.search_range.depth_warnings`;
-    coverage of the common view at the depths found, :attr:`DepthRun.coverage`, where the run has it)."""
+    coverage of the common view at the depths found, :attr:`DepthRun.coverage`, where the run has it).
+
+    The share of matches at a search limit counts, for a matcher without a left–right check of its own
+    (``match_info["cross_checked"]`` False, e.g. ``coop``), only the pixels that kept a point: such a map has a
+    value at every pixel, and those without a true match in a narrow range pile up at its limits (2–7 % on
+    the tri-prism) whether or not the scene reaches them."""
     c = result.counts()
+    limit_valid = None
+    if not result.match_info.get("cross_checked", True) and result.disparity is not None:
+        limit_valid = np.asarray(result.valid, dtype=bool) & np.isfinite(result.disparity)
     return tuple(depth_warnings(
         points=c["points"], region_pixels=c["region_pixels"], matched=c.get("matched", 0),
-        confident=c.get("refined"), disparity=result.raw_disparity, valid=None,
+        confident=c.get("refined"), disparity=result.raw_disparity, valid=limit_valid,
         disparity_range=result.disparity_range, depth_range=result.depth_range, coverage=result.coverage))
 
 

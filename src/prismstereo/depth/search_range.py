@@ -7,8 +7,11 @@ nearest allowed disparity and the run reports success. Instead the range is deri
    (:func:`~prismstereo.rectify.view_overlap`, the sampled form of
    :func:`~prismstereo.rectify.common_view`: at least a quarter of the largest shared fraction, up to 100 m), and
 2. from the images: a coarse OpenCV SGBM match over that whole range on downsampled rectified views;
-   the 1st–99th percentiles of its consistent disparities, padded, give the range actually searched
-   (:func:`estimate_disparity_range`).
+   of the clusters its consistent disparities form, those the images confirm (the right view warped by
+   the coarse map reproduces the left view there) are the scene's, and their 1st–99th percentiles,
+   padded, give the range actually searched (:func:`estimate_disparity_range`). A tri-prism's common view
+   over the rig's depths is several times the scene's, and the coarse matches on its unlit part form
+   false clusters far from the scene that plain percentiles would take in.
 
 When the images give too little support (noise, a photo that is no prism capture, no texture) the rig
 range is kept and a warning says so. :func:`depth_warnings` turns coverage, match confidence and the
@@ -39,13 +42,26 @@ from prismstereo.rectify import RectifiedPair, common_view, rectify_pair, view_o
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Coverage", "RigRange", "SearchRange", "auto_search_range", "depth_warnings", "estimate_disparity_range",
-           "rig_depth_range", "rig_range", "scene_coverage", "view_overlap"]
+__all__ = ["Coverage", "RigRange", "SearchRange", "auto_search_range", "confident_coarse", "depth_warnings",
+           "disparity_clusters", "estimate_disparity_range", "rig_depth_range", "rig_range", "scene_coverage",
+           "view_overlap"]
 
 #: largest disparity span of the coarse match, px at the coarse scale (sets the downsampling factor)
 COARSE_SPAN = 128
 #: consistent coarse matches (share of the common view) needed to trust the image-based range
 MIN_SUPPORT = 0.05
+#: coarse matches the images confirm (share of the common view) needed to judge the clusters
+MIN_CONFIRMED = 0.01
+#: a cluster of coarse disparities is the scene's where it holds this share of the confirmed matches ...
+CLUSTER_SUPPORT = 0.01
+#: ... and at least this many
+MIN_CLUSTER_CONFIRMED = 5
+#: empty integer disparities (at the coarse scale) a cluster may span
+CLUSTER_GAP = 2
+#: the confirmation of a coarse match: window (px at the coarse scale), least ZNCC, least texture (grey levels)
+CONFIDENT_WINDOW = 9
+CONFIDENT_ZNCC = 0.9
+CONFIDENT_STD = 1.0
 #: warnings: fewer points than this share of the matched region
 MIN_COVERAGE = 0.2
 #: warnings: fewer confident (refined) matches than this share of the matcher's consistent ones
@@ -162,26 +178,82 @@ def _depth_of(d: float, depths: np.ndarray, disp: np.ndarray) -> float:
     return float(np.exp(np.interp(d, dd, zz)))
 
 
-def estimate_disparity_range(left: np.ndarray, right: np.ndarray, region: np.ndarray, *, lo: int, hi: int,
-                             valid_left: np.ndarray | None = None, valid_right: np.ndarray | None = None
-                             ) -> tuple[tuple[int, int] | None, float]:
-    """Disparity range of the scene from a coarse SGBM match of the rectified views.
+def _local_stats(a: np.ndarray, b: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """ZNCC of ``a`` and ``b`` over k×k windows, and each image's standard deviation there (float32, (h, w))."""
+    ma, mb = cv2.blur(a, (k, k)), cv2.blur(b, (k, k))
+    va = np.maximum(cv2.blur(a * a, (k, k)) - ma * ma, 0.0)
+    vb = np.maximum(cv2.blur(b * b, (k, k)) - mb * mb, 0.0)
+    cov = cv2.blur(a * b, (k, k)) - ma * mb
+    return cov / np.sqrt(np.maximum(va * vb, 1e-12)), np.sqrt(va), np.sqrt(vb)
+
+
+def confident_coarse(d: np.ndarray, ok: np.ndarray, left: np.ndarray, right: np.ndarray, inside_left: np.ndarray,
+                     inside_right: np.ndarray, *, window: int = CONFIDENT_WINDOW,
+                     min_zncc: float = CONFIDENT_ZNCC, min_std: float = CONFIDENT_STD) -> np.ndarray:
+    """The coarse matches the images themselves confirm.
+
+    A match is confirmed where the right view, warped by the coarse disparity map, reproduces the left view
+    around it: the ZNCC of the two over a ``window``-wide square is at least ``min_zncc``, both are textured
+    there (standard deviation ``min_std`` grey levels or more) and both windows lie inside their view's valid
+    region. The false matches that spread a tri-prism's range are not: they sit on flat unlit background
+    between two edges that happen to line up (SGBM's smoothness carries a disparity into them), or on texture
+    whose true match lies outside the other view.
 
     Parameters
     ----------
-    left, right : (h, w, 3) or (h, w) uint8  rectified views.
-    region : (h, w) bool  the common view (pixels that may match).
-    lo, hi : int  the widest range the rig allows, px.
-    valid_left, valid_right : (h, w) bool, optional
-        The views' valid regions; outside them the images are filled with independent noise, so that the
-        edges of the black borders cannot match each other (they would add a false cluster of disparities).
+    d : (h, w) float32  coarse disparities, px at the coarse scale.
+    ok : (h, w) bool  the matches to judge.
+    left, right : (h, w) uint8  the coarse grey views.
+    inside_left, inside_right : (h, w) bool  the views' valid regions at the coarse scale.
+    window, min_zncc, min_std : the window (odd, px), the least ZNCC and the least texture.
 
     Returns
     -------
-    ((min, max) or None, support)
-        The padded 1st–99th percentile of the coarse consistent disparities (None when fewer than
-        :data:`MIN_SUPPORT` of the region matched), and the share of the region that matched.
+    (h, w) bool
     """
+    h, w = d.shape
+    dd = np.where(ok, d, 0.0).astype(np.float32)
+    xs = np.arange(w, dtype=np.float32)[None, :] - dd
+    ys = np.broadcast_to(np.arange(h, dtype=np.float32)[:, None], (h, w))
+    warped = cv2.remap(right.astype(np.float32), np.ascontiguousarray(xs), np.ascontiguousarray(ys),
+                       cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    zncc, sl, sr = _local_stats(left.astype(np.float32), warped, window)
+    # a window touching a view's border would match the other view's border, not the scene
+    r = window // 2 + 1
+    kernel = np.ones((2 * r + 1, 2 * r + 1), np.uint8)
+    in_l = cv2.erode(np.asarray(inside_left, dtype=np.uint8), kernel).astype(bool)
+    in_r = cv2.erode(np.asarray(inside_right, dtype=np.uint8), kernel).astype(bool)
+    xr = np.clip(np.rint(xs).astype(np.int64), 0, w - 1)
+    seen = in_r[np.arange(h)[:, None], xr]
+    return ok & in_l & seen & (zncc >= min_zncc) & (sl >= min_std) & (sr >= min_std)
+
+
+def disparity_clusters(values: np.ndarray, *, gap: int = CLUSTER_GAP) -> list[tuple[int, int]]:
+    """Runs of integer disparities holding coarse matches, joined across gaps of up to ``gap`` empty values.
+
+    Parameters
+    ----------
+    values : (n,) float  coarse disparities.
+
+    Returns
+    -------
+    list of (first, last)  inclusive integer bounds, increasing.
+    """
+    if values.size == 0:
+        return []
+    bins = np.unique(np.rint(values).astype(np.int64))  # rint: the same rounding the caller bins with
+    breaks = np.flatnonzero(np.diff(bins) > gap + 1)
+    starts = np.concatenate([[0], breaks + 1])
+    ends = np.concatenate([breaks, [bins.size - 1]])
+    return [(int(bins[a]), int(bins[b])) for a, b in zip(starts, ends, strict=True)]
+
+
+def _coarse_match(left: np.ndarray, right: np.ndarray, region: np.ndarray, *, lo: int, hi: int,
+                  valid_left: np.ndarray | None, valid_right: np.ndarray | None
+                  ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    """The coarse SGBM match of :func:`estimate_disparity_range`: (disparities (h, w) px at the coarse scale,
+    the consistent matches (h, w) bool, the factor, the coarse grey views, their valid regions, the region's
+    pixel count)."""
     s = max(1, int(math.ceil((hi - lo) / float(COARSE_SPAN))))
     h, w = left.shape[:2]
     size = (max(8, w // s), max(8, h // s))
@@ -196,6 +268,9 @@ def estimate_disparity_range(left: np.ndarray, right: np.ndarray, region: np.nda
     cr = cv2.resize(gr, size, interpolation=cv2.INTER_AREA)
     cm = cv2.resize(region.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST).astype(bool)
     cm = cv2.erode(cm.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    cvl, cvr = (np.ones(cl.shape, dtype=bool) if v is None else
+                cv2.resize(np.asarray(v, dtype=np.uint8), size, interpolation=cv2.INTER_AREA) > 0
+                for v in (valid_left, valid_right))
     dmin = int(math.floor(lo / s))
     num = int(16 * math.ceil((math.ceil(hi / s) - dmin + 2) / 16.0))
     # padding on the left keeps SGBM from dropping the first min+num columns of the left view
@@ -211,18 +286,82 @@ def estimate_disparity_range(left: np.ndarray, right: np.ndarray, region: np.nda
     # disparity, or on the last disparity searched (where a match from beyond the range piles up), is no
     # match of the scene (5–10 % of the coarse matches of a tri-prism's thin common view sat there)
     ok = cm & (d >= dmin) & (d <= hi / s) & (d < dmin + num - 1)
-    support = float(ok.sum()) / max(int(cm.sum()), 1)
+    return d, ok, s, cl, cr, cvl, cvr, int(cm.sum())
+
+
+def _padded(p_lo: float, p_hi: float, s: int, lo: int, hi: int) -> tuple[int, int] | None:
+    margin = max(3.0 * s, 0.1 * (p_hi - p_lo) * s, 4.0)
+    rlo = max(lo, int(math.floor(p_lo * s - margin)))
+    rhi = min(hi, int(math.ceil(p_hi * s + margin)))
+    return None if rhi <= rlo else (rlo, rhi)
+
+
+def estimate_disparity_range(left: np.ndarray, right: np.ndarray, region: np.ndarray, *, lo: int, hi: int,
+                             valid_left: np.ndarray | None = None, valid_right: np.ndarray | None = None
+                             ) -> tuple[tuple[int, int] | None, float]:
+    """Disparity range of the scene from a coarse SGBM match of the rectified views.
+
+    The consistent coarse disparities fall into clusters (:func:`disparity_clusters`). A cluster is the
+    scene's where the images confirm enough of its matches (:func:`confident_coarse`: at least
+    :data:`CLUSTER_SUPPORT` of all confirmed matches, and :data:`MIN_CLUSTER_CONFIRMED`); every such cluster
+    is kept, so a scene of separate depth layers keeps each of them, and within a kept cluster the range
+    follows all its matches, confirmed or not (a slanted floor, thin parts that match coarsely but weakly).
+    The range is the 1st–99th percentile of each kept cluster's matches, their union, padded. Clusters
+    without that support, such as the false matches a tri-prism's wide common view gathers outside the
+    scene, are left out. Where the images confirm too few matches to tell (fewer than
+    :data:`MIN_CONFIRMED` of the region), the 1st–99th percentile of all matches is kept, as wide as it
+    comes, and the log says so.
+
+    Parameters
+    ----------
+    left, right : (h, w, 3) or (h, w) uint8  rectified views.
+    region : (h, w) bool  the common view (pixels that may match).
+    lo, hi : int  the widest range the rig allows, px.
+    valid_left, valid_right : (h, w) bool, optional
+        The views' valid regions; outside them the images are filled with independent noise, so that the
+        edges of the black borders cannot match each other (they would add a false cluster of disparities).
+
+    Returns
+    -------
+    ((min, max) or None, support)
+        The padded range (None when fewer than :data:`MIN_SUPPORT` of the region matched), and the share of
+        the region that matched.
+    """
+    d, ok, s, cl, cr, cvl, cvr, n_region = _coarse_match(left, right, region, lo=lo, hi=hi, valid_left=valid_left,
+                                                         valid_right=valid_right)
+    support = float(ok.sum()) / max(n_region, 1)
     if support < MIN_SUPPORT:
         return None, support
-    p1, p99 = np.percentile(d[ok], [1.0, 99.0])
+    values = d[ok]
     log.debug("coarse disparities x%d: support %.3f, percentiles 0/1/2/5/50/95/98/99/100: %s", s, support,
-              np.percentile(d[ok], [0, 1, 2, 5, 50, 95, 98, 99, 100]) * s)
-    margin = max(3.0 * s, 0.1 * (p99 - p1) * s, 4.0)
-    rlo = max(lo, int(math.floor(p1 * s - margin)))
-    rhi = min(hi, int(math.ceil(p99 * s + margin)))
-    if rhi <= rlo:
-        return None, support
-    return (rlo, rhi), support
+              np.percentile(values, [0, 1, 2, 5, 50, 95, 98, 99, 100]) * s)
+    confirmed = confident_coarse(d, ok, cl, cr, cvl, cvr)
+    n_conf = int(confirmed.sum())
+    if n_conf < MIN_CONFIRMED * n_region:
+        log.info("search range: the images confirm only %d of %d coarse matches (%.1f %% of the common view, "
+                 "fewer than %.0f %%): too few to tell the scene's clusters from false ones, keeping the "
+                 "percentiles of all matches", n_conf, values.size, 100.0 * n_conf / max(n_region, 1),
+                 100.0 * MIN_CONFIRMED)
+        p1, p99 = np.percentile(values, [1.0, 99.0])
+        return _padded(float(p1), float(p99), s, lo, hi), support
+    bins, conf_bins = np.rint(values), np.rint(d[confirmed])
+    need = max(MIN_CLUSTER_CONFIRMED, CLUSTER_SUPPORT * n_conf)
+    spans: list[tuple[float, float]] = []
+    for a, b in disparity_clusters(values):
+        inside = (bins >= a) & (bins <= b)
+        n_in = int(((conf_bins >= a) & (conf_bins <= b)).sum())
+        if n_in >= need:
+            p_lo, p_hi = np.percentile(values[inside], [1.0, 99.0])
+            spans.append((float(p_lo), float(p_hi)))
+        else:
+            log.info("search range: left out %d coarse matches at %d–%d px (%d confirmed by the images, fewer "
+                     "than %.0f)", int(inside.sum()), a * s, b * s, n_in, need)
+    if not spans:  # every cluster holds a little: nothing stands out as the scene
+        log.info("search range: no cluster of coarse matches holds %.0f confirmed ones: keeping the percentiles "
+                 "of all matches", need)
+        p1, p99 = np.percentile(values, [1.0, 99.0])
+        return _padded(float(p1), float(p99), s, lo, hi), support
+    return _padded(min(a for a, _ in spans), max(b for _, b in spans), s, lo, hi), support
 
 
 @dataclass(frozen=True, eq=False)
@@ -315,7 +454,8 @@ def depth_warnings(*, points: int, region_pixels: int, matched: int, confident: 
     points : valid triangulated points.  region_pixels : pixels of the matched region.
     matched : matches that passed the matcher's left–right check.  confident : of those, the refined
         confident ones (None when refinement was off).
-    disparity, valid : the matcher's raw disparity and its consistency mask (for the limit shares).
+    disparity, valid : the matcher's raw disparity and the pixels whose values count for the limit shares
+        (None: every finite one).
     disparity_range, depth_range : what was searched.
     coverage : the share of the common view at the depths found (:func:`scene_coverage`); None: points over
         ``region_pixels``.
