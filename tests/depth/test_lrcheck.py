@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from prismstereo.depth import _lrcheck
+from prismstereo.depth import _lrcheck  # the private module under test
 
 
 def _np_seen_from_right(disparity: np.ndarray) -> np.ndarray:

@@ -37,7 +37,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from prismstereo.depth import _lrcheck
+from prismstereo.depth._lrcheck import lr_gap, mirror, read_by_check, seen_from_right
 from prismstereo.depth.refine import refine_disparity
 from prismstereo.errors import ConfigError
 from prismstereo.rectify.epipolar import EpipolarTable
@@ -458,7 +458,7 @@ def _right_refined(left: np.ndarray, right: np.ndarray, seen: np.ndarray, disp: 
 
 def _mirror(a: np.ndarray) -> np.ndarray:
     """Left–right mirror image (a right view becomes a left one, disparities keep their sign)."""
-    return _lrcheck.mirror(np.asarray(a))
+    return mirror(np.asarray(a))
 
 
 def _right_row_offsets(epipolar: EpipolarTable, disparity_right: np.ndarray) -> np.ndarray:
@@ -495,18 +495,18 @@ def _seen_confirmed(right_seeds: np.ndarray, disparity: np.ndarray, confirmed: n
 def _seen_from_right(disparity: np.ndarray) -> np.ndarray:
     """(H, W) float32: the left view's disparities at their right pixels x − d (rounded), the largest where
     several land on one pixel (the nearer surface hides the other), NaN where none lands."""
-    return _lrcheck.seen_from_right(np.ascontiguousarray(disparity, dtype=np.float32))
+    return seen_from_right(np.ascontiguousarray(disparity, dtype=np.float32))
 
 
 def _read_by_check(disparity: np.ndarray, where: np.ndarray) -> np.ndarray:
     """(H, W) bool: the right pixels :func:`_lr_gap` reads for the left pixels ``where`` of the (H, W) float32
     map ``disparity`` (floor(x − d) and the next one)."""
-    return _lrcheck.read_by_check(np.ascontiguousarray(disparity, dtype=np.float32),
+    return read_by_check(np.ascontiguousarray(disparity, dtype=np.float32),
                                   np.ascontiguousarray(where, dtype=bool))
 
 
 def _lr_gap(disparity: np.ndarray, disparity_right: np.ndarray) -> np.ndarray:
     """(H, W) float32: |d(x) − d_right(x − d(x))| of two (H, W) float32 maps (d_right interpolated along the
     row; the one finite neighbour where the other is NaN), NaN where either is missing."""
-    return _lrcheck.lr_gap(np.ascontiguousarray(disparity, dtype=np.float32),
+    return lr_gap(np.ascontiguousarray(disparity, dtype=np.float32),
                            np.ascontiguousarray(disparity_right, dtype=np.float32))
