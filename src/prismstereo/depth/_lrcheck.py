@@ -90,22 +90,11 @@ def lr_gap(d: np.ndarray, d_right: np.ndarray) -> np.ndarray:  # pragma: no cove
 
 def mirror(a: np.ndarray) -> np.ndarray:
     """A C-contiguous copy of the (H, W) or (H, W, C) array ``a`` with its columns reversed (a right view becomes
-    a left one); ``np.ascontiguousarray(a[:, ::-1])`` in one parallel pass."""
-    if a.ndim == 2:
-        return _mirror2(a)
+    a left one): ``np.ascontiguousarray(a[:, ::-1])``, an (H, W, C) one in one parallel pass (numpy's copy of
+    the reversed pixels is 2–3× slower there; of an (H, W) map it is the faster one)."""
     if a.ndim == 3:
         return _mirror3(a)
     return np.ascontiguousarray(a[:, ::-1])
-
-
-@njit(cache=True, parallel=True)
-def _mirror2(a: np.ndarray) -> np.ndarray:  # pragma: no cover - numba
-    h, w = a.shape
-    out = np.empty((h, w), dtype=a.dtype)
-    for y in prange(h):
-        for x in range(w):
-            out[y, w - 1 - x] = a[y, x]
-    return out
 
 
 @njit(cache=True, parallel=True)

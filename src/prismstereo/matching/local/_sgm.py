@@ -180,9 +180,11 @@ def _select_pixel(srow: np.ndarray, best: int | np.int32, y: int, x: int, min_di
     ``x - min_disp - i``) into the row's ``rbest``, ``rarg``: the smallest x wins a tie, also when the row's
     pixels come ``leftward`` (from the right end)."""
     nd = srow.shape[0]
-    bi = 0
-    while srow[bi] != best:
-        bi += 1
+    # the first winner: the smallest index holding the minimum, as a branch-free min reduction (SIMD) rather
+    # than a scan that stops at it
+    bi = nd
+    for i in range(nd):
+        bi = min(bi, i if srow[i] == best else nd)
     for i in range(min(nd, x - min_disp + 1)):
         xr = x - min_disp - i
         v = srow[i]
@@ -191,11 +193,13 @@ def _select_pixel(srow: np.ndarray, best: int | np.int32, y: int, x: int, min_di
         rarg[xr] = i if take else rarg[xr]
     win[y, x] = bi
     if uniqueness > 0:
-        lim = np.int64(best) * 100
-        fail = 0
+        # some cost not adjacent to the winner within the margin: the smallest of them is (the factor
+        # 100 - uniqueness is positive), a min reduction on the int32 lanes
+        big = np.int32(1 << 30)
+        far = big
         for i in range(nd):
-            fail |= int(((i < bi - 1) | (i > bi + 1)) & (np.int64(srow[i]) * (100 - uniqueness) < lim))
-        if fail:
+            far = min(far, srow[i] if (i < bi - 1) | (i > bi + 1) else big)
+        if np.int64(far) * (100 - uniqueness) < np.int64(best) * 100:
             code[y, x] = 1
     d = float(bi)
     if subpixel and 0 < bi < nd - 1:
