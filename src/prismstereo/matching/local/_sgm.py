@@ -30,13 +30,10 @@ def census_codes(padded: np.ndarray, ry: int, rx: int) -> np.ndarray:  # pragma:
 
 @njit(cache=True, parallel=True)
 def census_kernel(cl: np.ndarray, cr: np.ndarray, gl: np.ndarray, gr: np.ndarray, min_disp: int, nd: int,
-                   scale: int, grad_weight: float, grad_tau: float, invalid: int,
-                   out: np.ndarray) -> np.ndarray:  # pragma: no cover
-    """``out`` (uint16 (H, W, D), written whole and returned): ``scale·Hamming(cl, cr) + grad_weight·min(|gl -
-    gr|, τ)`` per disparity. The caller allocates the volume with numpy, whose large allocations are
-    advised onto huge pages (the first touch of a numba-allocated volume faults every 4 KiB page: half of
-    this kernel's time at 3 MP)."""
+                   scale: int, grad_weight: float, grad_tau: float, invalid: int) -> np.ndarray:  # pragma: no cover
+    """uint16 (H, W, D): ``scale·Hamming(cl, cr) + grad_weight·min(|gl - gr|, τ)`` per disparity."""
     h, w = cl.shape
+    out = np.empty((h, w, nd), dtype=np.uint16)
     for y in prange(h):
         for x in range(w):
             a = cl[y, x]
@@ -329,13 +326,14 @@ def _state(w: int, ndp: int, pad: int, like: np.ndarray) -> tuple[np.ndarray, np
 
 
 @njit(cache=True, parallel=True)
-def sgm_kernel(cost: np.ndarray, gray: np.ndarray, p1: int, p2: int, gamma: float, cost_max: int,
-               fwd: np.ndarray, bwd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - numba
-    """The two raster scans of :func:`_sgm_scan`, one thread each: (forward, backward) uint16 path sums into
-    ``fwd``, ``bwd`` (uint16 (H, W, D) each, allocated by the caller as :func:`census_kernel`'s volume);
+def sgm_kernel(cost: np.ndarray, gray: np.ndarray, p1: int, p2: int, gamma: float,
+               cost_max: int) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - numba
+    """The two raster scans of :func:`_sgm_scan`, one thread each: (forward, backward) uint16 path sums;
     ``cost_max``: the volume's largest cost (0 if empty)."""
     h, w, nd = cost.shape
     pad, ndp, small = _pad_layout(cost, cost_max, p2)
+    fwd = np.empty((h, w, nd), dtype=np.uint16)
+    bwd = np.empty((h, w, nd), dtype=np.uint16)
     maps = (np.empty((0, 0), np.float32), np.empty((0, 0), np.int32), np.empty((0, 0), np.uint8))
     for k in prange(2):  # the two scans are independent: one thread each
         out = fwd if k == 0 else bwd
@@ -376,10 +374,10 @@ def _halves(cost: np.ndarray, gray: np.ndarray, p1: int, p2: int, gamma: float, 
 
 @njit(cache=True)
 def sgm_select_kernel(cost: np.ndarray, gray: np.ndarray, p1: int, p2: int, gamma: float, cost_max: int,
-                      min_disp: int, uniqueness: int, tolerance: int, subpixel: bool,
-                      half: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - numba
+                      min_disp: int, uniqueness: int, tolerance: int,
+                      subpixel: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - numba
     """:func:`select_kernel` of :func:`sgm_kernel`'s two sums, the same maps, without holding both sums
-    (``cost_max`` as there; ``half``: a uint16 (H, W, D) work volume allocated by the caller, as there).
+    (``cost_max`` as there).
 
     Each scan (one thread each) first runs its half of the rows (the forward one the top half, the backward
     one the bottom half) and keeps their sums in one uint16 volume; then each runs on into the other's half,
@@ -387,6 +385,7 @@ def sgm_select_kernel(cost: np.ndarray, gray: np.ndarray, p1: int, p2: int, gamm
     row's end. So both threads select, and the aggregated volume is never written whole."""
     h, w, nd = cost.shape
     pad, ndp, small = _pad_layout(cost, cost_max, p2)
+    half = np.empty((h, w, nd), dtype=np.uint16)
     maps = (np.empty((h, w), dtype=np.float32), np.empty((h, w), dtype=np.int32), np.zeros((h, w), dtype=np.uint8))
     select = (min_disp, uniqueness, tolerance, subpixel)
     if small:

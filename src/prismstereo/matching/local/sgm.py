@@ -87,11 +87,8 @@ def _census_volume(gray_left: np.ndarray, gray_right: np.ndarray, *, max_disp: i
     if invalid > 65535:
         raise ConfigError(f"expected a cost that fits uint16 (scale·bits + grad_weight·grad_tau <= 65535), "
                           f"got {invalid}")
-    nd = int(max_disp) - int(min_disp) + 1
-    # allocated here, not in the kernel: numpy advises large arrays onto huge pages (_sgm.census_kernel)
-    out = np.empty((cl.shape[0], cl.shape[1], nd), dtype=np.uint16)
-    return census_kernel(cl, cr, gxl, gxr, int(min_disp), nd, int(scale), float(grad_weight), float(grad_tau),
-                         invalid, out)
+    return census_kernel(cl, cr, gxl, gxr, int(min_disp), int(max_disp) - int(min_disp) + 1, int(scale),
+                          float(grad_weight), float(grad_tau), invalid)
 
 
 def sgm_aggregate(cost: np.ndarray, gray: np.ndarray, *, p1: int, p2: int,
@@ -115,8 +112,7 @@ def sgm_aggregate(cost: np.ndarray, gray: np.ndarray, *, p1: int, p2: int,
         Sums of the four forward and of the four backward path costs; the aggregated cost is their sum.
     """
     c, cmax = _checked_volume(cost, p1, p2)
-    return sgm_kernel(c, np.ascontiguousarray(gray, dtype=np.float32), int(p1), int(p2), float(p2_gamma), cmax,
-                      np.empty(c.shape, dtype=np.uint16), np.empty(c.shape, dtype=np.uint16))
+    return sgm_kernel(c, np.ascontiguousarray(gray, dtype=np.float32), int(p1), int(p2), float(p2_gamma), cmax)
 
 
 def _checked_volume(cost: np.ndarray, p1: int, p2: int) -> tuple[np.ndarray, int]:
@@ -144,7 +140,7 @@ def sgm_aggregate_select(cost: np.ndarray, gray: np.ndarray, *, p1: int, p2: int
     c, cmax = _checked_volume(cost, p1, p2)
     disp, _, code = sgm_select_kernel(c, np.ascontiguousarray(gray, dtype=np.float32), int(p1), int(p2),
                                       float(p2_gamma), cmax, int(min_disp), int(uniqueness), int(tolerance),
-                                      bool(subpixel), np.empty(c.shape, dtype=np.uint16))
+                                      bool(subpixel))
     return disp, code
 
 
