@@ -37,6 +37,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from prismstereo.depth._lrcheck import lr_gap, mirror, read_by_check, seen_from_right
 from prismstereo.depth.refine import refine_disparity
 from prismstereo.errors import ConfigError
 from prismstereo.rectify.epipolar import EpipolarTable
@@ -457,7 +458,7 @@ def _right_refined(left: np.ndarray, right: np.ndarray, seen: np.ndarray, disp: 
 
 def _mirror(a: np.ndarray) -> np.ndarray:
     """Left–right mirror image (a right view becomes a left one, disparities keep their sign)."""
-    return np.ascontiguousarray(np.asarray(a)[:, ::-1])
+    return mirror(np.asarray(a))
 
 
 def _right_row_offsets(epipolar: EpipolarTable, disparity_right: np.ndarray) -> np.ndarray:
@@ -494,44 +495,18 @@ def _seen_confirmed(right_seeds: np.ndarray, disparity: np.ndarray, confirmed: n
 def _seen_from_right(disparity: np.ndarray) -> np.ndarray:
     """(H, W) float32: the left view's disparities at their right pixels x − d (rounded), the largest where
     several land on one pixel (the nearer surface hides the other), NaN where none lands."""
-    d = np.asarray(disparity, dtype=np.float32)
-    h, w = d.shape
-    ys, xs = np.nonzero(np.isfinite(d))
-    xr = np.rint(xs - d[ys, xs]).astype(np.int64)
-    inside = (xr >= 0) & (xr < w)
-    out = np.full((h, w), -np.inf, dtype=np.float32)
-    np.maximum.at(out, (ys[inside], xr[inside]), d[ys[inside], xs[inside]])
-    out[np.isneginf(out)] = np.nan
-    return out
+    return seen_from_right(np.ascontiguousarray(disparity, dtype=np.float32))
 
 
 def _read_by_check(disparity: np.ndarray, where: np.ndarray) -> np.ndarray:
-    """(H, W) bool: the right pixels :func:`_lr_gap` reads for the left pixels ``where`` (floor(x − d) and
-    the next one)."""
-    h, w = disparity.shape
-    ys, xs = np.nonzero(where & np.isfinite(disparity))
-    x0 = np.floor(xs - disparity[ys, xs]).astype(np.int64)
-    out = np.zeros((h, w), dtype=bool)
-    for k in (0, 1):
-        inside = (x0 + k >= 0) & (x0 + k < w)
-        out[ys[inside], x0[inside] + k] = True
-    return out
+    """(H, W) bool: the right pixels :func:`_lr_gap` reads for the left pixels ``where`` of the (H, W) float32
+    map ``disparity`` (floor(x − d) and the next one)."""
+    return read_by_check(np.ascontiguousarray(disparity, dtype=np.float32),
+                                  np.ascontiguousarray(where, dtype=bool))
 
 
 def _lr_gap(disparity: np.ndarray, disparity_right: np.ndarray) -> np.ndarray:
-    """(H, W): |d(x) − d_right(x − d(x))| (d_right interpolated along the row; the one finite neighbour
-    where the other is NaN), NaN where either is missing."""
-    h, w = disparity.shape
-    gap = np.full((h, w), np.nan, dtype=np.float32)
-    ys, xs = np.nonzero(np.isfinite(disparity))
-    d = disparity[ys, xs]
-    xq = xs - d
-    x0 = np.floor(xq).astype(np.int64)
-    inside = (x0 >= 0) & (x0 + 1 < w)
-    ys, xs, d, xq, x0 = ys[inside], xs[inside], d[inside], xq[inside], x0[inside]
-    t = (xq - x0).astype(np.float32)
-    a, b = disparity_right[ys, x0], disparity_right[ys, x0 + 1]
-    with np.errstate(invalid="ignore"):
-        dr = np.where(np.isfinite(a) & np.isfinite(b), (1 - t) * a + t * b, np.where(np.isfinite(a), a, b))
-    gap[ys, xs] = np.abs(d - dr)
-    return gap
+    """(H, W) float32: |d(x) − d_right(x − d(x))| of two (H, W) float32 maps (d_right interpolated along the
+    row; the one finite neighbour where the other is NaN), NaN where either is missing."""
+    return lr_gap(np.ascontiguousarray(disparity, dtype=np.float32),
+                           np.ascontiguousarray(disparity_right, dtype=np.float32))

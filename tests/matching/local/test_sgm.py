@@ -115,6 +115,57 @@ def test_aggregate_select_in_one_pass_gives_the_same_maps(h: int, w: int, nd: in
         np.testing.assert_array_equal(code1, code)
 
 
+def _reference_select(fwd: np.ndarray, bwd: np.ndarray, min_disp: int, uniqueness: int, tolerance: int,
+                      subpixel: bool) -> tuple[np.ndarray, np.ndarray]:
+    """sgm_select written out pixel by pixel: first winner, uniqueness against every non-adjacent cost,
+    parabola, the right view's WTA along the diagonals (smallest x wins a tie), the left–right check."""
+    s = fwd.astype(np.int64) + bwd.astype(np.int64)
+    h, w, nd = s.shape
+    disp = np.empty((h, w), dtype=np.float32)
+    code = np.zeros((h, w), dtype=np.uint8)
+    win = np.argmin(s, axis=2)
+    for y in range(h):
+        rarg = {}
+        for x in range(w):
+            for i in range(min(nd, x - min_disp + 1)):
+                xr = x - min_disp - i
+                if xr not in rarg or s[y, x, i] < rarg[xr][0]:
+                    rarg[xr] = (s[y, x, i], i)
+        for x in range(w):
+            bi, best = int(win[y, x]), int(s[y, x, win[y, x]])
+            if uniqueness > 0 and any(abs(i - bi) > 1 and s[y, x, i] * (100 - uniqueness) < best * 100
+                                      for i in range(nd)):
+                code[y, x] = 1
+            d = float(bi)
+            if subpixel and 0 < bi < nd - 1:
+                cm, cp = int(s[y, x, bi - 1]), int(s[y, x, bi + 1])
+                if cm + cp - 2 * best > 0:
+                    d += (cm - cp) / (2.0 * (cm + cp - 2 * best))
+            disp[y, x] = d + min_disp
+            xr = x - min_disp - bi
+            if code[y, x] == 0 and (xr < 0 or abs(rarg[xr][1] - bi) > tolerance):
+                code[y, x] = 2
+            if code[y, x]:
+                disp[y, x] = np.nan
+    return disp, code
+
+
+@pytest.mark.parametrize(("h", "w", "nd", "top"), [(1, 9, 4, 3), (2, 5, 1, 40), (3, 6, 2, 2), (2, 7, 3, 4),
+                                                   (5, 12, 19, 6), (4, 11, 40, 60000), (6, 30, 75, 300)])
+def test_selection_matches_a_literal_reference(h: int, w: int, nd: int, top: int) -> None:
+    # small integer sums: many ties of the winner, of the right view's winner and at the uniqueness margin
+    rng = np.random.default_rng(h * 1000 + nd)
+    fwd = rng.integers(0, top, size=(h, w, nd)).astype(np.uint16)
+    bwd = rng.integers(0, top, size=(h, w, nd)).astype(np.uint16)
+    for min_disp, uniqueness, tolerance, subpixel in ((0, 5, 1, True), (2, 0, 0, False), (1, 50, 2, True),
+                                                      (0, 99, 1, True)):
+        disp, code = sgm_select(fwd, bwd, min_disp=min_disp, uniqueness=uniqueness, tolerance=tolerance,
+                                subpixel=subpixel)
+        ref_disp, ref_code = _reference_select(fwd, bwd, min_disp, uniqueness, tolerance, subpixel)
+        np.testing.assert_array_equal(code, ref_code)
+        np.testing.assert_array_equal(disp, ref_disp)
+
+
 def test_select_checks_left_right() -> None:
     # a volume whose left winner is 2 everywhere, and a right view that prefers 0 at right pixel 3
     h, w, nd = 1, 8, 4

@@ -180,9 +180,11 @@ def _select_pixel(srow: np.ndarray, best: int | np.int32, y: int, x: int, min_di
     ``x - min_disp - i``) into the row's ``rbest``, ``rarg``: the smallest x wins a tie, also when the row's
     pixels come ``leftward`` (from the right end)."""
     nd = srow.shape[0]
-    bi = 0
-    while srow[bi] != best:
-        bi += 1
+    # the first winner: the smallest index holding the minimum, as a branch-free min reduction (SIMD) rather
+    # than a scan that stops at it
+    bi = nd
+    for i in range(nd):
+        bi = min(bi, i if srow[i] == best else nd)
     for i in range(min(nd, x - min_disp + 1)):
         xr = x - min_disp - i
         v = srow[i]
@@ -191,11 +193,13 @@ def _select_pixel(srow: np.ndarray, best: int | np.int32, y: int, x: int, min_di
         rarg[xr] = i if take else rarg[xr]
     win[y, x] = bi
     if uniqueness > 0:
-        lim = np.int64(best) * 100
-        fail = 0
+        # some cost not adjacent to the winner within the margin: the smallest of them is (the factor
+        # 100 - uniqueness is positive), a min reduction on the int32 lanes
+        big = np.int32(1 << 30)
+        far = big
         for i in range(nd):
-            fail |= int(((i < bi - 1) | (i > bi + 1)) & (np.int64(srow[i]) * (100 - uniqueness) < lim))
-        if fail:
+            far = min(far, srow[i] if (i < bi - 1) | (i > bi + 1) else big)
+        if np.int64(far) * (100 - uniqueness) < np.int64(best) * 100:
             code[y, x] = 1
     d = float(bi)
     if subpixel and 0 < bi < nd - 1:
@@ -297,13 +301,14 @@ def _sgm_scan(cost: np.ndarray, gray: np.ndarray, p1: int, p2: int, gamma: float
 
 
 @njit(cache=True, inline="always")
-def _pad_layout(cost: np.ndarray, p2: int) -> tuple[int, int, bool]:  # pragma: no cover - numba
-    """(padding cost, padded length, int16 work) of a volume: a path cost is at most max cost + P2 (``top``);
+def _pad_layout(cost: np.ndarray, cost_max: int, p2: int) -> tuple[int, int, bool]:  # pragma: no cover - numba
+    """(padding cost, padded length, int16 work) of a volume whose largest cost is ``cost_max`` (the caller's
+    one pass over it, not a second, serial one here): a path cost is at most max cost + P2 (``top``);
     padding disparities cost ``2·top + 1``, so that a padded neighbour plus P1 never beats the jump
     ``min + P2``; the inner loop of a path update runs whole vectors of 16; int16 work while four padded path
     costs fit it, else int32 (the same values)."""
     nd = cost.shape[2]
-    top = int(cost.max()) + p2 if cost.size else p2
+    top = cost_max + p2
     pad = 2 * top + 1
     ndp = max(nd, 3)
     while (ndp - 2) % 16 != 0:
@@ -321,11 +326,12 @@ def _state(w: int, ndp: int, pad: int, like: np.ndarray) -> tuple[np.ndarray, np
 
 
 @njit(cache=True, parallel=True)
-def sgm_kernel(cost: np.ndarray, gray: np.ndarray, p1: int, p2: int,
-               gamma: float) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - numba
-    """The two raster scans of :func:`_sgm_scan`, one thread each: (forward, backward) uint16 path sums."""
+def sgm_kernel(cost: np.ndarray, gray: np.ndarray, p1: int, p2: int, gamma: float,
+               cost_max: int) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - numba
+    """The two raster scans of :func:`_sgm_scan`, one thread each: (forward, backward) uint16 path sums;
+    ``cost_max``: the volume's largest cost (0 if empty)."""
     h, w, nd = cost.shape
-    pad, ndp, small = _pad_layout(cost, p2)
+    pad, ndp, small = _pad_layout(cost, cost_max, p2)
     fwd = np.empty((h, w, nd), dtype=np.uint16)
     bwd = np.empty((h, w, nd), dtype=np.uint16)
     maps = (np.empty((0, 0), np.float32), np.empty((0, 0), np.int32), np.empty((0, 0), np.uint8))
@@ -367,17 +373,18 @@ def _halves(cost: np.ndarray, gray: np.ndarray, p1: int, p2: int, gamma: float, 
 
 
 @njit(cache=True)
-def sgm_select_kernel(cost: np.ndarray, gray: np.ndarray, p1: int, p2: int, gamma: float, min_disp: int,
-                      uniqueness: int, tolerance: int,
+def sgm_select_kernel(cost: np.ndarray, gray: np.ndarray, p1: int, p2: int, gamma: float, cost_max: int,
+                      min_disp: int, uniqueness: int, tolerance: int,
                       subpixel: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - numba
-    """:func:`select_kernel` of :func:`sgm_kernel`'s two sums, the same maps, without holding both sums.
+    """:func:`select_kernel` of :func:`sgm_kernel`'s two sums, the same maps, without holding both sums
+    (``cost_max`` as there).
 
     Each scan (one thread each) first runs its half of the rows (the forward one the top half, the backward
     one the bottom half) and keeps their sums in one uint16 volume; then each runs on into the other's half,
     adds the stored sums to its own pixel by pixel and selects the pixel, a row's left–right check at the
     row's end. So both threads select, and the aggregated volume is never written whole."""
     h, w, nd = cost.shape
-    pad, ndp, small = _pad_layout(cost, p2)
+    pad, ndp, small = _pad_layout(cost, cost_max, p2)
     half = np.empty((h, w, nd), dtype=np.uint16)
     maps = (np.empty((h, w), dtype=np.float32), np.empty((h, w), dtype=np.int32), np.zeros((h, w), dtype=np.uint8))
     select = (min_disp, uniqueness, tolerance, subpixel)

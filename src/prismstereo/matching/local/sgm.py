@@ -66,14 +66,22 @@ def census_cost_volume(left: np.ndarray, right: np.ndarray, *, max_disp: int, mi
         Out-of-range matches (``x - d < 0``) get the largest value the cost can take.
     """
 
+    return _census_volume(costs.to_gray(left), costs.to_gray(right), max_disp=max_disp, min_disp=min_disp,
+                          window=window, scale=scale, grad_weight=grad_weight, grad_tau=grad_tau)
+
+
+def _census_volume(gray_left: np.ndarray, gray_right: np.ndarray, *, max_disp: int, min_disp: int,
+                   window: tuple[int, int], scale: int, grad_weight: float, grad_tau: float) -> np.ndarray:
+    """:func:`census_cost_volume` of the float32 (H, W) grey views (``costs.to_gray`` of the pair, which
+    returns a grey view itself unchanged: the same volume)."""
     wh, ww = int(window[0]), int(window[1])
     if wh % 2 == 0 or ww % 2 == 0 or wh < 1 or ww < 1 or wh * ww - 1 > 64:
         raise ConfigError(f"expected an odd census window with at most 65 pixels, got {window}")
     pad = ((wh // 2, wh // 2), (ww // 2, ww // 2))
-    cl = census_codes(np.pad(costs.to_gray(left), pad, mode="edge"), wh // 2, ww // 2)
-    cr = census_codes(np.pad(costs.to_gray(right), pad, mode="edge"), wh // 2, ww // 2)
-    gxl, _ = costs.image_gradients(left)
-    gxr, _ = costs.image_gradients(right)
+    cl = census_codes(np.pad(gray_left, pad, mode="edge"), wh // 2, ww // 2)
+    cr = census_codes(np.pad(gray_right, pad, mode="edge"), wh // 2, ww // 2)
+    gxl, _ = costs.image_gradients(gray_left)
+    gxr, _ = costs.image_gradients(gray_right)
     nbits = int(window[0]) * int(window[1]) - 1
     invalid = int(scale * nbits + grad_weight * grad_tau + 0.5)
     if invalid > 65535:
@@ -103,18 +111,21 @@ def sgm_aggregate(cost: np.ndarray, gray: np.ndarray, *, p1: int, p2: int,
     (ndarray, ndarray), uint16, (H, W, D) each
         Sums of the four forward and of the four backward path costs; the aggregated cost is their sum.
     """
-    c = _checked_volume(cost, p1, p2)
-    return sgm_kernel(c, np.ascontiguousarray(gray, dtype=np.float32), int(p1), int(p2), float(p2_gamma))
+    c, cmax = _checked_volume(cost, p1, p2)
+    return sgm_kernel(c, np.ascontiguousarray(gray, dtype=np.float32), int(p1), int(p2), float(p2_gamma), cmax)
 
 
-def _checked_volume(cost: np.ndarray, p1: int, p2: int) -> np.ndarray:
+def _checked_volume(cost: np.ndarray, p1: int, p2: int) -> tuple[np.ndarray, int]:
+    """The volume as C-contiguous uint16 and its largest cost (0 if empty), checked against the path sums'
+    uint16 range."""
     c = np.ascontiguousarray(cost, dtype=np.uint16)
-    top = int(c.max(initial=0)) + int(p2)
+    cmax = int(c.max(initial=0))
+    top = cmax + int(p2)
     if 4 * top > 65535:
         raise ConfigError(f"expected 4·(max cost + P2) <= 65535 for uint16 path sums, got {4 * top}")
     if not 0 <= p1 <= p2:
         raise ConfigError(f"expected 0 <= P1 <= P2, got P1={p1}, P2={p2}")
-    return c
+    return c, cmax
 
 
 def sgm_aggregate_select(cost: np.ndarray, gray: np.ndarray, *, p1: int, p2: int, p2_gamma: float = 0.0,
@@ -126,9 +137,9 @@ def sgm_aggregate_select(cost: np.ndarray, gray: np.ndarray, *, p1: int, p2: int
 
     Parameters and returns as those two functions'.
     """
-    c = _checked_volume(cost, p1, p2)
+    c, cmax = _checked_volume(cost, p1, p2)
     disp, _, code = sgm_select_kernel(c, np.ascontiguousarray(gray, dtype=np.float32), int(p1), int(p2),
-                                      float(p2_gamma), int(min_disp), int(uniqueness), int(tolerance),
+                                      float(p2_gamma), cmax, int(min_disp), int(uniqueness), int(tolerance),
                                       bool(subpixel))
     return disp, code
 
@@ -232,8 +243,10 @@ class SGMMatcher:
             fail(self, "p2", f"an integer >= p1 = {self.p1}", self.p2)
         check_census_window(self, self.census_window)
 
-    def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int) -> np.ndarray:
-        """The uint16 matching cost volume ``(H, W, D)`` before aggregation."""
+    def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int,
+                    gray_left: np.ndarray | None = None) -> np.ndarray:
+        """The uint16 matching cost volume ``(H, W, D)`` before aggregation; ``gray_left``: ``costs.to_gray`` of
+        ``left`` if the caller has it (the census cost reads the grey views)."""
         if self.cost == "bpasw":
             vol = BPASWMatcher().pixel_cost(left, right, max_disp=max_disp, min_disp=min_disp)
             vol *= np.float32(self.bpasw_scale)
@@ -241,20 +254,22 @@ class SGMMatcher:
             if float(vol.max(initial=0.0)) > 65535:
                 raise ConfigError(f"expected bpasw_scale to keep the cost within uint16, got {self.bpasw_scale}")
             return vol.astype(np.uint16)
-        return census_cost_volume(left, right, max_disp=max_disp, min_disp=min_disp,
-                                  window=(int(self.census_window[0]), int(self.census_window[1])),
-                                  scale=self.census_scale, grad_weight=self.grad_weight, grad_tau=self.grad_tau)
+        gl = costs.to_gray(left) if gray_left is None else gray_left
+        return _census_volume(gl, costs.to_gray(right), max_disp=max_disp, min_disp=min_disp,
+                              window=(int(self.census_window[0]), int(self.census_window[1])),
+                              scale=self.census_scale, grad_weight=self.grad_weight, grad_tau=self.grad_tau)
 
     def compute(self, left: np.ndarray, right: np.ndarray, *, max_disp: int,
                 min_disp: int = 0) -> MatchResult:
         """Disparity of ``left`` (float32 H×W) for ``min_disp <= d <= max_disp``; see the class doc."""
         timings: dict[str, float] = {}
         t = time.perf_counter()
-        vol = self.cost_volume(left, right, max_disp=max_disp, min_disp=min_disp)
+        gray = costs.to_gray(left)  # the census cost's and the edge-adaptive P2's guidance: computed once
+        vol = self.cost_volume(left, right, max_disp=max_disp, min_disp=min_disp, gray_left=gray)
         timings["cost"] = time.perf_counter() - t
         t = time.perf_counter()
         # aggregation and the selection of the winners in one pass (sgm_aggregate_select)
-        disp, code = sgm_aggregate_select(vol, costs.to_gray(left), p1=self.p1, p2=self.p2, p2_gamma=self.p2_gamma,
+        disp, code = sgm_aggregate_select(vol, gray, p1=self.p1, p2=self.p2, p2_gamma=self.p2_gamma,
                                           min_disp=min_disp, uniqueness=self.uniqueness, tolerance=self.tolerance,
                                           subpixel=self.subpixel)
         del vol
