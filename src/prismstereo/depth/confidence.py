@@ -41,7 +41,8 @@ from prismstereo.depth.refine import refine_disparity
 from prismstereo.errors import ConfigError
 from prismstereo.rectify.epipolar import EpipolarTable
 
-__all__ = ["confident_fill", "confident_growth", "confident_matches", "neighbour_disparity", "remove_speckles"]
+__all__ = ["confident_fill", "confident_growth", "confident_matches", "neighbour_disparity", "neighbour_plane",
+           "remove_speckles"]
 
 
 def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, *, radius: int = 5,
@@ -298,9 +299,89 @@ def neighbour_disparity(disparity: np.ndarray, *, sigma: float) -> tuple[np.ndar
     return mean, support.astype(np.float32), spread
 
 
+def neighbour_plane(disparity: np.ndarray, *, sigma: float, where: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What the finite disparities around each pixel say of it, slant included: the Gaussian-weighted
+    least-squares plane through them (d ≈ a + b·u + c·v over the offsets u, v from the pixel) read at the
+    pixel, the weights' sum, the weighted spread of the values about that plane, and the plane value's
+    leverage.
+
+    A surface slanted in disparity (a floor, a wall seen obliquely) spreads its values about their mean by
+    its gradient times the kernel's reach and, where the values around a hole are not balanced about it,
+    moves the mean off the surface: the plane follows the slant, and its residual spread is what stays of
+    the noise and of a depth edge.
+
+    Parameters
+    ----------
+    disparity : (H, W) float array
+        Px, NaN = none.
+    sigma : float
+        Standard deviation of the Gaussian weights, px (the kernel reaches 3 sigma).
+    where : (H, W) bool, optional
+        The pixels to fit at (default: every pixel); NaN elsewhere.
+
+    Returns
+    -------
+    plane, support, spread, leverage : (H, W) float32
+        The plane's value at the pixel (NaN where no finite value is in reach or the fit is singular: the
+        values in reach lie on a line), the sum of the weights of the finite values (1 where every pixel in
+        reach has one), the weighted standard deviation of the values about the plane and ``support`` times
+        the (0, 0) entry of the inverse normal matrix (NaN with the plane): 1 where the values' weighted
+        centroid is the pixel itself, more the farther the plane is extrapolated from it.
+    """
+    d = np.asarray(disparity, dtype=np.float32)
+    finite = np.isfinite(d)
+    h, w = d.shape
+    v = finite.astype(np.float64)
+    # about the map's median, as neighbour_disparity: the second moment keeps the residuals' precision
+    ref = float(np.median(d[finite])) if finite.any() else 0.0
+    x = np.where(finite, d.astype(np.float64) - ref, 0.0)
+    r = int(np.ceil(3.0 * sigma))
+    g = cv2.getGaussianKernel(2 * r + 1, float(sigma), cv2.CV_64F)[:, 0]
+    u = np.arange(-r, r + 1, dtype=np.float64)
+    g1, gu, guu = g, g * u, g * u * u
+
+    def corr(a: np.ndarray, kx: np.ndarray, ky: np.ndarray) -> np.ndarray:
+        # correlation: the neighbour at offset (u, v) from the pixel weighs kx[u]·ky[v]
+        return np.asarray(cv2.sepFilter2D(a, cv2.CV_64F, kx, ky, borderType=cv2.BORDER_CONSTANT))
+
+    support = corr(v, g1, g1)
+    nan = np.float32(np.nan)
+    plane = np.full((h, w), nan, dtype=np.float32)
+    spread = np.full((h, w), nan, dtype=np.float32)
+    leverage = np.full((h, w), nan, dtype=np.float32)
+    at = support > 1e-3
+    if where is not None:
+        at &= np.asarray(where, dtype=bool)
+    if not at.any():
+        return plane, support.astype(np.float32), spread, leverage
+    s = support[at]
+    su, sv = corr(v, gu, g1)[at], corr(v, g1, gu)[at]
+    suu, suv, svv = corr(v, guu, g1)[at], corr(v, gu, gu)[at], corr(v, g1, guu)[at]
+    sd, sud, svd = corr(x, g1, g1)[at], corr(x, gu, g1)[at], corr(x, g1, gu)[at]
+    sdd = corr(x * x, g1, g1)[at]
+    m = np.stack([np.stack([s, su, sv], -1), np.stack([su, suu, suv], -1), np.stack([sv, suv, svv], -1)], -2)
+    rhs = np.stack([sd, sud, svd], -1)
+    det = np.linalg.det(m)
+    # a singular fit (every value on one line, or a single one): the plane is not determined across it
+    ok = det > 1e-9 * s ** 3 * max(sigma, 1.0) ** 4
+    theta = np.zeros_like(rhs)
+    minv00 = np.full(s.shape, np.nan)
+    if ok.any():
+        theta[ok] = np.linalg.solve(m[ok], rhs[ok][..., None])[..., 0]
+        minv00[ok] = (m[ok][:, 1, 1] * m[ok][:, 2, 2] - m[ok][:, 1, 2] ** 2) / det[ok]
+    res = np.maximum(sdd - np.einsum("ij,ij->i", theta, rhs), 0.0) / np.maximum(s, 1e-12)
+    ys, xs = np.nonzero(at)
+    plane[ys[ok], xs[ok]] = (theta[ok, 0] + ref).astype(np.float32)
+    spread[ys[ok], xs[ok]] = np.sqrt(res[ok]).astype(np.float32)
+    leverage[ys[ok], xs[ok]] = (s[ok] * minv00[ok]).astype(np.float32)
+    return plane, support.astype(np.float32), spread, leverage
+
+
 def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, confidence: np.ndarray,
                      filled: np.ndarray, *, grow_radius: int = 16, sigma: float = 8.0, agree: float = 0.3,
                      min_support: float = 0.1, max_spread: float | None = 0.5, passes: int = 1,
+                     fit: str = "mean", max_leverage: float = 4.0,
                      valid_right: np.ndarray | None = None, **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
     """Add the matcher's dense values that a wide window confirms and that continue the kept surface around
     them, where nothing was kept.
@@ -334,6 +415,13 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
         Largest weighted standard deviation of the neighbours' values, px; None: any.
     passes : int
         How many times to grow: each pass's neighbours include the values the passes before it kept.
+    fit : {"mean", "plane"}
+        What the neighbours say of the pixel: their weighted mean and spread about it
+        (:func:`neighbour_disparity`), or their weighted plane read at the pixel and spread about the plane
+        (:func:`neighbour_plane`), where its ``leverage`` is at most ``max_leverage`` (the mean elsewhere).
+    max_leverage : float
+        With ``fit="plane"``: the most the plane may be extrapolated (``leverage`` of :func:`neighbour_plane`;
+        1 = the neighbours balanced about the pixel).
     valid_right : (H, W) bool, optional
         Valid region of the rectified right view (a value whose right pixel is outside is not tried).
     **kwargs
@@ -348,9 +436,11 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
     Raises
     ------
     ConfigError
-        ``max_lr_gap`` None.
+        ``max_lr_gap`` None, or ``fit`` not one of "mean", "plane".
     """
     _require_lr_check(kwargs, "confident_growth", "a grown value")
+    if fit not in ("mean", "plane"):
+        raise ConfigError(f"confident_growth fit: expected 'mean' or 'plane', got {fit!r}")
     for key in ("radius", "retry_radius", "retry_below", "retry_drop", "right_seeds", "seeds_checked"):
         kwargs.pop(key, None)
     d = np.asarray(disparity, dtype=np.float32)
@@ -358,7 +448,8 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
     f = np.asarray(filled, dtype=np.float32)
     for _ in range(passes):
         d2, c2 = _grown(left, right, d, f, grow_radius=grow_radius, sigma=sigma, agree=agree,
-                        min_support=min_support, max_spread=max_spread, valid_right=valid_right, **kwargs)
+                        min_support=min_support, max_spread=max_spread, fit=fit, max_leverage=max_leverage,
+                        valid_right=valid_right, **kwargs)
         add = np.isfinite(d2)
         if not add.any():
             break
@@ -367,12 +458,19 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
 
 
 def _grown(left: np.ndarray, right: np.ndarray, d: np.ndarray, f: np.ndarray, *, grow_radius: int, sigma: float,
-           agree: float, min_support: float, max_spread: float | None, valid_right: np.ndarray | None,
-           **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
+           agree: float, min_support: float, max_spread: float | None, fit: str, max_leverage: float,
+           valid_right: np.ndarray | None, **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
     """(H, W) float32 disparities and confidences of one pass of :func:`confident_growth` (the values it adds,
     NaN elsewhere)."""
     nan = np.full(d.shape, np.nan, dtype=np.float32)
     mean, support, spread = neighbour_disparity(d, sigma=sigma)
+    if fit == "plane":
+        with np.errstate(invalid="ignore"):
+            holes = ~np.isfinite(d) & np.isfinite(f) & (support >= min_support)
+        plane, _, p_spread, leverage = neighbour_plane(d, sigma=sigma, where=holes)
+        with np.errstate(invalid="ignore"):
+            use = np.isfinite(plane) & (leverage <= max_leverage)
+        mean, spread = np.where(use, plane, mean), np.where(use, p_spread, spread)
     with np.errstate(invalid="ignore"):
         cand = ~np.isfinite(d) & np.isfinite(f) & np.isfinite(mean) & (support >= min_support)
         if max_spread is not None:

@@ -80,6 +80,8 @@ PROFILES: dict[str, Preset] = {
         ("refine_grow_sigma", 8.0),
         ("refine_grow_spread", 0.5),
         ("refine_grow_passes", 2),
+        ("refine_grow_fit", "mean"),
+        ("refine_grow_leverage", 4.0),
         ("refine_smoothed_below", None),
         ("refine_smoothed_retry_below", 0.99),
         ("refine_smoothed_fill_agree", 1.0),
