@@ -36,6 +36,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from numba import njit, prange
 
 from prismstereo.depth.refine import refine_disparity
 from prismstereo.errors import ConfigError
@@ -299,89 +300,106 @@ def neighbour_disparity(disparity: np.ndarray, *, sigma: float) -> tuple[np.ndar
     return mean, support.astype(np.float32), spread
 
 
-def neighbour_plane(disparity: np.ndarray, *, sigma: float, where: np.ndarray | None = None
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """What the finite disparities around each pixel say of it, slant included: the Gaussian-weighted
-    least-squares plane through them (d ≈ a + b·u + c·v over the offsets u, v from the pixel) read at the
-    pixel, the weights' sum, the weighted spread of the values about that plane, and the plane value's
-    leverage.
+def neighbour_plane(disparity: np.ndarray, ys: np.ndarray, xs: np.ndarray, values: np.ndarray, *, sigma: float,
+                    inlier: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What the finite disparities around some pixels that agree with a value of each say of it, slant
+    included: the Gaussian-weighted least-squares plane through the neighbours within ``inlier`` px of the
+    value (d ≈ a + b·u + c·v over the offsets u, v from the pixel) read at the pixel.
 
     A surface slanted in disparity (a floor, a wall seen obliquely) spreads its values about their mean by
-    its gradient times the kernel's reach and, where the values around a hole are not balanced about it,
-    moves the mean off the surface: the plane follows the slant, and its residual spread is what stays of
-    the noise and of a depth edge.
+    its gradient times the kernel's reach, and near a depth edge the neighbours hold two surfaces: the
+    plane through the neighbours on the value's own surface is what that surface says of the pixel, and
+    their share of the neighbours' weight says how much of the pixel's surroundings is that surface.
 
     Parameters
     ----------
     disparity : (H, W) float array
         Px, NaN = none.
+    ys, xs : (N,) int arrays
+        The pixels.
+    values : (N,) float array
+        The value each pixel is asked about, px.
     sigma : float
         Standard deviation of the Gaussian weights, px (the kernel reaches 3 sigma).
-    where : (H, W) bool, optional
-        The pixels to fit at (default: every pixel); NaN elsewhere.
+    inlier : float
+        Largest distance of a neighbour's value from the pixel's value to take part in the fit, px.
 
     Returns
     -------
-    plane, support, spread, leverage : (H, W) float32
-        The plane's value at the pixel (NaN where no finite value is in reach or the fit is singular: the
-        values in reach lie on a line), the sum of the weights of the finite values (1 where every pixel in
-        reach has one), the weighted standard deviation of the values about the plane and ``support`` times
-        the (0, 0) entry of the inverse normal matrix (NaN with the plane): 1 where the values' weighted
-        centroid is the pixel itself, more the farther the plane is extrapolated from it.
+    plane, spread, inliers, support : (N,) float64
+        The plane's value at the pixel (the inliers' weighted mean where the plane is not determined: they
+        lie on a line; NaN where no neighbour is within ``inlier``), the weighted standard deviation of the
+        inliers about the plane, the inliers' weight and the weight of every finite neighbour (1 where
+        every pixel in reach has a value; Gaussian weights of unit sum).
     """
     d = np.asarray(disparity, dtype=np.float32)
-    finite = np.isfinite(d)
+    out = _inlier_planes(d, np.asarray(ys, dtype=np.int64), np.asarray(xs, dtype=np.int64),
+                         np.asarray(values, dtype=np.float64), float(sigma), float(inlier))
+    return out[:, 0], out[:, 1], out[:, 2], out[:, 3]
+
+
+@njit(cache=True, parallel=True, nogil=True)
+def _inlier_planes(d: np.ndarray, ys: np.ndarray, xs: np.ndarray, values: np.ndarray, sigma: float,
+                   inlier: float) -> np.ndarray:  # pragma: no cover - numba
     h, w = d.shape
-    v = finite.astype(np.float64)
-    # about the map's median, as neighbour_disparity: the second moment keeps the residuals' precision
-    ref = float(np.median(d[finite])) if finite.any() else 0.0
-    x = np.where(finite, d.astype(np.float64) - ref, 0.0)
     r = int(np.ceil(3.0 * sigma))
-    g = cv2.getGaussianKernel(2 * r + 1, float(sigma), cv2.CV_64F)[:, 0]
-    u = np.arange(-r, r + 1, dtype=np.float64)
-    g1, gu, guu = g, g * u, g * u * u
-
-    def corr(a: np.ndarray, kx: np.ndarray, ky: np.ndarray) -> np.ndarray:
-        # correlation: the neighbour at offset (u, v) from the pixel weighs kx[u]·ky[v]
-        return np.asarray(cv2.sepFilter2D(a, cv2.CV_64F, kx, ky, borderType=cv2.BORDER_CONSTANT))
-
-    support = corr(v, g1, g1)
-    nan = np.float32(np.nan)
-    plane = np.full((h, w), nan, dtype=np.float32)
-    spread = np.full((h, w), nan, dtype=np.float32)
-    leverage = np.full((h, w), nan, dtype=np.float32)
-    at = support > 1e-3
-    if where is not None:
-        at &= np.asarray(where, dtype=bool)
-    if not at.any():
-        return plane, support.astype(np.float32), spread, leverage
-    s = support[at]
-    su, sv = corr(v, gu, g1)[at], corr(v, g1, gu)[at]
-    suu, suv, svv = corr(v, guu, g1)[at], corr(v, gu, gu)[at], corr(v, g1, guu)[at]
-    sd, sud, svd = corr(x, g1, g1)[at], corr(x, gu, g1)[at], corr(x, g1, gu)[at]
-    sdd = corr(x * x, g1, g1)[at]
-    m = np.stack([np.stack([s, su, sv], -1), np.stack([su, suu, suv], -1), np.stack([sv, suv, svv], -1)], -2)
-    rhs = np.stack([sd, sud, svd], -1)
-    det = np.linalg.det(m)
-    # a singular fit (every value on one line, or a single one): the plane is not determined across it
-    ok = det > 1e-9 * s ** 3 * max(sigma, 1.0) ** 4
-    theta = np.zeros_like(rhs)
-    minv00 = np.full(s.shape, np.nan)
-    if ok.any():
-        theta[ok] = np.linalg.solve(m[ok], rhs[ok][..., None])[..., 0]
-        minv00[ok] = (m[ok][:, 1, 1] * m[ok][:, 2, 2] - m[ok][:, 1, 2] ** 2) / det[ok]
-    res = np.maximum(sdd - np.einsum("ij,ij->i", theta, rhs), 0.0) / np.maximum(s, 1e-12)
-    ys, xs = np.nonzero(at)
-    plane[ys[ok], xs[ok]] = (theta[ok, 0] + ref).astype(np.float32)
-    spread[ys[ok], xs[ok]] = np.sqrt(res[ok]).astype(np.float32)
-    leverage[ys[ok], xs[ok]] = (s[ok] * minv00[ok]).astype(np.float32)
-    return plane, support.astype(np.float32), spread, leverage
+    g = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
+    g = g / g.sum()
+    n = ys.size
+    out = np.full((n, 4), np.nan)
+    for k in prange(n):
+        y0, x0, v0 = ys[k], xs[k], values[k]
+        total = 0.0
+        s = su = sv = suu = suv = svv = se = sue = sve = see = 0.0
+        for dy in range(max(-r, -y0), min(r, h - 1 - y0) + 1):
+            for dx in range(max(-r, -x0), min(r, w - 1 - x0) + 1):
+                dv = d[y0 + dy, x0 + dx]
+                if not np.isfinite(dv):
+                    continue
+                wt = g[dy + r] * g[dx + r]
+                total += wt
+                e = dv - v0  # about the value: the sums keep the residuals' precision
+                if abs(e) > inlier:
+                    continue
+                s += wt
+                su += wt * dx
+                sv += wt * dy
+                suu += wt * dx * dx
+                suv += wt * dx * dy
+                svv += wt * dy * dy
+                se += wt * e
+                sue += wt * dx * e
+                sve += wt * dy * e
+                see += wt * e * e
+        out[k, 2] = s
+        out[k, 3] = total
+        if s <= 0.0:
+            continue
+        # the 3×3 normal equations by cofactors
+        c00 = suu * svv - suv * suv
+        c01 = sv * suv - su * svv
+        c02 = su * suv - sv * suu
+        det = s * c00 + su * c01 + sv * c02
+        if det <= 1e-9 * s ** 3 * max(sigma, 1.0) ** 4:
+            a = se / s
+            out[k, 0] = v0 + a
+            out[k, 1] = np.sqrt(max(see / s - a * a, 0.0))
+            continue
+        c11 = s * svv - sv * sv
+        c12 = sv * su - s * suv
+        c22 = s * suu - su * su
+        a = (c00 * se + c01 * sue + c02 * sve) / det
+        b = (c01 * se + c11 * sue + c12 * sve) / det
+        c = (c02 * se + c12 * sue + c22 * sve) / det
+        out[k, 0] = v0 + a
+        out[k, 1] = np.sqrt(max((see - a * se - b * sue - c * sve) / s, 0.0))
+    return out
 
 
 def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, confidence: np.ndarray,
                      filled: np.ndarray, *, grow_radius: int = 16, sigma: float = 8.0, agree: float = 0.3,
                      min_support: float = 0.1, max_spread: float | None = 0.5, passes: int = 1,
-                     fit: str = "mean", max_leverage: float = 4.0,
+                     fit: str = "mean", inlier: float = 1.0, min_share: float = 0.85,
                      valid_right: np.ndarray | None = None, **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
     """Add the matcher's dense values that a wide window confirms and that continue the kept surface around
     them, where nothing was kept.
@@ -416,12 +434,15 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
     passes : int
         How many times to grow: each pass's neighbours include the values the passes before it kept.
     fit : {"mean", "plane"}
-        What the neighbours say of the pixel: their weighted mean and spread about it
-        (:func:`neighbour_disparity`), or their weighted plane read at the pixel and spread about the plane
-        (:func:`neighbour_plane`), where its ``leverage`` is at most ``max_leverage`` (the mean elsewhere).
-    max_leverage : float
-        With ``fit="plane"``: the most the plane may be extrapolated (``leverage`` of :func:`neighbour_plane`;
-        1 = the neighbours balanced about the pixel).
+        What the neighbours say of a pixel. "mean": their weighted mean, the spread theirs about it, tested
+        before the window is refined. "plane": every pixel whose neighbours weigh ``min_support`` is refined,
+        and its value is tested against the weighted plane through the neighbours within ``inlier`` px of it
+        (:func:`neighbour_plane`): those must weigh ``min_share`` of all its neighbours and ``min_support``,
+        spread less than ``max_spread`` px about the plane, and the plane's value at the pixel must lie
+        within ``agree`` px of the refined one; the value kept is the mean of the two (two estimates of
+        about the same noise: the weak window's and the plane's, from the neighbours' noise and slant).
+    inlier, min_share : float, float
+        See ``fit``.
     valid_right : (H, W) bool, optional
         Valid region of the rectified right view (a value whose right pixel is outside is not tried).
     **kwargs
@@ -448,8 +469,8 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
     f = np.asarray(filled, dtype=np.float32)
     for _ in range(passes):
         d2, c2 = _grown(left, right, d, f, grow_radius=grow_radius, sigma=sigma, agree=agree,
-                        min_support=min_support, max_spread=max_spread, fit=fit, max_leverage=max_leverage,
-                        valid_right=valid_right, **kwargs)
+                        min_support=min_support, max_spread=max_spread, fit=fit, inlier=inlier,
+                        min_share=min_share, valid_right=valid_right, **kwargs)
         add = np.isfinite(d2)
         if not add.any():
             break
@@ -458,22 +479,15 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
 
 
 def _grown(left: np.ndarray, right: np.ndarray, d: np.ndarray, f: np.ndarray, *, grow_radius: int, sigma: float,
-           agree: float, min_support: float, max_spread: float | None, fit: str, max_leverage: float,
+           agree: float, min_support: float, max_spread: float | None, fit: str, inlier: float, min_share: float,
            valid_right: np.ndarray | None, **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
     """(H, W) float32 disparities and confidences of one pass of :func:`confident_growth` (the values it adds,
     NaN elsewhere)."""
     nan = np.full(d.shape, np.nan, dtype=np.float32)
     mean, support, spread = neighbour_disparity(d, sigma=sigma)
-    if fit == "plane":
-        with np.errstate(invalid="ignore"):
-            holes = ~np.isfinite(d) & np.isfinite(f) & (support >= min_support)
-        plane, _, p_spread, leverage = neighbour_plane(d, sigma=sigma, where=holes)
-        with np.errstate(invalid="ignore"):
-            use = np.isfinite(plane) & (leverage <= max_leverage)
-        mean, spread = np.where(use, plane, mean), np.where(use, p_spread, spread)
     with np.errstate(invalid="ignore"):
         cand = ~np.isfinite(d) & np.isfinite(f) & np.isfinite(mean) & (support >= min_support)
-        if max_spread is not None:
+        if max_spread is not None and fit == "mean":
             cand &= spread < max_spread
     seeds = _seeds_seen(f, cand, valid_right)
     if not np.isfinite(seeds).any():
@@ -481,9 +495,21 @@ def _grown(left: np.ndarray, right: np.ndarray, d: np.ndarray, f: np.ndarray, *,
     right_seeds = np.where(np.isfinite(d), d, f).astype(np.float32)
     d2, c2 = confident_matches(left, right, seeds, radius=grow_radius, valid_right=valid_right,
                                right_seeds=right_seeds, seeds_checked=False, **kwargs)
+    if fit == "mean":
+        with np.errstate(invalid="ignore"):
+            add = np.isfinite(d2) & (np.abs(d2 - mean) < agree)
+        return np.where(add, d2, nan).astype(np.float32), np.where(add, c2, nan).astype(np.float32)
+    ys, xs = np.nonzero(np.isfinite(d2))
+    v = d2[ys, xs].astype(np.float64)
+    plane, p_spread, inl, total = neighbour_plane(d, ys, xs, v, sigma=sigma, inlier=inlier)
     with np.errstate(invalid="ignore"):
-        add = np.isfinite(d2) & (np.abs(d2 - mean) < agree)
-    return np.where(add, d2, nan).astype(np.float32), np.where(add, c2, nan).astype(np.float32)
+        ok = (np.abs(plane - v) < agree) & (inl >= min_support) & (inl >= min_share * total)
+        if max_spread is not None:
+            ok &= p_spread < max_spread
+    out_d, out_c = nan.copy(), nan.copy()
+    out_d[ys[ok], xs[ok]] = (0.5 * (v[ok] + plane[ok])).astype(np.float32)
+    out_c[ys[ok], xs[ok]] = c2[ys[ok], xs[ok]]
+    return out_d, out_c
 
 
 def _require_lr_check(kwargs: dict[str, Any], function: str, tested: str) -> None:

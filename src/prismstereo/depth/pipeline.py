@@ -215,14 +215,13 @@ class DepthConfig:
     refine_grow_passes : int
         How many times to grow, each from the values kept before it.
     refine_grow_fit : {"mean", "plane"}
-        What the kept values around a pixel say of it: their weighted mean, or their weighted plane read
-        at the pixel, its spread the values' about the plane (``fit`` of
-        :func:`~prismstereo.depth.confidence.confident_growth`): a slanted surface's values spread about
-        their mean by its gradient.
-    refine_grow_leverage : float
-        With ``refine_grow_fit="plane"``, the most the plane may be extrapolated from the values' weighted
-        centroid (``max_leverage`` of :func:`~prismstereo.depth.confidence.confident_growth`; the mean
-        beyond).
+        What the kept values around a pixel say of it: their weighted mean, or the weighted plane through
+        those within ``refine_grow_inlier`` px of the refined value, which must weigh ``refine_grow_share``
+        of all (``fit`` of :func:`~prismstereo.depth.confidence.confident_growth`): a slanted surface's
+        values spread about their mean by its gradient, and near a depth edge the other surface's values
+        are not the pixel's.
+    refine_grow_inlier, refine_grow_share : float, float
+        See ``refine_grow_fit``.
     refine_smoothed_below : float or None
         A capture whose pixel-scale noise (:func:`~prismstereo.depth.smoothed.pixel_noise`, grey levels)
         is below this has lost its finest scale to compression or demosaicing (a real camera's capture):
@@ -271,7 +270,8 @@ class DepthConfig:
     refine_grow_spread: float | None = 0.5
     refine_grow_passes: int = 2
     refine_grow_fit: str = "mean"
-    refine_grow_leverage: float = 4.0
+    refine_grow_inlier: float = 1.0
+    refine_grow_share: float = 0.85
     refine_smoothed_below: float | None = 0.5
     refine_smoothed_retry_below: float = 0.99
     refine_smoothed_fill_agree: float | None = 1.0
@@ -289,11 +289,12 @@ class DepthConfig:
                             "refine_fill_agree": (0.0, None), "refine_grow_radius": (1, 50),
                             "refine_grow_agree": (0.0, None), "refine_grow_sigma": (0.0, 50.0),
                             "refine_grow_spread": (0.0, None), "refine_grow_passes": (1, 10),
-                            "refine_grow_leverage": (1.0, None),
+                            "refine_grow_inlier": (0.0, None), "refine_grow_share": (0.0, 1.0),
                             "refine_smoothed_below": (0.0, None),
                             "refine_smoothed_retry_below": (0.0, 1.0), "refine_smoothed_fill_agree": (0.0, None)},
                      positive=("max_gap_mm", "refine_max_shift", "refine_fill_agree", "refine_grow_agree",
-                               "refine_grow_sigma", "refine_grow_spread", "refine_smoothed_fill_agree"))
+                               "refine_grow_sigma", "refine_grow_spread", "refine_grow_inlier",
+                               "refine_smoothed_fill_agree"))
         if not isinstance(self.method, str):
             fail(self, "method", "a matcher name", self.method)
         if not isinstance(self.matcher_params, Mapping):
@@ -927,7 +928,8 @@ def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, dis
         disp, conf = confident_growth(left, right, disp, conf, filled, grow_radius=config.refine_grow_radius,
                                       sigma=config.refine_grow_sigma, agree=config.refine_grow_agree,
                                       max_spread=config.refine_grow_spread, passes=config.refine_grow_passes,
-                                      fit=config.refine_grow_fit, max_leverage=config.refine_grow_leverage,
+                                      fit=config.refine_grow_fit, inlier=config.refine_grow_inlier,
+                                      min_share=config.refine_grow_share,
                                       valid_right=vr_fill, **kw)
     return disp, conf
 
