@@ -515,7 +515,8 @@ def test_neighbour_plane_is_the_weighted_fit_through_the_neighbours_near_the_val
     ys, xs = np.array([25, 30, 30]), np.array([22, 32, 46])
     plane, spread, inl, total = neighbour_plane(d, ys, xs, truth[ys, xs], sigma=4.0, inlier=2.0)
     assert np.allclose(plane, truth[ys, xs], atol=1e-3) and np.all(spread < 1e-2)
-    assert inl[2] < 0.9 * total[2] and np.allclose(inl[:2], total[:2], rtol=0, atol=1e-9)  # (30, 46) sees the other surface
+    # (30, 46) sees the other surface, the two others only their own
+    assert inl[2] < 0.9 * total[2] and np.allclose(inl[:2], total[:2], rtol=0, atol=1e-9)
     # against a direct weighted least-squares fit of noisy values at one pixel
     rng = np.random.default_rng(1)
     noisy = (truth + rng.normal(0.0, 0.3, truth.shape)).astype(np.float32)
