@@ -303,8 +303,9 @@ def neighbour_disparity(disparity: np.ndarray, *, sigma: float) -> tuple[np.ndar
 def neighbour_plane(disparity: np.ndarray, ys: np.ndarray, xs: np.ndarray, values: np.ndarray, *, sigma: float,
                     inlier: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """What the finite disparities around some pixels that agree with a value of each say of it, slant
-    included: the Gaussian-weighted least-squares plane through the neighbours within ``inlier`` px of the
-    value (d ≈ a + b·u + c·v over the offsets u, v from the pixel) read at the pixel.
+    included: the Gaussian-weighted least-squares plane (d ≈ a + b·u + c·v over the offsets u, v from the
+    pixel) through the neighbours within ``inlier`` px of the value, then refit through those within
+    ``inlier`` px of that plane, read at the pixel.
 
     A surface slanted in disparity (a floor, a wall seen obliquely) spreads its values about their mean by
     its gradient times the kernel's reach, and near a depth edge the neighbours hold two surfaces: the
@@ -322,15 +323,16 @@ def neighbour_plane(disparity: np.ndarray, ys: np.ndarray, xs: np.ndarray, value
     sigma : float
         Standard deviation of the Gaussian weights, px (the kernel reaches 3 sigma).
     inlier : float
-        Largest distance of a neighbour's value from the pixel's value to take part in the fit, px.
+        Largest distance of a neighbour's value from the pixel's value (then from the first plane) to take
+        part in the fit, px.
 
     Returns
     -------
     plane, spread, inliers, support : (N,) float64
-        The plane's value at the pixel (the inliers' weighted mean where the plane is not determined: they
-        lie on a line; NaN where no neighbour is within ``inlier``), the weighted standard deviation of the
-        inliers about the plane, the inliers' weight and the weight of every finite neighbour (1 where
-        every pixel in reach has a value; Gaussian weights of unit sum).
+        The second plane's value at the pixel (the inliers' weighted mean where a plane is not determined:
+        they lie on a line; NaN where no neighbour is within ``inlier``), the weighted standard deviation of
+        its inliers about it, their weight and the weight of every finite neighbour (1 where every pixel in
+        reach has a value; Gaussian weights of unit sum).
     """
     d = np.asarray(disparity, dtype=np.float32)
     out = _inlier_planes(d, np.asarray(ys, dtype=np.int64), np.asarray(xs, dtype=np.int64),
@@ -349,57 +351,62 @@ def _inlier_planes(d: np.ndarray, ys: np.ndarray, xs: np.ndarray, values: np.nda
     out = np.full((n, 4), np.nan)
     for k in prange(n):
         y0, x0, v0 = ys[k], xs[k], values[k]
-        total = 0.0
-        s = su = sv = suu = suv = svv = se = sue = sve = see = 0.0
-        for dy in range(max(-r, -y0), min(r, h - 1 - y0) + 1):
-            for dx in range(max(-r, -x0), min(r, w - 1 - x0) + 1):
-                dv = d[y0 + dy, x0 + dx]
-                if not np.isfinite(dv):
-                    continue
-                wt = g[dy + r] * g[dx + r]
-                total += wt
-                e = dv - v0  # about the value: the sums keep the residuals' precision
-                if abs(e) > inlier:
-                    continue
-                s += wt
-                su += wt * dx
-                sv += wt * dy
-                suu += wt * dx * dx
-                suv += wt * dx * dy
-                svv += wt * dy * dy
-                se += wt * e
-                sue += wt * dx * e
-                sve += wt * dy * e
-                see += wt * e * e
-        out[k, 2] = s
-        out[k, 3] = total
-        if s <= 0.0:
-            continue
-        # the 3×3 normal equations by cofactors
-        c00 = suu * svv - suv * suv
-        c01 = sv * suv - su * svv
-        c02 = su * suv - sv * suu
-        det = s * c00 + su * c01 + sv * c02
-        if det <= 1e-9 * s ** 3 * max(sigma, 1.0) ** 4:
-            a = se / s
+        # first the neighbours within ``inlier`` of the value, then those within it of their plane: on a
+        # steep slope the first band is narrow, the second reaches the whole surface
+        a = b = c = 0.0
+        for step in range(2):
+            total = 0.0
+            s = su = sv = suu = suv = svv = se = sue = sve = see = 0.0
+            for dy in range(max(-r, -y0), min(r, h - 1 - y0) + 1):
+                for dx in range(max(-r, -x0), min(r, w - 1 - x0) + 1):
+                    dv = d[y0 + dy, x0 + dx]
+                    if not np.isfinite(dv):
+                        continue
+                    wt = g[dy + r] * g[dx + r]
+                    total += wt
+                    e = dv - v0  # about the value: the sums keep the residuals' precision
+                    if abs(e - (a + b * dx + c * dy)) > inlier:
+                        continue
+                    s += wt
+                    su += wt * dx
+                    sv += wt * dy
+                    suu += wt * dx * dx
+                    suv += wt * dx * dy
+                    svv += wt * dy * dy
+                    se += wt * e
+                    sue += wt * dx * e
+                    sve += wt * dy * e
+                    see += wt * e * e
+            out[k, 2] = s
+            out[k, 3] = total
+            out[k, 0] = np.nan
+            out[k, 1] = np.nan
+            if s <= 0.0:
+                break
+            # the 3×3 normal equations by cofactors
+            c00 = suu * svv - suv * suv
+            c01 = sv * suv - su * svv
+            c02 = su * suv - sv * suu
+            det = s * c00 + su * c01 + sv * c02
+            if det <= 1e-9 * s ** 3 * max(sigma, 1.0) ** 4:
+                a, b, c = se / s, 0.0, 0.0
+                out[k, 0] = v0 + a
+                out[k, 1] = np.sqrt(max(see / s - a * a, 0.0))
+                continue
+            c11 = s * svv - sv * sv
+            c12 = sv * su - s * suv
+            c22 = s * suu - su * su
+            a = (c00 * se + c01 * sue + c02 * sve) / det
+            b = (c01 * se + c11 * sue + c12 * sve) / det
+            c = (c02 * se + c12 * sue + c22 * sve) / det
             out[k, 0] = v0 + a
-            out[k, 1] = np.sqrt(max(see / s - a * a, 0.0))
-            continue
-        c11 = s * svv - sv * sv
-        c12 = sv * su - s * suv
-        c22 = s * suu - su * su
-        a = (c00 * se + c01 * sue + c02 * sve) / det
-        b = (c01 * se + c11 * sue + c12 * sve) / det
-        c = (c02 * se + c12 * sue + c22 * sve) / det
-        out[k, 0] = v0 + a
-        out[k, 1] = np.sqrt(max((see - a * se - b * sue - c * sve) / s, 0.0))
+            out[k, 1] = np.sqrt(max((see - a * se - b * sue - c * sve) / s, 0.0))
     return out
-
 
 def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, confidence: np.ndarray,
                      filled: np.ndarray, *, grow_radius: int = 16, sigma: float = 8.0, agree: float = 0.3,
                      min_support: float = 0.1, max_spread: float | None = 0.5, passes: int = 1,
-                     fit: str = "mean", inlier: float = 1.0, min_share: float = 0.85,
+                     fit: str = "mean", inlier: float = 1.0, min_share: float = 0.9,
                      valid_right: np.ndarray | None = None, **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
     """Add the matcher's dense values that a wide window confirms and that continue the kept surface around
     them, where nothing was kept.
@@ -439,8 +446,7 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
         and its value is tested against the weighted plane through the neighbours within ``inlier`` px of it
         (:func:`neighbour_plane`): those must weigh ``min_share`` of all its neighbours and ``min_support``,
         spread less than ``max_spread`` px about the plane, and the plane's value at the pixel must lie
-        within ``agree`` px of the refined one; the value kept is the mean of the two (two estimates of
-        about the same noise: the weak window's and the plane's, from the neighbours' noise and slant).
+        within ``agree`` px of the refined one, which is the value kept.
     inlier, min_share : float, float
         See ``fit``.
     valid_right : (H, W) bool, optional
@@ -507,7 +513,7 @@ def _grown(left: np.ndarray, right: np.ndarray, d: np.ndarray, f: np.ndarray, *,
         if max_spread is not None:
             ok &= p_spread < max_spread
     out_d, out_c = nan.copy(), nan.copy()
-    out_d[ys[ok], xs[ok]] = (0.5 * (v[ok] + plane[ok])).astype(np.float32)
+    out_d[ys[ok], xs[ok]] = v[ok].astype(np.float32)
     out_c[ys[ok], xs[ok]] = c2[ys[ok], xs[ok]]
     return out_d, out_c
 

@@ -221,7 +221,8 @@ class DepthConfig:
         values spread about their mean by its gradient, and near a depth edge the other surface's values
         are not the pixel's.
     refine_grow_inlier, refine_grow_share : float, float
-        See ``refine_grow_fit``.
+        See ``refine_grow_fit`` (``refine_grow_fit="mean"`` with ``refine_grow_agree`` 0.3 is the growth of
+        stop 34).
     refine_smoothed_below : float or None
         A capture whose pixel-scale noise (:func:`~prismstereo.depth.smoothed.pixel_noise`, grey levels)
         is below this has lost its finest scale to compression or demosaicing (a real camera's capture):
@@ -265,13 +266,13 @@ class DepthConfig:
     refine_retry_drop: bool = True
     refine_fill_agree: float | None = 0.5
     refine_grow_radius: int | None = 16
-    refine_grow_agree: float = 0.3
+    refine_grow_agree: float = 0.2
     refine_grow_sigma: float = 8.0
     refine_grow_spread: float | None = 0.5
     refine_grow_passes: int = 2
-    refine_grow_fit: str = "mean"
+    refine_grow_fit: str = "plane"
     refine_grow_inlier: float = 1.0
-    refine_grow_share: float = 0.85
+    refine_grow_share: float = 0.9
     refine_smoothed_below: float | None = 0.5
     refine_smoothed_retry_below: float = 0.99
     refine_smoothed_fill_agree: float | None = 1.0
