@@ -205,9 +205,9 @@ class DepthConfig:
         window's result (``retry_drop`` of :func:`~prismstereo.depth.confidence.confident_matches`).
     refine_grow_radius : int or None
         Where neither the matches nor the fill kept a value, refine the matcher's dense value once more with
-        a window of this half-size and keep it where it lies within ``refine_grow_agree`` px of the
-        Gaussian-weighted mean (standard deviation ``refine_grow_sigma`` px) of the kept values around it,
-        and those are alike (weighted spread below ``refine_grow_spread`` px)
+        a window of this half-size and keep it where it lies within ``refine_grow_agree`` px of what the kept
+        values around it say (``refine_grow_fit``; Gaussian weights of standard deviation
+        ``refine_grow_sigma`` px), and those are alike (weighted spread below ``refine_grow_spread`` px)
         (:func:`~prismstereo.depth.confidence.confident_growth`): on texture too weak for the two
         windows. Needs ``refine`` and ``refine_max_lr_gap``; None: no such step.
     refine_grow_agree, refine_grow_sigma, refine_grow_spread : float, float, float or None
@@ -221,8 +221,8 @@ class DepthConfig:
         values spread about their mean by its gradient, and near a depth edge the other surface's values
         are not the pixel's.
     refine_grow_inlier, refine_grow_share : float, float
-        See ``refine_grow_fit`` (``refine_grow_fit="mean"`` with ``refine_grow_agree`` 0.3 is the growth of
-        stop 34).
+        See ``refine_grow_fit`` (``refine_grow_fit="mean"`` with ``refine_grow_agree`` 0.3 and
+        ``refine_grow_spread`` 0.5 is the growth of stop 34).
     refine_smoothed_below : float or None
         A capture whose pixel-scale noise (:func:`~prismstereo.depth.smoothed.pixel_noise`, grey levels)
         is below this has lost its finest scale to compression or demosaicing (a real camera's capture):
@@ -268,7 +268,7 @@ class DepthConfig:
     refine_grow_radius: int | None = 16
     refine_grow_agree: float = 0.2
     refine_grow_sigma: float = 8.0
-    refine_grow_spread: float | None = 0.5
+    refine_grow_spread: float | None = 0.35
     refine_grow_passes: int = 2
     refine_grow_fit: str = "plane"
     refine_grow_inlier: float = 1.0

@@ -78,7 +78,7 @@ PROFILES: dict[str, Preset] = {
         ("refine_grow_radius", None),
         ("refine_grow_agree", 0.2),
         ("refine_grow_sigma", 8.0),
-        ("refine_grow_spread", 0.5),
+        ("refine_grow_spread", 0.35),
         ("refine_grow_passes", 2),
         ("refine_grow_fit", "plane"),
         ("refine_grow_inlier", 1.0),
