@@ -354,7 +354,7 @@ def _inlier_planes(d: np.ndarray, ys: np.ndarray, xs: np.ndarray, values: np.nda
         # first the neighbours within ``inlier`` of the value, then those within it of their plane: on a
         # steep slope the first band is narrow, the second reaches the whole surface
         a = b = c = 0.0
-        for step in range(2):
+        for _step in range(2):
             total = 0.0
             s = su = sv = suu = suv = svv = se = sue = sve = see = 0.0
             for dy in range(max(-r, -y0), min(r, h - 1 - y0) + 1):

@@ -232,6 +232,10 @@ class DepthConfig:
         None: never.
     refine_smoothed_retry_below, refine_smoothed_fill_agree : float, float or None
         See ``refine_smoothed_below`` (None: the fill agreement is left as it is).
+    refine_smoothed_grow_fit, refine_smoothed_grow_agree, refine_smoothed_grow_spread : str, float, float or None
+        The growth's ``refine_grow_fit``, ``refine_grow_agree`` and ``refine_grow_spread`` on a smoothed
+        capture (``refine_smoothed_below``; None: left as it is): the plane's growth there adds values less
+        precise than the map's, the mean's (0.3, 0.5 px) keeps its median.
     sweep : SweepParams
         The plane sweep of ``views="all"`` (:class:`~prismstereo.multiview.prism.SweepParams`).
     coarse_to_fine : {"auto", "on", "off"}
@@ -276,6 +280,9 @@ class DepthConfig:
     refine_smoothed_below: float | None = 0.5
     refine_smoothed_retry_below: float = 0.99
     refine_smoothed_fill_agree: float | None = 1.0
+    refine_smoothed_grow_fit: str | None = "mean"
+    refine_smoothed_grow_agree: float | None = 0.3
+    refine_smoothed_grow_spread: float | None = 0.5
     sweep: SweepParams = field(default_factory=SweepParams)
     coarse_to_fine: str = "auto"
     max_memory: int | None = None
@@ -292,10 +299,12 @@ class DepthConfig:
                             "refine_grow_spread": (0.0, None), "refine_grow_passes": (1, 10),
                             "refine_grow_inlier": (0.0, None), "refine_grow_share": (0.0, 1.0),
                             "refine_smoothed_below": (0.0, None),
-                            "refine_smoothed_retry_below": (0.0, 1.0), "refine_smoothed_fill_agree": (0.0, None)},
+                            "refine_smoothed_retry_below": (0.0, 1.0), "refine_smoothed_fill_agree": (0.0, None),
+                            "refine_smoothed_grow_agree": (0.0, None), "refine_smoothed_grow_spread": (0.0, None)},
                      positive=("max_gap_mm", "refine_max_shift", "refine_fill_agree", "refine_grow_agree",
                                "refine_grow_sigma", "refine_grow_spread", "refine_grow_inlier",
-                               "refine_smoothed_fill_agree"))
+                               "refine_smoothed_fill_agree", "refine_smoothed_grow_agree",
+                               "refine_smoothed_grow_spread"))
         if not isinstance(self.method, str):
             fail(self, "method", "a matcher name", self.method)
         if not isinstance(self.matcher_params, Mapping):
@@ -306,6 +315,8 @@ class DepthConfig:
             fail(self, "calibration", "'fit' or 'thesis'", self.calibration)
         if self.refine_grow_fit not in ("mean", "plane"):
             fail(self, "refine_grow_fit", "'mean' or 'plane'", self.refine_grow_fit)
+        if self.refine_smoothed_grow_fit not in (None, "mean", "plane"):
+            fail(self, "refine_smoothed_grow_fit", "'mean', 'plane' or None", self.refine_smoothed_grow_fit)
         if self.depth_range is not None and (
                 len(self.depth_range) != 2 or not all(isinstance(v, numbers.Real) and math.isfinite(v)
                                                       for v in self.depth_range)
