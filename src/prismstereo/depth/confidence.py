@@ -25,7 +25,8 @@ The pipeline's ``refine`` and ``speckles`` steps are these plain functions on ar
   two windows (``radius`` and ``retry_radius``), each confirmed on its own, agree: the dense map's
   values are guesses, and two independent sub-pixel values that agree are what tells a right one.
 - :func:`confident_growth` tries once more where neither kept a value, with a wider window, and keeps a
-  value only where it agrees with what the kept neighbours around it say (their Gaussian-weighted mean):
+  value only where it agrees with what the kept neighbours around it say (their Gaussian-weighted mean, or
+  the weighted plane through those on the value's own surface, :func:`neighbour_plane`):
   on texture too weak for the two windows, a value that the wide window confirms on its own and that
   continues the surface around it is right far more often than one that only a window confirms.
 """
