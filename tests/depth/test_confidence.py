@@ -411,14 +411,15 @@ def test_an_agreeing_fill_keeps_the_filled_values_both_windows_confirm_alike():
         confident_fill(left, right, none, none, filled, agree=0.5, radius=5, max_lr_gap=0.45)
 
 
-def _weak_slanted_plane(seed: int = 5, h: int = 90, w: int = 160) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _weak_slanted_plane(seed: int = 5, h: int = 90, w: int = 160, slope: float = 0.02
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A weak texture under sensor noise on a plane slanted along the rows: true disparity 7.3 px at the
-    middle row, 0.02 px more per row down; returns left, right and the true disparity."""
+    middle row, ``slope`` px more per row down; returns left, right and the true disparity."""
     import cv2
 
     rng = np.random.default_rng(seed)
     base = cv2.GaussianBlur(rng.random((h, w + 40)).astype(np.float32) * 255, (0, 0), 1.2) * 0.08
-    true = (7.3 + 0.02 * (np.arange(h, dtype=np.float32) - h / 2))[:, None] * np.ones((1, w), np.float32)
+    true = (7.3 + slope * (np.arange(h, dtype=np.float32) - h / 2))[:, None] * np.ones((1, w), np.float32)
     xs = np.arange(w, dtype=np.float32)
     left = base[:, 20:20 + w] + rng.normal(0.0, 1.5, (h, w))
     right = np.stack([np.interp(xs + 20 + true[y, 0], np.arange(w + 40), base[y]) for y in range(h)])
@@ -459,6 +460,84 @@ def test_growth_recovers_a_weak_slanted_plane_from_its_kept_neighbours_and_only_
     assert not (np.isfinite(d_step) & ~blocks & (spread >= 0.5)).any()
     with pytest.raises(ConfigError, match="max_lr_gap"):
         confident_growth(left, right, kept, conf, filled, max_lr_gap=None)
+
+
+def test_plane_growth_continues_a_steep_weak_floor_the_mean_does_not_and_stops_at_a_step():
+    from prismstereo.depth.confidence import confident_growth, neighbour_disparity
+    from prismstereo.errors import ConfigError
+
+    # 0.08 px more per row: the kept values spread about their mean by ~0.6 px over the kernel's reach
+    left, right, true = _weak_slanted_plane(slope=0.08)
+    h, w = true.shape
+    blocks = ((np.arange(h)[:, None] // 12 + np.arange(w)[None, :] // 12) % 2 == 0)
+    kept = np.where(blocks, true, np.nan).astype(np.float32)
+    conf = np.where(blocks, np.float32(0.9), np.float32(np.nan))
+    filled = np.rint(true).astype(np.float32)
+    kw = dict(min_confidence=0.5, max_lr_gap=0.45)
+    inner = np.zeros((h, w), dtype=bool)
+    inner[20:-20, 30:-30] = True
+    holes = ~blocks & inner
+    d_mean, _ = confident_growth(left, right, kept, conf, filled, fit="mean", **kw)
+    d_plane, c_plane = confident_growth(left, right, kept, conf, filled, fit="plane", **kw)
+    assert (np.isfinite(d_mean) & holes).sum() < 0.02 * holes.sum()
+    grown = np.isfinite(d_plane) & holes
+    assert grown.sum() > 0.5 * holes.sum()
+    assert np.mean(np.abs(d_plane[grown] - true[grown]) < 0.5) > 0.97
+    assert np.all((c_plane[grown] >= 0.5) & (c_plane[grown] <= 1.0))
+    assert np.array_equal(d_plane[blocks], kept[blocks]) and np.array_equal(c_plane[blocks], conf[blocks])
+    # neighbours on two surfaces 3 px apart (a depth edge), the right one saying 3 px more than the image:
+    # nothing grows there, nor where that surface weighs more than a sixth of the neighbours
+    right_half = np.arange(w)[None, :] >= w // 2
+    step = np.where(right_half, kept + np.float32(3.0), kept).astype(np.float32)
+    near = neighbour_disparity(np.where(right_half & blocks, np.float32(0.0), np.float32(np.nan)), sigma=8.0)[1]
+    d_step, _ = confident_growth(left, right, step, conf, np.where(np.isfinite(step), step, filled), fit="plane",
+                                 **kw)
+    new = np.isfinite(d_step) & ~blocks
+    assert not (new & right_half).any()
+    share_other = near / np.maximum(neighbour_disparity(step, sigma=8.0)[1], 1e-6)
+    assert not (new & (share_other > 0.16)).any()
+    assert (new & holes & (np.arange(w)[None, :] < w // 2 - 30)).sum() > 0.5 * (
+        holes & (np.arange(w)[None, :] < w // 2 - 30)).sum()  # the far side still grows
+    with pytest.raises(ConfigError, match="fit"):
+        confident_growth(left, right, kept, conf, filled, fit="median", **kw)
+
+
+def test_neighbour_plane_is_the_weighted_fit_through_the_neighbours_near_the_value():
+    import cv2
+
+    from prismstereo.depth.confidence import neighbour_plane
+
+    yy, xx = np.mgrid[0:60, 0:70].astype(np.float64)
+    truth = 80.0 + 0.05 * xx - 0.08 * yy
+    d = truth.astype(np.float32)
+    d[20:40, 20:45] = np.nan
+    d[:, 50:] += np.float32(4.0)  # a second surface, outside the inlier band
+    ys, xs = np.array([25, 30, 30]), np.array([22, 32, 46])
+    plane, spread, inl, total = neighbour_plane(d, ys, xs, truth[ys, xs], sigma=4.0, inlier=2.0)
+    assert np.allclose(plane, truth[ys, xs], atol=1e-3) and np.all(spread < 1e-2)
+    # (30, 46) sees the other surface, the two others only their own
+    assert inl[2] < 0.9 * total[2] and np.allclose(inl[:2], total[:2], rtol=0, atol=1e-9)
+    # against a direct weighted least-squares fit of noisy values at one pixel
+    rng = np.random.default_rng(1)
+    noisy = (truth + rng.normal(0.0, 0.3, truth.shape)).astype(np.float32)
+    noisy[rng.random(truth.shape) < 0.4] = np.nan
+    p2, sp2, inl2, tot2 = neighbour_plane(noisy, np.array([30]), np.array([25]), np.array([truth[30, 25]]),
+                                          sigma=3.0, inlier=100.0)
+    g = cv2.getGaussianKernel(19, 3.0).astype(np.float64)[:, 0]
+    win = noisy[21:40, 16:35].astype(np.float64)
+    wts = np.outer(g, g) * np.isfinite(win)
+    v, u = np.mgrid[-9:10, -9:10].astype(np.float64)
+    a = np.stack([np.ones(361), u.ravel(), v.ravel()], 1)
+    sw = np.sqrt(wts.ravel())
+    theta = np.linalg.lstsq(a * sw[:, None], np.nan_to_num(win.ravel()) * sw, rcond=None)[0]
+    res = np.nan_to_num(win.ravel()) - a @ theta
+    assert abs(p2[0] - theta[0]) < 1e-6 and abs(inl2[0] - wts.sum()) < 1e-9 and abs(tot2[0] - wts.sum()) < 1e-9
+    assert abs(sp2[0] - np.sqrt((wts.ravel() * res ** 2).sum() / wts.sum())) < 1e-6
+    # values on one row only: the plane is not determined across it, their mean stands for it
+    line = np.full((30, 30), np.nan, dtype=np.float32)
+    line[15, :] = 50.0
+    p3, _, _, _ = neighbour_plane(line, np.array([12]), np.array([15]), np.array([50.2]), sigma=3.0, inlier=1.0)
+    assert abs(p3[0] - 50.0) < 1e-6
 
 
 def test_neighbour_disparity_is_the_weighted_mean_and_spread_of_the_finite_values():

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 
@@ -41,6 +43,12 @@ def test_smoothed_config_switches_the_refinement_profile_below_the_threshold():
     assert got.refine_retry_below == cfg.refine_smoothed_retry_below
     assert got.refine_fill_agree == cfg.refine_smoothed_fill_agree and not got.refine_fill
     assert got.refine_smoothed_below is None  # what run.json records reproduces the run
+    assert (got.refine_grow_fit, got.refine_grow_agree, got.refine_grow_spread) == (
+        cfg.refine_smoothed_grow_fit, cfg.refine_smoothed_grow_agree, cfg.refine_smoothed_grow_spread)
+    kept = smoothed_config(dataclasses.replace(cfg, refine_smoothed_grow_fit=None, refine_smoothed_grow_agree=None,
+                                               refine_smoothed_grow_spread=None), smooth)
+    assert (kept.refine_grow_fit, kept.refine_grow_agree, kept.refine_grow_spread) == (
+        cfg.refine_grow_fit, cfg.refine_grow_agree, cfg.refine_grow_spread)
     off = DepthConfig(refine_smoothed_below=None)
     assert smoothed_config(off, smooth) is off
     assert smoothed_config(DepthConfig(refine=False), smooth).refine_retry_below == cfg.refine_retry_below

@@ -25,7 +25,8 @@ The pipeline's ``refine`` and ``speckles`` steps are these plain functions on ar
   two windows (``radius`` and ``retry_radius``), each confirmed on its own, agree: the dense map's
   values are guesses, and two independent sub-pixel values that agree are what tells a right one.
 - :func:`confident_growth` tries once more where neither kept a value, with a wider window, and keeps a
-  value only where it agrees with what the kept neighbours around it say (their Gaussian-weighted mean):
+  value only where it agrees with what the kept neighbours around it say (their Gaussian-weighted mean, or
+  the weighted plane through those on the value's own surface, :func:`neighbour_plane`):
   on texture too weak for the two windows, a value that the wide window confirms on its own and that
   continues the surface around it is right far more often than one that only a window confirms.
 """
@@ -36,13 +37,15 @@ from typing import Any
 
 import cv2
 import numpy as np
+from numba import njit, prange
 
 from prismstereo.depth._lrcheck import lr_gap, mirror, read_by_check, seen_from_right
 from prismstereo.depth.refine import refine_disparity
 from prismstereo.errors import ConfigError
 from prismstereo.rectify.epipolar import EpipolarTable
 
-__all__ = ["confident_fill", "confident_growth", "confident_matches", "neighbour_disparity", "remove_speckles"]
+__all__ = ["confident_fill", "confident_growth", "confident_matches", "neighbour_disparity", "neighbour_plane",
+           "remove_speckles"]
 
 
 def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, *, radius: int = 5,
@@ -299,9 +302,113 @@ def neighbour_disparity(disparity: np.ndarray, *, sigma: float) -> tuple[np.ndar
     return mean, support.astype(np.float32), spread
 
 
+def neighbour_plane(disparity: np.ndarray, ys: np.ndarray, xs: np.ndarray, values: np.ndarray, *, sigma: float,
+                    inlier: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What the finite disparities around some pixels that agree with a value of each say of it, slant
+    included: the Gaussian-weighted least-squares plane (d ≈ a + b·u + c·v over the offsets u, v from the
+    pixel) through the neighbours within ``inlier`` px of the value, then refit through those within
+    ``inlier`` px of that plane, read at the pixel.
+
+    A surface slanted in disparity (a floor, a wall seen obliquely) spreads its values about their mean by
+    its gradient times the kernel's reach, and near a depth edge the neighbours hold two surfaces: the
+    plane through the neighbours on the value's own surface is what that surface says of the pixel, and
+    their share of the neighbours' weight says how much of the pixel's surroundings is that surface.
+
+    Parameters
+    ----------
+    disparity : (H, W) float array
+        Px, NaN = none.
+    ys, xs : (N,) int arrays
+        The pixels.
+    values : (N,) float array
+        The value each pixel is asked about, px.
+    sigma : float
+        Standard deviation of the Gaussian weights, px (the kernel reaches 3 sigma).
+    inlier : float
+        Largest distance of a neighbour's value from the pixel's value (then from the first plane) to take
+        part in the fit, px.
+
+    Returns
+    -------
+    plane, spread, inliers, support : (N,) float64
+        The second plane's value at the pixel (the inliers' weighted mean where a plane is not determined:
+        they lie on a line; NaN where no neighbour is within ``inlier``), the weighted standard deviation of
+        its inliers about it, their weight and the weight of every finite neighbour (1 where every pixel in
+        reach has a value; Gaussian weights of unit sum).
+    """
+    d = np.asarray(disparity, dtype=np.float32)
+    out = _inlier_planes(d, np.asarray(ys, dtype=np.int64), np.asarray(xs, dtype=np.int64),
+                         np.asarray(values, dtype=np.float64), float(sigma), float(inlier))
+    return out[:, 0], out[:, 1], out[:, 2], out[:, 3]
+
+
+@njit(cache=True, parallel=True, nogil=True)
+def _inlier_planes(d: np.ndarray, ys: np.ndarray, xs: np.ndarray, values: np.ndarray, sigma: float,
+                   inlier: float) -> np.ndarray:  # pragma: no cover - numba
+    h, w = d.shape
+    r = int(np.ceil(3.0 * sigma))
+    g = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
+    g = g / g.sum()
+    n = ys.size
+    out = np.full((n, 4), np.nan)
+    for k in prange(n):
+        y0, x0, v0 = ys[k], xs[k], values[k]
+        # first the neighbours within ``inlier`` of the value, then those within it of their plane: on a
+        # steep slope the first band is narrow, the second reaches the whole surface
+        a = b = c = 0.0
+        for _step in range(2):
+            total = 0.0
+            s = su = sv = suu = suv = svv = se = sue = sve = see = 0.0
+            for dy in range(max(-r, -y0), min(r, h - 1 - y0) + 1):
+                for dx in range(max(-r, -x0), min(r, w - 1 - x0) + 1):
+                    dv = d[y0 + dy, x0 + dx]
+                    if not np.isfinite(dv):
+                        continue
+                    wt = g[dy + r] * g[dx + r]
+                    total += wt
+                    e = dv - v0  # about the value: the sums keep the residuals' precision
+                    if abs(e - (a + b * dx + c * dy)) > inlier:
+                        continue
+                    s += wt
+                    su += wt * dx
+                    sv += wt * dy
+                    suu += wt * dx * dx
+                    suv += wt * dx * dy
+                    svv += wt * dy * dy
+                    se += wt * e
+                    sue += wt * dx * e
+                    sve += wt * dy * e
+                    see += wt * e * e
+            out[k, 2] = s
+            out[k, 3] = total
+            out[k, 0] = np.nan
+            out[k, 1] = np.nan
+            if s <= 0.0:
+                break
+            # the 3×3 normal equations by cofactors
+            c00 = suu * svv - suv * suv
+            c01 = sv * suv - su * svv
+            c02 = su * suv - sv * suu
+            det = s * c00 + su * c01 + sv * c02
+            if det <= 1e-9 * s ** 3 * max(sigma, 1.0) ** 4:
+                a, b, c = se / s, 0.0, 0.0
+                out[k, 0] = v0 + a
+                out[k, 1] = np.sqrt(max(see / s - a * a, 0.0))
+                continue
+            c11 = s * svv - sv * sv
+            c12 = sv * su - s * suv
+            c22 = s * suu - su * su
+            a = (c00 * se + c01 * sue + c02 * sve) / det
+            b = (c01 * se + c11 * sue + c12 * sve) / det
+            c = (c02 * se + c12 * sue + c22 * sve) / det
+            out[k, 0] = v0 + a
+            out[k, 1] = np.sqrt(max((see - a * se - b * sue - c * sve) / s, 0.0))
+    return out
+
 def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, confidence: np.ndarray,
                      filled: np.ndarray, *, grow_radius: int = 16, sigma: float = 8.0, agree: float = 0.3,
                      min_support: float = 0.1, max_spread: float | None = 0.5, passes: int = 1,
+                     fit: str = "mean", inlier: float = 1.0, min_share: float = 0.9,
                      valid_right: np.ndarray | None = None, **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
     """Add the matcher's dense values that a wide window confirms and that continue the kept surface around
     them, where nothing was kept.
@@ -335,6 +442,15 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
         Largest weighted standard deviation of the neighbours' values, px; None: any.
     passes : int
         How many times to grow: each pass's neighbours include the values the passes before it kept.
+    fit : {"mean", "plane"}
+        What the neighbours say of a pixel. "mean": their weighted mean, the spread theirs about it, tested
+        before the window is refined. "plane": every pixel whose neighbours weigh ``min_support`` is refined,
+        and its value is tested against the weighted plane through the neighbours within ``inlier`` px of it
+        (:func:`neighbour_plane`): those must weigh ``min_share`` of all its neighbours and ``min_support``,
+        spread less than ``max_spread`` px about the plane, and the plane's value at the pixel must lie
+        within ``agree`` px of the refined one, which is the value kept.
+    inlier, min_share : float, float
+        See ``fit``.
     valid_right : (H, W) bool, optional
         Valid region of the rectified right view (a value whose right pixel is outside is not tried).
     **kwargs
@@ -349,9 +465,11 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
     Raises
     ------
     ConfigError
-        ``max_lr_gap`` None.
+        ``max_lr_gap`` None, or ``fit`` not one of "mean", "plane".
     """
     _require_lr_check(kwargs, "confident_growth", "a grown value")
+    if fit not in ("mean", "plane"):
+        raise ConfigError(f"confident_growth fit: expected 'mean' or 'plane', got {fit!r}")
     for key in ("radius", "retry_radius", "retry_below", "retry_drop", "right_seeds", "seeds_checked"):
         kwargs.pop(key, None)
     d = np.asarray(disparity, dtype=np.float32)
@@ -359,7 +477,8 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
     f = np.asarray(filled, dtype=np.float32)
     for _ in range(passes):
         d2, c2 = _grown(left, right, d, f, grow_radius=grow_radius, sigma=sigma, agree=agree,
-                        min_support=min_support, max_spread=max_spread, valid_right=valid_right, **kwargs)
+                        min_support=min_support, max_spread=max_spread, fit=fit, inlier=inlier,
+                        min_share=min_share, valid_right=valid_right, **kwargs)
         add = np.isfinite(d2)
         if not add.any():
             break
@@ -368,15 +487,15 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
 
 
 def _grown(left: np.ndarray, right: np.ndarray, d: np.ndarray, f: np.ndarray, *, grow_radius: int, sigma: float,
-           agree: float, min_support: float, max_spread: float | None, valid_right: np.ndarray | None,
-           **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
+           agree: float, min_support: float, max_spread: float | None, fit: str, inlier: float, min_share: float,
+           valid_right: np.ndarray | None, **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
     """(H, W) float32 disparities and confidences of one pass of :func:`confident_growth` (the values it adds,
     NaN elsewhere)."""
     nan = np.full(d.shape, np.nan, dtype=np.float32)
     mean, support, spread = neighbour_disparity(d, sigma=sigma)
     with np.errstate(invalid="ignore"):
         cand = ~np.isfinite(d) & np.isfinite(f) & np.isfinite(mean) & (support >= min_support)
-        if max_spread is not None:
+        if max_spread is not None and fit == "mean":
             cand &= spread < max_spread
     seeds = _seeds_seen(f, cand, valid_right)
     if not np.isfinite(seeds).any():
@@ -384,9 +503,21 @@ def _grown(left: np.ndarray, right: np.ndarray, d: np.ndarray, f: np.ndarray, *,
     right_seeds = np.where(np.isfinite(d), d, f).astype(np.float32)
     d2, c2 = confident_matches(left, right, seeds, radius=grow_radius, valid_right=valid_right,
                                right_seeds=right_seeds, seeds_checked=False, **kwargs)
+    if fit == "mean":
+        with np.errstate(invalid="ignore"):
+            add = np.isfinite(d2) & (np.abs(d2 - mean) < agree)
+        return np.where(add, d2, nan).astype(np.float32), np.where(add, c2, nan).astype(np.float32)
+    ys, xs = np.nonzero(np.isfinite(d2))
+    v = d2[ys, xs].astype(np.float64)
+    plane, p_spread, inl, total = neighbour_plane(d, ys, xs, v, sigma=sigma, inlier=inlier)
     with np.errstate(invalid="ignore"):
-        add = np.isfinite(d2) & (np.abs(d2 - mean) < agree)
-    return np.where(add, d2, nan).astype(np.float32), np.where(add, c2, nan).astype(np.float32)
+        ok = (np.abs(plane - v) < agree) & (inl >= min_support) & (inl >= min_share * total)
+        if max_spread is not None:
+            ok &= p_spread < max_spread
+    out_d, out_c = nan.copy(), nan.copy()
+    out_d[ys[ok], xs[ok]] = v[ok].astype(np.float32)
+    out_c[ys[ok], xs[ok]] = c2[ys[ok], xs[ok]]
+    return out_d, out_c
 
 
 def _require_lr_check(kwargs: dict[str, Any], function: str, tested: str) -> None:

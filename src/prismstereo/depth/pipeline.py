@@ -205,15 +205,24 @@ class DepthConfig:
         window's result (``retry_drop`` of :func:`~prismstereo.depth.confidence.confident_matches`).
     refine_grow_radius : int or None
         Where neither the matches nor the fill kept a value, refine the matcher's dense value once more with
-        a window of this half-size and keep it where it lies within ``refine_grow_agree`` px of the
-        Gaussian-weighted mean (standard deviation ``refine_grow_sigma`` px) of the kept values around it,
-        and those are alike (weighted spread below ``refine_grow_spread`` px)
+        a window of this half-size and keep it where it lies within ``refine_grow_agree`` px of what the kept
+        values around it say (``refine_grow_fit``; Gaussian weights of standard deviation
+        ``refine_grow_sigma`` px), and those are alike (weighted spread below ``refine_grow_spread`` px)
         (:func:`~prismstereo.depth.confidence.confident_growth`): on texture too weak for the two
         windows. Needs ``refine`` and ``refine_max_lr_gap``; None: no such step.
     refine_grow_agree, refine_grow_sigma, refine_grow_spread : float, float, float or None
         See ``refine_grow_radius`` (``refine_grow_spread`` None: any spread).
     refine_grow_passes : int
         How many times to grow, each from the values kept before it.
+    refine_grow_fit : {"mean", "plane"}
+        What the kept values around a pixel say of it: their weighted mean, or the weighted plane through
+        those within ``refine_grow_inlier`` px of the refined value, which must weigh ``refine_grow_share``
+        of all (``fit`` of :func:`~prismstereo.depth.confidence.confident_growth`): a slanted surface's
+        values spread about their mean by its gradient, and near a depth edge the other surface's values
+        are not the pixel's.
+    refine_grow_inlier, refine_grow_share : float, float
+        See ``refine_grow_fit`` (``refine_grow_fit="mean"`` with ``refine_grow_agree`` 0.3 and
+        ``refine_grow_spread`` 0.5 is the growth of stop 34).
     refine_smoothed_below : float or None
         A capture whose pixel-scale noise (:func:`~prismstereo.depth.smoothed.pixel_noise`, grey levels)
         is below this has lost its finest scale to compression or demosaicing (a real camera's capture):
@@ -223,6 +232,10 @@ class DepthConfig:
         None: never.
     refine_smoothed_retry_below, refine_smoothed_fill_agree : float, float or None
         See ``refine_smoothed_below`` (None: the fill agreement is left as it is).
+    refine_smoothed_grow_fit, refine_smoothed_grow_agree, refine_smoothed_grow_spread : str, float, float or None
+        The growth's ``refine_grow_fit``, ``refine_grow_agree`` and ``refine_grow_spread`` on a smoothed
+        capture (``refine_smoothed_below``; None: left as it is): the plane's growth there adds values less
+        precise than the map's, the mean's (0.3, 0.5 px) keeps its median.
     sweep : SweepParams
         The plane sweep of ``views="all"`` (:class:`~prismstereo.multiview.prism.SweepParams`).
     coarse_to_fine : {"auto", "on", "off"}
@@ -257,13 +270,19 @@ class DepthConfig:
     refine_retry_drop: bool = True
     refine_fill_agree: float | None = 0.5
     refine_grow_radius: int | None = 16
-    refine_grow_agree: float = 0.3
+    refine_grow_agree: float = 0.2
     refine_grow_sigma: float = 8.0
-    refine_grow_spread: float | None = 0.5
+    refine_grow_spread: float | None = 0.35
     refine_grow_passes: int = 2
+    refine_grow_fit: str = "plane"
+    refine_grow_inlier: float = 1.0
+    refine_grow_share: float = 0.9
     refine_smoothed_below: float | None = 0.5
     refine_smoothed_retry_below: float = 0.99
     refine_smoothed_fill_agree: float | None = 1.0
+    refine_smoothed_grow_fit: str | None = "mean"
+    refine_smoothed_grow_agree: float | None = 0.3
+    refine_smoothed_grow_spread: float | None = 0.5
     sweep: SweepParams = field(default_factory=SweepParams)
     coarse_to_fine: str = "auto"
     max_memory: int | None = None
@@ -278,10 +297,14 @@ class DepthConfig:
                             "refine_fill_agree": (0.0, None), "refine_grow_radius": (1, 50),
                             "refine_grow_agree": (0.0, None), "refine_grow_sigma": (0.0, 50.0),
                             "refine_grow_spread": (0.0, None), "refine_grow_passes": (1, 10),
+                            "refine_grow_inlier": (0.0, None), "refine_grow_share": (0.0, 1.0),
                             "refine_smoothed_below": (0.0, None),
-                            "refine_smoothed_retry_below": (0.0, 1.0), "refine_smoothed_fill_agree": (0.0, None)},
+                            "refine_smoothed_retry_below": (0.0, 1.0), "refine_smoothed_fill_agree": (0.0, None),
+                            "refine_smoothed_grow_agree": (0.0, None), "refine_smoothed_grow_spread": (0.0, None)},
                      positive=("max_gap_mm", "refine_max_shift", "refine_fill_agree", "refine_grow_agree",
-                               "refine_grow_sigma", "refine_grow_spread", "refine_smoothed_fill_agree"))
+                               "refine_grow_sigma", "refine_grow_spread", "refine_grow_inlier",
+                               "refine_smoothed_fill_agree", "refine_smoothed_grow_agree",
+                               "refine_smoothed_grow_spread"))
         if not isinstance(self.method, str):
             fail(self, "method", "a matcher name", self.method)
         if not isinstance(self.matcher_params, Mapping):
@@ -290,6 +313,10 @@ class DepthConfig:
             fail(self, "triangulation", f"one of {', '.join(TRIANGULATIONS)}", self.triangulation)
         if self.calibration not in ("fit", "thesis"):
             fail(self, "calibration", "'fit' or 'thesis'", self.calibration)
+        if self.refine_grow_fit not in ("mean", "plane"):
+            fail(self, "refine_grow_fit", "'mean' or 'plane'", self.refine_grow_fit)
+        if self.refine_smoothed_grow_fit not in (None, "mean", "plane"):
+            fail(self, "refine_smoothed_grow_fit", "'mean', 'plane' or None", self.refine_smoothed_grow_fit)
         if self.depth_range is not None and (
                 len(self.depth_range) != 2 or not all(isinstance(v, numbers.Real) and math.isfinite(v)
                                                       for v in self.depth_range)
@@ -913,6 +940,8 @@ def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, dis
         disp, conf = confident_growth(left, right, disp, conf, filled, grow_radius=config.refine_grow_radius,
                                       sigma=config.refine_grow_sigma, agree=config.refine_grow_agree,
                                       max_spread=config.refine_grow_spread, passes=config.refine_grow_passes,
+                                      fit=config.refine_grow_fit, inlier=config.refine_grow_inlier,
+                                      min_share=config.refine_grow_share,
                                       valid_right=vr_fill, **kw)
     return disp, conf
 

@@ -67,7 +67,9 @@ def smoothed_config(config: DepthConfig, image: np.ndarray) -> DepthConfig:
     The profile: ``refine_retry_below`` raised to ``refine_smoothed_retry_below`` (every match whose small
     window stayed below that ZNCC gets the wider window), and ``refine_fill_agree`` =
     ``refine_smoothed_fill_agree`` (the dense map's values where the two windows agree that well; only
-    where the configuration fills with an agreement, not with ``refine_fill``)."""
+    where the configuration fills with an agreement, not with ``refine_fill``), and the growth's
+    ``refine_grow_fit``, ``refine_grow_agree`` and ``refine_grow_spread`` replaced by the
+    ``refine_smoothed_grow_*`` ones that are not None."""
     below = config.refine_smoothed_below
     if below is None or not config.refine or config.refine_retry_radius is None \
             or config.refine_retry_radius == config.refine_radius:
@@ -81,5 +83,11 @@ def smoothed_config(config: DepthConfig, image: np.ndarray) -> DepthConfig:
     retry_below = max(float(config.refine_retry_below), float(config.refine_smoothed_retry_below))
     log.info("depth: pixel-scale noise %.2f grey levels < %.2f (a compressed / demosaiced capture): the %d-px "
              "window for every match below ZNCC %.2f", noise, below, 2 * config.refine_retry_radius + 1, retry_below)
+    fit = config.refine_grow_fit if config.refine_smoothed_grow_fit is None else config.refine_smoothed_grow_fit
+    agree = config.refine_grow_agree if config.refine_smoothed_grow_agree is None else \
+        float(config.refine_smoothed_grow_agree)
+    spread = config.refine_grow_spread if config.refine_smoothed_grow_spread is None else \
+        float(config.refine_smoothed_grow_spread)
     return dataclasses.replace(config, refine_retry_below=retry_below, refine_fill_agree=fill_agree,
-                               refine_smoothed_below=None)
+                               refine_smoothed_below=None, refine_grow_fit=fit, refine_grow_agree=agree,
+                               refine_grow_spread=spread)
