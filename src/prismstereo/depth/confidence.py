@@ -405,6 +405,7 @@ def _inlier_planes(d: np.ndarray, ys: np.ndarray, xs: np.ndarray, values: np.nda
             out[k, 1] = np.sqrt(max((see - a * se - b * sue - c * sve) / s, 0.0))
     return out
 
+
 def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, confidence: np.ndarray,
                      filled: np.ndarray, *, grow_radius: int = 16, sigma: float = 8.0, agree: float = 0.3,
                      min_support: float = 0.1, max_spread: float | None = 0.5, passes: int = 1,
@@ -632,12 +633,11 @@ def _seen_from_right(disparity: np.ndarray) -> np.ndarray:
 def _read_by_check(disparity: np.ndarray, where: np.ndarray) -> np.ndarray:
     """(H, W) bool: the right pixels :func:`_lr_gap` reads for the left pixels ``where`` of the (H, W) float32
     map ``disparity`` (floor(x − d) and the next one)."""
-    return read_by_check(np.ascontiguousarray(disparity, dtype=np.float32),
-                                  np.ascontiguousarray(where, dtype=bool))
+    return read_by_check(np.ascontiguousarray(disparity, dtype=np.float32), np.ascontiguousarray(where, dtype=bool))
 
 
 def _lr_gap(disparity: np.ndarray, disparity_right: np.ndarray) -> np.ndarray:
     """(H, W) float32: |d(x) − d_right(x − d(x))| of two (H, W) float32 maps (d_right interpolated along the
     row; the one finite neighbour where the other is NaN), NaN where either is missing."""
     return lr_gap(np.ascontiguousarray(disparity, dtype=np.float32),
-                           np.ascontiguousarray(disparity_right, dtype=np.float32))
+                  np.ascontiguousarray(disparity_right, dtype=np.float32))

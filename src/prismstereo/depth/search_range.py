@@ -248,12 +248,23 @@ def disparity_clusters(values: np.ndarray, *, gap: int = CLUSTER_GAP) -> list[tu
     return [(int(bins[a]), int(bins[b])) for a, b in zip(starts, ends, strict=True)]
 
 
+@dataclass(frozen=True, eq=False)
+class _CoarseMatch:
+    """The coarse SGBM match of :func:`estimate_disparity_range`, at the coarse scale (h, w)."""
+
+    disparity: np.ndarray  # (h, w) float32, px at the coarse scale
+    consistent: np.ndarray  # (h, w) bool, the matches within the rig's range
+    factor: int  # the downsampling factor
+    gray_left: np.ndarray  # (h, w) uint8
+    gray_right: np.ndarray
+    valid_left: np.ndarray  # (h, w) bool, the views' valid regions
+    valid_right: np.ndarray
+    region_pixels: int  # pixels of the (eroded) common view
+
+
 def _coarse_match(left: np.ndarray, right: np.ndarray, region: np.ndarray, *, lo: int, hi: int,
-                  valid_left: np.ndarray | None, valid_right: np.ndarray | None
-                  ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
-    """The coarse SGBM match of :func:`estimate_disparity_range`: (disparities (h, w) px at the coarse scale,
-    the consistent matches (h, w) bool, the factor, the coarse grey views, their valid regions, the region's
-    pixel count)."""
+                  valid_left: np.ndarray | None, valid_right: np.ndarray | None) -> _CoarseMatch:
+    """The coarse SGBM match of :func:`estimate_disparity_range`."""
     s = max(1, int(math.ceil((hi - lo) / float(COARSE_SPAN))))
     h, w = left.shape[:2]
     size = (max(8, w // s), max(8, h // s))
@@ -286,7 +297,8 @@ def _coarse_match(left: np.ndarray, right: np.ndarray, region: np.ndarray, *, lo
     # disparity, or on the last disparity searched (where a match from beyond the range piles up), is no
     # match of the scene (5–10 % of the coarse matches of a tri-prism's thin common view sat there)
     ok = cm & (d >= dmin) & (d <= hi / s) & (d < dmin + num - 1)
-    return d, ok, s, cl, cr, cvl, cvr, int(cm.sum())
+    return _CoarseMatch(disparity=d, consistent=ok, factor=s, gray_left=cl, gray_right=cr, valid_left=cvl,
+                        valid_right=cvr, region_pixels=int(cm.sum()))
 
 
 def _padded(p_lo: float, p_hi: float, s: int, lo: int, hi: int) -> tuple[int, int] | None:
@@ -294,6 +306,13 @@ def _padded(p_lo: float, p_hi: float, s: int, lo: int, hi: int) -> tuple[int, in
     rlo = max(lo, int(math.floor(p_lo * s - margin)))
     rhi = min(hi, int(math.ceil(p_hi * s + margin)))
     return None if rhi <= rlo else (rlo, rhi)
+
+
+def _padded_percentiles(values: np.ndarray, s: int, lo: int, hi: int) -> tuple[int, int] | None:
+    """The padded 1st–99th percentile of all the coarse matches ``values`` (the range where no cluster can be
+    told from another)."""
+    p1, p99 = np.percentile(values, [1.0, 99.0])
+    return _padded(float(p1), float(p99), s, lo, hi)
 
 
 def estimate_disparity_range(left: np.ndarray, right: np.ndarray, region: np.ndarray, *, lo: int, hi: int,
@@ -327,23 +346,22 @@ def estimate_disparity_range(left: np.ndarray, right: np.ndarray, region: np.nda
         The padded range (None when fewer than :data:`MIN_SUPPORT` of the region matched), and the share of
         the region that matched.
     """
-    d, ok, s, cl, cr, cvl, cvr, n_region = _coarse_match(left, right, region, lo=lo, hi=hi, valid_left=valid_left,
-                                                         valid_right=valid_right)
+    cm = _coarse_match(left, right, region, lo=lo, hi=hi, valid_left=valid_left, valid_right=valid_right)
+    d, ok, s, n_region = cm.disparity, cm.consistent, cm.factor, cm.region_pixels
     support = float(ok.sum()) / max(n_region, 1)
     if support < MIN_SUPPORT:
         return None, support
     values = d[ok]
     log.debug("coarse disparities x%d: support %.3f, percentiles 0/1/2/5/50/95/98/99/100: %s", s, support,
               np.percentile(values, [0, 1, 2, 5, 50, 95, 98, 99, 100]) * s)
-    confirmed = confident_coarse(d, ok, cl, cr, cvl, cvr)
+    confirmed = confident_coarse(d, ok, cm.gray_left, cm.gray_right, cm.valid_left, cm.valid_right)
     n_conf = int(confirmed.sum())
     if n_conf < MIN_CONFIRMED * n_region:
         log.info("search range: the images confirm only %d of %d coarse matches (%.1f %% of the common view, "
                  "fewer than %.0f %%): too few to tell the scene's clusters from false ones, keeping the "
                  "percentiles of all matches", n_conf, values.size, 100.0 * n_conf / max(n_region, 1),
                  100.0 * MIN_CONFIRMED)
-        p1, p99 = np.percentile(values, [1.0, 99.0])
-        return _padded(float(p1), float(p99), s, lo, hi), support
+        return _padded_percentiles(values, s, lo, hi), support
     bins, conf_bins = np.rint(values), np.rint(d[confirmed])
     need = max(MIN_CLUSTER_CONFIRMED, CLUSTER_SUPPORT * n_conf)
     spans: list[tuple[float, float]] = []
@@ -359,8 +377,7 @@ def estimate_disparity_range(left: np.ndarray, right: np.ndarray, region: np.nda
     if not spans:  # every cluster holds a little: nothing stands out as the scene
         log.info("search range: no cluster of coarse matches holds %.0f confirmed ones: keeping the percentiles "
                  "of all matches", need)
-        p1, p99 = np.percentile(values, [1.0, 99.0])
-        return _padded(float(p1), float(p99), s, lo, hi), support
+        return _padded_percentiles(values, s, lo, hi), support
     return _padded(min(a for a, _ in spans), max(b for _, b in spans), s, lo, hi), support
 
 
