@@ -290,19 +290,12 @@ def _disparity_major(cost: np.ndarray, pad: int) -> np.ndarray:  # pragma: no co
     """(H, W, D) -> (H, D, W + 2 pad) copy, columns shifted by ``pad``, zero in the margins."""
     h, w, nd = cost.shape
     out = np.empty((h, nd, w + 2 * pad), dtype=cost.dtype)
-    blk = 16
     for y in prange(h):
         out[y, :, :pad] = 0.0
         out[y, :, w + pad:] = 0.0
-        # in blocks of columns: a block's pixels are read contiguously once and every slice's row is written in
-        # runs of ``blk`` (the pixel-by-pixel copy wrote one float per slice row, a cache line apart)
-        for x0 in range(0, w, blk):
-            x1 = min(w, x0 + blk)
-            src = cost[y, x0:x1]
+        for x in range(w):
             for i in range(nd):
-                dst = out[y, i, x0 + pad:x1 + pad]
-                for j in range(x1 - x0):
-                    dst[j] = src[j, i]
+                out[y, i, x + pad] = cost[y, x, i]
     return out
 
 
