@@ -121,10 +121,12 @@ def _median_row(out: np.ndarray, finite: np.ndarray, bins: np.ndarray, mask: np.
 
 
 @njit(cache=True, parallel=True, fastmath=True, nogil=True)
-def wmf_kernel(disp: np.ndarray, mask: np.ndarray, lab: np.ndarray, radius: int, gamma_c: float,
-               gamma_d: float, dmin: float, nbins: int, nchunks: int) -> np.ndarray:  # pragma: no cover - numba
+def wmf_kernel(disp: np.ndarray, finite: np.ndarray, mask: np.ndarray, lab: np.ndarray, radius: int,
+               gamma_c: float, gamma_d: float, dmin: float, nbins: int,
+               nchunks: int) -> np.ndarray:  # pragma: no cover - numba
     """Weighted median over integer bins, weights exp(-ΔE/γc - ‖Δp‖/γd) from lookup tables; ``lab`` planar
-    (3, H, W); non-finite disparities give no weight. Rows run in ``nchunks`` chunks in parallel; a row with many
+    (3, H, W); the disparities not ``finite`` (given: under fastmath ``isfinite`` is folded to True) give no
+    weight. Rows run in ``nchunks`` chunks in parallel; a row with many
     masked pixels runs whole (:func:`_median_row`), a sparse one pixel by pixel (:func:`_median_pixel`): the
     same values."""
     h, w = disp.shape
@@ -138,13 +140,10 @@ def wmf_kernel(disp: np.ndarray, mask: np.ndarray, lab: np.ndarray, radius: int,
     lut = np.empty(nlut, dtype=np.float32)
     for i in range(nlut):
         lut[i] = np.exp(-(i / _LUT_STEP) / gamma_c)
-    finite = np.empty((h, w), dtype=np.bool_)
     bins = np.empty((h, w), dtype=np.int64)
     for y in prange(h):
         for x in range(w):
-            v = disp[y, x]
-            finite[y, x] = np.isfinite(v)
-            bi = int(np.floor(v - dmin + 0.5)) if finite[y, x] else 0
+            bi = int(np.floor(disp[y, x] - dmin + 0.5)) if finite[y, x] else 0
             bins[y, x] = min(max(bi, 0), nbins - 1)
     rows = (h + nchunks - 1) // nchunks
     for ci in prange(nchunks):

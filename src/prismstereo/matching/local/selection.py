@@ -209,7 +209,8 @@ def weighted_median_filter(disp: np.ndarray, image: np.ndarray, *, mask: np.ndar
                            gamma_distance: float = 9.0) -> np.ndarray:
     """Bilateral weighted median of a disparity map (integer bins), guided by ``image``.
 
-    Weights ``exp(-ΔE_Lab/γ_c - ‖Δp‖/γ_d)``; only pixels where ``mask`` is True are changed (all if None).
+    Weights ``exp(-ΔE_Lab/γ_c - ‖Δp‖/γ_d)``; only pixels where ``mask`` is True are changed (all if None); NaN
+    neighbours give no weight (a masked pixel with none keeps its value).
 
     Returns float32 ``(H, W)``.
     """
@@ -221,7 +222,7 @@ def weighted_median_filter(disp: np.ndarray, image: np.ndarray, *, mask: np.ndar
     dmin = float(np.floor(np.nanmin(d)))
     nbins = int(np.ceil(np.nanmax(d))) - int(dmin) + 2
     lab3 = np.ascontiguousarray(to_lab(image).transpose(2, 0, 1))
-    return wmf_kernel(d, m, lab3, int(radius), float(gamma_color), float(gamma_distance), dmin, nbins,
+    return wmf_kernel(d, np.isfinite(d), m, lab3, int(radius), float(gamma_color), float(gamma_distance), dmin, nbins,
                       median_chunks(d.shape[0]))
 
 
