@@ -10,7 +10,7 @@ import numpy as np
 from numba import njit, prange
 
 from prismstereo.errors import MatchingError
-from prismstereo.matching.local._wmf import wmf_kernel
+from prismstereo.matching.local._wmf import median_chunks, wmf_kernel
 from prismstereo.matching.local.aggregation import to_lab
 
 __all__ = [
@@ -209,7 +209,8 @@ def weighted_median_filter(disp: np.ndarray, image: np.ndarray, *, mask: np.ndar
                            gamma_distance: float = 9.0) -> np.ndarray:
     """Bilateral weighted median of a disparity map (integer bins), guided by ``image``.
 
-    Weights ``exp(-ΔE_Lab/γ_c - ‖Δp‖/γ_d)``; only pixels where ``mask`` is True are changed (all if None).
+    Weights ``exp(-ΔE_Lab/γ_c - ‖Δp‖/γ_d)``; only pixels where ``mask`` is True are changed (all if None); NaN
+    neighbours give no weight (a masked pixel with none keeps its value).
 
     Returns float32 ``(H, W)``.
     """
@@ -220,7 +221,9 @@ def weighted_median_filter(disp: np.ndarray, image: np.ndarray, *, mask: np.ndar
         return d.copy()
     dmin = float(np.floor(np.nanmin(d)))
     nbins = int(np.ceil(np.nanmax(d))) - int(dmin) + 2
-    return wmf_kernel(d, m, to_lab(image), int(radius), float(gamma_color), float(gamma_distance), dmin, nbins)
+    lab3 = np.ascontiguousarray(to_lab(image).transpose(2, 0, 1))
+    return wmf_kernel(d, np.isfinite(d), m, lab3, int(radius), float(gamma_color), float(gamma_distance), dmin, nbins,
+                      median_chunks(d.shape[0]))
 
 
 def fill_holes(disp: np.ndarray, valid: np.ndarray | None = None, *, image: np.ndarray | None = None,
