@@ -3,24 +3,13 @@
 from __future__ import annotations
 
 import dataclasses
-import os
-from pathlib import Path
 
 import cv2
 import numpy as np
-import pytest
 
-from prismstereo.apps.demo import demo_rig
-from prismstereo.depth import DepthConfig, run_depth
-from prismstereo.depth.pipeline import validate_inputs
+from prismstereo.depth import DepthConfig
 from prismstereo.depth.smoothed import pixel_noise, smoothed_config
-from prismstereo.errors import ConfigError
-from prismstereo.evaluation.depth_metrics import evaluate_depth
-from prismstereo.simulate import Scene, render_capture
 from prismstereo.simulate.render import jpeg_roundtrip
-from prismstereo.simulate.rgbd import middlebury_rgbd
-
-REPO_ROOT = Path(__file__).resolve().parents[2]
 
 
 def _textured(noise: float, seed: int = 0) -> np.ndarray:
@@ -64,65 +53,3 @@ def test_smoothed_config_switches_the_refinement_profile_below_the_threshold():
     assert smoothed_config(off, smooth) is off
     assert smoothed_config(DepthConfig(refine=False), smooth).refine_retry_below == cfg.refine_retry_below
     assert smoothed_config(DepthConfig(refine_fill_agree=None), smooth).refine_fill_agree is None
-
-
-def test_smoothed_config_gives_the_matcher_its_smoothed_capture_parameters():
-    cfg = DepthConfig()
-    smooth = jpeg_roundtrip(np.clip(np.rint(_textured(1.5)), 0, 255).astype(np.uint8), quality=85)
-    got = smoothed_config(cfg, smooth)
-    assert got.matcher_params == {**cfg.matcher_params, **cfg.smoothed_matcher_params["bpasw"]}
-    assert got.matcher_params["census_weight"] == 0.0
-    assert got.min_confidence == cfg.refine_smoothed_min_confidence > cfg.min_confidence
-    # a method without smoothed-capture parameters keeps its match and its confidence
-    coop = smoothed_config(DepthConfig(method="coop"), smooth)
-    assert coop.matcher_params == {} and coop.min_confidence == cfg.min_confidence
-    assert coop.refine_retry_below == cfg.refine_smoothed_retry_below
-    plain = smoothed_config(DepthConfig(smoothed_matcher_params={}), smooth)
-    assert plain.matcher_params == {} and plain.min_confidence == cfg.min_confidence
-    # no confidence filter stays none; a stricter one is kept
-    assert smoothed_config(DepthConfig(min_confidence=None), smooth).min_confidence is None
-    assert smoothed_config(DepthConfig(min_confidence=0.9), smooth).min_confidence == 0.9
-    assert smoothed_config(DepthConfig(refine_smoothed_min_confidence=None), smooth).min_confidence == 0.5
-
-
-def test_smoothed_matcher_params_are_checked_before_the_match(biprism):
-    with pytest.raises(ConfigError, match="smoothed_matcher_params"):
-        DepthConfig(smoothed_matcher_params={"bpasw": 0.0})
-    img = np.zeros((biprism.camera.height, biprism.camera.width, 3), dtype=np.uint8)
-    with pytest.raises(ConfigError, match="census_wieght"):
-        validate_inputs(biprism, img, DepthConfig(smoothed_matcher_params={"bpasw": {"census_wieght": 0.0}}))
-    again = DepthConfig.from_dict(DepthConfig().to_dict())
-    assert again.smoothed_matcher_params == DepthConfig().smoothed_matcher_params
-
-
-@pytest.fixture(scope="module")
-def bowling_captures():
-    """(rig, ideal scene, ideal image, smoothed scene, smoothed image): Middlebury bowling1 as a surface
-    seen by the demo rig (512×384), rendered lossless and with Bayer RGGB + edge-aware demosaicing + JPEG 85."""
-    env = os.environ.get("PRISMSTEREO_MIDDLEBURY")  # the v2 folder; the 2005/2006 one lies beside it
-    data = Path(env).parent if env else REPO_ROOT.parent / "shared" / "data"
-    folder = data / "middlebury-extra" / "bowling1"
-    if not (folder / "manifest.json").is_file():
-        pytest.skip(f"Middlebury 2005/2006 data not found at {folder}")
-    rig = demo_rig()
-    half_view = rig.camera.width / 2.0 / rig.camera.focal_px * 1400.0
-    surf = middlebury_rgbd(folder, center_depth=1400.0, width=1.3 * half_view)
-    ideal = Scene(objects=(surf,), supersample=2, noise=1.5, seed=1, name="bowling1")
-    real = dataclasses.replace(ideal, bayer="RGGB", demosaic="edge-aware", jpeg_quality=85)
-    return rig, ideal, render_capture(rig, ideal).image, real, render_capture(rig, real).image
-
-
-def test_census_free_match_raises_coverage_on_a_smoothed_capture_only(bowling_captures):
-    rig, ideal, ideal_img, real, real_img = bowling_captures
-    assert pixel_noise(real_img) < DepthConfig().refine_smoothed_below < pixel_noise(ideal_img)
-    main = DepthConfig(smoothed_matcher_params={}, refine_smoothed_min_confidence=None)
-    new_run, old_run = run_depth(rig, real_img, config=DepthConfig()), run_depth(rig, real_img, config=main)
-    new, old = evaluate_depth(new_run, scene=real), evaluate_depth(old_run, scene=real)
-    assert new_run.config.matcher_params["census_weight"] == 0.0 and new_run.config.min_confidence == 0.8
-    assert new["coverage"] > old["coverage"] + 0.03
-    assert new["within_1pct"] > 0.75
-    # a lossless capture keeps the pixel scale: the same run, map for map
-    a, b = run_depth(rig, ideal_img, config=DepthConfig()), run_depth(rig, ideal_img, config=main)
-    assert a.config.matcher_params["census_weight"] == 0.5
-    assert np.array_equal(a.disparity, b.disparity, equal_nan=True)
-    assert np.array_equal(a.depth, b.depth, equal_nan=True)

@@ -236,16 +236,6 @@ class DepthConfig:
         The growth's ``refine_grow_fit``, ``refine_grow_agree`` and ``refine_grow_spread`` on a smoothed
         capture (``refine_smoothed_below``; None: left as it is): the plane's growth there adds values less
         precise than the map's, the mean's (0.3, 0.5 px) keeps its median.
-    smoothed_matcher_params : dict[str, dict[str, Any]]
-        Per matcher name, the tuning parameters its match gets on a smoothed capture
-        (``refine_smoothed_below``), over ``matcher_params`` (empty: the run's own). Default: ``bpasw``
-        without its census term (a census code of a capture without its finest scale compares bits its
-        compression set, and its false minima leave pixels without a cross-checked match). Empty: the match
-        is the same on every capture.
-    refine_smoothed_min_confidence : float or None
-        ``min_confidence`` on a smoothed capture whose match took ``smoothed_matcher_params`` (a value above
-        ``min_confidence``: the matches the census-free cost adds are kept where their window confirms them
-        this well). None: left as it is.
     sweep : SweepParams
         The plane sweep of ``views="all"`` (:class:`~prismstereo.multiview.prism.SweepParams`).
     coarse_to_fine : {"auto", "on", "off"}
@@ -293,9 +283,6 @@ class DepthConfig:
     refine_smoothed_grow_fit: str | None = "mean"
     refine_smoothed_grow_agree: float | None = 0.3
     refine_smoothed_grow_spread: float | None = 0.5
-    smoothed_matcher_params: dict[str, dict[str, Any]] = field(
-        default_factory=lambda: {"bpasw": {"census_weight": 0.0}})
-    refine_smoothed_min_confidence: float | None = 0.8
     sweep: SweepParams = field(default_factory=SweepParams)
     coarse_to_fine: str = "auto"
     max_memory: int | None = None
@@ -313,8 +300,7 @@ class DepthConfig:
                             "refine_grow_inlier": (0.0, None), "refine_grow_share": (0.0, 1.0),
                             "refine_smoothed_below": (0.0, None),
                             "refine_smoothed_retry_below": (0.0, 1.0), "refine_smoothed_fill_agree": (0.0, None),
-                            "refine_smoothed_grow_agree": (0.0, None), "refine_smoothed_grow_spread": (0.0, None),
-                            "refine_smoothed_min_confidence": (0.0, 1.0)},
+                            "refine_smoothed_grow_agree": (0.0, None), "refine_smoothed_grow_spread": (0.0, None)},
                      positive=("max_gap_mm", "refine_max_shift", "refine_fill_agree", "refine_grow_agree",
                                "refine_grow_sigma", "refine_grow_spread", "refine_grow_inlier",
                                "refine_smoothed_fill_agree", "refine_smoothed_grow_agree",
@@ -323,10 +309,6 @@ class DepthConfig:
             fail(self, "method", "a matcher name", self.method)
         if not isinstance(self.matcher_params, Mapping):
             fail(self, "matcher_params", "a dict of the matcher's tuning parameters", self.matcher_params)
-        if not isinstance(self.smoothed_matcher_params, Mapping) or not all(
-                isinstance(k, str) and isinstance(v, Mapping) for k, v in self.smoothed_matcher_params.items()):
-            fail(self, "smoothed_matcher_params", "a dict of matcher name -> dict of its tuning parameters",
-                 self.smoothed_matcher_params)
         if self.triangulation not in TRIANGULATIONS:
             fail(self, "triangulation", f"one of {', '.join(TRIANGULATIONS)}", self.triangulation)
         if self.calibration not in ("fit", "thesis"):
@@ -376,9 +358,6 @@ class DepthConfig:
                 d[key] = tuple(v)
         if "matcher_params" in d:
             d["matcher_params"] = dict(d["matcher_params"] or {})
-        if isinstance(d.get("smoothed_matcher_params"), Mapping):
-            d["smoothed_matcher_params"] = {str(k): dict(v) if isinstance(v, Mapping) else v
-                                            for k, v in d["smoothed_matcher_params"].items()}
         if isinstance(d.get("sweep"), Mapping):
             try:
                 d["sweep"] = SweepParams(**d["sweep"])
@@ -743,9 +722,6 @@ def validate_config(rig: Rig, config: DepthConfig) -> DepthConfig:
     ScaleParams(coarse_to_fine=config.coarse_to_fine, max_memory=config.max_memory)  # coarse_to_fine, max_memory
     method = config.method.lower()
     params = resolved_params(method, **config.matcher_params)
-    smoothed = config.smoothed_matcher_params.get(method)
-    if smoothed:
-        resolved_params(method, **{**params, **smoothed})  # the smoothed-capture parameters are the matcher's
     return dataclasses.replace(config, views=views, method=method, depth_range=depth_range, matcher_params=params)
 
 

@@ -89,7 +89,6 @@ PROFILES: dict[str, Preset] = {
         ("refine_smoothed_grow_fit", "mean"),
         ("refine_smoothed_grow_agree", 0.3),
         ("refine_smoothed_grow_spread", 0.5),
-        ("refine_smoothed_min_confidence", 0.8),
         ("min_confidence", 0.5),
         ("speckle_fraction", 0.001),
     )),

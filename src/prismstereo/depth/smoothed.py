@@ -10,9 +10,7 @@ same ZNCC on texture that pins its value less, and the wider window is the preci
 estimator, the median form: texture edges do not raise it); below ``DepthConfig.refine_smoothed_below``
 :func:`smoothed_config` gives the refinement its smoothed-capture profile: the wider window for every
 match whose small window stayed below a ZNCC of 0.99 instead of 0.95 (its value taken where it is
-confirmed), and the dense map's values filled where the two windows agree within 1 px instead of 0.5. The
-matcher gets its smoothed-capture parameters (``bpasw`` without the census term, which compares the signs of
-differences the compression set) and the refinement then keeps a match only at a stricter confidence.
+confirmed), and the dense map's values filled where the two windows agree within 1 px instead of 0.5.
 """
 
 from __future__ import annotations
@@ -71,8 +69,7 @@ def smoothed_config(config: DepthConfig, image: np.ndarray) -> DepthConfig:
     ``refine_smoothed_fill_agree`` (the dense map's values where the two windows agree that well; only
     where the configuration fills with an agreement, not with ``refine_fill``), and the growth's
     ``refine_grow_fit``, ``refine_grow_agree`` and ``refine_grow_spread`` replaced by the
-    ``refine_smoothed_grow_*`` ones that are not None; the matcher gets ``smoothed_matcher_params[method]`` over
-    ``matcher_params`` and, when it does, ``min_confidence`` is raised to ``refine_smoothed_min_confidence``."""
+    ``refine_smoothed_grow_*`` ones that are not None."""
     below = config.refine_smoothed_below
     if below is None or not config.refine or config.refine_retry_radius is None \
             or config.refine_retry_radius == config.refine_radius:
@@ -91,13 +88,6 @@ def smoothed_config(config: DepthConfig, image: np.ndarray) -> DepthConfig:
         float(config.refine_smoothed_grow_agree)
     spread = config.refine_grow_spread if config.refine_smoothed_grow_spread is None else \
         float(config.refine_smoothed_grow_spread)
-    matcher = config.smoothed_matcher_params.get(config.method.lower(), {})
-    params, min_conf = dict(config.matcher_params), config.min_confidence
-    if matcher:
-        params = {**params, **matcher}
-        if config.refine_smoothed_min_confidence is not None and min_conf is not None:
-            min_conf = max(float(config.refine_smoothed_min_confidence), float(min_conf))
-        log.info("depth: %s with %s, min_confidence %s", config.method, matcher, min_conf)
     return dataclasses.replace(config, refine_retry_below=retry_below, refine_fill_agree=fill_agree,
                                refine_smoothed_below=None, refine_grow_fit=fit, refine_grow_agree=agree,
-                               refine_grow_spread=spread, matcher_params=params, min_confidence=min_conf)
+                               refine_grow_spread=spread)
