@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -180,6 +181,45 @@ def test_the_plan_bounds_what_the_match_records_coarse_levels_and_what_the_calle
     assert held.extras["scale"]["estimate_bytes"] <= p.max_memory
     with pytest.raises(ConfigError, match="held"):
         ScaleParams(held=-1)
+
+
+def test_coop_over_its_strip_bytes_runs_in_strips_that_recover_the_capture_as_the_full_search(scene: tuple) -> None:
+    left, right, gt = scene
+    h, w = left.shape[:2]
+    full = match(left, right, max_disp=47, min_disp=4, method="coop")
+    # strips of ~70 of the 200 rows with 24 rows of context, whatever the (ample) budget
+    cap = estimate_memory("coop", 70 + 48, w, 44, base=False)
+    p = ScaleParams(strip_bytes=cap, strip_overlap=24, max_memory=64 * 2**30)
+    res = match(left, right, max_disp=47, min_disp=4, method="coop", scale=p)
+    info = res.extras["scale"]
+    assert not info["coarse_to_fine"] and info["tiles"] == 3 and info["overlap"] == 24
+    # the recorded estimate is the plan, and one strip's own bytes are within the strip bytes
+    assert info["estimate_bytes"] == planned_memory("coop", h, w, max_disp=47, min_disp=4, scale=p)
+    assert info["estimate_bytes"] - PROCESS_BASE - 48 * h * w <= cap
+    both = np.isfinite(res.disparity) & np.isfinite(full.disparity)
+    assert both[:, 47:].mean() > 0.99
+    assert (np.abs(res.disparity - full.disparity)[both] <= 1.0).mean() > 0.95
+    assert _bad(res.disparity, gt) <= _bad(full.disparity, gt) + 1.0
+    # off: the full search where the budget holds it (the matcher itself)
+    off = match(left, right, max_disp=47, min_disp=4, method="coop",
+                scale=dataclasses.replace(p, coarse_to_fine="off"))
+    assert off.extras["scale"]["tiles"] == 1
+    np.testing.assert_array_equal(off.disparity, full.disparity)
+    # under the strip bytes, auto is the untiled match
+    under = match(left, right, max_disp=47, min_disp=4, method="coop",
+                  scale=dataclasses.replace(p, strip_bytes=estimate_memory("coop", h, w, 44, base=False)))
+    np.testing.assert_array_equal(under.disparity, full.disparity)
+    with pytest.raises(ConfigError, match="strip_bytes"):
+        ScaleParams(strip_bytes=0)
+
+
+def test_coop_at_3_mp_plans_under_3_gib_whatever_the_budget() -> None:
+    # the robot capture's rectified box at 2048×1536 and its range: 11 GB of volumes untiled
+    p = ScaleParams(max_memory=64 * 2**30)
+    plan = planned_memory("coop", 1533, 1203, max_disp=231, min_disp=94, scale=p)
+    assert plan < 3 * 2**30
+    one = estimate_memory("coop", 1533, 1203, 138, base=False)
+    assert one > 10 * 2**30 > plan
 
 
 def test_auto_turns_on_where_the_untiled_volumes_are_heavy(scene: tuple) -> None:
