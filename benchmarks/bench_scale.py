@@ -244,7 +244,7 @@ def main() -> None:
     if args.child is not None:
         kind, folder, what = args.child
         if kind == "render":
-            scene, width = what.split(":")
+            scene, width = what.rsplit(":", 1)
             _render(scene, int(width), Path(folder))
             print(json.dumps({"ok": True}))
         elif kind == "depth":

@@ -23,7 +23,10 @@ Every matcher builds an ``H × W × D`` cost volume, so its time and memory grow
 The same tiling bounds memory: :func:`estimate_memory` predicts one untiled match's peak resident memory
 from the image size, the disparity count and the matcher (``bytes = base + a·H·W + b·H·W·D``, coefficients
 measured with ``ru_maxrss``); a match over ``max_memory`` runs in horizontal strips (full-range search, row
-overlap) or smaller tiles, and raises :class:`MatchingError` only when no tile fits. :func:`planned_memory`
+overlap) or smaller tiles, and raises :class:`MatchingError` only when no tile fits. A matcher with its own
+strips (:data:`_OWN_STRIPS`: ``coop``, whose segments and planes lose accuracy in tiles and whose range a band
+per tile barely narrows) runs, with ``auto``, in the fewest full-range strips of at most its strip bytes each
+(with its context rows) wherever its untiled match would take more, whatever the budget. :func:`planned_memory`
 is the peak of the whole scaled match as :func:`match_scaled` will run it (its coarse levels, the stitched
 maps, its largest tile), known from the sizes alone, before any image is read; ``ScaleParams.held`` is what
 the caller's process holds besides the match (a depth run's set-up and maps), which the budget covers too.
