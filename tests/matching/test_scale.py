@@ -189,7 +189,7 @@ def test_coop_over_its_strip_bytes_runs_in_strips_that_recover_the_capture_as_th
     full = match(left, right, max_disp=47, min_disp=4, method="coop")
     # strips of ~70 of the 200 rows with 24 rows of context, whatever the (ample) budget
     cap = estimate_memory("coop", 70 + 48, w, 44, base=False)
-    p = ScaleParams(strip_bytes=cap, strip_overlap=24, max_memory=64 * 2**30)
+    p = ScaleParams(strip_pixels=0, strip_bytes=cap, strip_overlap=24, max_memory=64 * 2**30)
     res = match(left, right, max_disp=47, min_disp=4, method="coop", scale=p)
     info = res.extras["scale"]
     assert not info["coarse_to_fine"] and info["tiles"] == 3 and info["overlap"] == 24
@@ -209,6 +209,10 @@ def test_coop_over_its_strip_bytes_runs_in_strips_that_recover_the_capture_as_th
     under = match(left, right, max_disp=47, min_disp=4, method="coop",
                   scale=dataclasses.replace(p, strip_bytes=estimate_memory("coop", h, w, 44, base=False)))
     np.testing.assert_array_equal(under.disparity, full.disparity)
+    # below the pixels (the default's 1 MP), the untiled match too
+    small = match(left, right, max_disp=47, min_disp=4, method="coop",
+                  scale=dataclasses.replace(p, strip_pixels=None))
+    assert small.extras["scale"]["tiles"] == 1
     with pytest.raises(ConfigError, match="strip_bytes"):
         ScaleParams(strip_bytes=0)
 
@@ -220,6 +224,10 @@ def test_coop_at_3_mp_plans_under_3_gib_whatever_the_budget() -> None:
     assert plan < 3 * 2**30
     one = estimate_memory("coop", 1533, 1203, 138, base=False)
     assert one > 10 * 2**30 > plan
+    # Jadeplant at Q (659×497, 161 disparities; 2.7 GB) and a 0.8 MP capture stay whole
+    for h, w, lo, hi in [(497, 659, 0, 160), (767, 598, 30, 140)]:
+        whole = planned_memory("coop", h, w, max_disp=hi, min_disp=lo, scale=p)
+        assert whole == estimate_memory("coop", h, w, hi - lo + 1) > 2 * 2**30
 
 
 def test_auto_turns_on_where_the_untiled_volumes_are_heavy(scene: tuple) -> None:

@@ -75,13 +75,15 @@ _MEMORY_MODEL: dict[str, tuple[float, float]] = {
 #: is measured on (Middlebury v2, bad > 1 px nonocc 1.72 → 1.90 with 128 px tiles; more context helps
 #: Tsukuba and hurts Teddy); over the budget it runs in strips
 _FULL_BELOW_AUTO_PIXELS = frozenset({"coop"})
-#: matchers whose untiled match ``auto`` runs in full-range horizontal strips where it would take more than
-#: these bytes of its own (:func:`estimate_memory` without the base), whatever the machine's budget:
-#: (bytes per strip at most, rows of context above and below each strip's core). coop's volumes (42 B per
+#: matchers whose untiled match ``auto`` runs in full-range horizontal strips where the image has at least
+#: so many pixels and the match would take more than these bytes of its own (:func:`estimate_memory` without
+#: the base), whatever the machine's budget: (pixels, bytes per strip at most, rows of context above and below
+#: each strip's core). The pixels keep the images coop is measured on whole (Middlebury v2, 2014 at Q with
+#: Jadeplant's 2.7 GB, the 0.8 MP captures), where its maps stay the full search's. coop's volumes (42 B per
 #: pixel·disparity) are 11 GB at 3 MP over 138 disparities; a strip's segments and planes see its context
 #: rows; one band per strip or per 256–512 px tile is nearly the whole range on the captures it was
 #: measured on, so a coarse level would not narrow the search
-_OWN_STRIPS: dict[str, tuple[int, int]] = {"coop": (1792 * 2**20, 48)}
+_OWN_STRIPS: dict[str, tuple[int, int, int]] = {"coop": (1_000_000, 1792 * 2**20, 48)}
 #: a matcher without a measured model is assumed to be as heavy as the heaviest one
 _UNKNOWN_MODEL = (2500.0, 40.0)
 #: resident memory of the process before the match (interpreter, numpy, numba, OpenCV), bytes
@@ -127,10 +129,11 @@ class ScaleParams:
         ``tile``: one band per tile (the min…max over the tile and its context).
     band_radius, segment, band_context : int
         See ``band`` (full-resolution pixels).
-    strip_bytes, strip_overlap : int or None
-        For a matcher with its own strips (``coop``): with ``auto``, an untiled match above ``strip_bytes`` of
-        its own runs in full-range horizontal strips of at most that many bytes, with ``strip_overlap`` rows of
-        context above and below each core (None: the matcher's, :data:`_OWN_STRIPS`).
+    strip_pixels, strip_bytes, strip_overlap : int or None
+        For a matcher with its own strips (``coop``): with ``auto``, an untiled match of at least
+        ``strip_pixels`` pixels and above ``strip_bytes`` of its own runs in full-range horizontal strips of at
+        most that many bytes, with ``strip_overlap`` rows of context above and below each core (None: the
+        matcher's, :data:`_OWN_STRIPS`).
     band_tile_cols : int
         Width of a core tile with ``band="segment"`` (``tile`` rows high; narrower where the budget asks): the
         tiles' context, which every tile's weights and costs cover again, is then above and below only.
@@ -161,6 +164,7 @@ class ScaleParams:
     band_context: int = 16
     band_pixels: int = 250_000
     band_tile_cols: int = 2048
+    strip_pixels: int | None = None
     strip_bytes: int | None = None
     strip_overlap: int | None = None
     max_memory: int | None = None
@@ -183,9 +187,9 @@ class ScaleParams:
                               f"band_tile_cols >= 16, got {self.band_radius}, {self.segment}, {self.band_context}, "
                               f"{self.band_pixels}, {self.band_tile_cols}")
         if (self.strip_bytes is not None and self.strip_bytes <= 0
-                or self.strip_overlap is not None and self.strip_overlap < 0):
-            raise ConfigError(f"expected strip_bytes > 0 and strip_overlap >= 0 (or None for the matcher's), got "
-                              f"{self.strip_bytes}, {self.strip_overlap}")
+                or any(v is not None and v < 0 for v in (self.strip_pixels, self.strip_overlap))):
+            raise ConfigError(f"expected strip_pixels >= 0, strip_bytes > 0 and strip_overlap >= 0 (or None for the "
+                              f"matcher's), got {self.strip_pixels}, {self.strip_bytes}, {self.strip_overlap}")
         if self.max_memory is not None and self.max_memory <= 0:
             raise ConfigError(f"expected max_memory > 0 bytes (or None for the machine's), got {self.max_memory}")
         if self.held is not None and self.held < 0:
@@ -517,9 +521,10 @@ def _own_strips(p: ScaleParams, method: str, h: int, w: int, nd: int) -> tuple[i
     own = _OWN_STRIPS.get(str(method).lower())
     if own is None or p.coarse_to_fine != "auto":
         return None
-    cap = own[0] if p.strip_bytes is None else int(p.strip_bytes)
-    ctx = own[1] if p.strip_overlap is None else int(p.strip_overlap)
-    return (cap, ctx) if estimate_memory(method, h, w, nd, base=False) > cap else None
+    pixels = own[0] if p.strip_pixels is None else int(p.strip_pixels)
+    cap = own[1] if p.strip_bytes is None else int(p.strip_bytes)
+    ctx = own[2] if p.strip_overlap is None else int(p.strip_overlap)
+    return (cap, ctx) if h * w >= pixels and estimate_memory(method, h, w, nd, base=False) > cap else None
 
 
 def _untiled_strips(method: str, p: ScaleParams, h: int, w: int, lo: int, hi: int, budget: int
