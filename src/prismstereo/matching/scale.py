@@ -624,7 +624,8 @@ def match_scaled(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp
         As the matcher's, with ``extras["scale"]``: whether coarse-to-fine ran (``coarse_to_fine``), the
         levels, tiles, mean band (of the tiles as run), tiles that fell back to the whole range, the memory
         estimate and budget (bytes), ``band`` (``segment`` or ``tile``, as run) and ``searched_per_pixel``
-        (pixel·disparities the full resolution's tiles searched, over its pixels). The matcher's own extras
+        (pixel·disparities the full resolution's tiles searched, over its pixels) and ``overlap`` (the context
+        rows / columns of its tiles, a strip's own for a matcher with its own strips). The matcher's own extras
         are kept only for an untiled run. ``timings`` adds ``coarse`` (seconds of the coarse levels) to the
         matcher's stages summed over the tiles.
 
