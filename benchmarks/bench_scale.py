@@ -3,7 +3,9 @@
 For each built-in scene (``robot``: the simulator's bi-prism robot scene; ``demo``: the demo's box, ball and
 panel; ``plane``: a tilted textured plane at 1.4 m) a capture is rendered at each size through the thesis
 bi-prism rig (:func:`prismstereo.simulate.robot_scene`'s camera scaled: width W, height 3W/4, pixel size
-4.65 µm × 1024 / W, so the optics and the field of view stay the thesis rig's). Then, per preset, ONE
+4.65 µm × 1024 / W, so the optics and the field of view stay the thesis rig's); ``mb:NAME`` is a photographed
+validation scene of ``bench_real_scenes.py`` (``mb:Adirondack``, ``mb:wood2``: its RGB-D copy at 1.4 m, ideal
+realism, its seed) through the same scaled rig. Then, per preset, ONE
 subprocess (so that its peak memory is its own: ``resource.getrusage(RUSAGE_SELF).ru_maxrss``; tracemalloc
 misses numpy's and numba's allocations):
 
@@ -51,6 +53,8 @@ from typing import Any
 os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(os.path.dirname(__file__), "..", ".numba_cache"))
 
 SCENES = ("robot", "demo", "plane")
+#: prefix of a photographed validation scene (``mb:Adirondack``, ``mb:wood2``: bench_real_scenes' list)
+PHOTOGRAPHED = "mb:"
 PRESETS = ("fast", "balanced", "accurate")
 #: the stream's depth range (a stream has no image to narrow the rig's range with): the built-in scenes' objects
 #: and walls lie at 1.2-2.2 m
@@ -70,7 +74,17 @@ def _scene(name: str, width: int) -> tuple[Any, Any]:
         return rig, replace(demo_scene(), supersample=2)
     if name == "plane":
         return rig, plane_scene(1400.0, tilt_deg=25.0)
-    raise SystemExit(f"--scenes: expected names among {', '.join(SCENES)}, got {name!r}")
+    if name.startswith(PHOTOGRAPHED):
+        # the validation scenes as bench_real_scenes renders them (ideal realism, its centre depth, fill and
+        # seed), through the same rig scaled to this width
+        import bench_real_scenes as brs
+
+        mb = name.removeprefix(PHOTOGRAPHED)
+        if mb not in brs.EXTRA + brs.MB2014:
+            raise SystemExit(f"--scenes: expected mb:NAME among {', '.join(brs.EXTRA + brs.MB2014)}, got {name!r}")
+        return rig, brs.make_scene(brs.default_data(), mb, rig, realism="ideal", center_depth=1400.0, fill=1.3,
+                                   seed=(brs.EXTRA + brs.MB2014).index(mb))
+    raise SystemExit(f"--scenes: expected names among {', '.join(SCENES)} or mb:NAME, got {name!r}")
 
 
 def _render(scene: str, width: int, folder: Path) -> None:
@@ -216,7 +230,8 @@ def main() -> None:
     ap.add_argument("--sizes", default="1024,2048,4096", help="sensor widths (4:3): 1024 = 0.8 MP, 2048 = 3 MP, "
                                                               "4096 = 12 MP")
     ap.add_argument("--presets", default=",".join(PRESETS))
-    ap.add_argument("--scenes", default="robot", help=f"among {','.join(SCENES)}")
+    ap.add_argument("--scenes", default="robot", help=f"among {','.join(SCENES)}, or mb:NAME for a photographed "
+                                                      "validation scene of bench_real_scenes.py (mb:Adirondack)")
     ap.add_argument("--stream", action="store_true", help="also a fast stream at the first size: frames/s")
     ap.add_argument("--stream-frames", type=int, default=12)
     ap.add_argument("--c2f", default=None, metavar="MODES",
@@ -229,7 +244,7 @@ def main() -> None:
     if args.child is not None:
         kind, folder, what = args.child
         if kind == "render":
-            scene, width = what.split(":")
+            scene, width = what.rsplit(":", 1)
             _render(scene, int(width), Path(folder))
             print(json.dumps({"ok": True}))
         elif kind == "depth":
@@ -250,7 +265,8 @@ def main() -> None:
     presets = [p.strip() for p in args.presets.split(",")]
     scenes = [s.strip() for s in args.scenes.split(",")]
     modes = [m.strip() for m in args.c2f.split(",")] if args.c2f else [""]
-    bad = ([p for p in presets if p not in PRESETS] + [s for s in scenes if s not in SCENES]
+    bad = ([p for p in presets if p not in PRESETS]
+           + [s for s in scenes if s not in SCENES and not s.startswith(PHOTOGRAPHED)]
            + [m for m in modes if m not in ("", "auto", "on", "off")])
     if bad:
         raise SystemExit(f"expected presets among {PRESETS} and scenes among {SCENES}, got {bad}")
@@ -263,7 +279,7 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for scene in scenes:
         for width in sizes:
-            folder = work / f"{scene}-{width}"
+            folder = work / f"{scene.replace(':', '-')}-{width}"
             if not (folder / "capture.png").is_file():
                 r = _child(["--child", "render", str(folder), f"{scene}:{width}"])
                 if "error" in r:
@@ -275,7 +291,7 @@ def main() -> None:
                     results.append({"scene": scene, "width": width, "preset": preset, "mode": mode, **r})
                     print(_row(scene, width, preset, r), flush=True)
     for rng in ("given", "auto") if args.stream else ():
-        folder = work / f"{scenes[0]}-{sizes[0]}"
+        folder = work / f"{scenes[0].replace(':', '-')}-{sizes[0]}"
         r = _child(["--child", "stream", str(folder), f"{args.stream_frames}:{rng}"])
         results.append({"scene": scenes[0], "width": sizes[0], "stream": True, **r})
         if "error" in r:

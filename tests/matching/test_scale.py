@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -182,6 +183,53 @@ def test_the_plan_bounds_what_the_match_records_coarse_levels_and_what_the_calle
         ScaleParams(held=-1)
 
 
+def test_coop_over_its_strip_bytes_runs_in_strips_that_recover_the_capture_as_the_full_search(scene: tuple) -> None:
+    left, right, gt = scene
+    h, w = left.shape[:2]
+    full = match(left, right, max_disp=47, min_disp=4, method="coop")
+    # strips of ~70 of the 200 rows with 24 rows of context, whatever the (ample) budget
+    cap = estimate_memory("coop", 70 + 48, w, 44, base=False)
+    p = ScaleParams(strip_pixels=0, strip_bytes=cap, strip_overlap=24, max_memory=64 * 2**30)
+    res = match(left, right, max_disp=47, min_disp=4, method="coop", scale=p)
+    info = res.extras["scale"]
+    assert not info["coarse_to_fine"] and info["tiles"] == 3 and info["overlap"] == 24
+    # the recorded estimate is the plan, and one strip's own bytes are within the strip bytes
+    assert info["estimate_bytes"] == planned_memory("coop", h, w, max_disp=47, min_disp=4, scale=p)
+    assert info["estimate_bytes"] - PROCESS_BASE - 48 * h * w <= cap
+    both = np.isfinite(res.disparity) & np.isfinite(full.disparity)
+    assert both[:, 47:].mean() > 0.99
+    assert (np.abs(res.disparity - full.disparity)[both] <= 1.0).mean() > 0.95
+    assert _bad(res.disparity, gt) <= _bad(full.disparity, gt) + 1.0
+    # off: the full search where the budget holds it (the matcher itself)
+    off = match(left, right, max_disp=47, min_disp=4, method="coop",
+                scale=dataclasses.replace(p, coarse_to_fine="off"))
+    assert off.extras["scale"]["tiles"] == 1
+    np.testing.assert_array_equal(off.disparity, full.disparity)
+    # under the strip bytes, auto is the untiled match
+    under = match(left, right, max_disp=47, min_disp=4, method="coop",
+                  scale=dataclasses.replace(p, strip_bytes=estimate_memory("coop", h, w, 44, base=False)))
+    np.testing.assert_array_equal(under.disparity, full.disparity)
+    # below the pixels (the default's 1 MP), the untiled match too
+    small = match(left, right, max_disp=47, min_disp=4, method="coop",
+                  scale=dataclasses.replace(p, strip_pixels=None))
+    assert small.extras["scale"]["tiles"] == 1
+    with pytest.raises(ConfigError, match="strip_bytes"):
+        ScaleParams(strip_bytes=0)
+
+
+def test_coop_at_3_mp_plans_under_3_gib_whatever_the_budget() -> None:
+    # the robot capture's rectified box at 2048×1536 and its range: 11 GB of volumes untiled
+    p = ScaleParams(max_memory=64 * 2**30)
+    plan = planned_memory("coop", 1533, 1203, max_disp=231, min_disp=94, scale=p)
+    assert plan < 3 * 2**30
+    one = estimate_memory("coop", 1533, 1203, 138, base=False)
+    assert one > 10 * 2**30 > plan
+    # Jadeplant at Q (659×497, 161 disparities; 2.7 GB) and a 0.8 MP capture stay whole
+    for h, w, lo, hi in [(497, 659, 0, 160), (767, 598, 30, 140)]:
+        whole = planned_memory("coop", h, w, max_disp=hi, min_disp=lo, scale=p)
+        assert whole == estimate_memory("coop", h, w, hi - lo + 1) > 2 * 2**30
+
+
 def test_auto_turns_on_where_the_untiled_volumes_are_heavy(scene: tuple) -> None:
     left, right, _ = scene
     light = match(left, right, max_disp=63, method="sgm", scale=ScaleParams())
@@ -252,12 +300,13 @@ print(json.dumps({{"before": r0, "peak": r1}}))
 """
 
 
-@pytest.mark.parametrize("method", ["sgm", "bpasw"])
+@pytest.mark.parametrize("method", ["sgm", "bpasw", "coop"])
 def test_memory_estimate_within_a_factor_of_the_measured_peak(method: str) -> None:
     import pathlib
 
     tests = str(pathlib.Path(__file__).resolve().parents[1])
-    h, w, d = 480, 640, 127
+    # coop (what its strips are sized by) on a smaller pair: 42 B per pixel·disparity
+    h, w, d = (240, 320, 63) if method == "coop" else (480, 640, 127)
     script = _MEASURE.format(tests=tests, method=method, h=h, w=w, d=d)
     # a first process compiles the kernels into numba's disk cache (compiling costs far more memory than the
     # match), so that the measured process only loads them; its warm-up match compiles them all

@@ -23,7 +23,10 @@ Every matcher builds an ``H × W × D`` cost volume, so its time and memory grow
 The same tiling bounds memory: :func:`estimate_memory` predicts one untiled match's peak resident memory
 from the image size, the disparity count and the matcher (``bytes = base + a·H·W + b·H·W·D``, coefficients
 measured with ``ru_maxrss``); a match over ``max_memory`` runs in horizontal strips (full-range search, row
-overlap) or smaller tiles, and raises :class:`MatchingError` only when no tile fits. :func:`planned_memory`
+overlap) or smaller tiles, and raises :class:`MatchingError` only when no tile fits. A matcher with its own
+strips (:data:`_OWN_STRIPS`: ``coop``, whose segments and planes lose accuracy in tiles and whose range a band
+per tile barely narrows) runs, with ``auto``, in the fewest full-range strips of at most its strip bytes each
+(with its context rows) wherever its untiled match would take more, whatever the budget. :func:`planned_memory`
 is the peak of the whole scaled match as :func:`match_scaled` will run it (its coarse levels, the stitched
 maps, its largest tile), known from the sizes alone, before any image is read; ``ScaleParams.held`` is what
 the caller's process holds besides the match (a depth run's set-up and maps), which the budget covers too.
@@ -72,6 +75,15 @@ _MEMORY_MODEL: dict[str, tuple[float, float]] = {
 #: is measured on (Middlebury v2, bad > 1 px nonocc 1.72 → 1.90 with 128 px tiles; more context helps
 #: Tsukuba and hurts Teddy); over the budget it runs in strips
 _FULL_BELOW_AUTO_PIXELS = frozenset({"coop"})
+#: matchers whose untiled match ``auto`` runs in full-range horizontal strips where the image has at least
+#: so many pixels and the match would take more than these bytes of its own (:func:`estimate_memory` without
+#: the base), whatever the machine's budget: (pixels, bytes per strip at most, rows of context above and below
+#: each strip's core). The pixels keep the images coop is measured on whole (Middlebury v2, 2014 at Q with
+#: Jadeplant's 2.7 GB, the 0.8 MP captures), where its maps stay the full search's. coop's volumes (42 B per
+#: pixel·disparity) are 11 GB at 3 MP over 138 disparities; a strip's segments and planes see its context
+#: rows; one band per strip or per 256–512 px tile is nearly the whole range on the captures it was
+#: measured on, so a coarse level would not narrow the search
+_OWN_STRIPS: dict[str, tuple[int, int, int]] = {"coop": (1_000_000, 1792 * 2**20, 48)}
 #: a matcher without a measured model is assumed to be as heavy as the heaviest one
 _UNKNOWN_MODEL = (2500.0, 40.0)
 #: resident memory of the process before the match (interpreter, numpy, numba, OpenCV), bytes
@@ -117,6 +129,11 @@ class ScaleParams:
         ``tile``: one band per tile (the min…max over the tile and its context).
     band_radius, segment, band_context : int
         See ``band`` (full-resolution pixels).
+    strip_pixels, strip_bytes, strip_overlap : int or None
+        For a matcher with its own strips (``coop``): with ``auto``, an untiled match of at least
+        ``strip_pixels`` pixels and above ``strip_bytes`` of its own runs in full-range horizontal strips of at
+        most that many bytes, with ``strip_overlap`` rows of context above and below each core (None: the
+        matcher's, :data:`_OWN_STRIPS`).
     band_tile_cols : int
         Width of a core tile with ``band="segment"`` (``tile`` rows high; narrower where the budget asks): the
         tiles' context, which every tile's weights and costs cover again, is then above and below only.
@@ -147,6 +164,9 @@ class ScaleParams:
     band_context: int = 16
     band_pixels: int = 250_000
     band_tile_cols: int = 2048
+    strip_pixels: int | None = None
+    strip_bytes: int | None = None
+    strip_overlap: int | None = None
     max_memory: int | None = None
     held: int | None = None
 
@@ -166,6 +186,10 @@ class ScaleParams:
             raise ConfigError(f"expected band_radius >= 0, segment >= 1, band_context >= 0, band_pixels >= 0 and "
                               f"band_tile_cols >= 16, got {self.band_radius}, {self.segment}, {self.band_context}, "
                               f"{self.band_pixels}, {self.band_tile_cols}")
+        if (self.strip_bytes is not None and self.strip_bytes <= 0
+                or any(v is not None and v < 0 for v in (self.strip_pixels, self.strip_overlap))):
+            raise ConfigError(f"expected strip_pixels >= 0, strip_bytes > 0 and strip_overlap >= 0 (or None for the "
+                              f"matcher's), got {self.strip_pixels}, {self.strip_bytes}, {self.strip_overlap}")
         if self.max_memory is not None and self.max_memory <= 0:
             raise ConfigError(f"expected max_memory > 0 bytes (or None for the machine's), got {self.max_memory}")
         if self.held is not None and self.held < 0:
@@ -422,11 +446,18 @@ def _run_tiles(matcher: Matcher, left: np.ndarray, right: np.ndarray, tiles: lis
 
 
 def _strip_tiles(method: str, h: int, w: int, lo: int, hi: int, budget: int, overlap: int,
-                 base: int = PROCESS_BASE) -> list[_Tile]:
+                 base: int = PROCESS_BASE, fewest: bool = False) -> list[_Tile]:
     """Full-range tiles (strips of rows, then columns too) whose estimate fits ``budget`` (``base``: bytes
-    held besides the match)."""
+    held besides the match); ``fewest``: the fewest full-width strips that fit, before halving."""
     avail = budget - base - int(_STITCH_PER_PIXEL * h * w)
     rows, cols = h, w
+    if fewest:  # halving overshoots, and every strip matches its context rows again
+        k = 1
+        while -(-h // k) > max(16, overlap) and max(
+                _tile_estimate(method, _Tile(y0, y1, 0, w, lo, hi, True), h, w, overlap)
+                for y0, y1 in _grid(h, -(-h // k))) > avail:
+            k += 1
+        rows = -(-h // k)
     while True:
         tiles = [_Tile(y0, y1, x0, x1, lo, hi, True) for y0, y1 in _grid(h, rows) for x0, x1 in _grid(w, cols)]
         worst = max(_tile_estimate(method, t, h, w, overlap) for t in tiles)
@@ -484,6 +515,32 @@ def _band_tiles(method: str, coarse: MatchResult, f: int, h: int, w: int, lo: in
     return out
 
 
+def _own_strips(p: ScaleParams, method: str, h: int, w: int, nd: int) -> tuple[int, int] | None:
+    """(bytes per strip, context rows) where ``auto`` runs the matcher in its own strips
+    (:data:`_OWN_STRIPS`), else None."""
+    own = _OWN_STRIPS.get(str(method).lower())
+    if own is None or p.coarse_to_fine != "auto":
+        return None
+    pixels = own[0] if p.strip_pixels is None else int(p.strip_pixels)
+    cap = own[1] if p.strip_bytes is None else int(p.strip_bytes)
+    ctx = own[2] if p.strip_overlap is None else int(p.strip_overlap)
+    return (cap, ctx) if h * w >= pixels and estimate_memory(method, h, w, nd, base=False) > cap else None
+
+
+def _untiled_strips(method: str, p: ScaleParams, h: int, w: int, lo: int, hi: int, budget: int
+                    ) -> tuple[list[_Tile], int] | None:
+    """Full-range strips of a match that does not run coarse-to-fine, and their context rows: the matcher's own
+    (:func:`_own_strips`, within ``budget`` too), or the budget's; None: it runs untiled."""
+    own = _own_strips(p, method, h, w, hi - lo + 1)
+    if own is not None:
+        cap, ctx = own
+        strips = min(budget, p.base + int(_STITCH_PER_PIXEL * h * w) + cap)
+        return _strip_tiles(method, h, w, lo, hi, strips, ctx, p.base, fewest=True), ctx
+    if p.base + estimate_memory(method, h, w, hi - lo + 1, base=False) <= budget:
+        return None
+    return _strip_tiles(method, h, w, lo, hi, budget, p.overlap, p.base), p.overlap
+
+
 def _coarse_range(lo: int, hi: int, f: int, cw: int) -> tuple[int, int]:
     chi = min(-(-hi // f), cw - 1)
     return min(lo // f, chi), chi
@@ -514,11 +571,11 @@ def planned_memory(method: str, height: int, width: int, *, max_disp: int, min_d
     h, w = int(height), int(width)
     est_full = p.base + estimate_memory(method, h, w, nd, base=False)
     if not _use_c2f(p, h, w, nd, est_full > budget, method, _level == 0):
-        if est_full <= budget:
+        strips = _untiled_strips(method, p, h, w, lo, hi, budget)
+        if strips is None:
             return est_full
-        tiles = _strip_tiles(method, h, w, lo, hi, budget, p.overlap, p.base)
-        return p.base + int(_STITCH_PER_PIXEL * h * w) + max(_tile_estimate(method, t, h, w, p.overlap)
-                                                             for t in tiles)
+        tiles, ctx = strips
+        return p.base + int(_STITCH_PER_PIXEL * h * w) + max(_tile_estimate(method, t, h, w, ctx) for t in tiles)
     f = p.factor
     ch, cw = max(1, h // f), max(1, w // f)
     clo, chi = _coarse_range(lo, hi, f, cw)
@@ -567,7 +624,8 @@ def match_scaled(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp
         As the matcher's, with ``extras["scale"]``: whether coarse-to-fine ran (``coarse_to_fine``), the
         levels, tiles, mean band (of the tiles as run), tiles that fell back to the whole range, the memory
         estimate and budget (bytes), ``band`` (``segment`` or ``tile``, as run) and ``searched_per_pixel``
-        (pixel·disparities the full resolution's tiles searched, over its pixels). The matcher's own extras
+        (pixel·disparities the full resolution's tiles searched, over its pixels) and ``overlap`` (the context
+        rows / columns of its tiles, a strip's own for a matcher with its own strips). The matcher's own extras
         are kept only for an untiled run. ``timings`` adds ``coarse`` (seconds of the coarse levels) to the
         matcher's stages summed over the tiles.
 
@@ -593,14 +651,16 @@ def match_scaled(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp
     info: dict[str, Any] = {"coarse_to_fine": c2f, "mode": p.coarse_to_fine, "levels": _level + 1,
                             "estimate_bytes": est_full, "budget_bytes": int(budget), "tiles": 1,
                             "band_mean": float(nd), "full_range_tiles": 0}
+    overlap = p.overlap
     if not c2f:
-        if est_full <= budget:
+        strips = _untiled_strips(method, p, h, w, lo, hi, budget)
+        if strips is None:
             if _level == 0:
                 log.info("match %s %d×%d, %d disparities: peak memory estimate %.2f GiB (budget %.2f GiB)",
                          method, w, h, nd, est_full / 2**30, budget / 2**30)
             res = matcher.compute(left, right, max_disp=hi, min_disp=lo)
             return dataclasses.replace(res, extras={**res.extras, "scale": info})
-        tiles = _strip_tiles(method, h, w, lo, hi, budget, p.overlap, p.base)
+        tiles, overlap = strips
         pixel_band: _PixelBand | None = None
         coarse_s = 0.0
         coarse_est = 0
@@ -624,13 +684,13 @@ def match_scaled(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp
         if banded:
             pixel_band = _pixel_bands(coarse, f, h, w, lo, hi, p)
         del coarse
-    est = max(coarse_est, p.base + int(_STITCH_PER_PIXEL * h * w) + max(_tile_estimate(method, t, h, w, p.overlap)
+    est = max(coarse_est, p.base + int(_STITCH_PER_PIXEL * h * w) + max(_tile_estimate(method, t, h, w, overlap)
                                                                         for t in tiles))
     if _level == 0:
         log.info("match %s %d×%d, %d disparities: %s, %d tiles, peak memory estimate %.2f GiB (budget %.2f "
                  "GiB; untiled full search %.2f GiB)", method, w, h, nd,
                  "coarse-to-fine" if c2f else "strips", len(tiles), est / 2**30, budget / 2**30, est_full / 2**30)
-    disp, valid, raw, timings, tiles, searched = _run_tiles(matcher, left, right, tiles, p.overlap, pixel_band, p)
+    disp, valid, raw, timings, tiles, searched = _run_tiles(matcher, left, right, tiles, overlap, pixel_band, p)
     timings["coarse"] = coarse_s
     areas = np.array([(t.y1 - t.y0) * (t.x1 - t.x0) for t in tiles], dtype=np.float64)
     bands = np.array([t.hi - t.lo + 1 for t in tiles], dtype=np.float64)
@@ -638,5 +698,5 @@ def match_scaled(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp
                  "band_mean": round(float((areas * bands).sum() / areas.sum()), 2),
                  "full_range_tiles": int(sum(t.full for t in tiles)) if c2f else 0,
                  "band": p.band if pixel_band is not None else "tile",
-                 "searched_per_pixel": round(searched / max(h * w, 1), 2)})
+                 "searched_per_pixel": round(searched / max(h * w, 1), 2), "overlap": overlap})
     return MatchResult(disparity=disp, valid=valid, disparity_raw=raw, timings=timings, extras={"scale": info})
