@@ -502,6 +502,43 @@ def test_plane_growth_continues_a_steep_weak_floor_the_mean_does_not_and_stops_a
         confident_growth(left, right, kept, conf, filled, fit="median", **kw)
 
 
+def test_a_depth_tolerance_grows_where_a_pixel_is_a_smaller_share_of_depth_and_leaves_the_rest_alone():
+    from prismstereo.depth.confidence import confident_growth
+
+    left, right, true = _weak_slanted_plane()
+    h, w = true.shape
+    blocks = ((np.arange(h)[:, None] // 12 + np.arange(w)[None, :] // 12) % 2 == 0)
+    conf = np.where(blocks, np.float32(0.9), np.float32(np.nan))
+    filled = np.rint(true).astype(np.float32)
+    kw = dict(min_confidence=0.5, max_lr_gap=0.45, fit="plane", agree=0.2)
+    inner = np.zeros((h, w), dtype=bool)
+    inner[20:-20, 30:-30] = True
+    holes = ~blocks & inner
+    # the kept values 0.3 px above the image's: 0.2 px rejects the window's values; on a rig whose true
+    # disparity is 200 px (d0 = 200 - 7.3) 0.18 % of depth is 0.36 px and lets them grow
+    biased = np.where(blocks, true + np.float32(0.3), np.nan).astype(np.float32)
+    tri = dict(agree_depth=0.0018, disparity_offset=200.0 - 7.3)
+    d_px, _ = confident_growth(left, right, biased, conf, filled, **kw)
+    d_tri, c_tri = confident_growth(left, right, biased, conf, filled, **tri, **kw)
+    assert (np.isfinite(d_px) & holes).sum() < 0.1 * holes.sum()
+    grown = np.isfinite(d_tri) & holes
+    assert grown.sum() > 0.5 * holes.sum()
+    assert np.mean(np.abs(d_tri[grown] - true[grown]) < 0.5) > 0.97  # the window's value, not the neighbours'
+    assert np.array_equal(d_tri[blocks], biased[blocks]) and np.array_equal(c_tri[blocks], conf[blocks])
+    # 1 px off is 0.5 % of depth there: still nothing grows
+    off = np.where(blocks, true + np.float32(1.0), np.nan).astype(np.float32)
+    assert (np.isfinite(confident_growth(left, right, off, conf, filled, **tri, **kw)[0]) & holes).sum() < (
+        0.02 * holes.sum())
+    # where 0.18 % of depth is less than 0.2 px (true disparity 107 px, the bi-prism's nearest), the same as px
+    # only, bit for bit, on the biased and on the exact neighbours
+    bi = dict(agree_depth=0.0018, disparity_offset=100.0)
+    for kept in (biased, np.where(blocks, true, np.nan).astype(np.float32)):
+        a = confident_growth(left, right, kept, conf, filled, **kw)
+        b = confident_growth(left, right, kept, conf, filled, **bi, **kw)
+        assert np.array_equal(a[0], b[0], equal_nan=True) and np.array_equal(a[1], b[1], equal_nan=True)
+    assert (np.isfinite(a[0]) & holes).sum() > 0.5 * holes.sum()  # the exact neighbours grow either way
+
+
 def test_neighbour_plane_is_the_weighted_fit_through_the_neighbours_near_the_value():
     import cv2
 
