@@ -227,8 +227,8 @@ class DepthConfig:
         With ``refine_grow_fit="plane"``, the plane may also lie this share of the pixel's depth from the
         refined value where that is more than ``refine_grow_agree`` px (``agree_depth`` of
         :func:`~prismstereo.depth.confidence.confident_growth`): one tolerance in depth for rigs whose pixel
-        of disparity is a different share of depth. The default, 0.18 %, is ``refine_grow_agree`` at the
-        largest disparity of the bi-prism's searched ranges (111 px); None: px only.
+        of disparity is a different share of depth. The default, 0.22 %, is ``refine_grow_agree`` (0.2 px)
+        at the bi-prism's disparity of a scene at 1.4 m (91 px); None: px only.
     refine_smoothed_below : float or None
         A capture whose pixel-scale noise (:func:`~prismstereo.depth.smoothed.pixel_noise`, grey levels)
         is below this has lost its finest scale to compression or demosaicing (a real camera's capture):
@@ -283,7 +283,7 @@ class DepthConfig:
     refine_grow_fit: str = "plane"
     refine_grow_inlier: float = 1.0
     refine_grow_share: float = 0.9
-    refine_grow_agree_depth: float | None = 0.0018
+    refine_grow_agree_depth: float | None = 0.0022
     refine_smoothed_below: float | None = 0.5
     refine_smoothed_retry_below: float = 0.99
     refine_smoothed_fill_agree: float | None = 1.0
