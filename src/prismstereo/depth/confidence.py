@@ -411,7 +411,8 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
                      min_support: float = 0.1, max_spread: float | None = 0.5, passes: int = 1,
                      fit: str = "mean", inlier: float = 1.0, min_share: float = 0.9,
                      agree_depth: float | None = None, disparity_offset: float = 0.0,
-                     valid_right: np.ndarray | None = None, **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
+                     second_radius: int | None = None, valid_right: np.ndarray | None = None,
+                     **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
     """Add the matcher's dense values that a wide window confirms and that continue the kept surface around
     them, where nothing was kept.
 
@@ -462,6 +463,10 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
     disparity_offset : float
         The pair's d₀, px (the true disparity of a match d is d + d₀, its depth inversely proportional
         to it).
+    second_radius : int or None
+        With ``fit="plane"``: where the ``grow_radius`` window does not confirm a value, refine and check it
+        with a window of this half-size instead, under the same tests (near an occlusion or a depth edge
+        the wide window reaches the other surface); None: one window.
     valid_right : (H, W) bool, optional
         Valid region of the rectified right view (a value whose right pixel is outside is not tried).
     **kwargs
@@ -490,7 +495,7 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
         d2, c2 = _grown(left, right, d, f, grow_radius=grow_radius, sigma=sigma, agree=agree,
                         min_support=min_support, max_spread=max_spread, fit=fit, inlier=inlier,
                         min_share=min_share, agree_depth=agree_depth, disparity_offset=disparity_offset,
-                        valid_right=valid_right, **kwargs)
+                        second_radius=second_radius, valid_right=valid_right, **kwargs)
         add = np.isfinite(d2)
         if not add.any():
             break
@@ -500,8 +505,8 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
 
 def _grown(left: np.ndarray, right: np.ndarray, d: np.ndarray, f: np.ndarray, *, grow_radius: int, sigma: float,
            agree: float, min_support: float, max_spread: float | None, fit: str, inlier: float, min_share: float,
-           agree_depth: float | None, disparity_offset: float, valid_right: np.ndarray | None,
-           **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
+           agree_depth: float | None, disparity_offset: float, second_radius: int | None,
+           valid_right: np.ndarray | None, **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
     """(H, W) float32 disparities and confidences of one pass of :func:`confident_growth` (the values it adds,
     NaN elsewhere)."""
     nan = np.full(d.shape, np.nan, dtype=np.float32)
@@ -520,6 +525,13 @@ def _grown(left: np.ndarray, right: np.ndarray, d: np.ndarray, f: np.ndarray, *,
         with np.errstate(invalid="ignore"):
             add = np.isfinite(d2) & (np.abs(d2 - mean) < agree)
         return np.where(add, d2, nan).astype(np.float32), np.where(add, c2, nan).astype(np.float32)
+    if second_radius is not None:
+        retry = np.isfinite(seeds) & ~np.isfinite(d2)
+        if retry.any():
+            d3, c3 = confident_matches(left, right, np.where(retry, seeds, np.float32(np.nan)).astype(np.float32),
+                                       radius=second_radius, valid_right=valid_right, right_seeds=right_seeds,
+                                       seeds_checked=False, **kwargs)
+            d2, c2 = np.where(retry, d3, d2).astype(np.float32), np.where(retry, c3, c2).astype(np.float32)
     ys, xs = np.nonzero(np.isfinite(d2))
     v = d2[ys, xs].astype(np.float64)
     plane, p_spread, inl, total = neighbour_plane(d, ys, xs, v, sigma=sigma, inlier=inlier)
