@@ -502,6 +502,99 @@ def test_plane_growth_continues_a_steep_weak_floor_the_mean_does_not_and_stops_a
         confident_growth(left, right, kept, conf, filled, fit="median", **kw)
 
 
+def test_a_depth_tolerance_grows_where_a_pixel_is_a_smaller_share_of_depth_and_leaves_the_rest_alone():
+    from prismstereo.depth.confidence import confident_growth
+
+    left, right, true = _weak_slanted_plane()
+    h, w = true.shape
+    blocks = ((np.arange(h)[:, None] // 12 + np.arange(w)[None, :] // 12) % 2 == 0)
+    conf = np.where(blocks, np.float32(0.9), np.float32(np.nan))
+    filled = np.rint(true).astype(np.float32)
+    kw = dict(min_confidence=0.5, max_lr_gap=0.45, fit="plane", agree=0.2)
+    inner = np.zeros((h, w), dtype=bool)
+    inner[20:-20, 30:-30] = True
+    holes = ~blocks & inner
+    # the kept values 0.3 px above the image's: 0.2 px rejects the window's values; on a rig whose true
+    # disparity is 200 px (d0 = 200 - 7.3) 0.22 % of depth is 0.44 px and lets them grow
+    biased = np.where(blocks, true + np.float32(0.3), np.nan).astype(np.float32)
+    tri = dict(agree_depth=0.0022, disparity_offset=200.0 - 7.3)
+    d_px, _ = confident_growth(left, right, biased, conf, filled, **kw)
+    d_tri, c_tri = confident_growth(left, right, biased, conf, filled, **tri, **kw)
+    assert (np.isfinite(d_px) & holes).sum() < 0.1 * holes.sum()
+    grown = np.isfinite(d_tri) & holes
+    assert grown.sum() > 0.5 * holes.sum()
+    assert np.mean(np.abs(d_tri[grown] - true[grown]) < 0.5) > 0.97  # the window's value, not the neighbours'
+    assert np.array_equal(d_tri[blocks], biased[blocks]) and np.array_equal(c_tri[blocks], conf[blocks])
+    # 1 px off is 0.5 % of depth there: still nothing grows
+    off = np.where(blocks, true + np.float32(1.0), np.nan).astype(np.float32)
+    assert (np.isfinite(confident_growth(left, right, off, conf, filled, **tri, **kw)[0]) & holes).sum() < (
+        0.02 * holes.sum())
+    # where 0.22 % of depth is less than 0.2 px (true disparity 87 px, a bi-prism's scene beyond 1.4 m), the
+    # same as px only, bit for bit, on the biased and on the exact neighbours
+    bi = dict(agree_depth=0.0022, disparity_offset=80.0)
+    for kept in (biased, np.where(blocks, true, np.nan).astype(np.float32)):
+        a = confident_growth(left, right, kept, conf, filled, **kw)
+        b = confident_growth(left, right, kept, conf, filled, **bi, **kw)
+        assert np.array_equal(a[0], b[0], equal_nan=True) and np.array_equal(a[1], b[1], equal_nan=True)
+    assert (np.isfinite(a[0]) & holes).sum() > 0.5 * holes.sum()  # the exact neighbours grow either way
+
+
+def _strip_in_front(seed: int = 3, h: int = 80, w: int = 200) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
+    """A strongly textured strip (columns 70–129, disparity 12 px) in front of a weakly textured background
+    (7 px) under sensor noise, the right view rendered with the strip's occlusion; returns left, right, the
+    true disparity and the strip's columns."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    grid = np.arange(w + 40)
+    bg = cv2.GaussianBlur(rng.random((h, w + 40)).astype(np.float32) * 255, (0, 0), 1.2) * 0.25
+    fg = cv2.GaussianBlur(rng.random((h, w + 40)).astype(np.float32) * 255, (0, 0), 1.2)
+    x0, x1, d_bg, d_fg = 70, 130, 7.0, 12.0
+    xs = np.arange(w, dtype=np.float64)
+    on_left = (xs >= x0) & (xs < x1)
+    left = np.stack([np.where(on_left, np.interp(xs, grid, fg[y]), np.interp(xs, grid, bg[y])) for y in range(h)])
+    on_right = (xs + d_fg >= x0) & (xs + d_fg < x1)
+    right = np.stack([np.where(on_right, np.interp(xs + d_fg, grid, fg[y]), np.interp(xs + d_bg, grid, bg[y]))
+                      for y in range(h)])
+    true = np.where(on_left, d_fg, d_bg)[None, :] * np.ones((h, 1))
+    left = left + rng.normal(0.0, 1.0, left.shape)
+    right = right + rng.normal(0.0, 1.0, right.shape)
+    return left.astype(np.float32), right.astype(np.float32), true.astype(np.float32), x0, x1
+
+
+def test_a_second_smaller_window_grows_the_surface_beside_an_edge_the_wide_window_straddles():
+    from prismstereo.depth.confidence import confident_growth
+
+    left, right, true, x0, x1 = _strip_in_front()
+    h, w = true.shape
+    xs = np.arange(w)[None, :] * np.ones((h, 1), dtype=int)
+    rows = (np.arange(h)[:, None] >= 16) & (np.arange(h)[:, None] < h - 16)
+    # the background's holes beside the strip (beyond the 5 px it occludes); nothing kept on the strip
+    holes = (((xs >= x0 - 24) & (xs < x0 - 5)) | ((xs >= x1) & (xs < x1 + 24))) & rows
+    kept = np.where(~holes & ((xs < x0 - 5) | (xs >= x1)), true, np.nan).astype(np.float32)
+    conf = np.where(np.isfinite(kept), np.float32(0.9), np.float32(np.nan))
+    filled = np.rint(true).astype(np.float32)
+    kw = dict(min_confidence=0.5, max_lr_gap=0.45, fit="plane", agree=0.2)
+    near = holes & (((xs >= x0 - 16) & (xs < x0)) | ((xs >= x1) & (xs < x1 + 16)))
+    one, _ = confident_growth(left, right, kept, conf, filled, passes=3, **kw)
+    two, c_two = confident_growth(left, right, kept, conf, filled, passes=3, second_radius=5, **kw)
+    # the 33×33 window reaches the strip's stronger texture within 16 px of it and confirms nothing there
+    assert (np.isfinite(one) & near).sum() == 0
+    grown = np.isfinite(two) & holes
+    assert (grown & near).sum() > 0.4 * near.sum() and grown.sum() > 2 * (np.isfinite(one) & holes).sum()
+    assert np.mean(np.abs(two[grown] - true[grown]) < 0.5) > 0.97
+    assert np.all((c_two[grown] >= 0.5) & (c_two[grown] <= 1.0))
+    assert not (np.isfinite(two) & (xs >= x0 - 5) & (xs < x1)).any()  # neither the occluded nor the strip
+    # what the wide window confirmed keeps its value (one pass: the second window only where it did not)
+    a, _ = confident_growth(left, right, kept, conf, filled, **kw)
+    b, _ = confident_growth(left, right, kept, conf, filled, second_radius=5, **kw)
+    assert np.array_equal(b[np.isfinite(a)], a[np.isfinite(a)])
+    # neighbours 1 px off the image: the small window's values break with them too, nothing grows
+    off = np.where(np.isfinite(kept), kept + np.float32(1.0), np.nan).astype(np.float32)
+    d_off, _ = confident_growth(left, right, off, conf, filled, passes=3, second_radius=5, **kw)
+    assert (np.isfinite(d_off) & holes).sum() < 0.02 * holes.sum()
+
+
 def test_neighbour_plane_is_the_weighted_fit_through_the_neighbours_near_the_value():
     import cv2
 

@@ -410,7 +410,9 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
                      filled: np.ndarray, *, grow_radius: int = 16, sigma: float = 8.0, agree: float = 0.3,
                      min_support: float = 0.1, max_spread: float | None = 0.5, passes: int = 1,
                      fit: str = "mean", inlier: float = 1.0, min_share: float = 0.9,
-                     valid_right: np.ndarray | None = None, **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
+                     agree_depth: float | None = None, disparity_offset: float = 0.0,
+                     second_radius: int | None = None, valid_right: np.ndarray | None = None,
+                     **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
     """Add the matcher's dense values that a wide window confirms and that continue the kept surface around
     them, where nothing was kept.
 
@@ -449,9 +451,22 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
         and its value is tested against the weighted plane through the neighbours within ``inlier`` px of it
         (:func:`neighbour_plane`): those must weigh ``min_share`` of all its neighbours and ``min_support``,
         spread less than ``max_spread`` px about the plane, and the plane's value at the pixel must lie
-        within ``agree`` px of the refined one, which is the value kept.
+        within ``agree`` px of the refined one (or ``agree_depth`` of its depth, if more), which is the
+        value kept.
     inlier, min_share : float, float
         See ``fit``.
+    agree_depth : float or None
+        With ``fit="plane"``: the plane may also lie this share of the pixel's depth from the refined
+        value d, ``agree_depth · (d + disparity_offset)`` px, where that is more than ``agree`` (on a rig
+        whose pixel of disparity is a smaller share of depth, the same depth error is more pixels); None:
+        ``agree`` only.
+    disparity_offset : float
+        The pair's d₀, px (the true disparity of a match d is d + d₀, its depth inversely proportional
+        to it).
+    second_radius : int or None
+        With ``fit="plane"``: where the ``grow_radius`` window does not confirm a value, refine and check it
+        with a window of this half-size instead, under the same tests (near an occlusion or a depth edge
+        the wide window reaches the other surface); None: one window.
     valid_right : (H, W) bool, optional
         Valid region of the rectified right view (a value whose right pixel is outside is not tried).
     **kwargs
@@ -479,7 +494,8 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
     for _ in range(passes):
         d2, c2 = _grown(left, right, d, f, grow_radius=grow_radius, sigma=sigma, agree=agree,
                         min_support=min_support, max_spread=max_spread, fit=fit, inlier=inlier,
-                        min_share=min_share, valid_right=valid_right, **kwargs)
+                        min_share=min_share, agree_depth=agree_depth, disparity_offset=disparity_offset,
+                        second_radius=second_radius, valid_right=valid_right, **kwargs)
         add = np.isfinite(d2)
         if not add.any():
             break
@@ -489,6 +505,7 @@ def confident_growth(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
 
 def _grown(left: np.ndarray, right: np.ndarray, d: np.ndarray, f: np.ndarray, *, grow_radius: int, sigma: float,
            agree: float, min_support: float, max_spread: float | None, fit: str, inlier: float, min_share: float,
+           agree_depth: float | None, disparity_offset: float, second_radius: int | None,
            valid_right: np.ndarray | None, **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
     """(H, W) float32 disparities and confidences of one pass of :func:`confident_growth` (the values it adds,
     NaN elsewhere)."""
@@ -508,11 +525,19 @@ def _grown(left: np.ndarray, right: np.ndarray, d: np.ndarray, f: np.ndarray, *,
         with np.errstate(invalid="ignore"):
             add = np.isfinite(d2) & (np.abs(d2 - mean) < agree)
         return np.where(add, d2, nan).astype(np.float32), np.where(add, c2, nan).astype(np.float32)
+    if second_radius is not None:
+        retry = np.isfinite(seeds) & ~np.isfinite(d2)
+        if retry.any():
+            d3, c3 = confident_matches(left, right, np.where(retry, seeds, np.float32(np.nan)).astype(np.float32),
+                                       radius=second_radius, valid_right=valid_right, right_seeds=right_seeds,
+                                       seeds_checked=False, **kwargs)
+            d2, c2 = np.where(retry, d3, d2).astype(np.float32), np.where(retry, c3, c2).astype(np.float32)
     ys, xs = np.nonzero(np.isfinite(d2))
     v = d2[ys, xs].astype(np.float64)
     plane, p_spread, inl, total = neighbour_plane(d, ys, xs, v, sigma=sigma, inlier=inlier)
+    tol = agree if agree_depth is None else np.maximum(agree, agree_depth * (v + disparity_offset))
     with np.errstate(invalid="ignore"):
-        ok = (np.abs(plane - v) < agree) & (inl >= min_support) & (inl >= min_share * total)
+        ok = (np.abs(plane - v) < tol) & (inl >= min_support) & (inl >= min_share * total)
         if max_spread is not None:
             ok &= p_spread < max_spread
     out_d, out_c = nan.copy(), nan.copy()

@@ -223,6 +223,18 @@ class DepthConfig:
     refine_grow_inlier, refine_grow_share : float, float
         See ``refine_grow_fit`` (``refine_grow_fit="mean"`` with ``refine_grow_agree`` 0.3 and
         ``refine_grow_spread`` 0.5 is the growth of stop 34).
+    refine_grow_agree_depth : float or None
+        With ``refine_grow_fit="plane"``, the plane may also lie this share of the pixel's depth from the
+        refined value where that is more than ``refine_grow_agree`` px (``agree_depth`` of
+        :func:`~prismstereo.depth.confidence.confident_growth`): one tolerance in depth for rigs whose pixel
+        of disparity is a different share of depth. The default, 0.22 %, is ``refine_grow_agree`` (0.2 px)
+        at the bi-prism's disparity of a scene at 1.4 m (91 px); None: px only.
+    refine_grow_second_radius : int or None
+        With ``refine_grow_fit="plane"``, where the ``refine_grow_radius`` window does not confirm a value,
+        a window of this half-size is tried under the same tests (``second_radius`` of
+        :func:`~prismstereo.depth.confidence.confident_growth`): near occlusions and depth edges the wide
+        window reaches the other surface, and the plane test bounds the small one's noise on weak texture.
+        None: one window.
     refine_smoothed_below : float or None
         A capture whose pixel-scale noise (:func:`~prismstereo.depth.smoothed.pixel_noise`, grey levels)
         is below this has lost its finest scale to compression or demosaicing (a real camera's capture):
@@ -277,6 +289,8 @@ class DepthConfig:
     refine_grow_fit: str = "plane"
     refine_grow_inlier: float = 1.0
     refine_grow_share: float = 0.9
+    refine_grow_agree_depth: float | None = 0.0022
+    refine_grow_second_radius: int | None = 5
     refine_smoothed_below: float | None = 0.5
     refine_smoothed_retry_below: float = 0.99
     refine_smoothed_fill_agree: float | None = 1.0
@@ -298,11 +312,13 @@ class DepthConfig:
                             "refine_grow_agree": (0.0, None), "refine_grow_sigma": (0.0, 50.0),
                             "refine_grow_spread": (0.0, None), "refine_grow_passes": (1, 10),
                             "refine_grow_inlier": (0.0, None), "refine_grow_share": (0.0, 1.0),
+                            "refine_grow_agree_depth": (0.0, 1.0), "refine_grow_second_radius": (1, 50),
                             "refine_smoothed_below": (0.0, None),
                             "refine_smoothed_retry_below": (0.0, 1.0), "refine_smoothed_fill_agree": (0.0, None),
                             "refine_smoothed_grow_agree": (0.0, None), "refine_smoothed_grow_spread": (0.0, None)},
                      positive=("max_gap_mm", "refine_max_shift", "refine_fill_agree", "refine_grow_agree",
                                "refine_grow_sigma", "refine_grow_spread", "refine_grow_inlier",
+                               "refine_grow_agree_depth",
                                "refine_smoothed_fill_agree", "refine_smoothed_grow_agree",
                                "refine_smoothed_grow_spread"))
         if not isinstance(self.method, str):
@@ -942,7 +958,9 @@ def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, dis
                                       max_spread=config.refine_grow_spread, passes=config.refine_grow_passes,
                                       fit=config.refine_grow_fit, inlier=config.refine_grow_inlier,
                                       min_share=config.refine_grow_share,
-                                      valid_right=vr_fill, **kw)
+                                      agree_depth=config.refine_grow_agree_depth,
+                                      disparity_offset=pair.disparity_offset,
+                                      second_radius=config.refine_grow_second_radius, valid_right=vr_fill, **kw)
     return disp, conf
 
 

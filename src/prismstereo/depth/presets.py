@@ -83,6 +83,8 @@ PROFILES: dict[str, Preset] = {
         ("refine_grow_fit", "plane"),
         ("refine_grow_inlier", 1.0),
         ("refine_grow_share", 0.9),
+        ("refine_grow_agree_depth", 0.0022),
+        ("refine_grow_second_radius", 5),
         ("refine_smoothed_below", None),
         ("refine_smoothed_retry_below", 0.99),
         ("refine_smoothed_fill_agree", 1.0),
