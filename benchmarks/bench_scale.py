@@ -269,7 +269,7 @@ def main() -> None:
            + [s for s in scenes if s not in SCENES and not s.startswith(PHOTOGRAPHED)]
            + [m for m in modes if m not in ("", "auto", "on", "off")])
     if bad:
-        raise SystemExit(f"expected presets among {PRESETS} and scenes among {SCENES}, got {bad}")
+        raise SystemExit(f"expected presets among {PRESETS} and scenes among {SCENES} or mb:NAME, got {bad}")
     work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="bench_scale-"))
     results: list[dict[str, Any]] = []
     print(f"load average {open('/proc/loadavg').read().split()[:3]}; renders in {work}")
