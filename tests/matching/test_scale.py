@@ -136,6 +136,30 @@ def test_auto_below_the_size_is_the_matcher_itself(scene: tuple) -> None:
     assert on.extras["scale"]["coarse_to_fine"]
 
 
+def test_auto_bands_a_banded_matcher_over_a_wide_range_at_any_size(scene: tuple) -> None:
+    left, right, gt = scene
+    full = get_matcher("bpasw").compute(left, right, max_disp=63, min_disp=0)
+    auto = match(left, right, max_disp=63, method="bpasw", scale=ScaleParams(tile=64, overlap=16))
+    info = auto.extras["scale"]
+    assert info["coarse_to_fine"] and info["band"] == "segment"
+    # every pixel searches around the coarse map: more cross-checked matches, no more errors among them
+    assert auto.valid[:, 64:].mean() > full.valid[:, 64:].mean() + 0.01
+    assert _bad_valid(auto, gt) <= _bad_valid(full, gt) + 0.15
+    assert _bad(auto.disparity, gt) <= _bad(full.disparity, gt) + 1.0
+    # band_range None, a range below it, or a matcher without a band: the size rules alone (the full search)
+    off = match(left, right, max_disp=63, method="bpasw", scale=ScaleParams(band_range=None))
+    assert not off.extras["scale"]["coarse_to_fine"]
+    np.testing.assert_array_equal(off.disparity, full.disparity)
+    narrow = match(left, right, max_disp=63, min_disp=20, method="bpasw", scale=ScaleParams(band_range=48))
+    assert not narrow.extras["scale"]["coarse_to_fine"]  # 44 disparities
+    assert not match(left, right, max_disp=63, method="sgm", scale=ScaleParams()).extras["scale"]["coarse_to_fine"]
+    # the plan follows the same rule: a coarse level and tiles, not the untiled volume
+    assert planned_memory("bpasw", *left.shape[:2], max_disp=63, scale=ScaleParams(band_range=None)) == \
+        PROCESS_BASE + estimate_memory("bpasw", *left.shape[:2], 64, base=False)
+    with pytest.raises(ConfigError, match="band_range"):
+        ScaleParams(band_range=-1)
+
+
 def test_a_tiny_budget_tiles_and_gives_the_untiled_map(scene: tuple) -> None:
     left, right, gt = scene
     untiled = match(left, right, max_disp=63, min_disp=4, method="sgm")

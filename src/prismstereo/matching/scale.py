@@ -101,8 +101,9 @@ class ScaleParams:
     coarse_to_fine : {"auto", "on", "off"}
         ``auto``: coarse-to-fine when the range has at least ``auto_range`` disparities and the image has at
         least ``auto_pixels`` pixels, or the full search's volumes would take more than ``auto_bytes``, or it
-        would exceed the memory budget (else the full search, in strips when over budget); ``on`` / ``off``
-        force it.
+        would exceed the memory budget (else the full search, in strips when over budget), or, for a matcher
+        that takes a band per row segment (``bpasw``, with ``band="segment"``), when the range has at least
+        ``band_range`` disparities whatever the image's size; ``on`` / ``off`` force it.
     auto_pixels, auto_range : int
         The automatic size (pixels, disparities).
     auto_bytes : int
@@ -129,6 +130,11 @@ class ScaleParams:
         ``tile``: one band per tile (the min…max over the tile and its context).
     band_radius, segment, band_context : int
         See ``band`` (full-resolution pixels).
+    band_range : int or None
+        With ``auto``, a matcher that takes a band per row segment searches one (coarse-to-fine) at every size
+        where the range has at least this many disparities: each pixel then searches the coarse map's min…max
+        around it instead of the whole range, which a wide range's false minima would otherwise win (its
+        cross-checked map covers more, and its values are right more often). None: by size and memory only.
     strip_pixels, strip_bytes, strip_overlap : int or None
         For a matcher with its own strips (``coop``): with ``auto``, an untiled match of at least
         ``strip_pixels`` pixels and above ``strip_bytes`` of its own runs in full-range horizontal strips of at
@@ -163,6 +169,7 @@ class ScaleParams:
     segment: int = 32
     band_context: int = 16
     band_pixels: int = 250_000
+    band_range: int | None = 48
     band_tile_cols: int = 2048
     strip_pixels: int | None = None
     strip_bytes: int | None = None
@@ -176,6 +183,8 @@ class ScaleParams:
         if self.factor < 2 or self.margin < 0 or self.tile < 16 or self.overlap < 0:
             raise ConfigError(f"expected factor >= 2, margin >= 0, tile >= 16 and overlap >= 0, got factor="
                               f"{self.factor}, margin={self.margin}, tile={self.tile}, overlap={self.overlap}")
+        if self.band_range is not None and self.band_range < 0:
+            raise ConfigError(f"expected band_range >= 0 disparities (or None), got {self.band_range}")
         if self.auto_pixels < 0 or self.auto_range < 0 or self.auto_bytes < 0 or not 0.0 <= self.min_valid <= 1.0:
             raise ConfigError(f"expected auto_pixels >= 0, auto_range >= 0, auto_bytes >= 0 and 0 <= min_valid <= 1, "
                               f"got {self.auto_pixels}, {self.auto_range}, {self.auto_bytes}, {self.min_valid}")
@@ -269,7 +278,10 @@ class _Tile:
     full: bool  # the band fell back to the whole range
 
 
-def _use_c2f(p: ScaleParams, h: int, w: int, nd: int, over_budget: bool, method: str, top: bool) -> bool:
+def _use_c2f(p: ScaleParams, h: int, w: int, nd: int, over_budget: bool, method: str, top: bool,
+             banded: bool = False) -> bool:
+    """Whether :func:`match_scaled` runs this level coarse-to-fine (``ScaleParams.coarse_to_fine``;
+    ``banded``: the matcher takes a band per row segment with ``band="segment"``)."""
     if p.coarse_to_fine == "off":
         return False
     small = min(h, w) < 4 * p.factor or nd < 4 * p.factor
@@ -277,8 +289,16 @@ def _use_c2f(p: ScaleParams, h: int, w: int, nd: int, over_budget: bool, method:
         return not small
     if top and h * w < p.auto_pixels and str(method).lower() in _FULL_BELOW_AUTO_PIXELS:
         return False  # a coarse level only gives the bands: it may be coarse-to-fine again
+    if top and banded and p.band_range is not None and nd >= max(p.band_range, 4 * p.factor) and not small:
+        return True  # a band per row segment: every pixel searches around the coarse map, not the whole range
     heavy = estimate_memory(method, h, w, nd, base=False) > p.auto_bytes
     return not small and nd >= p.auto_range and (h * w >= p.auto_pixels or heavy or over_budget)
+
+
+def _takes_band(p: ScaleParams, matcher: Matcher) -> bool:
+    """Whether ``matcher`` searches a band per row segment under ``p`` (``band="segment"`` and its
+    ``supports_band``)."""
+    return p.band == "segment" and bool(getattr(matcher, "supports_band", False))
 
 
 def _grid(n: int, size: int) -> list[tuple[int, int]]:
@@ -570,7 +590,7 @@ def planned_memory(method: str, height: int, width: int, *, max_disp: int, min_d
     nd = hi - lo + 1
     h, w = int(height), int(width)
     est_full = p.base + estimate_memory(method, h, w, nd, base=False)
-    if not _use_c2f(p, h, w, nd, est_full > budget, method, _level == 0):
+    if not _use_c2f(p, h, w, nd, est_full > budget, method, _level == 0, _takes_band(p, get_matcher(method))):
         strips = _untiled_strips(method, p, h, w, lo, hi, budget)
         if strips is None:
             return est_full
@@ -642,8 +662,8 @@ def match_scaled(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp
     lo, hi = int(min_disp), int(max_disp)
     nd = hi - lo + 1
     est_full = p.base + estimate_memory(method, h, w, nd, base=False)
-    c2f = _use_c2f(p, h, w, nd, est_full > budget, method, _level == 0)
-    banded = p.band == "segment" and bool(getattr(matcher, "supports_band", False))
+    banded = _takes_band(p, matcher)
+    c2f = _use_c2f(p, h, w, nd, est_full > budget, method, _level == 0, banded)
     if banded and _level > 0 and not c2f and p.coarse_to_fine != "off" and h * w >= p.band_pixels:
         # a coarse level of a banded matcher: its own bands cost less than its full search
         c2f = _use_c2f(dataclasses.replace(p, coarse_to_fine="on"), h, w, nd, False, method, False) \
