@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
+from prismstereo.apps.cli import main
 from prismstereo.apps.demo import demo_rig, plane_scene
 from prismstereo.batch.stream import open_source, run_stream, source_kind
 from prismstereo.depth import DepthConfig, prepare_depth, run_depth_frame
@@ -204,7 +205,12 @@ def test_temporal_prior_bands_the_next_frame_and_a_scene_cut_is_matched_again(  
     setup = prepare_depth(rig, config=fast)
     alone = run_depth_frame(setup, images[2])
     np.testing.assert_array_equal(got[2].disparity, alone.disparity)
-    # without the prior every frame searches the whole range
+    # without the prior every frame searches the whole range (the library, and the command's option)
     off = run_stream(rig, str(src), tmp_path / "off", config=fast, temporal=None)
     assert off.frames == 4
     assert json.loads((tmp_path / "off" / "stream.json").read_text())["temporal_prior"] is None
+    rig_toml = tmp_path / "rig.toml"
+    rig.save(rig_toml)
+    assert main(["stream", str(rig_toml), str(src), "-o", str(tmp_path / "cli"), "--depth-range", "1000,1700",
+                 "--max-frames", "2", "--no-temporal-prior"]) == 0
+    assert json.loads((tmp_path / "cli" / "stream.json").read_text())["temporal_prior"] is None
