@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from prismstereo.matching.local._sgm import _check_row, _p2, _step
+from prismstereo.matching.local._sgm import check_row, edge_p2, path_step
 from prismstereo.matching.local.costs import popcount64
 
 __all__ = ["census_band_kernel", "select_band_kernel", "sgm_band_kernel"]
@@ -88,7 +88,7 @@ def _band_update(cost: np.ndarray, base: int, lo: int, hi: int, src: np.ndarray,
     jump = t(qmin + p2)
     best = 1 << 30
     for d in range(lo, hi + 1):
-        v = t(_step(src, sk, sx, d + 1, q1, jump) - m + t(cost[base + d]))
+        v = t(path_step(src, sk, sx, d + 1, q1, jump) - m + t(cost[base + d]))
         dst[dk, dx, d + 1] = v
         acc[d] = t(acc[d] + v)
         best = min(best, int(v))
@@ -97,7 +97,7 @@ def _band_update(cost: np.ndarray, base: int, lo: int, hi: int, src: np.ndarray,
 
 @njit(cache=True)
 def _ustep(p: np.ndarray, k: int, x: int, i: np.uint64, q1: int, jump: int) -> int:  # pragma: no cover - numba
-    """:func:`~prismstereo.matching.local._sgm._step` at the unsigned index ``i``: numba checks a signed index
+    """:func:`~prismstereo.matching.local._sgm.path_step` at the unsigned index ``i``: numba checks a signed index
     for a negative (wrap-around) value, an unsigned one not, so that LLVM vectorises a loop over a band whose
     start is known only at run time."""
     t = p.dtype.type
@@ -172,10 +172,10 @@ def _band_scan(cost: np.ndarray, gray: np.ndarray, blo: np.ndarray, bhi: np.ndar
                 _fence(prev, 0, xa, lo, hi, int(blo[yp, xa]), int(bhi[yp, xa]), pad)
                 _fence(prev, 1, x, lo, hi, int(blo[yp, x]), int(bhi[yp, x]), pad)
                 _fence(prev, 2, xc, lo, hi, int(blo[yp, xc]), int(bhi[yp, xc]), pad)
-                jumps = (hmin + _p2(gray, y, x, y, xa, p1, p2, gamma),
-                         prev_min[0, xa] + _p2(gray, y, x, yp, xa, p1, p2, gamma),
-                         prev_min[1, x] + _p2(gray, y, x, yp, x, p1, p2, gamma),
-                         prev_min[2, xc] + _p2(gray, y, x, yp, xc, p1, p2, gamma))
+                jumps = (hmin + edge_p2(gray, y, x, y, xa, p1, p2, gamma),
+                         prev_min[0, xa] + edge_p2(gray, y, x, yp, xa, p1, p2, gamma),
+                         prev_min[1, x] + edge_p2(gray, y, x, yp, x, p1, p2, gamma),
+                         prev_min[2, xc] + edge_p2(gray, y, x, yp, xc, p1, p2, gamma))
                 ub = np.uint64(base)
                 for d in range(np.uint64(lo), np.uint64(hi + 1)):
                     c[d] = cost[ub + d]
@@ -191,7 +191,7 @@ def _band_scan(cost: np.ndarray, gray: np.ndarray, blo: np.ndarray, bhi: np.ndar
             else:
                 xq = x - s
                 hmin = _band_update(cost, base, lo, hi, hor, hs, 0, int(blo[y, xq]), int(bhi[y, xq]), hmin, p1,
-                                    _p2(gray, y, x, y, xq, p1, p2, gamma), pad, hor, 1 - hs, 0, acc)
+                                    edge_p2(gray, y, x, y, xq, p1, p2, gamma), pad, hor, 1 - hs, 0, acc)
             for k in range(3):
                 xq = x + (k - 1) * s
                 if yi == 0 or xq < 0 or xq >= w:
@@ -199,7 +199,7 @@ def _band_scan(cost: np.ndarray, gray: np.ndarray, blo: np.ndarray, bhi: np.ndar
                 else:
                     cur_min[k, x] = _band_update(cost, base, lo, hi, prev, k, xq, int(blo[yp, xq]),
                                                  int(bhi[yp, xq]), prev_min[k, xq], p1,
-                                                 _p2(gray, y, x, yp, xq, p1, p2, gamma), pad, cur, k, x, acc)
+                                                 edge_p2(gray, y, x, yp, xq, p1, p2, gamma), pad, cur, k, x, acc)
             for d in range(lo, hi + 1):
                 out[base + d] = np.uint16(acc[d])
 
@@ -273,5 +273,5 @@ def select_band_kernel(fwd: np.ndarray, bwd: np.ndarray, blo: np.ndarray, bhi: n
                 if den > 0:
                     d += (cm - cp) / (2.0 * den)
             disp[y, x] = d + min_disp
-        _check_row(y, min_disp, tolerance, rarg, disp, win, code)
+        check_row(y, min_disp, tolerance, rarg, disp, win, code)
     return disp, win, code
