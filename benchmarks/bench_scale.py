@@ -25,7 +25,12 @@ coarse-to-fine forced on and off (one child each) and prints, per preset and siz
 of median depth error and coverage (the issue's "accuracy does not pay": within 0.02 points and 2 points).
 ``--stream`` adds a streaming run (:func:`prismstereo.batch.stream.run_stream`, ``fast``) over a lossless
 video of ``--stream-frames`` renders at the first size, once with the depth range :data:`STREAM_RANGE_MM`
-given and once without (the stream narrows the rig's range with the first frame): frames/s.
+given and once without (the stream narrows the rig's range with the first frame): frames/s; each with the stream's
+temporal prior on and off (``--stream-prior``: the previous frame's matches as each pixel's band,
+:mod:`prismstereo.matching.temporal`). ``--stream-motion N`` streams N renders of a moving scene instead of
+copies (the robot's objects walking 1.5 mm right and 15 mm nearer per frame; from frame ``N - N // 4`` a cut to the
+``plane`` scene), with the range given, prior on and off in one child, and prints each frame's accuracy against
+its ground truth in both (off = the per-frame path).
 
     NUMBA_CACHE_DIR=.numba_cache PYTHONPATH=src .venv/bin/python benchmarks/bench_scale.py \\
         --sizes 1024,2048 --presets fast,balanced --scenes robot [--stream] [--json out.json]
@@ -149,11 +154,51 @@ def _depth_child(folder: Path, what: str) -> dict[str, Any]:
             "load": open("/proc/loadavg").read().split()[0]}
 
 
-def _stream_child(folder: Path, frames: int, given: bool = True) -> dict[str, Any]:
-    """A fast stream over a lossless video of ``frames`` copies of the capture (a child process); ``given``:
-    with :data:`STREAM_RANGE_MM`, else the stream narrows the rig's range with the first frame."""
+#: the moving scene of ``--stream-motion``: the robot's objects move this far per frame (mm, camera frame)
+MOTION_MM = (1.5, 0.0, -15.0)
+
+
+def _render_motion(width: int, folder: Path, frames: int) -> None:
+    """``--stream-motion``: frame_<k>.png and depth_gt_<k>.pfm of the moving robot scene, a cut to the ``plane``
+    scene from frame ``frames - frames // 4`` (in a child)."""
+    from dataclasses import replace
+
+    from prismstereo.apps.demo import plane_scene
+    from prismstereo.io import write_image, write_pfm
+    from prismstereo.simulate import render_capture, robot_scene
+
+    rig, robot = robot_scene(width=width)
+    folder.mkdir(parents=True, exist_ok=True)
+    rig.save(folder / "rig.toml")
+    cut = frames - frames // 4
+    for k in range(frames):
+        if k < cut:
+            objs = list(robot.objects)
+            moved = [o if o.name in ("wall", "floor") else
+                     replace(o, center=tuple(c + k * m for c, m in zip(o.center, MOTION_MM, strict=True)))
+                     for o in objs]
+            scene = replace(robot, objects=tuple(moved))
+        else:
+            scene = plane_scene(1400.0, tilt_deg=25.0)
+        cap = render_capture(rig, scene)
+        write_image(folder / f"frame_{k:03d}.png", cap.image)
+        write_pfm(folder / f"depth_gt_{k:03d}.pfm", cap.depth)
+
+
+def _video_of(images: list[Any], path: Path) -> Path:
     import cv2
 
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter.fourcc(*"FFV1"), 10.0, (images[0].shape[1], images[0].shape[0]))
+    for img in images:
+        vw.write(cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    vw.release()
+    return path
+
+
+def _stream_child(folder: Path, frames: int, given: bool = True, prior: bool = True) -> dict[str, Any]:
+    """A fast stream over a lossless video of ``frames`` copies of the capture (a child process); ``given``:
+    with :data:`STREAM_RANGE_MM`, else the stream narrows the rig's range with the first frame; ``prior``: the
+    stream's temporal prior on (its default) or off."""
     from prismstereo.batch.stream import run_stream
     from prismstereo.config import load_rig
     from prismstereo.depth import DepthConfig
@@ -162,22 +207,60 @@ def _stream_child(folder: Path, frames: int, given: bool = True) -> dict[str, An
 
     rig = load_rig(folder / "rig.toml")
     img = read_image(folder / "capture.png")
+    temporal = {} if prior else {"temporal": None}
     with tempfile.TemporaryDirectory() as tmp:
-        video = Path(tmp) / "caps.avi"
-        vw = cv2.VideoWriter(str(video), cv2.VideoWriter.fourcc(*"FFV1"), 10.0, (img.shape[1], img.shape[0]))
-        bgr = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
-        for _ in range(frames):
-            vw.write(bgr)
-        vw.release()
-        # warm: numba's kernels loaded and the set-up cached, on the first frame
+        video = _video_of([img] * frames, Path(tmp) / "caps.avi")
+        # warm: numba's kernels loaded and the set-up cached, on the first frames (a banded one among them)
         cfg = apply_preset(DepthConfig(depth_range=STREAM_RANGE_MM if given else None), "fast", given=["depth_range"])
-        run_stream(rig, str(video), Path(tmp) / "warm", config=cfg, max_frames=1, preset="fast")
-        s = run_stream(rig, str(video), Path(tmp) / "out", config=cfg, preset="fast")
+        run_stream(rig, str(video), Path(tmp) / "warm", config=cfg, max_frames=2, preset="fast", **temporal)
+        c = time.process_time()
+        s = run_stream(rig, str(video), Path(tmp) / "out", config=cfg, preset="fast", **temporal)
+        cpu = time.process_time() - c
         info = json.loads((Path(tmp) / "out" / "stream.json").read_text())
     return {"frames": s.frames, "frames_per_s": round(s.frames_per_s, 3), "stage_s": s.stage_s,
+            "cpu_per_frame": round(cpu / max(s.frames, 1), 4), "prior": prior,
+            "temporal": (info.get("temporal_prior") or {}).get("frames"),
             "range": "given" if given else "narrowed by the first frame",
             "disparity_range": info["disparity_range"], "range_searches": info.get("range_searches", 0),
             "setup_s": round(s.setup_s, 3), "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20}
+
+
+def _motion_child(folder: Path, frames: int) -> dict[str, Any]:
+    """``--stream-motion``: the moving scene's frames streamed with the prior off and on (range given), each
+    frame's accuracy against its ground truth, frames/s and CPU seconds per frame of both."""
+    from prismstereo.batch.stream import run_stream
+    from prismstereo.config import load_rig
+    from prismstereo.depth import DepthConfig
+    from prismstereo.depth.presets import apply_preset
+    from prismstereo.evaluation.depth_metrics import evaluate_depth, read_depth_gt
+    from prismstereo.io import read_image
+
+    rig = load_rig(folder / "rig.toml")
+    images = [read_image(folder / f"frame_{k:03d}.png") for k in range(frames)]
+    gts = [read_depth_gt(folder / f"depth_gt_{k:03d}.pfm", rig) for k in range(frames)]
+    cfg = apply_preset(DepthConfig(depth_range=STREAM_RANGE_MM), "fast", given=["depth_range"])
+    out: dict[str, Any] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        video = _video_of(images, Path(tmp) / "moving.avi")
+        run_stream(rig, str(video), Path(tmp) / "warm", config=cfg, max_frames=2, preset="fast")
+        for name, temporal in (("off", {"temporal": None}), ("on", {})):
+            runs: list[Any] = []
+            c = time.process_time()
+            s = run_stream(rig, str(video), Path(tmp) / name, config=cfg, preset="fast",
+                           on_frame=lambda _, res, runs=runs: runs.append(res), **temporal)
+            cpu = time.process_time() - c
+            accs = []
+            for res, gt in zip(runs, gts, strict=True):
+                a = evaluate_depth(res, depth_gt=gt)
+                accs.append({"median_rel": a["median_rel"], "within_1pct": a["within_1pct"],
+                             "coverage": a["coverage"], "match": res.match_info.get("band_mean")})
+            info = json.loads((Path(tmp) / name / "stream.json").read_text())
+            kinds = [json.loads((Path(tmp) / name / "frames" / f"moving_{k:06d}" / "frame.json").read_text())["match"]
+                     for k in range(frames)]
+            out[name] = {"frames_per_s": round(s.frames_per_s, 3), "cpu_per_frame": round(cpu / max(s.frames, 1), 4),
+                         "stage_s": s.stage_s, "accuracy": accs, "kinds": kinds,
+                         "temporal": (info.get("temporal_prior") or {}).get("frames")}
+    return out
 
 
 def _child(args: list[str]) -> dict[str, Any]:
@@ -234,6 +317,9 @@ def main() -> None:
                                                       "validation scene of bench_real_scenes.py (mb:Adirondack)")
     ap.add_argument("--stream", action="store_true", help="also a fast stream at the first size: frames/s")
     ap.add_argument("--stream-frames", type=int, default=12)
+    ap.add_argument("--stream-prior", default="on,off", help="the stream's temporal prior: on, off or on,off")
+    ap.add_argument("--stream-motion", type=int, default=0, metavar="N",
+                    help="also stream N renders of a moving scene (a cut at the last quarter), prior on and off")
     ap.add_argument("--c2f", default=None, metavar="MODES",
                     help="coarse-to-fine modes to run each preset with (auto,on,off; default: auto only)")
     ap.add_argument("--json", default=None, help="write the measurements here")
@@ -249,9 +335,15 @@ def main() -> None:
             print(json.dumps({"ok": True}))
         elif kind == "depth":
             print(json.dumps(_depth_child(Path(folder), what)))
+        elif kind == "motion-render":
+            width, _, frames = what.partition(":")
+            _render_motion(int(width), Path(folder), int(frames))
+            print(json.dumps({"ok": True}))
+        elif kind == "motion":
+            print(json.dumps(_motion_child(Path(folder), int(what))))
         else:
-            frames, _, rng = what.partition(":")
-            print(json.dumps(_stream_child(Path(folder), int(frames), given=rng != "auto")))
+            frames, rng, prior = (what.split(":") + ["on"])[:3]
+            print(json.dumps(_stream_child(Path(folder), int(frames), given=rng != "auto", prior=prior == "on")))
         return
     if args.table is not None:
         rows = json.loads(Path(args.table).read_text())
@@ -290,19 +382,41 @@ def main() -> None:
                     r = _child(["--child", "depth", str(folder), f"{preset}:{mode}" if mode else preset])
                     results.append({"scene": scene, "width": width, "preset": preset, "mode": mode, **r})
                     print(_row(scene, width, preset, r), flush=True)
-    for rng in ("given", "auto") if args.stream else ():
+    priors = [p.strip() for p in args.stream_prior.split(",")]
+    for rng, prior in ((r_, p_) for r_ in ("given", "auto") for p_ in priors) if args.stream else ():
         folder = work / f"{scenes[0].replace(':', '-')}-{sizes[0]}"
-        r = _child(["--child", "stream", str(folder), f"{args.stream_frames}:{rng}"])
+        r = _child(["--child", "stream", str(folder), f"{args.stream_frames}:{rng}:{prior}"])
         results.append({"scene": scenes[0], "width": sizes[0], "stream": True, **r})
         if "error" in r:
             print(f"stream: failed: {r['error']}")
         else:
             s = r["stage_s"]
             print(f"stream ({scenes[0]}, {sizes[0]}×{sizes[0] * 3 // 4}, fast, {r['frames']} frames, depth range "
-                  f"{r['range']}: {r['disparity_range']} px, {r['range_searches']} searches): "
-                  f"{r['frames_per_s']:.2f} frames/s (per frame: read {s['read']:.3f} s, depth {s['depth']:.3f} s, "
-                  f"write {s['write']:.3f} s, overlapped), peak RSS {r['peak_rss_gb']:.2f} GB, "
-                  f"load {open('/proc/loadavg').read().split()[0]}", flush=True)
+                  f"{r['range']}: {r['disparity_range']} px, {r['range_searches']} searches, prior {prior} "
+                  f"{r.get('temporal') or ''}): {r['frames_per_s']:.2f} frames/s, CPU {r['cpu_per_frame']:.3f} s a "
+                  f"frame (per frame: read {s['read']:.3f} s, depth {s['depth']:.3f} s, write {s['write']:.3f} s, "
+                  f"overlapped), peak RSS {r['peak_rss_gb']:.2f} GB, load {open('/proc/loadavg').read().split()[0]}",
+                  flush=True)
+    if args.stream_motion:
+        folder = work / f"motion-{sizes[0]}-{args.stream_motion}"
+        if not (folder / f"frame_{args.stream_motion - 1:03d}.png").is_file():
+            _child(["--child", "motion-render", str(folder), f"{sizes[0]}:{args.stream_motion}"])
+        r = _child(["--child", "motion", str(folder), str(args.stream_motion)])
+        results.append({"scene": "motion", "width": sizes[0], "stream": True, **r})
+        if "error" in r:
+            print(f"moving stream: failed: {r['error']}")
+        else:
+            for name in ("off", "on"):
+                m = r[name]
+                print(f"moving stream, prior {name}: {m['frames_per_s']:.2f} frames/s, CPU {m['cpu_per_frame']:.3f} s "
+                      f"a frame, depth {m['stage_s']['depth']:.3f} s a frame, {m['temporal']}")
+            print("| frame | match (on) | median err off / on | within 1 % off / on | coverage off / on |")
+            print("|---|---|---|---|---|")
+            for k, (a, b) in enumerate(zip(r["off"]["accuracy"], r["on"]["accuracy"], strict=True)):
+                print(f"| {k} | {r['on']['kinds'][k]} (band {b['match'] or '-'}) | {100 * a['median_rel']:.4f} / "
+                      f"{100 * b['median_rel']:.4f} % | {100 * a['within_1pct']:.2f} / "
+                      f"{100 * b['within_1pct']:.2f} % | {100 * a['coverage']:.2f} / {100 * b['coverage']:.2f} % |")
+            print(f"load {open('/proc/loadavg').read().split()[0]}", flush=True)
     lines = _c2f_rows(results)
     if lines:
         print("\n| scene | capture | preset | median depth err on − off (points) | coverage on − off (points) | "

@@ -12,9 +12,10 @@ import cv2
 import numpy as np
 import pytest
 
+from prismstereo.apps.cli import main
 from prismstereo.apps.demo import demo_rig, plane_scene
 from prismstereo.batch.stream import open_source, run_stream, source_kind
-from prismstereo.depth import DepthConfig, prepare_depth
+from prismstereo.depth import DepthConfig, prepare_depth, run_depth_frame
 from prismstereo.depth.presets import apply_preset
 from prismstereo.errors import ConfigError, ImageError
 from prismstereo.evaluation.depth_metrics import evaluate_depth
@@ -180,3 +181,36 @@ def test_stream_narrows_the_rig_range_and_searches_again_when_the_scene_leaves_i
     first, second = (r.disparity_range for r in got)
     assert rig_hi - rig_lo > 2 * (first[1] - first[0]) and second != first
     _accurate(got, [scenes[2], scenes[0]])
+
+
+def test_temporal_prior_bands_the_next_frame_and_a_scene_cut_is_matched_again(  # type: ignore[no-untyped-def]
+        tmp_path: Path, captures) -> None:
+    rig, scenes, images = captures
+    # the near plane twice, a cut to the far plane (its disparities outside the near one's bands), the far twice
+    order = [0, 0, 2, 2]
+    src = _video(tmp_path / "caps.avi", [images[i] for i in order])
+    fast = apply_preset(CONFIG, "fast", given=["depth_range"])
+    got: list = []
+    summary = run_stream(rig, str(src), tmp_path / "out", config=fast, on_frame=lambda n, r: got.append(r))
+    assert summary.frames == 4 and not summary.failed
+    info = json.loads((tmp_path / "out" / "stream.json").read_text())
+    frames = info["temporal_prior"]["frames"]
+    assert frames == {"banded": 2, "full": 2, "matched_again": 1}, frames
+    kinds = [json.loads((tmp_path / "out" / "frames" / f"caps_{i:06d}" / "frame.json").read_text())["match"]
+             for i in range(4)]
+    assert kinds == ["full", "banded", "matched again", "banded"]
+    assert got[1].match_info["temporal_band"] and got[1].match_info["band_mean"] < 20
+    _accurate(got, [scenes[i] for i in order])
+    # the cut frame is the per-frame (whole-range) result, not a smear of the previous scene
+    setup = prepare_depth(rig, config=fast)
+    alone = run_depth_frame(setup, images[2])
+    np.testing.assert_array_equal(got[2].disparity, alone.disparity)
+    # without the prior every frame searches the whole range (the library, and the command's option)
+    off = run_stream(rig, str(src), tmp_path / "off", config=fast, temporal=None)
+    assert off.frames == 4
+    assert json.loads((tmp_path / "off" / "stream.json").read_text())["temporal_prior"] is None
+    rig_toml = tmp_path / "rig.toml"
+    rig.save(rig_toml)
+    assert main(["stream", str(rig_toml), str(src), "-o", str(tmp_path / "cli"), "--depth-range", "1000,1700",
+                 "--max-frames", "2", "--no-temporal-prior"]) == 0
+    assert json.loads((tmp_path / "cli" / "stream.json").read_text())["temporal_prior"] is None

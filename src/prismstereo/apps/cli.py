@@ -560,6 +560,9 @@ def _add_stream(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--idle-timeout", type=float, default=10.0, metavar="S",
                    help="folder source: stop after S seconds without a new image (default 10)")
     p.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
+    p.add_argument("--no-temporal-prior", action="store_true",
+                   help="search every frame's whole range (default: sgm searches a band around the previous frame's "
+                        "matches, with a full frame every 10 and where the band fails its check)")
     p.set_defaults(handler=_cmd_stream)
 
 
@@ -576,7 +579,8 @@ def _cmd_stream(args: argparse.Namespace) -> int:
                           depth_range=depth_range, roi=_parse_roi(args.roi), views=_parse_views(args.views),
                           triangulation=args.triangulation, refine=not args.no_refine,
                           min_confidence=args.min_confidence, outputs=args.outputs, video=args.video,
-                          video_fps=args.video_fps, idle_timeout=args.idle_timeout, max_frames=args.max_frames)
+                          video_fps=args.video_fps, idle_timeout=args.idle_timeout, max_frames=args.max_frames,
+                          temporal_prior=not args.no_temporal_prior)
 
 
 _ADDERS.append(_add_stream)

@@ -26,6 +26,7 @@ from prismstereo.apps.demo import demo_rig, plane_scene, scaled_rig
 from prismstereo.depth import DepthConfig, run_depth
 from prismstereo.errors import ConfigError
 from prismstereo.matching import available_matchers, match
+from prismstereo.matching.temporal import BANDED_MATCHERS
 from prismstereo.multiview.api import match_multiview
 from prismstereo.simulate import render_capture
 
@@ -81,6 +82,9 @@ def _warm_item(item: tuple[str, str]) -> float:
     if kind == "match":
         left, right = _pair()
         match(left, right, max_disp=8, method=name)
+        if name in BANDED_MATCHERS:  # a stream's banded frames (the temporal prior) run its banded kernels
+            lo = np.full(left.shape[:2], 2, dtype=np.int32)
+            match(left, right, max_disp=8, method=name, band=(lo, lo + 4))
     elif kind == "depth":
         # the pipeline's own kernels (renderer, refinement, triangulation) with OpenCV's SGBM, which compiles
         # nothing: the matchers' kernels are the "match" items' (the pipeline calls them on contiguous uint8

@@ -27,6 +27,13 @@ comes back with ``interrupted`` set; no frame folder is left half-written. A sec
 A frame of the wrong size from a camera or video is an error before the first depth (the whole stream
 would be); in a folder it is that frame's failure (logged, counted) and the stream goes on.
 
+With ``temporal`` (a :class:`~prismstereo.matching.temporal.TemporalPrior`, on by default for a matcher that searches
+per-pixel bands, ``sgm``: the ``fast`` preset), a frame is matched within a band around the previous frame's matches
+(:func:`~prismstereo.matching.temporal.prior_band`) instead of the whole range; a frame whose banded matches fail the
+check (:func:`~prismstereo.matching.temporal.band_failed`: a scene cut, a fast motion) is matched again over the
+whole range, and every ``keyframe_every``-th frame, the first and every one after a change of the range are full
+ones. ``stream.json`` records the rules and how many frames were banded, full and matched again.
+
 Without a configured depth range (``narrow_range``, default on) the first frame's images narrow the
 rig's range as :func:`~prismstereo.depth.pipeline.run_depth` does for one capture (the rig's whole range
 is ~5× the disparities of a room-sized scene: 394 against 75 px on the 1024×768 robot rig), and the
@@ -71,6 +78,7 @@ from prismstereo.errors import ConfigError, GeometryError, ImageError
 from prismstereo.io import read_image, write_json
 from prismstereo.io.atomic import check_output_dir
 from prismstereo.matching.diagnostics import LIMIT_SHARE, limit_shares
+from prismstereo.matching.temporal import BANDED_MATCHERS, DEFAULT_PRIOR, TemporalPrior, band_failed, prior_band
 from prismstereo.viz.colorize import colorize_depth
 
 log = logging.getLogger(__name__)
@@ -311,7 +319,8 @@ def run_stream(rig: Rig, source: str, out: str | os.PathLike[str], *, config: De
                video_fps: float = 10.0, idle_timeout: float = 10.0, poll_s: float = 0.2, queue_size: int = 2,
                max_frames: int | None = None, on_frame: Callable[[str, DepthRun], None] | None = None,
                echo: Callable[[str], None] | None = None, report_every: float = 2.0,
-               narrow_range: bool = True, preset: str | None = None) -> StreamSummary:
+               narrow_range: bool = True, preset: str | None = None,
+               temporal: TemporalPrior | None = DEFAULT_PRIOR) -> StreamSummary:
     """Depth of every frame of ``source`` as it arrives, into ``out/frames/<name>/`` (module docstring).
 
     Parameters
@@ -343,6 +352,10 @@ def run_stream(rig: Rig, source: str, out: str | os.PathLike[str], *, config: De
     preset : str, optional
         The preset ``config`` was resolved from (:func:`~prismstereo.depth.presets.apply_preset`), recorded in
         ``stream.json`` with its settings as resolved (``preset_profile``).
+    temporal : TemporalPrior or None
+        Match each frame within a band around the previous frame's matches (module docstring), for a matcher of
+        :data:`~prismstereo.matching.temporal.BANDED_MATCHERS` (others: not used); None: every frame searches
+        the whole range.
 
     Returns
     -------
@@ -392,6 +405,7 @@ def run_stream(rig: Rig, source: str, out: str | os.PathLike[str], *, config: De
     errors: list[BaseException] = []
     narrow = narrow_range and setup.config.depth_range is None
     current, searches = setup, 0
+    prior = _Prior(temporal if setup.config.method in BANDED_MATCHERS else None)
 
     def reader() -> None:
         n = 0
@@ -450,11 +464,11 @@ def run_stream(rig: Rig, source: str, out: str | os.PathLike[str], *, config: De
                 if narrow and current.region.source != "rig+images":
                     current = _narrowed(setup, item.image)
                     searches += 1
-                res = run_depth_frame(current, item.image)
+                res = prior.depth(current, item.image)
                 if narrow and _left_band(res, current, setup):
                     current = _narrowed(setup, item.image)
                     searches += 1
-                    res = run_depth_frame(current, item.image)
+                    res = prior.depth(current, item.image)
             except (ImageError, ConfigError) as exc:
                 summary.failed.append((item.name, _line(exc)))
                 log.warning("frame %s: %s", item.name, _line(exc))
@@ -462,7 +476,7 @@ def run_stream(rig: Rig, source: str, out: str | os.PathLike[str], *, config: De
             sums["depth"] += time.perf_counter() - t0
             c = res.counts()
             row = {"name": item.name, "source": str(source), "status": "ok", "points": c["points"],
-                   "t_depth_s": res.timings.get("total", 0.0)}
+                   "t_depth_s": res.timings.get("total", 0.0), "match": prior.last}
             out_q.put((item.name, res, row))
             now = time.perf_counter()
             if echo is not None and now - last_report >= report_every:
@@ -492,6 +506,7 @@ def run_stream(rig: Rig, source: str, out: str | os.PathLike[str], *, config: De
                                          "depth_range_mm": [round(z, 1) for z in current.depth_range],
                                          "depth_range_source": current.region.source,
                                          "range_searches": searches,
+                                         "temporal_prior": prior.record(),
                                          "setup_s": round(summary.setup_s, 4), "frames": summary.frames,
                                          "failed": [list(f) for f in summary.failed],
                                          "wall_s": round(summary.wall_s, 4),
@@ -501,6 +516,61 @@ def run_stream(rig: Rig, source: str, out: str | os.PathLike[str], *, config: De
     if errors and not summary.interrupted:
         raise errors[0]
     return summary
+
+
+class _Prior:
+    """A stream's temporal prior (module docstring): the previous frame's matches, the frames since the last
+    full one, and the counts for ``stream.json``. Used by the depth thread only."""
+
+    def __init__(self, rules: TemporalPrior | None) -> None:
+        self.rules = rules
+        self.previous: np.ndarray | None = None
+        self.range: tuple[int, int] | None = None
+        self.since_full = 0
+        self.reference = 0
+        self.last = "full"
+        self.counts = {"banded": 0, "full": 0, "matched_again": 0}
+
+    def depth(self, setup: DepthSetup, image: np.ndarray) -> DepthRun:
+        """The frame's depth: banded where the rules allow and the banded matches pass the check, else over the
+        whole range."""
+        rules, band = self.rules, None
+        lo, hi = setup.disparity_range
+        if (rules is not None and self.previous is not None and self.range == (lo, hi)
+                and self.since_full + 1 < rules.keyframe_every):
+            band = prior_band(self.previous, min_disp=lo, max_disp=hi, radius=rules.radius,
+                              wide_radius=rules.wide_radius, margin=rules.margin)
+            if band.full_share > rules.max_full_share:
+                band = None
+        res = run_depth_frame(setup, image, band=band)
+        self.last = "full"
+        if band is not None and rules is not None and res.raw_disparity is not None:
+            why = band_failed(res.raw_disparity, band, min_disp=lo, max_disp=hi, reference_matches=self.reference,
+                              rules=rules)
+            if why:
+                log.info("stream: the banded match failed its check (%s): matched again over the whole range", why)
+                self.counts["matched_again"] += 1
+                res = run_depth_frame(setup, image)
+                band = None
+                self.last = "matched again"
+            else:
+                self.last = "banded"
+        if band is None:
+            self.since_full = 0
+            self.counts["full"] += 1
+            self.reference = 0 if res.raw_disparity is None else int(np.isfinite(res.raw_disparity).sum())
+        else:
+            self.since_full += 1
+            self.counts["banded"] += 1
+        self.previous, self.range = res.raw_disparity, (lo, hi)
+        return res
+
+    def record(self) -> dict[str, Any] | None:
+        """``stream.json``'s ``temporal_prior``: the rules and the frames banded, full and matched again (None:
+        not used)."""
+        if self.rules is None:
+            return None
+        return {**self.rules.to_dict(), "frames": dict(self.counts)}
 
 
 def _narrowed(setup: DepthSetup, image: np.ndarray) -> DepthSetup:

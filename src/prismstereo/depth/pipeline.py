@@ -76,6 +76,7 @@ from prismstereo.io.jsonio import library_versions
 from prismstereo.matching import available_matchers, match
 from prismstereo.matching.registry import resolved_params
 from prismstereo.matching.scale import ScaleParams
+from prismstereo.matching.temporal import PriorBand
 from prismstereo.multiview.prism import SweepParams, depth_all_views
 from prismstereo.progress import progress_bar
 from prismstereo.rectify import RectifiedPair, common_view, rectify_pair
@@ -869,10 +870,13 @@ def needs_dense_map(config: DepthConfig) -> bool:
 
 
 def match_pair(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, region: SearchRegion,
-               config: DepthConfig) -> Disparities:
+               config: DepthConfig, *, band: PriorBand | None = None) -> Disparities:
     """Match the region's bounding box with the configuration's matcher; keep matches inside the right view.
     The matcher's dense map (``filled``) only where the run reads it (:func:`needs_dense_map`), else None and
-    the matcher's hole filling skipped (``info["dense_map"]`` False)."""
+    the matcher's hole filling skipped (``info["dense_map"]`` False). ``band``: each pixel's search band on the
+    rectified left grid (:func:`~prismstereo.matching.temporal.prior_band`, a stream's temporal prior), for a
+    matcher of :data:`~prismstereo.matching.temporal.BANDED_MATCHERS` (``info["band_mean"]``: the disparities
+    searched per pixel)."""
     lo, hi = region.disparity_range
     r0, r1, c0, c1 = _roi_box(region.mask)
     # the right image must reach hi pixels to the left of the region
@@ -887,11 +891,16 @@ def match_pair(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, region:
         # the matcher's hole filling (and its median) feeds only the dense map, which this run does not read:
         # the cross-checked matches are the same without it (a quarter of sgm's time at 0.8 MP)
         params["fill"] = False
-    # the budget is the run's: the match gets what the process does not hold already (set-up, capture, maps)
-    res = match(sub_l, sub_r, max_disp=hi_eff, min_disp=lo_eff, method=config.method,
-                scale=ScaleParams(coarse_to_fine=config.coarse_to_fine, max_memory=config.max_memory,
-                                  held=resident_bytes()),
-                **params)
+    crop = (slice(r0, r1), slice(ca, c1))
+    if band is not None:
+        res = match(sub_l, sub_r, max_disp=hi_eff, min_disp=lo_eff, method=config.method,
+                    band=(np.clip(band.lo[crop], lo_eff, hi_eff), np.clip(band.hi[crop], lo_eff, hi_eff)), **params)
+    else:
+        # the budget is the run's: the match gets what the process does not hold already (set-up, capture, maps)
+        res = match(sub_l, sub_r, max_disp=hi_eff, min_disp=lo_eff, method=config.method,
+                    scale=ScaleParams(coarse_to_fine=config.coarse_to_fine, max_memory=config.max_memory,
+                                      held=resident_bytes()),
+                    **params)
     raw_sub = res.disparity_raw if res.disparity_raw is not None else np.where(res.valid, res.disparity, np.nan)
     h, w = left.shape[:2]
     raw = np.full((h, w), np.nan, dtype=np.float32)
@@ -915,6 +924,9 @@ def match_pair(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, region:
     src = src.copy()
     src[bad] = np.nan
     info = dict(res.extras.get("scale", {}))
+    if band is not None:
+        info.update({"temporal_band": True, "band_mean": res.extras.get("band_mean"),
+                     "band_full_share": round(float(band.full[crop].mean()), 4)})
     # the matches passed the matcher's left–right check (coop's map has none: every value is a match)
     info["cross_checked"] = not config.use_filled and config.method not in UNCHECKED_MATCHERS
     if not dense:
@@ -1105,7 +1117,7 @@ def _finish(result: DepthRun, clock: _Clock, t0: float) -> DepthRun:
 
 
 def _run_frame(setup: DepthSetup, image: np.ndarray, left: np.ndarray, right: np.ndarray, clock: _Clock,
-               t0: float) -> DepthRun:
+               t0: float, band: PriorBand | None = None) -> DepthRun:
     cfg, pair, region = smoothed_config(setup.config, image), setup.pair, setup.region
     r0, r1, c0, c1 = _roi_box(region.mask)
     lo, hi = region.disparity_range
@@ -1113,7 +1125,7 @@ def _run_frame(setup: DepthSetup, image: np.ndarray, left: np.ndarray, right: np
     plan = estimate_depth_memory(setup.rig, cfg, shape=(r1 - r0, c1 - max(0, c0 - hi)), disparity_range=(lo, hi))
     log.info("depth: %s", plan.describe())
     with clock.step("match"):
-        matched = match_pair(left, right, pair, region, cfg)
+        matched = match_pair(left, right, pair, region, cfg, band=band)
     counts = {"matched": int(np.isfinite(matched.disparity).sum())}
     with clock.step("refine"):
         filled = None if cfg.use_filled else matched.filled
@@ -1245,7 +1257,8 @@ def prepare_depth(rig: Rig, *, config: DepthConfig | None = None) -> DepthSetup:
                       rays=rays, rig_range=known, timings=dict(clock.timings))
 
 
-def run_depth_frame(setup: DepthSetup, image: Any, *, progress: bool | None = False) -> DepthRun:
+def run_depth_frame(setup: DepthSetup, image: Any, *, progress: bool | None = False,
+                    band: PriorBand | None = None) -> DepthRun:
     """Recover depth from one capture with a prepared set-up (:func:`prepare_depth`).
 
     Parameters
@@ -1255,6 +1268,10 @@ def run_depth_frame(setup: DepthSetup, image: Any, *, progress: bool | None = Fa
         The capture (RGB); its size must be the rig camera's.
     progress : bool, optional
         Show a progress bar per step (default: no).
+    band : PriorBand, optional
+        Each rectified left pixel's disparity band (a stream's temporal prior,
+        :func:`~prismstereo.matching.temporal.prior_band` of an earlier frame's ``raw_disparity``), for a
+        matcher of :data:`~prismstereo.matching.temporal.BANDED_MATCHERS`; None: the whole range.
 
     Returns
     -------
@@ -1273,4 +1290,4 @@ def run_depth_frame(setup: DepthSetup, image: Any, *, progress: bool | None = Fa
     with clock.step("rectify"):
         left, right = rectify_capture(setup.pair, img)
     frame_setup = dataclasses.replace(setup, timings=timings)
-    return _run_frame(frame_setup, img, left, right, clock, t0)
+    return _run_frame(frame_setup, img, left, right, clock, t0, band)

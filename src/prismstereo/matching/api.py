@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from prismstereo.errors import ImageError, MatchingError
+from prismstereo.errors import ConfigError, ImageError, MatchingError
 from prismstereo.io.images import as_image
 from prismstereo.matching.registry import MatchResult, get_matcher
 from prismstereo.matching.scale import match_scaled
@@ -62,7 +62,7 @@ def validate_range(width: int, *, max_disp: Any, min_disp: Any = 0) -> tuple[int
 
 
 def match(left: Any, right: Any, *, max_disp: int, min_disp: int = 0, method: str = "bpasw",
-          scale: Any = None, **params: Any) -> MatchResult:
+          scale: Any = None, band: Any = None, **params: Any) -> MatchResult:
     """Disparity of ``left`` against ``right`` with a registered method.
 
     Inputs are validated before any work.
@@ -81,6 +81,10 @@ def match(left: Any, right: Any, *, max_disp: int, min_disp: int = 0, method: st
     scale : ScaleParams or None (typed Any: a matcher parameter in ``**params`` may be a bool)
         Coarse-to-fine and memory-bounded tiling (:func:`~prismstereo.matching.scale.match_scaled`); None
         runs the matcher once on the whole pair.
+    band : (lo, hi) of (H, W) int arrays, optional (typed Any, as ``scale``)
+        Each pixel's own disparities ``lo .. hi`` (inclusive, within the range), for a matcher that searches
+        per-pixel bands (``compute_banded``: ``sgm``); the match then runs untiled (``scale`` unused) and costs
+        pixels × band (:mod:`prismstereo.matching.temporal`).
     **params
         The method's keyword tuning parameters.
 
@@ -97,6 +101,11 @@ def match(left: Any, right: Any, *, max_disp: int, min_disp: int = 0, method: st
     lo, hi = validate_range(lt.shape[1], max_disp=max_disp, min_disp=min_disp)
     matcher = get_matcher(method, **params)
     log.debug("match %s: %dx%d, d in [%d, %d]", method, lt.shape[1], lt.shape[0], lo, hi)
+    if band is not None:
+        banded = getattr(matcher, "compute_banded", None)
+        if banded is None:
+            raise ConfigError(f"band: expected a matcher that searches per-pixel bands (sgm), got {method!r}")
+        return banded(lt, rt, max_disp=hi, min_disp=lo, band_lo=band[0], band_hi=band[1])  # type: ignore[no-any-return]
     if scale is not None:
         return match_scaled(lt, rt, max_disp=hi, min_disp=lo, method=method, params=params, scale=scale)
     return matcher.compute(lt, rt, max_disp=hi, min_disp=lo)

@@ -7,7 +7,8 @@ from numba import njit, prange
 
 from prismstereo.matching.local.costs import popcount64
 
-__all__ = ["census_codes", "census_kernel", "select_kernel", "sgm_kernel", "sgm_select_kernel"]
+__all__ = ["census_codes", "census_kernel", "check_row", "edge_p2", "path_step", "select_kernel", "sgm_kernel",
+           "sgm_select_kernel"]
 
 @njit(cache=True, parallel=True)
 def census_codes(padded: np.ndarray, ry: int, rx: int) -> np.ndarray:  # pragma: no cover - numba
@@ -80,7 +81,7 @@ def _path_update(c: np.ndarray, prev: np.ndarray, pk: int, px: int, pmin: int, p
 
 
 @njit(cache=True)
-def _step(p: np.ndarray, k: int, x: int, d: int, q1: int, jump: int) -> int:  # pragma: no cover - numba
+def path_step(p: np.ndarray, k: int, x: int, d: int, q1: int, jump: int) -> int:  # pragma: no cover - numba
     """min(L(d), L(d±1) + P1, min L + P2) of path ``k`` at ``x`` for an inner disparity ``d``, in the work
     type: each sum wrapped back to it (no sum overflows it, :func:`_pad_layout`), so that the minima are taken
     on its lanes (numba widens a sum of two int16 to int64: 4× fewer lanes).
@@ -127,10 +128,10 @@ def _four_updates(c: np.ndarray, hor: np.ndarray, hs: int, hmin: int, prev: np.n
     bh, ba, bb, bc = vh, va, vb, vc
     for d in range(1, nd - 1):
         cd = c[d]
-        vh = t(_step(hor, hs, 0, d, q1, jh) - mh + cd)
-        va = t(_step(prev, 0, xa, d, q1, ja) - ma + cd)
-        vb = t(_step(prev, 1, x, d, q1, jb) - mb + cd)
-        vc = t(_step(prev, 2, xc, d, q1, jc) - mc + cd)
+        vh = t(path_step(hor, hs, 0, d, q1, jh) - mh + cd)
+        va = t(path_step(prev, 0, xa, d, q1, ja) - ma + cd)
+        vb = t(path_step(prev, 1, x, d, q1, jb) - mb + cd)
+        vc = t(path_step(prev, 2, xc, d, q1, jc) - mc + cd)
         hor[h0, 0, d] = vh
         cur[0, x, d] = va
         cur[1, x, d] = vb
@@ -165,7 +166,10 @@ def _path_start(c: np.ndarray, dst: np.ndarray, dk: int, dx: int, acc: np.ndarra
 
 
 @njit(cache=True, inline="always")
-def _p2(gray: np.ndarray, y: int, x: int, y0: int, x0: int, p1: int, p2: int, gamma: float) -> int:  # pragma: no cover
+def edge_p2(gray: np.ndarray, y: int, x: int, y0: int, x0: int, p1: int, p2: int,
+            gamma: float) -> int:  # pragma: no cover - numba
+    """The edge-adaptive penalty ``P2' = max(P1, P2 / (1 + |I(y, x) - I(y0, x0)| / γ))`` of a path step from
+    (y0, x0) to (y, x); ``gamma`` 0: ``P2``."""
     if gamma <= 0.0:
         return p2
     return max(p1, int(p2 / (1.0 + abs(gray[y, x] - gray[y0, x0]) / gamma)))
@@ -211,8 +215,8 @@ def _select_pixel(srow: np.ndarray, best: int | np.int32, y: int, x: int, min_di
 
 
 @njit(cache=True, inline="always")
-def _check_row(y: int, min_disp: int, tolerance: int, rarg: np.ndarray, disp: np.ndarray, win: np.ndarray,
-               code: np.ndarray) -> None:  # pragma: no cover - numba
+def check_row(y: int, min_disp: int, tolerance: int, rarg: np.ndarray, disp: np.ndarray, win: np.ndarray,
+              code: np.ndarray) -> None:  # pragma: no cover - numba
     """The left–right check of row ``y`` against the right view's winners ``rarg``; NaN where rejected."""
     for x in range(disp.shape[1]):
         xr = x - min_disp - win[y, x]
@@ -263,10 +267,10 @@ def _sgm_scan(cost: np.ndarray, gray: np.ndarray, p1: int, p2: int, gamma: float
                 c[d] = cost[y, x, d]
             hs = xi % 2
             if xi > 0 and yi > 0 and 0 < x < w - 1:
-                jumps = (hmin + _p2(gray, y, x, y, x - s, p1, p2, gamma),
-                         prev_min[0, x - s] + _p2(gray, y, x, yp, x - s, p1, p2, gamma),
-                         prev_min[1, x] + _p2(gray, y, x, yp, x, p1, p2, gamma),
-                         prev_min[2, x + s] + _p2(gray, y, x, yp, x + s, p1, p2, gamma))
+                jumps = (hmin + edge_p2(gray, y, x, y, x - s, p1, p2, gamma),
+                         prev_min[0, x - s] + edge_p2(gray, y, x, yp, x - s, p1, p2, gamma),
+                         prev_min[1, x] + edge_p2(gray, y, x, yp, x, p1, p2, gamma),
+                         prev_min[2, x + s] + edge_p2(gray, y, x, yp, x + s, p1, p2, gamma))
                 hmin = _four_updates(c, hor, hs, hmin, prev, prev_min, cur, cur_min, x, s, p1, jumps, acc)
             else:
                 acc[:] = 0
@@ -274,7 +278,7 @@ def _sgm_scan(cost: np.ndarray, gray: np.ndarray, p1: int, p2: int, gamma: float
                 if xi == 0:
                     hmin = _path_start(c, hor, 1 - hs, 0, acc)
                 else:
-                    hmin = _path_update(c, hor, hs, 0, hmin, p1, _p2(gray, y, x, y, x - s, p1, p2, gamma), hor,
+                    hmin = _path_update(c, hor, hs, 0, hmin, p1, edge_p2(gray, y, x, y, x - s, p1, p2, gamma), hor,
                                         1 - hs, 0, acc)
                 # diagonal from behind (x - s), vertical (x), diagonal from ahead (x + s)
                 for k in range(3):
@@ -283,7 +287,7 @@ def _sgm_scan(cost: np.ndarray, gray: np.ndarray, p1: int, p2: int, gamma: float
                         cur_min[k, x] = _path_start(c, cur, k, x, acc)
                     else:
                         cur_min[k, x] = _path_update(c, prev, k, xp, prev_min[k, xp], p1,
-                                                     _p2(gray, y, x, yp, xp, p1, p2, gamma), cur, k, x, acc)
+                                                     edge_p2(gray, y, x, yp, xp, p1, p2, gamma), cur, k, x, acc)
             if combine:
                 # the two scans' uint16 sums added as int32, as sgm_select adds fwd and bwd
                 best = np.int32(1 << 30)
@@ -297,7 +301,7 @@ def _sgm_scan(cost: np.ndarray, gray: np.ndarray, p1: int, p2: int, gamma: float
                 for d in range(nd0):
                     out[y, x, d] = acc[d]
         if combine:
-            _check_row(y, min_disp, tolerance, rarg, disp, win, code)
+            check_row(y, min_disp, tolerance, rarg, disp, win, code)
 
 
 @njit(cache=True, inline="always")
@@ -421,5 +425,5 @@ def select_kernel(fwd: np.ndarray, bwd: np.ndarray, min_disp: int, uniqueness: i
                 srow[i] = v
                 best = min(best, v)
             _select_pixel(srow, best, y, x, min_disp, uniqueness, subpixel, False, rbest, rarg, disp, win, code)
-        _check_row(y, min_disp, tolerance, rarg, disp, win, code)
+        check_row(y, min_disp, tolerance, rarg, disp, win, code)
     return disp, win, code

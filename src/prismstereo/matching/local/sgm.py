@@ -23,6 +23,7 @@ in :mod:`prismstereo.matching.local.costs`.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass
@@ -35,6 +36,7 @@ from prismstereo.checks import check_fields, fail
 from prismstereo.errors import ConfigError
 from prismstereo.matching.local import costs, selection
 from prismstereo.matching.local._sgm import census_codes, census_kernel, select_kernel, sgm_kernel, sgm_select_kernel
+from prismstereo.matching.local._sgm_band import census_band_kernel, select_band_kernel, sgm_band_kernel
 from prismstereo.matching.local.matchers import BPASWMatcher, check_census_window
 from prismstereo.matching.registry import MatchResult, register_matcher
 
@@ -170,6 +172,21 @@ def sgm_select(fwd: np.ndarray, bwd: np.ndarray, *, min_disp: int = 0, uniquenes
     return disp, code
 
 
+def _band_indices(shape: tuple[int, int], band_lo: np.ndarray, band_hi: np.ndarray, *, min_disp: int,
+                  max_disp: int) -> tuple[np.ndarray, np.ndarray]:
+    """The bands as C-contiguous int32 volume indices (``disparity - min_disp``), checked."""
+    lo = np.asarray(band_lo)
+    hi = np.asarray(band_hi)
+    if lo.shape != tuple(shape) or hi.shape != tuple(shape):
+        raise ConfigError(f"band_lo/band_hi: expected two {shape[1]}×{shape[0]} maps, got shapes {lo.shape} and "
+                          f"{hi.shape}")
+    if lo.size and (int(lo.min()) < min_disp or int(hi.max()) > max_disp or bool((lo > hi).any())):
+        raise ConfigError(f"band_lo/band_hi: expected bands with {min_disp} <= band_lo <= band_hi <= {max_disp}, "
+                          f"got {int(lo.min())}..{int(hi.max())}" + (" with empty bands" if (lo > hi).any() else ""))
+    return (np.ascontiguousarray(lo - int(min_disp), dtype=np.int32),
+            np.ascontiguousarray(hi - int(min_disp), dtype=np.int32))
+
+
 def _speckle_filter(disp: np.ndarray, *, window: int, max_diff: float) -> np.ndarray:
     """Invalidate connected regions of fewer than ``window`` pixels (neighbours within ``max_diff``)."""
     if window <= 0:
@@ -274,6 +291,65 @@ class SGMMatcher:
                                           subpixel=self.subpixel)
         del vol
         timings["aggregation"] = time.perf_counter() - t
+        return self._finish(left, disp, code, timings)
+
+    def compute_banded(self, left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int = 0,
+                       band_lo: np.ndarray, band_hi: np.ndarray) -> MatchResult:
+        """:meth:`compute` with each pixel searching only its own disparities ``band_lo .. band_hi`` (inclusive,
+        px, within ``min_disp .. max_disp``): tSGM's per-pixel ranges (Rothermel et al. 2012,
+        :mod:`~prismstereo.matching.local._sgm_band`). Costs and path sums are computed inside the bands only,
+        so the time follows pixels × band. With every band the whole range, the maps are :meth:`compute`'s.
+
+        Parameters
+        ----------
+        band_lo, band_hi : (H, W) int arrays
+            Each pixel's lowest and highest disparity searched, px; ``band_lo <= band_hi``.
+
+        Raises
+        ------
+        ConfigError
+            Bands of another shape than ``left``'s, empty ones or ones outside ``min_disp .. max_disp``; the
+            ``bpasw`` cost (census only).
+        """
+        if self.cost != "census":
+            raise ConfigError(f"cost: expected 'census' for a banded match, got {self.cost!r}")
+        blo, bhi = _band_indices(left.shape[:2], band_lo, band_hi, min_disp=min_disp, max_disp=max_disp)
+        timings: dict[str, float] = {}
+        t = time.perf_counter()
+        gray = costs.to_gray(left)
+        gray_r = costs.to_gray(right)
+        wh, ww = int(self.census_window[0]), int(self.census_window[1])
+        pad = ((wh // 2, wh // 2), (ww // 2, ww // 2))
+        cl = census_codes(np.pad(gray, pad, mode="edge"), wh // 2, ww // 2)
+        cr = census_codes(np.pad(gray_r, pad, mode="edge"), wh // 2, ww // 2)
+        gxl, _ = costs.image_gradients(gray)
+        gxr, _ = costs.image_gradients(gray_r)
+        invalid = int(self.census_scale * (wh * ww - 1) + self.grad_weight * self.grad_tau + 0.5)
+        nd = int(max_disp) - int(min_disp) + 1
+        widths = (bhi - blo + 1).ravel().astype(np.int64)
+        off = (np.cumsum(widths) - widths).reshape(blo.shape)  # the ragged volumes' start of each pixel
+        total = int(widths.sum())
+        vol = census_band_kernel(cl, cr, gxl, gxr, int(min_disp), blo, bhi, off, total, int(self.census_scale),
+                                 float(self.grad_weight), float(self.grad_tau), invalid)
+        timings["cost"] = time.perf_counter() - t
+        t = time.perf_counter()
+        top = invalid + int(self.p2)  # the largest cost the census can take, plus P2
+        if 4 * top > 65535:
+            raise ConfigError(f"expected 4·(max cost + P2) <= 65535 for uint16 path sums, got {4 * top}")
+        fwd, bwd = sgm_band_kernel(vol, np.ascontiguousarray(gray, dtype=np.float32), blo, bhi, off, nd,
+                                   int(self.p1), int(self.p2), float(self.p2_gamma), invalid)
+        del vol
+        disp, _, code = select_band_kernel(fwd, bwd, blo, bhi, off, nd, int(min_disp), int(self.uniqueness),
+                                           int(self.tolerance), bool(self.subpixel))
+        del fwd, bwd
+        timings["aggregation"] = time.perf_counter() - t
+        res = self._finish(left, disp, code, timings)
+        searched = total / max(blo.size, 1)
+        return dataclasses.replace(res, extras={**res.extras, "band_mean": round(searched, 2)})
+
+    def _finish(self, left: np.ndarray, disp: np.ndarray, code: np.ndarray, timings: dict[str, float]
+                ) -> MatchResult:
+        """The speckle filter and (``fill``) the dense map of a selected map; ``timings`` gets their seconds."""
         t = time.perf_counter()
         # a speckle is small against the image: on tiny images (a small region of interest) the window
         # would otherwise remove every region
