@@ -81,9 +81,10 @@ _FULL_BELOW_AUTO_PIXELS = frozenset({"coop"})
 #: each strip's core). The pixels keep the images coop is measured on whole (Middlebury v2, 2014 at Q with
 #: Jadeplant's 2.7 GB, the 0.8 MP captures), where its maps stay the full search's. coop's volumes (42 B per
 #: pixel·disparity) are 11 GB at 3 MP over 138 disparities; a strip's segments and planes see its context
-#: rows; one band per strip or per 256–512 px tile is nearly the whole range on the captures it was
-#: measured on, so a coarse level would not narrow the search
-_OWN_STRIPS: dict[str, tuple[int, int, int]] = {"coop": (1_000_000, 1792 * 2**20, 48)}
+#: rows (32 above and below: as accurate as 48 on the 2048 captures, and where it saves a strip, cheaper); one
+#: band per strip or per 256–512 px tile is nearly the whole range on the captures it was measured on, so a
+#: coarse level would not narrow the search
+_OWN_STRIPS: dict[str, tuple[int, int, int]] = {"coop": (1_000_000, 1792 * 2**20, 32)}
 #: a matcher without a measured model is assumed to be as heavy as the heaviest one
 _UNKNOWN_MODEL = (2500.0, 40.0)
 #: resident memory of the process before the match (interpreter, numpy, numba, OpenCV), bytes
