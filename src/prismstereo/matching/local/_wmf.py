@@ -126,7 +126,7 @@ def wmf_kernel(disp: np.ndarray, finite: np.ndarray, mask: np.ndarray, lab: np.n
                nchunks: int) -> np.ndarray:  # pragma: no cover - numba
     """Weighted median over integer bins, weights exp(-ΔE/γc - ‖Δp‖/γd) from lookup tables; ``lab`` planar
     (3, H, W); the disparities not ``finite`` (given: under fastmath ``isfinite`` is folded to True) give no
-    weight. Rows run in ``nchunks`` chunks (every ``nchunks``-th row) in parallel; a row with many
+    weight. Rows run in ``nchunks`` chunks in parallel; a row with many
     masked pixels runs whole (:func:`_median_row`), a sparse one pixel by pixel (:func:`_median_pixel`): the
     same values."""
     h, w = disp.shape
@@ -145,6 +145,7 @@ def wmf_kernel(disp: np.ndarray, finite: np.ndarray, mask: np.ndarray, lab: np.n
         for x in range(w):
             bi = int(np.floor(disp[y, x] - dmin + 0.5)) if finite[y, x] else 0
             bins[y, x] = min(max(bi, 0), nbins - 1)
+    rows = (h + nchunks - 1) // nchunks
     for ci in prange(nchunks):
         hist1 = np.zeros(nbins, dtype=np.float32)
         hist = np.zeros((nbins, 0), dtype=np.float32)
@@ -152,9 +153,7 @@ def wmf_kernel(disp: np.ndarray, finite: np.ndarray, mask: np.ndarray, lab: np.n
         total = np.empty(w, dtype=np.float32)
         blo = np.empty(w, dtype=np.int64)
         bhi = np.empty(w, dtype=np.int64)
-        # the rows in turn over the chunks (row y in chunk y % nchunks): prange gives each thread consecutive
-        # chunks, and the masked rows, which cost the most, cluster
-        for y in range(ci, h, nchunks):
+        for y in range(ci * rows, min(h, (ci + 1) * rows)):
             n = 0
             for x in range(w):
                 n += mask[y, x]
