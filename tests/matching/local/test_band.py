@@ -89,47 +89,6 @@ def test_band_is_checked_and_refused_where_not_supported() -> None:
     assert not get_matcher("sad").supports_band
 
 
-def test_band_starts_split_the_rows_by_work() -> None:
-    from prismstereo.matching.local.aggregation import _band_starts
-
-    h, nseg, seg, w = 100, 4, 16, 60
-    b = np.zeros((h, nseg, 2), np.int64)
-    b[:, :, 1] = 2  # 3 slices everywhere
-    b[10:40, :, 1] = 80  # 81 slices on rows 10..39
-    starts = _band_starts(bounds=b, segment=seg, width=w, rows=(5, 95), bands=4)
-    assert starts[0] == 5 and starts[-1] == 95 and starts.size == 5
-    assert np.all(np.diff(starts) >= 0)
-    n = np.maximum(b[:, :, 1] - b[:, :, 0] + 1, 0)
-    widths = np.array([16, 16, 16, 12])
-    work = (n * widths).sum(axis=1) + 10.0 * w + 8.0 * ((n > 0) * widths).sum(axis=1)
-    per = np.array([work[a:c].sum() for a, c in zip(starts[:-1], starts[1:], strict=True)])
-    # every band within one row's work of an equal share; rows of equal height would not be
-    assert np.abs(per - work[5:95].sum() / 4).max() <= work.max()
-    even = np.linspace(5, 95, 5).astype(int)
-    per_even = np.array([work[a:c].sum() for a, c in zip(even[:-1], even[1:], strict=True)])
-    assert per.max() < 0.8 * per_even.max()
-
-
-def test_banded_aggregation_does_not_depend_on_the_row_bands(monkeypatch: pytest.MonkeyPatch) -> None:
-    import prismstereo.matching.local.aggregation as agg
-
-    left, right = _pair()
-    h, w = left.shape[:2]
-    vol = cost_s_ad_census(left, right, max_disp=24, min_disp=2)
-    band = SegmentBand(bounds=_random_band(h, -(-w // 8), vol.shape[2], seed=3), segment=8)
-    ref = aggregate_bpasw(vol, left, right, radius=6, dilation=2, min_disp=2, band=band)
-    for first in (0.0, 0.1, 0.9, 1.0):  # the first cut anywhere, empty bands included
-        def uneven(*, bounds: np.ndarray, segment: int, width: int, rows: tuple[int, int], bands: int,
-                   first: float = first) -> np.ndarray:
-            y_a, y_b = rows
-            inner = [y_a + int(min(1.0, first + 0.37 * i) * (y_b - y_a)) for i in range(bands - 1)]
-            return np.array([y_a, *sorted(inner), y_b], np.int64)
-
-        monkeypatch.setattr(agg, "_band_starts", uneven)
-        out = aggregate_bpasw(vol, left, right, radius=6, dilation=2, min_disp=2, band=band)
-        np.testing.assert_array_equal(out, ref)  # bit for bit
-
-
 def test_pixel_cost_inside_a_band_equals_the_whole_volume_and_is_zero_outside() -> None:
     left, right = _pair()
     h, w = left.shape[:2]

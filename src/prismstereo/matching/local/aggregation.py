@@ -455,13 +455,11 @@ def _row_runs(band: np.ndarray, y: int, seg: int, w: int, run_lo: np.ndarray, ru
 def _bpasw_symmetric_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, lab3_l: np.ndarray,
                             lab3_r: np.ndarray, dys: np.ndarray, dxs: np.ndarray, prox: np.ndarray, min_disp: int,
                             kernel: int, s0: float, s_min: float, mirror: np.ndarray, nbands: int,
-                            ct: np.ndarray, pad: int, band: np.ndarray, seg: int,
-                            starts: np.ndarray) -> np.ndarray:  # pragma: no cover - numba
+                            ct: np.ndarray, pad: int, band: np.ndarray, seg: int, y_a: int,
+                            y_b: int) -> np.ndarray:  # pragma: no cover - numba
     """Eq. 5.14 with symmetric weights and no continuity prior (the ``bpasw`` matcher's aggregation), inside a
     band of slices per row segment (``band[y, s] = (lo, hi)``, inclusive slice indices, columns ``[s·seg, (s +
-    1)·seg)``; ``lo > hi``: none) on the rows ``[starts[0], starts[-1])``, in the bands of rows ``[starts[b],
-    starts[b + 1])`` (``b < nbands``, in parallel: prange gives each thread consecutive bands); every other entry
-    is +inf. The sums run along
+    1)·seg)``; ``lo > hi``: none) on the rows ``[y_a, y_b)``; every other entry is +inf. The sums run along
     the rows of the disparity-major volume ``ct`` (:func:`_accumulate_runs`), so an entry does not depend on
     the band: a band over every slice is the whole volume's aggregation. The path of :func:`_bpasw_kernel` for
     this case, compiled on its own: a first run compiles only what it calls."""
@@ -474,9 +472,11 @@ def _bpasw_symmetric_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarr
     # weights those rows computed towards it (mirror); a band first computes the rows above it it reads
     nrows = _kept_rows(dys, mirror)
     back = nrows - 1
+    rows = max(0, y_b - y_a)
+    band_rows = (rows + nbands - 1) // nbands
     for bi in prange(nbands):
-        y0 = starts[bi]
-        y1 = starts[bi + 1]
+        y0 = y_a + bi * band_rows
+        y1 = min(y_b, y0 + band_rows)
         if y1 <= y0:
             continue
         # weights of the rows kept, left and right image (the symmetric sums read the right weights forwards)
@@ -612,43 +612,6 @@ def _bpasw_kernel(cost: np.ndarray, lab_l: np.ndarray, lab_r: np.ndarray, lab3_l
     return out
 
 
-#: a row's fixed work in the banded aggregation, in pixel·slices of the accumulation per pixel: its support
-#: weights (every pixel of a row in the bands) and its quotients and +inf fill (the banded pixels)
-_WEIGHTS_WORK = 10.0
-_QUOTIENT_WORK = 8.0
-
-
-def _band_starts(*, bounds: np.ndarray, segment: int, width: int, rows: tuple[int, int], bands: int) -> np.ndarray:
-    """Row bands of about equal work for :func:`_bpasw_symmetric_kernel` (prange's static split then gives every
-    thread its share: bands of equal height do not where the band's width varies along the rows).
-
-    Parameters
-    ----------
-    bounds : ndarray, int64, (H, S, 2)
-        The band per row segment (:class:`SegmentBand`).
-    segment, width : int
-        Columns per segment and of the image.
-    rows : (int, int)
-        The rows ``[y_a, y_b)`` aggregated.
-    bands : int
-        How many bands.
-
-    Returns
-    -------
-    ndarray, int64, (bands + 1,)
-        Non-decreasing, from ``y_a`` to ``y_b``: band ``b`` is the rows ``[starts[b], starts[b + 1])``.
-    """
-    y_a, y_b = rows
-    b = bounds[y_a:y_b]
-    n = np.maximum(b[:, :, 1] - b[:, :, 0] + 1, 0).astype(np.float64)
-    widths = np.full(b.shape[1], float(segment))
-    widths[-1] = width - segment * (b.shape[1] - 1)
-    work = (n * widths).sum(axis=1) + _WEIGHTS_WORK * width + _QUOTIENT_WORK * ((n > 0) * widths).sum(axis=1)
-    cum = np.concatenate([[0.0], np.cumsum(work)])
-    cuts = np.searchsorted(cum, cum[-1] * np.arange(1, bands) / bands)
-    return np.concatenate([[y_a], y_a + np.minimum(cuts, y_b - y_a), [y_b]]).astype(np.int64)
-
-
 def _mirrors(dys: np.ndarray, dxs: np.ndarray) -> np.ndarray:
     """For each window offset pointing backwards (up, or left on the row), the index of its opposite; -1 for
     the others (and for an offset without an opposite in the window)."""
@@ -755,8 +718,6 @@ def aggregate_bpasw(cost: np.ndarray, left: np.ndarray, right: np.ndarray | None
         pad = int(np.abs(dxs).max())
         return _bpasw_symmetric_kernel(vol, lab_l, lab_r, lab3_l, lab3_r, dys, dxs, prox.astype(np.float64),
                                        int(min_disp), kid, s0, s_min, _mirrors(dys, dxs), nbands,
-                                       _disparity_major(vol, pad), pad, bounds, seg,
-                                       _band_starts(bounds=bounds, segment=seg, width=w, rows=(y_a, y_b),
-                                                   bands=nbands))
+                                       _disparity_major(vol, pad), pad, bounds, seg, y_a, y_b)
     return _bpasw_kernel(vol, lab_l, lab_r, lab3_l, lab3_r, dys, dxs, prox.astype(np.float64), int(min_disp), kid,
                          s0, s_min, pr, use_prior, float(continuity_weight), symmetric, _mirrors(dys, dxs), nbands)
