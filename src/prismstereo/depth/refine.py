@@ -142,7 +142,7 @@ def _window_sums(TL: np.ndarray, TR: np.ndarray, TD: np.ndarray, TJ: np.ndarray,
 @njit(cache=True, parallel=True, fastmath=True, nogil=True)
 def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray, xs: np.ndarray, d0: np.ndarray,
                    oys: np.ndarray, fys: np.ndarray, radius: int, iterations: int, max_shift: float,
-                   min_texture: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - numba
+                   min_texture: float, threads: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
     """Gauss–Newton per pixel (module docstring); window sums instead of stored windows.
 
     With zero-mean windows ``Lz``, ``Rz = R - mean R``, ``Jz = J - mean J`` over ``m`` pixels:
@@ -171,8 +171,9 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
     starts = np.searchsorted(ys, np.arange(h + 1))
     reach = int(np.ceil(max_shift)) + 1
     # rows in turn over the threads (row y on thread y % nt): the rows' pixels differ in number, and
-    # prange's static blocks of consecutive rows leave a thread idle (the later passes' pixels cluster)
-    nt = max(1, min(numba.get_num_threads(), h))
+    # prange's static blocks of consecutive rows leave a thread idle (the later passes' pixels cluster); ``threads``
+    # given (numba.get_num_threads() inside the kernel would keep it out of the cache)
+    nt = max(1, min(threads, h))
     for t in prange(nt):
         for y in range(t, h, nt):
             i0, i1 = starts[y], starts[y + 1]
@@ -422,7 +423,7 @@ def _cut_sums(TL: np.ndarray, WL: np.ndarray, TR: np.ndarray, TD: np.ndarray, TJ
 def _refine_cut_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray, VR: np.ndarray,
                        ys: np.ndarray, xs: np.ndarray, d0: np.ndarray, oys: np.ndarray, fys: np.ndarray,
                        radius: int, iterations: int, max_shift: float, min_texture: float,
-                       min_pixels: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - numba
+                       min_pixels: int, threads: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
     """Gauss–Newton of the pixels whose windows are cut by an edge: the sums run over the window's pixels
     that lie in both views (re-selected at each tap position, since the right taps move with d); the means,
     the texture test and the ZNCC are those of these pixels. Fewer than ``min_pixels`` of them: not
@@ -450,7 +451,7 @@ def _refine_cut_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndar
     reach = int(np.ceil(max_shift)) + 1
     gap = 2 * (k + reach)
     # rows in turn over the threads, as in _refine_kernel
-    nt = max(1, min(numba.get_num_threads(), h))
+    nt = max(1, min(threads, h))
     for t in prange(nt):
         for y in range(t, h, nt):
             i0, i1 = starts[y], starts[y + 1]
@@ -811,7 +812,7 @@ def refine_disparity(
     Rx = cv2.Sobel(R, cv2.CV_32F, 1, 0, ksize=3, scale=1.0 / 8.0)
     if ys.size:
         d, zncc, keep = _refine_kernel(L, R, Rx, ys, xs, d0, oy, fy, int(radius), int(iterations),
-                                       float(max_shift), float(min_texture))
+                                       float(max_shift), float(min_texture), numba.get_num_threads())
         check = valid_right is not None and min_pixels is None
         # the match must not land next to the right view's edge (its window would read beyond it)
         allowed = (cv2.dilate((~vr).astype(np.uint8), np.ones((k, k), np.uint8)) == 0 if check
@@ -821,7 +822,7 @@ def refine_disparity(
         vr_levels = vr_in.astype(np.uint8) + vr.astype(np.uint8)  # 2 inside, 1 outermost pixels, 0 outside
         d, zncc, keep = _refine_cut_kernel(L, R, Rx, vl_in.astype(np.uint8), vr_levels, cys, cxs, d0, coy, cfy,
                                            int(radius), int(iterations), float(max_shift), float(min_texture),
-                                           int(min_pixels))
+                                           int(min_pixels), numba.get_num_threads())
         # the match itself must stay inside the right view
         _scatter(out, conf, cys, cxs, d, zncc, keep, vr, True)
     return out, conf
