@@ -396,7 +396,7 @@ def test_the_whole_window_kernel_is_a_direct_gauss_newton_and_zncc() -> None:
     fys = rng.choice(np.array([0.0, 0.25, 0.5, 0.9]), ys.size)
     oys[-4:] = np.array([-1, 1, 1, -1])  # right rows off the top and bottom edges: clamped
     kw = dict(r=r, iterations=6, max_shift=0.85, min_texture=0.01)
-    d, zncc, keep = _refine_kernel(L, R, Rx, ys, xs, d0, oys, fys, r, 6, 0.85, 0.01)
+    d, zncc, keep = _refine_kernel(L, R, Rx, ys, xs, d0, oys, fys, r, 6, 0.85, 0.01, 2)
     want = np.array([_gauss_newton_reference(L, R, Rx, int(y), int(x), float(d0[y, x]), int(oy), float(fy), **kw)
                      for y, x, oy, fy in zip(ys, xs, oys, fys, strict=True)], dtype=np.float64)
     assert 0.2 < np.mean(np.floor(xs - want[:, 0]) != np.floor(xs - d0[ys, xs])) < 0.9  # taps move

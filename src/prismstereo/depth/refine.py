@@ -22,6 +22,7 @@ the sub-pixel phase and so biases d on it; texture already damped leaves it less
 from __future__ import annotations
 
 import cv2
+import numba
 import numpy as np
 from numba import njit, prange
 
@@ -141,7 +142,7 @@ def _window_sums(TL: np.ndarray, TR: np.ndarray, TD: np.ndarray, TJ: np.ndarray,
 @njit(cache=True, parallel=True, fastmath=True, nogil=True)
 def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray, xs: np.ndarray, d0: np.ndarray,
                    oys: np.ndarray, fys: np.ndarray, radius: int, iterations: int, max_shift: float,
-                   min_texture: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - numba
+                   min_texture: float, threads: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
     """Gauss–Newton per pixel (module docstring); window sums instead of stored windows.
 
     With zero-mean windows ``Lz``, ``Rz = R - mean R``, ``Jz = J - mean J`` over ``m`` pixels:
@@ -169,141 +170,146 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
     keep = np.zeros(n, dtype=np.bool_)
     starts = np.searchsorted(ys, np.arange(h + 1))
     reach = int(np.ceil(max_shift)) + 1
-    for y in prange(h):
-        i0, i1 = starts[y], starts[y + 1]
-        if i0 == i1:
-            continue
-        TL = np.empty(w * k, dtype=np.float64)
-        TR = np.empty(w * k, dtype=np.float64)
-        TD = np.empty(w * k, dtype=np.float64)
-        TJ = np.empty(w * k, dtype=np.float64)
-        TE = np.empty(w * k, dtype=np.float64)
-        S = np.empty((i1 - i0, 18), dtype=np.float64)
-        lms = np.empty(i1 - i0, dtype=np.float64)
-        slls = np.empty(i1 - i0, dtype=np.float64)
-        ds = np.empty(i1 - i0, dtype=np.float64)
-        cached = np.empty(i1 - i0, dtype=np.int64)
-        textured = np.ones(i1 - i0, dtype=np.bool_)
-        sel = np.empty(i1 - i0, dtype=np.int64)
-        lo, hi = w, 0
-        oy_lo, oy_hi = oys[i0], oys[i0]
-        for i in range(i0, i1):
-            lo = min(lo, xs[i])
-            hi = max(hi, xs[i])
-            oy_lo = min(oy_lo, oys[i])
-            oy_hi = max(oy_hi, oys[i])
-        _strip(L, TL, None, y - radius, k, max(lo - radius, 0), min(hi + radius + 1, w), 0)
-        for oy in range(oy_lo, oy_hi + 1):
-            # this offset's pixels, and the columns their taps may reach
-            npx = 0
-            c0, c1 = w, 0
-            for i in range(i0, i1):
-                if oys[i] == oy:
-                    sel[npx] = i
-                    npx += 1
-                    b = int(np.floor(xs[i] - float(d0[y, xs[i]])))
-                    c0 = min(c0, b - reach - radius)
-                    c1 = max(c1, b + reach + radius + 2)
-            if npx == 0:
+    # rows in turn over the threads (row y on thread y % nt): the rows' pixels differ in number, and
+    # prange's static blocks of consecutive rows leave a thread idle (the later passes' pixels cluster); ``threads``
+    # given (numba.get_num_threads() inside the kernel would keep it out of the cache)
+    nt = max(1, min(threads, h))
+    for t in prange(nt):
+        for y in range(t, h, nt):
+            i0, i1 = starts[y], starts[y + 1]
+            if i0 == i1:
                 continue
-            _strip(R, TR, TD, y + oy - radius, k, max(c0, 0), min(c1, w), 0)
-            _strip(Rx, TJ, TE, y + oy - radius, k, max(c0, 0), min(c1, w), 0)
-            for j in range(npx):
-                i = sel[j]
-                x = xs[i]
-                ul = (x - radius) * k
-                sl = 0.0
-                sl2 = 0.0
-                for q in range(m):
-                    lv = TL[np.uint64(ul) + np.uint64(q)]
-                    sl += lv
-                    sl2 += lv * lv
-                lmean = sl / m
-                lms[j] = lmean
-                slls[j] = max(sl2 - sl * lmean, 0.0)
-                d = float(d0[y, x])
-                ds[j] = d
-                b0 = int(np.floor(x - d))
-                cached[j] = -1
-                if b0 - radius >= 0 and b0 + radius + 1 <= w - 1:
-                    _window_sums(TL, TR, TD, TJ, TE, ul, (b0 - radius) * k, k, m, lmean, fys[i], S, j)
-                    cached[j] = b0
-            for _ in range(iterations):
+            TL = np.empty(w * k, dtype=np.float64)
+            TR = np.empty(w * k, dtype=np.float64)
+            TD = np.empty(w * k, dtype=np.float64)
+            TJ = np.empty(w * k, dtype=np.float64)
+            TE = np.empty(w * k, dtype=np.float64)
+            S = np.empty((i1 - i0, 18), dtype=np.float64)
+            lms = np.empty(i1 - i0, dtype=np.float64)
+            slls = np.empty(i1 - i0, dtype=np.float64)
+            ds = np.empty(i1 - i0, dtype=np.float64)
+            cached = np.empty(i1 - i0, dtype=np.int64)
+            textured = np.ones(i1 - i0, dtype=np.bool_)
+            sel = np.empty(i1 - i0, dtype=np.int64)
+            lo, hi = w, 0
+            oy_lo, oy_hi = oys[i0], oys[i0]
+            for i in range(i0, i1):
+                lo = min(lo, xs[i])
+                hi = max(hi, xs[i])
+                oy_lo = min(oy_lo, oys[i])
+                oy_hi = max(oy_hi, oys[i])
+            _strip(L, TL, None, y - radius, k, max(lo - radius, 0), min(hi + radius + 1, w), 0)
+            for oy in range(oy_lo, oy_hi + 1):
+                # this offset's pixels, and the columns their taps may reach
+                npx = 0
+                c0, c1 = w, 0
+                for i in range(i0, i1):
+                    if oys[i] == oy:
+                        sel[npx] = i
+                        npx += 1
+                        b = int(np.floor(xs[i] - float(d0[y, xs[i]])))
+                        c0 = min(c0, b - reach - radius)
+                        c1 = max(c1, b + reach + radius + 2)
+                if npx == 0:
+                    continue
+                _strip(R, TR, TD, y + oy - radius, k, max(c0, 0), min(c1, w), 0)
+                _strip(Rx, TJ, TE, y + oy - radius, k, max(c0, 0), min(c1, w), 0)
+                for j in range(npx):
+                    i = sel[j]
+                    x = xs[i]
+                    ul = (x - radius) * k
+                    sl = 0.0
+                    sl2 = 0.0
+                    for q in range(m):
+                        lv = TL[np.uint64(ul) + np.uint64(q)]
+                        sl += lv
+                        sl2 += lv * lv
+                    lmean = sl / m
+                    lms[j] = lmean
+                    slls[j] = max(sl2 - sl * lmean, 0.0)
+                    d = float(d0[y, x])
+                    ds[j] = d
+                    b0 = int(np.floor(x - d))
+                    cached[j] = -1
+                    if b0 - radius >= 0 and b0 + radius + 1 <= w - 1:
+                        _window_sums(TL, TR, TD, TJ, TE, ul, (b0 - radius) * k, k, m, lmean, fys[i], S, j)
+                        cached[j] = b0
+                for _ in range(iterations):
+                    for j in range(npx):
+                        i = sel[j]
+                        x = xs[i]
+                        fy = fys[i]
+                        d = ds[j]
+                        init = float(d0[y, x])
+                        xf0 = x - d
+                        b0 = int(np.floor(xf0))
+                        fa = xf0 - b0
+                        fb = 1.0 - fa
+                        if b0 - radius >= 0 and b0 + radius + 1 <= w - 1:
+                            if b0 != cached[j]:
+                                _window_sums(TL, TR, TD, TJ, TE, (x - radius) * k, (b0 - radius) * k, k, m, lms[j], fy,
+                                             S, j)
+                                cached[j] = b0
+                            Sj = S[j]
+                            sr = fb * Sj[0] + fa * Sj[1]
+                            sj = fb * Sj[2] + fa * Sj[3]
+                            slj = fb * Sj[4] + fa * Sj[5]
+                            srj = fb * fb * Sj[6] + fb * fa * (Sj[7] + Sj[8]) + fa * fa * Sj[9]
+                            sjj = fb * fb * Sj[10] + 2.0 * fb * fa * Sj[11] + fa * fa * Sj[12]
+                        else:
+                            # the window leaves the row: the edge-replicating sampler, pixel by pixel
+                            lmean = lms[j]
+                            sr = sj = slj = srj = sjj = 0.0
+                            for dy in range(-radius, radius + 1):
+                                for dx in range(-radius, radius + 1):
+                                    xf = x + dx - d
+                                    rv = _sample(R, y + dy + oy, xf, fy)
+                                    jv = _sample(Rx, y + dy + oy, xf, fy)
+                                    lz = L[y + dy, x + dx] - lmean
+                                    sr += rv
+                                    sj += jv
+                                    slj += lz * jv
+                                    srj += rv * jv
+                                    sjj += jv * jv
+                        num = slj - (srj - sr * sj / m)
+                        den = sjj - sj * sj / m
+                        tex = den > min_texture * m
+                        textured[j] = tex
+                        step = num / den if tex else 0.0
+                        step = min(max(step, -0.5), 0.5)
+                        ds[j] = min(max(d - step, init - max_shift), init + max_shift)
                 for j in range(npx):
                     i = sel[j]
                     x = xs[i]
                     fy = fys[i]
                     d = ds[j]
                     init = float(d0[y, x])
+                    lmean = lms[j]
                     xf0 = x - d
                     b0 = int(np.floor(xf0))
                     fa = xf0 - b0
                     fb = 1.0 - fa
                     if b0 - radius >= 0 and b0 + radius + 1 <= w - 1:
                         if b0 != cached[j]:
-                            _window_sums(TL, TR, TD, TJ, TE, (x - radius) * k, (b0 - radius) * k, k, m, lms[j], fy,
-                                         S, j)
-                            cached[j] = b0
+                            _window_sums(TL, TR, TD, TJ, TE, (x - radius) * k, (b0 - radius) * k, k, m, lmean, fy, S, j)
                         Sj = S[j]
                         sr = fb * Sj[0] + fa * Sj[1]
-                        sj = fb * Sj[2] + fa * Sj[3]
-                        slj = fb * Sj[4] + fa * Sj[5]
-                        srj = fb * fb * Sj[6] + fb * fa * (Sj[7] + Sj[8]) + fa * fa * Sj[9]
-                        sjj = fb * fb * Sj[10] + 2.0 * fb * fa * Sj[11] + fa * fa * Sj[12]
+                        srr = fb * fb * Sj[13] + 2.0 * fb * fa * Sj[14] + fa * fa * Sj[15]
+                        slr = fb * Sj[16] + fa * Sj[17]
                     else:
-                        # the window leaves the row: the edge-replicating sampler, pixel by pixel
-                        lmean = lms[j]
-                        sr = sj = slj = srj = sjj = 0.0
+                        sr = srr = slr = 0.0
                         for dy in range(-radius, radius + 1):
                             for dx in range(-radius, radius + 1):
-                                xf = x + dx - d
-                                rv = _sample(R, y + dy + oy, xf, fy)
-                                jv = _sample(Rx, y + dy + oy, xf, fy)
+                                rv = _sample(R, y + dy + oy, x + dx - d, fy)
                                 lz = L[y + dy, x + dx] - lmean
                                 sr += rv
-                                sj += jv
-                                slj += lz * jv
-                                srj += rv * jv
-                                sjj += jv * jv
-                    num = slj - (srj - sr * sj / m)
-                    den = sjj - sj * sj / m
-                    tex = den > min_texture * m
-                    textured[j] = tex
-                    step = num / den if tex else 0.0
-                    step = min(max(step, -0.5), 0.5)
-                    ds[j] = min(max(d - step, init - max_shift), init + max_shift)
-            for j in range(npx):
-                i = sel[j]
-                x = xs[i]
-                fy = fys[i]
-                d = ds[j]
-                init = float(d0[y, x])
-                lmean = lms[j]
-                xf0 = x - d
-                b0 = int(np.floor(xf0))
-                fa = xf0 - b0
-                fb = 1.0 - fa
-                if b0 - radius >= 0 and b0 + radius + 1 <= w - 1:
-                    if b0 != cached[j]:
-                        _window_sums(TL, TR, TD, TJ, TE, (x - radius) * k, (b0 - radius) * k, k, m, lmean, fy, S, j)
-                    Sj = S[j]
-                    sr = fb * Sj[0] + fa * Sj[1]
-                    srr = fb * fb * Sj[13] + 2.0 * fb * fa * Sj[14] + fa * fa * Sj[15]
-                    slr = fb * Sj[16] + fa * Sj[17]
-                else:
-                    sr = srr = slr = 0.0
-                    for dy in range(-radius, radius + 1):
-                        for dx in range(-radius, radius + 1):
-                            rv = _sample(R, y + dy + oy, x + dx - d, fy)
-                            lz = L[y + dy, x + dx] - lmean
-                            sr += rv
-                            srr += rv * rv
-                            slr += lz * rv
-                var_r = srr - sr * sr / m
-                den = np.sqrt(slls[j] * var_r)
-                zncc[i] = slr / den if den > 0.0 else np.nan
-                d_out[i] = d
-                keep[i] = textured[j] and np.isfinite(d) and abs(d - init) < max_shift - 1e-3
+                                srr += rv * rv
+                                slr += lz * rv
+                    var_r = srr - sr * sr / m
+                    den = np.sqrt(slls[j] * var_r)
+                    zncc[i] = slr / den if den > 0.0 else np.nan
+                    d_out[i] = d
+                    keep[i] = textured[j] and np.isfinite(d) and abs(d - init) < max_shift - 1e-3
     return d_out, zncc, keep
 
 
@@ -417,7 +423,7 @@ def _cut_sums(TL: np.ndarray, WL: np.ndarray, TR: np.ndarray, TD: np.ndarray, TJ
 def _refine_cut_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndarray, VR: np.ndarray,
                        ys: np.ndarray, xs: np.ndarray, d0: np.ndarray, oys: np.ndarray, fys: np.ndarray,
                        radius: int, iterations: int, max_shift: float, min_texture: float,
-                       min_pixels: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - numba
+                       min_pixels: int, threads: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
     """Gauss–Newton of the pixels whose windows are cut by an edge: the sums run over the window's pixels
     that lie in both views (re-selected at each tap position, since the right taps move with d); the means,
     the texture test and the ZNCC are those of these pixels. Fewer than ``min_pixels`` of them: not
@@ -444,113 +450,116 @@ def _refine_cut_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, VL: np.ndar
     starts = np.searchsorted(ys, np.arange(h + 1))
     reach = int(np.ceil(max_shift)) + 1
     gap = 2 * (k + reach)
-    for y in prange(h):
-        i0, i1 = starts[y], starts[y + 1]
-        if i0 == i1:
-            continue
-        TL = np.empty(wp * k, dtype=np.float64)
-        WL = np.empty(wp * k, dtype=np.float64)
-        TR = np.empty(wp * k, dtype=np.float64)
-        TD = np.empty(wp * k, dtype=np.float64)
-        TJ = np.empty(wp * k, dtype=np.float64)
-        TE = np.empty(wp * k, dtype=np.float64)
-        WR = np.empty(wp * k, dtype=np.float64)
-        # the padding: finite values, weight 0
-        for q in range(pad * k):
-            TL[q] = WL[q] = TR[q] = TD[q] = TJ[q] = TE[q] = WR[q] = 0.0
-        for q in range((w + pad) * k, wp * k):
-            TL[q] = WL[q] = TR[q] = TD[q] = TJ[q] = TE[q] = WR[q] = 0.0
-        S = np.empty(21, dtype=np.float64)
-        g0 = i0
-        while g0 < i1:
-            # a run of the row's pixels whose windows lie close together: the strips are built over its
-            # columns only (the cut windows of a row are few, at the views' edges)
-            g1 = g0 + 1
-            while g1 < i1 and xs[g1] - xs[g1 - 1] <= gap:
-                g1 += 1
-            lo, hi = w, 0
-            oy_lo, oy_hi = oys[g0], oys[g0]
-            for i in range(g0, g1):
-                lo = min(lo, xs[i])
-                hi = max(hi, xs[i])
-                oy_lo = min(oy_lo, oys[i])
-                oy_hi = max(oy_hi, oys[i])
-            cl0, cl1 = max(lo - radius, 0), min(hi + radius + 1, w)
-            _strip(L, TL, None, y - radius, k, cl0, cl1, pad)
-            _weight_strip(VL, WL, y - radius, k, cl0, cl1, pad, 0, 1, 0, 0)
-            for oy in range(oy_lo, oy_hi + 1):
-                c0, c1 = w, 0
+    # rows in turn over the threads, as in _refine_kernel
+    nt = max(1, min(threads, h))
+    for t in prange(nt):
+        for y in range(t, h, nt):
+            i0, i1 = starts[y], starts[y + 1]
+            if i0 == i1:
+                continue
+            TL = np.empty(wp * k, dtype=np.float64)
+            WL = np.empty(wp * k, dtype=np.float64)
+            TR = np.empty(wp * k, dtype=np.float64)
+            TD = np.empty(wp * k, dtype=np.float64)
+            TJ = np.empty(wp * k, dtype=np.float64)
+            TE = np.empty(wp * k, dtype=np.float64)
+            WR = np.empty(wp * k, dtype=np.float64)
+            # the padding: finite values, weight 0
+            for q in range(pad * k):
+                TL[q] = WL[q] = TR[q] = TD[q] = TJ[q] = TE[q] = WR[q] = 0.0
+            for q in range((w + pad) * k, wp * k):
+                TL[q] = WL[q] = TR[q] = TD[q] = TJ[q] = TE[q] = WR[q] = 0.0
+            S = np.empty(21, dtype=np.float64)
+            g0 = i0
+            while g0 < i1:
+                # a run of the row's pixels whose windows lie close together: the strips are built over its
+                # columns only (the cut windows of a row are few, at the views' edges)
+                g1 = g0 + 1
+                while g1 < i1 and xs[g1] - xs[g1 - 1] <= gap:
+                    g1 += 1
+                lo, hi = w, 0
+                oy_lo, oy_hi = oys[g0], oys[g0]
                 for i in range(g0, g1):
-                    if oys[i] == oy:
-                        b = int(np.floor(xs[i] - float(d0[y, xs[i]])))
-                        c0 = min(c0, b - reach - radius)
-                        c1 = max(c1, b + reach + radius + 2)
-                c0, c1 = max(c0, 0), min(c1, w)
-                if c1 <= c0:
-                    c0 = c1 = 0  # every tap off the image: weights 0 from the padding
-                _strip(R, TR, TD, y + oy - radius, k, c0, c1, pad)
-                _strip(Rx, TJ, TE, y + oy - radius, k, c0, c1, pad)
-                for kind in range(3):
-                    # the rows the right view must hold: fy 0 reads one, below one half the nearer is the first
-                    near = 1 if kind == 2 else 0
-                    _weight_strip(VR, WR, y + oy - radius, k, c0, c1, pad, near, 2, 1 - near, 0 if kind == 0 else 1)
+                    lo = min(lo, xs[i])
+                    hi = max(hi, xs[i])
+                    oy_lo = min(oy_lo, oys[i])
+                    oy_hi = max(oy_hi, oys[i])
+                cl0, cl1 = max(lo - radius, 0), min(hi + radius + 1, w)
+                _strip(L, TL, None, y - radius, k, cl0, cl1, pad)
+                _weight_strip(VL, WL, y - radius, k, cl0, cl1, pad, 0, 1, 0, 0)
+                for oy in range(oy_lo, oy_hi + 1):
+                    c0, c1 = w, 0
                     for i in range(g0, g1):
-                        fy = fys[i]
-                        if oys[i] != oy or (0 if fy == 0.0 else 1 if fy < 0.5 else 2) != kind:
-                            continue
-                        x = xs[i]
-                        init = float(d0[y, x])
-                        d = init
-                        textured = True
-                        cached = int(np.floor(x - d))
-                        _cut_sums(TL, WL, TR, TD, TJ, TE, WR, x, cached, radius, pad, w, fy, S)
-                        refined = True
-                        for _ in range(iterations):
-                            xf0 = x - d
-                            b0 = int(np.floor(xf0))
-                            if b0 != cached:
-                                _cut_sums(TL, WL, TR, TD, TJ, TE, WR, x, b0, radius, pad, w, fy, S)
-                                cached = b0
-                            m = S[0]
-                            if m < min_pixels:
-                                refined = False
-                                break
-                            fa = xf0 - b0
-                            fb = 1.0 - fa
-                            sl = S[1]
-                            sr = fb * S[3] + fa * S[4]
-                            sj = fb * S[5] + fa * S[6]
-                            slj = fb * S[7] + fa * S[8]
-                            srj = fb * fb * S[9] + fb * fa * (S[10] + S[11]) + fa * fa * S[12]
-                            sjj = fb * fb * S[13] + 2.0 * fb * fa * S[14] + fa * fa * S[15]
-                            num = (slj - sl * sj / m) - (srj - sr * sj / m)
-                            den = sjj - sj * sj / m
-                            textured = den > min_texture * m
-                            step = num / den if textured else 0.0
-                            step = min(max(step, -0.5), 0.5)
-                            d = min(max(d - step, init - max_shift), init + max_shift)
-                        z = np.nan
-                        kept = False
-                        if refined:
-                            xf0 = x - d
-                            b0 = int(np.floor(xf0))
-                            if b0 != cached:
-                                _cut_sums(TL, WL, TR, TD, TJ, TE, WR, x, b0, radius, pad, w, fy, S)
-                            m = S[0]
-                            if m >= min_pixels:
+                        if oys[i] == oy:
+                            b = int(np.floor(xs[i] - float(d0[y, xs[i]])))
+                            c0 = min(c0, b - reach - radius)
+                            c1 = max(c1, b + reach + radius + 2)
+                    c0, c1 = max(c0, 0), min(c1, w)
+                    if c1 <= c0:
+                        c0 = c1 = 0  # every tap off the image: weights 0 from the padding
+                    _strip(R, TR, TD, y + oy - radius, k, c0, c1, pad)
+                    _strip(Rx, TJ, TE, y + oy - radius, k, c0, c1, pad)
+                    for kind in range(3):
+                        # the rows the right view must hold: fy 0 reads one, below one half the nearer is the first
+                        near = 1 if kind == 2 else 0
+                        _weight_strip(VR, WR, y + oy - radius, k, c0, c1, pad, near, 2, 1 - near, 0 if kind == 0 else 1)
+                        for i in range(g0, g1):
+                            fy = fys[i]
+                            if oys[i] != oy or (0 if fy == 0.0 else 1 if fy < 0.5 else 2) != kind:
+                                continue
+                            x = xs[i]
+                            init = float(d0[y, x])
+                            d = init
+                            textured = True
+                            cached = int(np.floor(x - d))
+                            _cut_sums(TL, WL, TR, TD, TJ, TE, WR, x, cached, radius, pad, w, fy, S)
+                            refined = True
+                            for _ in range(iterations):
+                                xf0 = x - d
+                                b0 = int(np.floor(xf0))
+                                if b0 != cached:
+                                    _cut_sums(TL, WL, TR, TD, TJ, TE, WR, x, b0, radius, pad, w, fy, S)
+                                    cached = b0
+                                m = S[0]
+                                if m < min_pixels:
+                                    refined = False
+                                    break
                                 fa = xf0 - b0
                                 fb = 1.0 - fa
                                 sl = S[1]
                                 sr = fb * S[3] + fa * S[4]
-                                srr = fb * fb * S[16] + 2.0 * fb * fa * S[17] + fa * fa * S[18]
-                                slr = fb * S[19] + fa * S[20]
-                                den = np.sqrt(max(S[2] - sl * sl / m, 0.0) * max(srr - sr * sr / m, 0.0))
-                                z = (slr - sl * sr / m) / den if den > 0.0 else np.nan
-                                kept = textured and np.isfinite(d) and abs(d - init) < max_shift - 1e-3
-                        d_out[i] = d
-                        zncc[i] = z
-                        keep[i] = kept
-            g0 = g1
+                                sj = fb * S[5] + fa * S[6]
+                                slj = fb * S[7] + fa * S[8]
+                                srj = fb * fb * S[9] + fb * fa * (S[10] + S[11]) + fa * fa * S[12]
+                                sjj = fb * fb * S[13] + 2.0 * fb * fa * S[14] + fa * fa * S[15]
+                                num = (slj - sl * sj / m) - (srj - sr * sj / m)
+                                den = sjj - sj * sj / m
+                                textured = den > min_texture * m
+                                step = num / den if textured else 0.0
+                                step = min(max(step, -0.5), 0.5)
+                                d = min(max(d - step, init - max_shift), init + max_shift)
+                            z = np.nan
+                            kept = False
+                            if refined:
+                                xf0 = x - d
+                                b0 = int(np.floor(xf0))
+                                if b0 != cached:
+                                    _cut_sums(TL, WL, TR, TD, TJ, TE, WR, x, b0, radius, pad, w, fy, S)
+                                m = S[0]
+                                if m >= min_pixels:
+                                    fa = xf0 - b0
+                                    fb = 1.0 - fa
+                                    sl = S[1]
+                                    sr = fb * S[3] + fa * S[4]
+                                    srr = fb * fb * S[16] + 2.0 * fb * fa * S[17] + fa * fa * S[18]
+                                    slr = fb * S[19] + fa * S[20]
+                                    den = np.sqrt(max(S[2] - sl * sl / m, 0.0) * max(srr - sr * sr / m, 0.0))
+                                    z = (slr - sl * sr / m) / den if den > 0.0 else np.nan
+                                    kept = textured and np.isfinite(d) and abs(d - init) < max_shift - 1e-3
+                            d_out[i] = d
+                            zncc[i] = z
+                            keep[i] = kept
+                g0 = g1
     return d_out, zncc, keep
 
 
@@ -803,7 +812,7 @@ def refine_disparity(
     Rx = cv2.Sobel(R, cv2.CV_32F, 1, 0, ksize=3, scale=1.0 / 8.0)
     if ys.size:
         d, zncc, keep = _refine_kernel(L, R, Rx, ys, xs, d0, oy, fy, int(radius), int(iterations),
-                                       float(max_shift), float(min_texture))
+                                       float(max_shift), float(min_texture), numba.get_num_threads())
         check = valid_right is not None and min_pixels is None
         # the match must not land next to the right view's edge (its window would read beyond it)
         allowed = (cv2.dilate((~vr).astype(np.uint8), np.ones((k, k), np.uint8)) == 0 if check
@@ -813,7 +822,7 @@ def refine_disparity(
         vr_levels = vr_in.astype(np.uint8) + vr.astype(np.uint8)  # 2 inside, 1 outermost pixels, 0 outside
         d, zncc, keep = _refine_cut_kernel(L, R, Rx, vl_in.astype(np.uint8), vr_levels, cys, cxs, d0, coy, cfy,
                                            int(radius), int(iterations), float(max_shift), float(min_texture),
-                                           int(min_pixels))
+                                           int(min_pixels), numba.get_num_threads())
         # the match itself must stay inside the right view
         _scatter(out, conf, cys, cxs, d, zncc, keep, vr, True)
     return out, conf

@@ -87,3 +87,38 @@ def test_band_is_checked_and_refused_where_not_supported() -> None:
         get_matcher("sad").compute(left, right, max_disp=8, band=band)
     assert get_matcher("bpasw").supports_band and not get_matcher("bpasw", continuity=True).supports_band
     assert not get_matcher("sad").supports_band
+
+
+def test_pixel_cost_inside_a_band_equals_the_whole_volume_and_is_zero_outside() -> None:
+    left, right = _pair()
+    h, w = left.shape[:2]
+    full = cost_s_ad_census(left, right, max_disp=24, min_disp=2, tau_color=20.0, tau_gradient=8.0,
+                            census_weight=0.5)
+    band = SegmentBand(bounds=_random_band(h, -(-w // 13), full.shape[2], seed=5), segment=13)
+    out = cost_s_ad_census(left, right, max_disp=24, min_disp=2, tau_color=20.0, tau_gradient=8.0,
+                           census_weight=0.5, band=band)
+    idx = np.arange(full.shape[2])[None, None, :]
+    b = np.repeat(band.bounds, 13, axis=1)[:, :w]
+    inside = (idx >= b[:, :, :1]) & (idx <= b[:, :, 1:])
+    np.testing.assert_array_equal(out[inside], full[inside])  # bit for bit
+    assert (out[~inside] == 0.0).all() and (full[~inside] != 0.0).any()
+
+
+@pytest.mark.parametrize(("rows", "cols", "segment"), [(3, 5, 8), (0, 0, 8), (6, 20, 8), (2, 13, 13)])
+def test_dilated_band_holds_every_slice_within_its_reach(rows: int, cols: int, segment: int) -> None:
+    h, w = 30, 61
+    nseg = -(-w // segment)
+    band = SegmentBand(bounds=_random_band(h, nseg, 20, seed=rows + cols), segment=segment)
+    out = band.dilated(rows=rows, cols=cols, height=h, width=w).check(h, w)
+    b = band.bounds
+    for y in range(h):
+        for s in range(nseg):
+            # the segments with a column within ``cols`` of one of this segment's columns
+            c0, c1 = s * segment, min(w, (s + 1) * segment) - 1
+            near = [t for t in range(nseg) if t * segment <= c1 + cols and min(w, (t + 1) * segment) - 1 >= c0 - cols]
+            src = [(b[yy, t, 0], b[yy, t, 1]) for yy in range(max(0, y - rows), min(h, y + rows + 1)) for t in near
+                   if b[yy, t, 0] <= b[yy, t, 1]]
+            if not src:
+                assert out[y, s, 0] > out[y, s, 1]
+            else:
+                assert out[y, s, 0] <= min(a for a, _ in src) and out[y, s, 1] >= max(c for _, c in src)

@@ -85,6 +85,29 @@ class SegmentBand:
         busy = b[:, :, 0] <= b[:, :, 1]
         return np.repeat(busy, self.segment, axis=1)[:, :width]
 
+    def dilated(self, *, rows: int, cols: int, height: int, width: int) -> SegmentBand:
+        """The band that holds, per row segment, every slice of the segments within ``rows`` rows and ``cols``
+        columns of it (the min…max of their bounds): the entries an aggregation window of that reach reads.
+
+        Parameters
+        ----------
+        rows, cols : int
+            Reach of the window in rows and columns (pixels, ≥ 0).
+        height, width : int
+            Size of the volume.
+        """
+        b = self.check(height, width)
+        busy = b[:, :, 0] <= b[:, :, 1]
+        big = np.float32(2**24)
+        ks = -(-cols // self.segment)
+        kernel = np.ones((2 * rows + 1, 2 * ks + 1), np.uint8)
+        # (the default border of erode / dilate is neutral: the maximum / minimum value)
+        lo = cv2.erode(np.where(busy, b[:, :, 0], big).astype(np.float32), kernel)
+        hi = cv2.dilate(np.where(busy, b[:, :, 1], -big).astype(np.float32), kernel)
+        out = np.stack([lo, hi], axis=2).astype(np.int64)
+        out[lo > hi] = (1, 0)
+        return SegmentBand(bounds=out, segment=self.segment)
+
     def pixels(self, height: int, width: int) -> int:
         """Pixel·slices inside the band."""
         b = self.check(height, width)

@@ -21,6 +21,7 @@ from numba import njit, prange
 
 from prismstereo.errors import MatchingError
 from prismstereo.io.images import to_gray
+from prismstereo.matching.local.aggregation import SegmentBand
 
 __all__ = [
     "census_transform",
@@ -301,15 +302,25 @@ def _s_ad_census_kernel(lc: np.ndarray, rc: np.ndarray, lg: np.ndarray, rg: np.n
                         cr: np.ndarray, min_disp: int, nd: int, inv_c: np.float32, bad_c: np.float32,
                         tau_c: np.float32, clip_c: bool, bad_g: np.float32, tau_g: np.float32, clip_g: bool,
                         w_ad: np.float32, w_gr: np.float32, w_cen: np.float32, bad_cen: np.float32,
-                        use_census: bool) -> np.ndarray:  # pragma: no cover - numba
-    """:func:`cost_s_ad` (+ ``w_cen`` × :func:`cost_census`) per entry, float32 operations in numpy's order."""
+                        use_census: bool, keep: np.ndarray, seg: int) -> np.ndarray:  # pragma: no cover - numba
+    """:func:`cost_s_ad` (+ ``w_cen`` × :func:`cost_census`) per entry, float32 operations in numpy's order;
+    only the slices ``keep[y, x // seg, 0] … keep[y, x // seg, 1]`` (inclusive) of pixel ``(y, x)``, the others
+    0 (compiled without fastmath: an entry does not depend on the slices computed beside it)."""
     h, w, c = lc.shape
     out = np.empty((h, w, nd), np.float32)
     two = np.float32(2.0)
     half = np.float32(0.5)
+    zero = np.float32(0.0)
     for y in prange(h):
         for x in range(w):
-            for i in range(nd):
+            s = x // seg
+            lo = max(keep[y, s, 0], 0)
+            hi = min(keep[y, s, 1], nd - 1)
+            for i in range(min(lo, nd)):
+                out[y, x, i] = zero
+            for i in range(max(hi + 1, lo), nd):
+                out[y, x, i] = zero
+            for i in range(lo, hi + 1):
                 xr = x - (min_disp + i)
                 if xr >= 0:
                     ad = abs(lc[y, x, 0] - rc[y, xr, 0])
@@ -338,11 +349,13 @@ def _s_ad_census_kernel(lc: np.ndarray, rc: np.ndarray, lg: np.ndarray, rg: np.n
 
 def cost_s_ad_census(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int = 0,
                      omega: float = 0.5, tau_color: float | None = None, tau_gradient: float | None = None,
-                     census_weight: float = 0.0, window: tuple[int, int] = (7, 9)) -> np.ndarray:
+                     census_weight: float = 0.0, window: tuple[int, int] = (7, 9),
+                     band: SegmentBand | None = None) -> np.ndarray:
     """``cost_s_ad(...) + census_weight * cost_census(...)`` (thesis Eq. 5.6 plus a census term) in one
     parallel pass, equal to composing the two functions bit for bit.
 
     Parameters as :func:`cost_s_ad` and :func:`cost_census`; ``census_weight <= 0`` leaves the census out.
+    ``band``: only its entries are computed (the same values), the others are 0.
 
     Returns
     -------
@@ -359,6 +372,11 @@ def cost_s_ad_census(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_
         if census_weight > 0:
             vol += np.float32(census_weight) * cost_census(left, right, max_disp=max_disp, min_disp=min_disp,
                                                            window=window)
+        if band is not None:
+            h, w, nd_v = vol.shape
+            b = np.repeat(band.check(h, w), band.segment, axis=1)[:, :w]
+            idx = np.arange(nd_v)[None, None, :]
+            vol[(idx < b[:, :, :1]) | (idx > b[:, :, 1:])] = 0.0
         return vol
     lx, ly = image_gradients(left)
     rx, ry = image_gradients(right)
@@ -371,13 +389,18 @@ def cost_s_ad_census(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_
     bad_c = 255.0 if tau_color is None else float(tau_color)
     bad_g = 255.0 if tau_gradient is None else float(tau_gradient)
     f32 = np.float32
+    h, w = lc.shape[:2]
+    if band is None:  # every slice: one segment per row
+        keep, seg = np.tile(np.array([0, nd - 1], np.int64), (h, 1, 1)), max(w, 1)
+    else:
+        keep, seg = band.check(h, w), int(band.segment)
     return _s_ad_census_kernel(lc, rc, np.ascontiguousarray(np.stack([lx, ly], axis=2)),
                                np.ascontiguousarray(np.stack([rx, ry], axis=2)), cl, cr, int(min_disp), nd,
                                f32(1.0 / lc.shape[2]), f32(bad_c), f32(0.0 if tau_color is None else tau_color),
                                tau_color is not None, f32(bad_g / 2.0),
                                f32(0.0 if tau_gradient is None else tau_gradient), tau_gradient is not None,
                                f32(1.0 - omega), f32(omega), f32(census_weight),
-                               f32(int(window[0]) * int(window[1]) - 1), use_census)
+                               f32(int(window[0]) * int(window[1]) - 1), use_census, keep, seg)
 
 
 def invalid_cost_value(kind: str) -> float:

@@ -263,12 +263,13 @@ class BPASWMatcher(LocalMatcher):
         if self.kernel not in ("weber", "exp"):
             fail(self, "kernel", "'weber' or 'exp'", self.kernel)
 
-    def pixel_cost(self, left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int) -> np.ndarray:
+    def pixel_cost(self, left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int,
+                   band: SegmentBand | None = None) -> np.ndarray:
         """The per-pixel cost before aggregation, float32 ``(H, W, D)``: S_AD (thesis Eq. 5.6) plus
-        ``census_weight`` × the census Hamming distance."""
+        ``census_weight`` × the census Hamming distance; with ``band``, only its entries (0 elsewhere)."""
         return costs.cost_s_ad_census(left, right, max_disp=max_disp, min_disp=min_disp, omega=self.omega,
                                       tau_color=self.tau_color, tau_gradient=self.tau_gradient,
-                                      census_weight=self.census_weight)
+                                      census_weight=self.census_weight, band=band)
 
     @property
     def supports_band(self) -> bool:
@@ -278,7 +279,10 @@ class BPASWMatcher(LocalMatcher):
     def banded_cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int,
                            band: SegmentBand) -> np.ndarray:
         """:meth:`cost_volume`'s entries inside ``band`` (the same values), +inf outside."""
-        vol = self.pixel_cost(left, right, max_disp=max_disp, min_disp=min_disp)
+        # the pixel cost only where the aggregation's windows read it
+        h, w = left.shape[:2]
+        vol = self.pixel_cost(left, right, max_disp=max_disp, min_disp=min_disp,
+                              band=band.dilated(rows=self.radius, cols=self.radius, height=h, width=w))
         return aggregation.aggregate_bpasw(vol, left, right, radius=self.radius, dilation=self.dilation,
                                            min_disp=min_disp, kernel=self.kernel, similarity_s0=self.similarity_s0,
                                            gamma_color=self.gamma_color, gamma_proximity=self.gamma_proximity,
