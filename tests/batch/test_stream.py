@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import cv2
@@ -100,6 +101,20 @@ def test_folder_stream_takes_new_images_and_skips_bad_ones(tmp_path: Path, captu
     assert "512×384" in dict(summary.failed)["c_small"]
     _accurate([r for _, r in got], scenes)
     assert sorted(p.name for p in (tmp_path / "out" / "frames").iterdir()) == ["a", "b", "e_late"]
+
+
+def test_folder_idle_clock_does_not_count_the_consumers_time(tmp_path: Path) -> None:
+    # a consumer that holds a frame longer than the idle timeout (a full queue behind a slow first depth, a cold
+    # numba cache) must not end the folder: the folder was not watched meanwhile, so a frame written then is read
+    folder = tmp_path / "in"
+    folder.mkdir()
+    img = np.full((8, 8, 3), 100, np.uint8)
+    write_image(folder / "a.png", img)
+    frames = open_source(str(folder), poll_s=0.02, idle_timeout=0.3)
+    first = next(frames)
+    time.sleep(0.8)
+    write_image(folder / "b.png", img)
+    assert [first.name] + [f.name for f in frames] == ["a", "b"]
 
 
 def test_bad_sources_fail_before_any_frame(tmp_path: Path, captures) -> None:  # type: ignore[no-untyped-def]

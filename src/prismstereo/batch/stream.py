@@ -210,8 +210,11 @@ def _folder_frames(folder: Path, stop: threading.Event, poll_s: float, idle_time
                 img = read_image(p)
             except ImageError as exc:
                 yield StreamFrame(p.stem, None, error=str(exc).splitlines()[0])
-                continue
-            yield StreamFrame(p.stem, img, t_read=time.perf_counter() - t)
+            else:
+                yield StreamFrame(p.stem, img, t_read=time.perf_counter() - t)
+            # the time the consumer held the frame (a full queue, a slow first depth) is not idle time: the
+            # folder was not being watched, so the idle clock starts again when the reader looks again
+            last_new = time.monotonic()
             if stop.is_set():
                 return
         if not ready:
