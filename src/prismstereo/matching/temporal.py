@@ -18,6 +18,7 @@ and the left–right check rejects more. :class:`TemporalPrior` holds the rules,
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import cv2
@@ -72,10 +73,7 @@ class TemporalPrior:
                             "min_matched_ratio": (0.0, 1.0)})
 
     def to_dict(self) -> dict[str, float]:
-        return {"radius": self.radius, "wide_radius": self.wide_radius, "margin": self.margin,
-                "keyframe_every": self.keyframe_every, "max_full_share": self.max_full_share,
-                "max_limit_share": self.max_limit_share,
-                "min_matched_ratio": self.min_matched_ratio}
+        return dataclasses.asdict(self)
 
 
 #: the stream's default rules

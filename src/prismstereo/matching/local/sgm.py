@@ -76,6 +76,17 @@ def _census_volume(gray_left: np.ndarray, gray_right: np.ndarray, *, max_disp: i
                    window: tuple[int, int], scale: int, grad_weight: float, grad_tau: float) -> np.ndarray:
     """:func:`census_cost_volume` of the float32 (H, W) grey views (``costs.to_gray`` of the pair, which
     returns a grey view itself unchanged: the same volume)."""
+    cl, cr, gxl, gxr, invalid = _census_inputs(gray_left, gray_right, window=window, scale=scale,
+                                               grad_weight=grad_weight, grad_tau=grad_tau)
+    return census_kernel(cl, cr, gxl, gxr, int(min_disp), int(max_disp) - int(min_disp) + 1, int(scale),
+                          float(grad_weight), float(grad_tau), invalid)
+
+
+def _census_inputs(gray_left: np.ndarray, gray_right: np.ndarray, *, window: tuple[int, int], scale: int,
+                   grad_weight: float, grad_tau: float
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    """What the census cost kernels read (the full volume's and the banded one's): both views' census codes
+    and horizontal gradients, and the cost of an invalid match; the window and the uint16 range checked."""
     wh, ww = int(window[0]), int(window[1])
     if wh % 2 == 0 or ww % 2 == 0 or wh < 1 or ww < 1 or wh * ww - 1 > 64:
         raise ConfigError(f"expected an odd census window with at most 65 pixels, got {window}")
@@ -89,8 +100,7 @@ def _census_volume(gray_left: np.ndarray, gray_right: np.ndarray, *, max_disp: i
     if invalid > 65535:
         raise ConfigError(f"expected a cost that fits uint16 (scale·bits + grad_weight·grad_tau <= 65535), "
                           f"got {invalid}")
-    return census_kernel(cl, cr, gxl, gxr, int(min_disp), int(max_disp) - int(min_disp) + 1, int(scale),
-                          float(grad_weight), float(grad_tau), invalid)
+    return cl, cr, gxl, gxr, invalid
 
 
 def sgm_aggregate(cost: np.ndarray, gray: np.ndarray, *, p1: int, p2: int,
@@ -317,14 +327,9 @@ class SGMMatcher:
         timings: dict[str, float] = {}
         t = time.perf_counter()
         gray = costs.to_gray(left)
-        gray_r = costs.to_gray(right)
-        wh, ww = int(self.census_window[0]), int(self.census_window[1])
-        pad = ((wh // 2, wh // 2), (ww // 2, ww // 2))
-        cl = census_codes(np.pad(gray, pad, mode="edge"), wh // 2, ww // 2)
-        cr = census_codes(np.pad(gray_r, pad, mode="edge"), wh // 2, ww // 2)
-        gxl, _ = costs.image_gradients(gray)
-        gxr, _ = costs.image_gradients(gray_r)
-        invalid = int(self.census_scale * (wh * ww - 1) + self.grad_weight * self.grad_tau + 0.5)
+        cl, cr, gxl, gxr, invalid = _census_inputs(
+            gray, costs.to_gray(right), window=(int(self.census_window[0]), int(self.census_window[1])),
+            scale=self.census_scale, grad_weight=self.grad_weight, grad_tau=self.grad_tau)
         nd = int(max_disp) - int(min_disp) + 1
         widths = (bhi - blo + 1).ravel().astype(np.int64)
         off = (np.cumsum(widths) - widths).reshape(blo.shape)  # the ragged volumes' start of each pixel
