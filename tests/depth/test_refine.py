@@ -373,7 +373,7 @@ def test_the_whole_window_kernel_is_a_direct_gauss_newton_and_zncc() -> None:
     several pixels a row with different integer row offsets and fractions (0 included), starts up to 0.8 px
     off (the iterations move to other integer taps), windows at the image's left and right edges (the
     edge-replicating path) and on the top and bottom rows' offsets (rows clamped). Tolerance: d to 2e-5 px,
-    the ZNCC to 1e-5 (float32 outputs; the kernel's float64 sums are in another order)."""
+    the ZNCC to 1e-5 (float32 outputs; the kernel sums in float32, in another order)."""
     from prismstereo.depth.refine import _refine_kernel
 
     rng = np.random.default_rng(11)
@@ -404,3 +404,53 @@ def test_the_whole_window_kernel_is_a_direct_gauss_newton_and_zncc() -> None:
     np.testing.assert_allclose(zncc, want[:, 1], rtol=0, atol=1e-5)
     np.testing.assert_array_equal(keep, want[:, 2].astype(bool))
     assert keep.mean() > 0.5
+
+
+def _derived(S: np.ndarray, fa: float, m: int) -> np.ndarray:
+    """What the whole-window kernel takes from its window sums at a fraction ``fa``: the Gauss–Newton
+    numerator and denominator, the right window's variance and Σ lz·R (each invariant to a constant added to R)."""
+    fb = 1.0 - fa
+    sr, sj = fb * S[0] + fa * S[1], fb * S[2] + fa * S[3]
+    slj = fb * S[4] + fa * S[5]
+    srj = fb * fb * S[6] + fb * fa * (S[7] + S[8]) + fa * fa * S[9]
+    sjj = fb * fb * S[10] + 2.0 * fb * fa * S[11] + fa * fa * S[12]
+    srr = fb * fb * S[13] + 2.0 * fb * fa * S[14] + fa * fa * S[15]
+    slr = fb * S[16] + fa * S[17]
+    return np.array([slj - (srj - sr * sj / m), sjj - sj * sj / m, srr - sr * sr / m, slr])
+
+
+def test_float32_window_sums_keep_a_faint_texture_on_a_bright_surface() -> None:
+    """The whole-window kernel's float32 window sums (:func:`_window_sums32`, from float32 strips) give the
+    Gauss–Newton step's numerator and denominator, the right window's variance and Σ lz·R of the float64 sums
+    to 1e-4 of each, on windows of grey level ~230 whose texture is 0.3 grey levels with a 6-level offset between
+    the views: float32 sums of the raw grey levels (terms of ~5e4 for a variance of ~0.1 a pixel) would be off
+    by more than the texture (centring on the left window's mean is what keeps them)."""
+    from prismstereo.depth.refine import _strip, _window_sums, _window_sums32
+
+    rng = np.random.default_rng(5)
+    h, w, r = 16, 48, 5
+    k, m = 2 * r + 1, (2 * r + 1) ** 2
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    tex = 0.3 * np.sin(0.9 * xx + 0.4 * yy) + 0.1 * rng.normal(size=(h, w))
+    L = (230.0 + tex).astype(np.float32)
+    R = (236.0 + np.roll(tex, -4, axis=1)).astype(np.float32)
+    Rx = cv2.Sobel(R, cv2.CV_32F, 1, 0, ksize=3, scale=1.0 / 8.0)
+    y, oy = 7, 0
+    checked = 0
+    for x in range(r + 6, w - r - 2, 3):
+        b0 = x - 4 - int(rng.integers(0, 2))
+        fy = float(rng.choice([0.0, 0.37, 0.93]))
+        got = np.empty((1, 18))
+        want = np.empty((1, 18))
+        for dtype, fn, out in ((np.float32, _window_sums32, got), (np.float64, _window_sums, want)):
+            TL, TR, TD, TJ, TE = (np.zeros(w * k, dtype=dtype) for _ in range(5))
+            _strip(L, TL, None, y - r, k, 0, w, 0)
+            _strip(R, TR, TD, y + oy - r, k, 0, w, 0)
+            _strip(Rx, TJ, TE, y + oy - r, k, 0, w, 0)
+            lmean = float(np.mean(L[y - r:y + r + 1, x - r:x + r + 1].astype(np.float64)))
+            fn(TL, TR, TD, TJ, TE, (x - r) * k, (b0 - r) * k, k, m, lmean, fy, out, 0)
+        for fa in (0.0, 0.4, 0.85):
+            g, wv = _derived(got[0], fa, m), _derived(want[0], fa, m)
+            np.testing.assert_allclose(g, wv, rtol=1e-4, atol=1e-4 * np.abs(wv).max())
+            checked += 1
+    assert checked > 20

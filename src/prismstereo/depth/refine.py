@@ -143,12 +143,12 @@ def _window_sums(TL: np.ndarray, TR: np.ndarray, TD: np.ndarray, TJ: np.ndarray,
 def _window_sums32(TL: np.ndarray, TR: np.ndarray, TD: np.ndarray, TJ: np.ndarray, TE: np.ndarray, ul: int,
                    ur: int, uk: int, m: int, lmean: float, fy: float, out: np.ndarray,
                    j: int) -> None:  # pragma: no cover - numba
-    """:func:`_window_sums` from float32 strips in float32 arithmetic (16 lanes instead of 8), R's taps less
-    the left window's mean as well as the left window: every sum the kernel uses enters through a
-    difference that does not change when R moves by a constant (``Σ R·J − Σ R·Σ J / m``,
-    ``Σ R² − (Σ R)² / m``, ``Σ lz·R`` with ``Σ lz = 0``), and a match's R is near the left mean, so the
-    float32 terms stay of the size of the texture instead of the grey level (100–250): the float32
-    rounding is then of the texture's size too (≈ 1e-7 of it), not of the brightness."""
+    """:func:`_window_sums` from float32 strips in float32 arithmetic (twice the SIMD lanes), the left window
+    less its mean and R's taps less R's value at the window's centre: every sum the kernel uses enters
+    through a difference that does not change when R moves by a constant (``Σ R·J − Σ R·Σ J / m``,
+    ``Σ R² − (Σ R)² / m``, ``Σ lz·R`` with ``Σ lz = 0``), so the terms stay of the size of the texture
+    instead of the grey level (100–250), and the float32 rounding with them (≈ 1e-7 of the texture's
+    terms, not of the brightness's)."""
     c = np.float32(lmean)
     # the left window less its exact mean: Σ lz = 0 is what lets the kernel leave R's mean out of Σ lz·R
     # and Σ lz·J, and float32(lmean) is up to 1e-5 grey levels off it (times Σ R of the window)
@@ -157,6 +157,9 @@ def _window_sums32(TL: np.ndarray, TR: np.ndarray, TD: np.ndarray, TJ: np.ndarra
     ua = np.uint64(ur)
     ub = np.uint64(ur + uk)
     u0 = np.uint64(ul)
+    # R less its own value at the window's centre (tap a): the two views' brightness may differ by several
+    # grey levels, and R less the left mean would keep that offset in every term of Σ R²
+    cr = TR[ua + np.uint64(m // 2)]
     # three loops of at most 7 sums each: one loop of 18 sums spills its accumulators to the stack (16 ymm
     # registers on AVX2); the window's strips are in L1, so reading them three times costs less
     sja = sjb = slja = sljb = sjaja = sjajb = sjbjb = np.float32(0.0)
@@ -175,8 +178,8 @@ def _window_sums32(TL: np.ndarray, TR: np.ndarray, TD: np.ndarray, TJ: np.ndarra
     sra = srb = srara = srarb = srbrb = slra = slrb = np.float32(0.0)
     for q in range(m):
         uq = np.uint64(q)
-        a = TR[ua + uq] + f * TD[ua + uq] - c
-        b = TR[ub + uq] + f * TD[ub + uq] - c
+        a = TR[ua + uq] + f * TD[ua + uq] - cr
+        b = TR[ub + uq] + f * TD[ub + uq] - cr
         z = (TL[u0 + uq] - c) - e
         sra += a
         srb += b
@@ -188,8 +191,8 @@ def _window_sums32(TL: np.ndarray, TR: np.ndarray, TD: np.ndarray, TJ: np.ndarra
     sraja = srajb = srbja = srbjb = np.float32(0.0)
     for q in range(m):
         uq = np.uint64(q)
-        a = TR[ua + uq] + f * TD[ua + uq] - c
-        b = TR[ub + uq] + f * TD[ub + uq] - c
+        a = TR[ua + uq] + f * TD[ua + uq] - cr
+        b = TR[ub + uq] + f * TD[ub + uq] - cr
         ja = TJ[ua + uq] + f * TE[ua + uq]
         jb = TJ[ub + uq] + f * TE[ub + uq]
         sraja += a * ja
