@@ -66,6 +66,7 @@ def _strip(img: np.ndarray, T: np.ndarray, D: np.ndarray | None, y0: int, k: int
         uc = np.uint64(c)
         o = (uc + up) * uk
         # np.float64, not float(): numba's float() keeps a float32, and the row difference must not round
+        # (in float64 strips; a float32 strip rounds it once, on the store)
         v = np.float64(flat[rows[0] + uc])
         for j in range(k):
             uj = np.uint64(j)
@@ -77,78 +78,22 @@ def _strip(img: np.ndarray, T: np.ndarray, D: np.ndarray | None, y0: int, k: int
 
 
 @njit(cache=True, inline="always")
-def _window_sums(TL: np.ndarray, TR: np.ndarray, TD: np.ndarray, TJ: np.ndarray, TE: np.ndarray, ul: int,
-                 ur: int, uk: int, m: int, lmean: float, fy: float, out: np.ndarray,
-                 j: int) -> None:  # pragma: no cover - numba
-    """Window sums of the two integer taps ``a`` and ``b = a + 1`` of R and Rx against the left window less
-    its mean ``lz`` into ``out[j]``: Σ Ra, Σ Rb, Σ Ja, Σ Jb, Σ lz·Ja, Σ lz·Jb, Σ Ra·Ja, Σ Ra·Jb, Σ Rb·Ja,
-    Σ Rb·Jb, Σ Ja², Σ Ja·Jb, Σ Jb², Σ Ra², Σ Ra·Rb, Σ Rb², Σ lz·Ra, Σ lz·Rb, from column-major strips
-    (:func:`_strip`): the left window is ``TL[ul:ul + m]``, tap a of R ``TR[ur:ur + m] + fy·TD[ur:ur + m]``
-    (linear between two rows), Rx alike from ``TJ``, ``TE``, and tap b the same ``uk`` further on. One flat
-    loop over the window, so that it vectorises; unsigned offsets (numba then skips its test for negative
-    indices, which keeps the loads contiguous)."""
-    sra = srb = sja = sjb = slja = sljb = 0.0
-    sraja = srajb = srbja = srbjb = sjaja = sjajb = sjbjb = 0.0
-    srara = srarb = srbrb = slra = slrb = 0.0
-    ua = np.uint64(ur)
-    ub = np.uint64(ur + uk)
-    u0 = np.uint64(ul)
-    for q in range(m):
-        uq = np.uint64(q)
-        a = TR[ua + uq] + fy * TD[ua + uq]
-        b = TR[ub + uq] + fy * TD[ub + uq]
-        ja = TJ[ua + uq] + fy * TE[ua + uq]
-        jb = TJ[ub + uq] + fy * TE[ub + uq]
-        z = TL[u0 + uq] - lmean
-        sra += a
-        srb += b
-        sja += ja
-        sjb += jb
-        slja += z * ja
-        sljb += z * jb
-        sraja += a * ja
-        srajb += a * jb
-        srbja += b * ja
-        srbjb += b * jb
-        sjaja += ja * ja
-        sjajb += ja * jb
-        sjbjb += jb * jb
-        srara += a * a
-        srarb += a * b
-        srbrb += b * b
-        slra += z * a
-        slrb += z * b
-    o = out[j]
-    o[0] = sra
-    o[1] = srb
-    o[2] = sja
-    o[3] = sjb
-    o[4] = slja
-    o[5] = sljb
-    o[6] = sraja
-    o[7] = srajb
-    o[8] = srbja
-    o[9] = srbjb
-    o[10] = sjaja
-    o[11] = sjajb
-    o[12] = sjbjb
-    o[13] = srara
-    o[14] = srarb
-    o[15] = srbrb
-    o[16] = slra
-    o[17] = slrb
-
-
-@njit(cache=True, inline="always")
 def _window_sums32(TL: np.ndarray, TR: np.ndarray, TD: np.ndarray, TJ: np.ndarray, TE: np.ndarray, ul: int,
                    ur: int, uk: int, m: int, lmean: float, fy: float, out: np.ndarray,
                    j: int) -> None:  # pragma: no cover - numba
-    """:func:`_window_sums` from float32 strips in float32 arithmetic (twice the SIMD lanes), the left window
-    less its mean and R's taps less R's value at the window's centre: every sum the kernel uses enters
-    through a difference that does not change when R moves by a constant (``Σ R·J − Σ R·Σ J / m``,
-    ``Σ R² − (Σ R)² / m``, ``Σ lz·R`` with ``Σ lz = 0``), so the terms stay of the size of the texture
-    instead of the grey level (100–250), and the float32 rounding with them (≈ 1e-7 of the texture's
-    terms, not of the brightness's)."""
+    """Window sums of the two integer taps ``a`` and ``b = a + 1`` of R and Rx against the left window less
+    its mean ``lz`` into ``out[j]``: Σ Ra, Σ Rb, Σ Ja, Σ Jb, Σ lz·Ja, Σ lz·Jb, Σ Ra·Ja, Σ Ra·Jb, Σ Rb·Ja,
+    Σ Rb·Jb, Σ Ja², Σ Ja·Jb, Σ Jb², Σ Ra², Σ Ra·Rb, Σ Rb², Σ lz·Ra, Σ lz·Rb, from column-major float32 strips
+    (:func:`_strip`): the left window is ``TL[ul:ul + m]``, tap a of R ``TR[ur:ur + m] + fy·TD[ur:ur + m]``
+    (linear between two rows), Rx alike from ``TJ``, ``TE``, and tap b the same ``uk`` further on. Flat loops
+    over the window, so that they vectorise; unsigned offsets (numba then skips its test for negative
+    indices, which keeps the loads contiguous).
+
+    In float32 arithmetic (twice the SIMD lanes of float64), the left window less its mean and R's taps less
+    R's value at the window's centre: every sum the kernel uses enters through a difference that does not
+    change when R moves by a constant (``Σ R·J − Σ R·Σ J / m``, ``Σ R² − (Σ R)² / m``, ``Σ lz·R`` with
+    ``Σ lz = 0``), so the terms stay of the size of the texture instead of the grey level (100–250), and
+    the float32 rounding with them (≈ 1e-7 of the texture's terms, not of the brightness's)."""
     c = np.float32(lmean)
     # the left window less its exact mean: Σ lz = 0 is what lets the kernel leave R's mean out of Σ lz·R
     # and Σ lz·J, and float32(lmean) is up to 1e-5 grey levels off it (times Σ R of the window)
@@ -230,7 +175,7 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
     ``Σ r·Jz = Σ Lz·J - (Σ R·J - m·mean R·mean J)`` and ``Σ Jz² = Σ J² - m·mean J²`` (``Σ Lz = 0``).
     Every window pixel is shifted by the same d, so its samples are ``R = fb·Ra + fa·Rb`` (and J alike)
     with one pair of integer taps and one fraction for the whole window: each sum is a polynomial in
-    ``fa`` whose coefficients are sums over the integer taps (:func:`_window_sums`). These are computed
+    ``fa`` whose coefficients are sums over the integer taps (:func:`_window_sums32`). These are computed
     once per integer position ``b0`` the iterations visit (mostly one or two) instead of once per iteration.
     The right window's rows are moved by the pixel's row offset ``oys[i] + fys[i]`` (integer part, fraction
     in [0, 1)), sampled linearly between two rows.
@@ -328,8 +273,8 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
                         fb = 1.0 - fa
                         if b0 - radius >= 0 and b0 + radius + 1 <= w - 1:
                             if b0 != cached[j]:
-                                _window_sums32(TL, TR, TD, TJ, TE, (x - radius) * k, (b0 - radius) * k, k, m, lms[j], fy,
-                                             S, j)
+                                _window_sums32(TL, TR, TD, TJ, TE, (x - radius) * k, (b0 - radius) * k, k, m, lms[j],
+                                               fy, S, j)
                                 cached[j] = b0
                             Sj = S[j]
                             sr = fb * Sj[0] + fa * Sj[1]
@@ -372,7 +317,8 @@ def _refine_kernel(L: np.ndarray, R: np.ndarray, Rx: np.ndarray, ys: np.ndarray,
                     fb = 1.0 - fa
                     if b0 - radius >= 0 and b0 + radius + 1 <= w - 1:
                         if b0 != cached[j]:
-                            _window_sums32(TL, TR, TD, TJ, TE, (x - radius) * k, (b0 - radius) * k, k, m, lmean, fy, S, j)
+                            _window_sums32(TL, TR, TD, TJ, TE, (x - radius) * k, (b0 - radius) * k, k, m, lmean, fy,
+                                           S, j)
                         Sj = S[j]
                         sr = fb * Sj[0] + fa * Sj[1]
                         srr = fb * fb * Sj[13] + 2.0 * fb * fa * Sj[14] + fa * fa * Sj[15]
@@ -416,12 +362,12 @@ def _weight_strip(V: np.ndarray, T: np.ndarray, y0: int, k: int, c0: int, c1: in
 def _masked_window_sums(TL: np.ndarray, WL: np.ndarray, TR: np.ndarray, TD: np.ndarray, TJ: np.ndarray,
                         TE: np.ndarray, WR: np.ndarray, ul: int, ur: int, uk: int, m: int, fy: float,
                         out: np.ndarray) -> None:  # pragma: no cover - numba
-    """:func:`_window_sums` over the window pixels that count, on the raw left window, into ``out``: m, Σ L,
-    Σ L², then Σ Ra, Σ Rb, Σ Ja, Σ Jb, Σ L·Ja, Σ L·Jb, Σ Ra·Ja, Σ Ra·Jb, Σ Rb·Ja, Σ Rb·Jb, Σ Ja², Σ Ja·Jb,
-    Σ Jb², Σ Ra², Σ Ra·Rb, Σ Rb², Σ L·Ra, Σ L·Rb. A window pixel counts when the left view holds it
-    (``WL``) and the right view both its taps (``WR`` at tap a and at tap b, ``uk`` further on): each term is
-    weighted by that (1.0 or 0.0); the strips' columns off the image hold 0 in ``WL`` / ``WR`` and finite
-    values in the others."""
+    """The sums of :func:`_window_sums32` (in float64) over the window pixels that count, on the raw left
+    window, into ``out``: m, Σ L, Σ L², then Σ Ra, Σ Rb, Σ Ja, Σ Jb, Σ L·Ja, Σ L·Jb, Σ Ra·Ja, Σ Ra·Jb,
+    Σ Rb·Ja, Σ Rb·Jb, Σ Ja², Σ Ja·Jb, Σ Jb², Σ Ra², Σ Ra·Rb, Σ Rb², Σ L·Ra, Σ L·Rb. A window pixel counts
+    when the left view holds it (``WL``) and the right view both its taps (``WR`` at tap a and at tap b,
+    ``uk`` further on): each term is weighted by that (1.0 or 0.0); the strips' columns off the image hold
+    0 in ``WL`` / ``WR`` and finite values in the others."""
     sm = sl = sll = 0.0
     sra = srb = sja = sjb = slja = sljb = 0.0
     sraja = srajb = srbja = srbjb = sjaja = sjajb = sjbjb = 0.0
