@@ -202,9 +202,10 @@ def test_large_segment_whose_plane_scattered_evidence_agrees_with_keeps_it() -> 
     scattered = np.random.default_rng(1).random((h, w)) < 0.3
     block = np.zeros((h, w), bool)
     block[: int(0.3 * h)] = True
-    for evidence, params, kept in ((scattered, FallbackParams(), True),
-                                   (scattered, FallbackParams(coverage_reach=0), False),
-                                   (block, FallbackParams(), False)):
+    one = ("bpasw",)  # the sgm candidate's rules play no part here
+    for evidence, params, kept in ((scattered, FallbackParams(candidates=one), True),
+                                   (scattered, FallbackParams(candidates=one, coverage_reach=0), False),
+                                   (block, FallbackParams(candidates=one), False)):
         ev = _fallback_evidence(left, right, vol, initial, evidence)
         out = ev.fallback(state, plane, params)
         np.testing.assert_array_equal(out, plane if kept else local)
