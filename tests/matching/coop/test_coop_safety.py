@@ -185,6 +185,34 @@ def test_large_segment_whose_plane_the_evidence_barely_covers_takes_the_local_ma
             np.testing.assert_array_equal(out, wrong)
 
 
+def test_large_segment_whose_plane_scattered_evidence_agrees_with_keeps_it() -> None:
+    """The coverage rule's reach: a large segment (a dark, weakly textured wall in a noisy capture) whose evidence
+    is scattered over 30 % of its pixels, every piece of it agreeing with the plane, keeps the plane (between the
+    evidence pixels it is interpolated, not extrapolated). The same 30 % in one block at the top, or the reach
+    off, still takes the local map."""
+    from prismstereo.errors import ConfigError
+    from prismstereo.matching.coop.steps import FallbackParams
+
+    d_true = 6
+    h, w = 70, 100
+    left, right, vol, local = _fallback_pair(3, h, w)
+    state = _plane_state(np.zeros((h, w), np.int32), d_true + 0.4)
+    plane = np.full((h, w), d_true + 0.4, np.float32)  # within tol of the evidence, not the local map's values
+    initial = np.full((h, w), float(d_true), np.float32)
+    scattered = np.random.default_rng(1).random((h, w)) < 0.3
+    block = np.zeros((h, w), bool)
+    block[: int(0.3 * h)] = True
+    one = ("bpasw",)  # the sgm candidate's rules play no part here
+    for evidence, params, kept in ((scattered, FallbackParams(candidates=one), True),
+                                   (scattered, FallbackParams(candidates=one, coverage_reach=0), False),
+                                   (block, FallbackParams(candidates=one), False)):
+        ev = _fallback_evidence(left, right, vol, initial, evidence)
+        out = ev.fallback(state, plane, params)
+        np.testing.assert_array_equal(out, plane if kept else local)
+    with pytest.raises(ConfigError, match="coverage_reach"):
+        FallbackParams(coverage_reach=-1)
+
+
 def test_segment_whose_map_contradicts_its_evidence_takes_the_local_map() -> None:
     """The fallback step's contradiction rule: a segment whose final plane is wrong (3 px off, where the
     optimisation put it: the data term preferred it, as under an exposure change between the views) although

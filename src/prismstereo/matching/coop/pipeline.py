@@ -601,6 +601,14 @@ class _PairEvidence:
         agree = self.evidence & (np.abs(final - self.initial) <= p.tol)
         agreeing = np.bincount(lab, weights=agree.ravel(), minlength=s.assign.size)
         thin = (sizes >= p.min_share * lab.size) & (covered < p.min_coverage * sizes)
+        if p.coverage_reach > 0 and thin.any():
+            # evidence scattered over a segment (the noisy capture of a dark, weakly textured wall) holds its plane
+            # between the evidence pixels, not beyond them: a thin segment is extrapolated only where its pixels lie
+            # farther than the reach from every evidence pixel its map agrees with
+            k = 2 * p.coverage_reach + 1
+            near = cv2.dilate(agree.astype(np.uint8), np.ones((k, k), np.uint8)) > 0
+            reached = np.bincount(lab, weights=near.ravel(), minlength=s.assign.size)
+            thin &= reached < p.min_coverage * sizes
         bare = (sizes >= p.bare_share * lab.size) & (covered < p.bare_coverage * sizes)
         against = ((sizes >= p.against_pixels) & (covered >= p.against_coverage * sizes)
                    & (agreeing < p.max_agreement * covered))

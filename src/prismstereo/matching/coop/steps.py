@@ -222,7 +222,9 @@ class FallbackParams:
     segments whose final disparity nothing of their own supports:
 
     * sparse: segments of at least ``min_share`` of the image whose evidence covers less than ``min_coverage`` of
-      their pixels (their plane is extrapolated over most of the segment);
+      their pixels (their plane is extrapolated over most of the segment), unless ``min_coverage`` of them lie
+      within ``coverage_reach`` px (a square window) of an evidence pixel that agrees with their map within
+      ``tol`` (scattered evidence the plane agrees with: it is interpolated there, not extrapolated; 0 = off);
     * bare: segments of at least ``bare_share`` of the image whose evidence covers less than ``bare_coverage`` of
       them (their plane comes from the neighbours and the smoothness term alone; ``bare_coverage`` 0 = off);
     * contradicted: segments of at least ``against_pixels`` whose evidence covers at least ``against_coverage``
@@ -254,6 +256,7 @@ class FallbackParams:
     enabled: bool = True
     min_coverage: float = 0.4
     min_share: float = 0.03
+    coverage_reach: int = 2
     bare_coverage: float = 0.05
     bare_share: float = 0.005
     max_agreement: float = 0.1
@@ -295,6 +298,7 @@ class FallbackParams:
               "fallback.min_coverage, bare_coverage, max_agreement, against_coverage in [0, 1] and min_share, "
               "bare_share in (0, 1]", (self.min_coverage, self.bare_coverage, self.max_agreement,
                                        self.against_coverage, self.min_share, self.bare_share))
+        _need(self.coverage_reach >= 0, "fallback.coverage_reach >= 0", self.coverage_reach)
         _need(self.against_pixels >= 1 and self.tol >= 0, "fallback.against_pixels >= 1 and tol >= 0",
               (self.against_pixels, self.tol))
 
