@@ -219,33 +219,6 @@ class SweepCache(NamedTuple):
     es: F64
 
 
-class TrialBuffer(NamedTuple):
-    """A group move's tried z-buffer (:func:`_expand`) and where it differs from the kept one (the cache's).
-
-    Attributes
-    ----------
-    z1, o1, z2 : (H*W,) float64, int64, float64
-        The z-buffer of the tried assignment (:func:`_zbuffer`), the kept one's outside the spans.
-    s0, s1 : (H,) int64
-        Per row, the span of right-view columns drawn again (``s0 > s1``: none).
-    pre : (H, W+1) int64
-        Per row with a span, the changed pixels of the span up to each column (``pre[y, x - s0[y] + 1]``).
-    chg : (H*W,) bool
-        The changed pixels.
-    nchg : (H,) int64
-        Changed pixels per row.
-    """
-
-    z1: F64
-    o1: I64
-    z2: F64
-    s0: I64
-    s1: I64
-    pre: I64
-    chg: npt.NDArray[np.bool_]
-    nchg: I64
-
-
 @dataclass(frozen=True)
 class SegmentGraph:
     """Adjacency of segments and their boundary pixel pairs.
@@ -1403,20 +1376,17 @@ def _run_reach(pl: F64, y: int, xa: int, xb: int, w: int) -> tuple[int, int]:
 
 
 @njit(cache=True)
-def _run_flips(j: int, pl: F64, y: int, r: int, dt: PixelData, cache: SweepCache, margin: float,
-               tb: TrialBuffer) -> bool:
+def _run_flips(j: int, pl: F64, y: int, r: int, srun: I64, order: I64, w: int, nd: int, min_disp: int, margin: float,
+               x0: int, x1: int, pre: I64, chg: npt.NDArray[np.bool_], zn1: F64, on1: I64, zn2: F64, zo1: F64,
+               oo1: I64, zo2: F64) -> bool:
     """Whether the visibility test of :func:`_data` (the occlusion term of Eq. 6.22) of a pixel of run ``r`` (row
-    ``y`` of segment ``j``, plane ``pl``; ``cache.srun``) gives another answer under the tried z-buffer ``tb``
-    than under the kept one (``cache``'s). They differ at most on the pixels ``tb.chg`` flags, all in row ``y``'s
-    span. :func:`_vis_flips`'s test for one run (the same arithmetic as :func:`_data`, so that no answer means the
-    same sum)."""
-    order, w, nd, min_disp = dt.order, dt.w, dt.cost.shape[2], dt.min_disp
-    srun, zo1, oo1, zo2 = cache.srun, cache.zc1, cache.oc1, cache.zc2
-    zn1, on1, zn2, pre, chg = tb.z1, tb.o1, tb.z2, tb.pre, tb.chg
-    x0 = tb.s0[y]
+    ``y`` of segment ``j``, plane ``pl``) gives another answer under the z-buffer ``zn1, on1, zn2`` than under
+    ``zo1, oo1, zo2``. They differ at most on the pixels ``chg`` flags, all in row ``y``'s columns ``x0..x1``,
+    ``pre[y, x - x0 + 1]`` of them up to column ``x``. :func:`_vis_flips`'s test for one run (the same
+    arithmetic as :func:`_data`, so that no answer means the same sum)."""
     c0, c1 = _run_reach(pl, y, srun[r, 2], srun[r, 3], w)
     c0 = max(c0, x0)
-    c1 = min(c1, tb.s1[y])
+    c1 = min(c1, x1)
     if c0 > c1 or pre[y, c1 - x0 + 1] == pre[y, c0 - x0]:
         return False
     a, b, c = pl[0], pl[1], pl[2]
@@ -1477,6 +1447,7 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, dt: Pix
      es) = cache
     k = starts.size - 1
     h = cost.shape[1] // w
+    nd = cost.shape[2]
     gamma = prm.gamma
     thr = prm.smooth_threshold
     margin = prm.occ_margin
@@ -1501,7 +1472,6 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, dt: Pix
     nchg = np.zeros(h, np.int64)  # changed pixels per row
     chg = np.zeros(h * w, np.bool_)
     pre = np.empty((h, w + 1), np.int64)  # per row, changed pixels of the span up to each column
-    tb = TrialBuffer(zt1, ot1, zt2, s0, s1, pre, chg, nchg)
     dirty = np.zeros(k, np.bool_)
     dlist = np.empty(k, np.int64)  # segments not moved whose data term the move changes
     save_r = np.empty(k, np.float64)
@@ -1619,7 +1589,8 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, dt: Pix
                 if vis:
                     for ri in range(sstart[j], sstart[j + 1]):
                         y = srun[ri, 0]
-                        if nchg[y] > 0 and _run_flips(j, pl, y, ri, dt, cache, margin, tb):
+                        if nchg[y] > 0 and _run_flips(j, pl, y, ri, srun, order, w, nd, min_disp, margin, s0[y], s1[y],
+                                                      pre, chg, zt1, ot1, zt2, zc1, oc1, zc2):
                             flip = True
                             break
                 dcur[j] = _data(j, pl, dt, prm, zt1, ot1, zt2) if flip else dnew[r]
@@ -1634,7 +1605,8 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, dt: Pix
                         j = runseg[ri]
                         if in_s[j] or dirty[j]:
                             continue
-                        if _run_flips(j, planes[a[j]], y, ri, dt, cache, margin, tb):
+                        if _run_flips(j, planes[a[j]], y, ri, srun, order, w, nd, min_disp, margin, s0[y], s1[y], pre,
+                                      chg, zt1, ot1, zt2, zc1, oc1, zc2):
                             dirty[j] = True
                             dlist[nd_] = j
                             save_d[nd_] = dcur[j]
@@ -1663,7 +1635,8 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, dt: Pix
                             j = runseg[ri]
                             t = 0
                             while t < cn[j]:
-                                if _run_flips(j, planes[clab[j, t]], y, ri, dt, cache, margin, tb):
+                                if _run_flips(j, planes[clab[j, t]], y, ri, srun, order, w, nd, min_disp, margin, s0[y],
+                                              s1[y], pre, chg, zt1, ot1, zt2, zc1, oc1, zc2):
                                     cn[j] -= 1
                                     clab[j, t] = clab[j, cn[j]]
                                     cval[j, t] = cval[j, cn[j]]
