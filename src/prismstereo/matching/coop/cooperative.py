@@ -1334,165 +1334,46 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
 
 
 @njit(cache=True)
-def _row_runs(srun: I64, sstart: I64, h: int) -> tuple[I64, I64, I64]:
-    """The segments' runs of pixels of one row (``srun``, ``sstart`` of :class:`SweepCache`) by row: the runs of row
-    ``y`` are ``rid[rs[y]:rs[y + 1]]``, in the order of their pixels in ``order`` (the order in which
-    :func:`_zbuffer_rows` takes a row's pixels), and run ``r`` belongs to segment ``rseg[r]``.
-
-    Implementation helper (the z-buffer of Eq. 6.22 by rows) with no thesis equation of its own.
-    """
-    nr = srun.shape[0] - 1
-    rseg = np.empty(nr, np.int64)
-    for j in range(sstart.size - 1):
-        for r in range(sstart[j], sstart[j + 1]):
-            rseg[r] = j
-    rs = np.zeros(h + 1, np.int64)
-    for r in range(nr):
-        rs[srun[r, 0] + 1] += 1
-    for y in range(h):
-        rs[y + 1] += rs[y]
-    fill = rs[:-1].copy()
-    rid = np.empty(nr, np.int64)
-    for r in range(nr):  # runs are in the order of their first pixel: a stable sort by row keeps it
-        y = srun[r, 0]
-        rid[fill[y]] = r
-        fill[y] += 1
-    return rs, rid, rseg
-
-
-@njit(cache=True, inline="always")
-def _run_reach(pl: F64, y: int, xa: int, xb: int, w: int) -> tuple[int, int]:
-    """The right-view columns ``c0..c1`` (clipped to the image; ``c0 > c1`` when none) that pixels of row ``y`` in
-    columns ``xa..xb`` reach under plane ``pl`` (x - d is linear in x), with one pixel of slack for the rounding of
-    the per-pixel evaluation; the whole row when the ends are not finite or too large to round safely.
-
-    Implementation helper (the z-buffer of Eq. 6.22) with no thesis equation of its own.
-    """
-    va = xa - (pl[0] * xa + pl[1] * y + pl[2])
-    vb = xb - (pl[0] * xb + pl[1] * y + pl[2])
-    if np.isfinite(va) and np.isfinite(vb) and abs(va) < 1e12 and abs(vb) < 1e12:
-        return max(int(np.floor(min(va, vb) + 0.5)) - 1, 0), min(int(np.floor(max(va, vb) + 0.5)) + 1, w - 1)
-    return 0, w - 1
-
-
-@njit(cache=True)
-def _run_flips(j: int, pl: F64, y: int, r: int, srun: I64, order: I64, w: int, nd: int, min_disp: int, margin: float,
-               x0: int, x1: int, pre: I64, chg: npt.NDArray[np.bool_], zn1: F64, on1: I64, zn2: F64, zo1: F64,
-               oo1: I64, zo2: F64) -> bool:
-    """Whether the visibility test of :func:`_data` (the occlusion term of Eq. 6.22) of a pixel of run ``r`` (row
-    ``y`` of segment ``j``, plane ``pl``) gives another answer under the z-buffer ``zn1, on1, zn2`` than under
-    ``zo1, oo1, zo2``. They differ at most on the pixels ``chg`` flags, all in row ``y``'s columns ``x0..x1``,
-    ``pre[y, x - x0 + 1]`` of them up to column ``x``. :func:`_vis_flips`'s test for one run (the same
-    arithmetic as :func:`_data`, so that no answer means the same sum)."""
-    c0, c1 = _run_reach(pl, y, srun[r, 2], srun[r, 3], w)
-    c0 = max(c0, x0)
-    c1 = min(c1, x1)
-    if c0 > c1 or pre[y, c1 - x0 + 1] == pre[y, c0 - x0]:
-        return False
-    a, b, c = pl[0], pl[1], pl[2]
-    base = y * w
-    for t in range(srun[r, 1], srun[r + 1, 1]):
-        x = order[t] - base
-        d = a * x + b * y + c
-        k = d - min_disp
-        if k < -0.5 or k > nd - 0.5:
-            continue
-        if x - d < -0.5:
-            continue
-        xr = int(np.floor(x - d + 0.5))
-        if 0 <= xr < w:
-            q = base + xr
-            if chg[q]:
-                zn = zn1[q] if on1[q] != j else zn2[q]
-                zo = zo1[q] if oo1[q] != j else zo2[q]
-                if (zn > d + margin) != (zo > d + margin):
-                    return True
-    return False
-
-
-@njit(cache=True)
-def _cache_put(j: int, lab: int, v: float, clab: I64, cval: F64, cn: I64) -> None:
-    """Remember ``v``, the data term (Eqs. 6.21-6.22) of segment ``j`` under plane ``lab``, as :func:`_data_cached`
-    would have (nothing when it is held already).
-
-    Implementation helper (the cache) with no thesis equation of its own.
-    """
-    for t in range(cn[j]):
-        if clab[j, t] == lab:
-            return
-    if cn[j] >= clab.shape[1]:
-        cn[j] = 0
-    clab[j, cn[j]] = lab
-    cval[j, cn[j]] = v
-    cn[j] += 1
-
-
-@njit(cache=True)
 def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, dt: PixelData, g: GraphArrays,
             prm: KernelParams, max_region: int, cache: SweepCache) -> int:
     """Group moves, in place: for each candidate plane, the connected region of segments grown from its seeds
     through segments whose data term it does not raise moves to it at once when that lowers E (Eq. 6.18).
-    Data terms are remembered (:func:`_data_cached`); the cache always holds the z-buffer ``zc1, oc1, zc2`` of
-    the kept assignment, which they are read under.
-
-    A tried move's E is the kept data terms with those of the segments it changes replaced, summed in the order
-    :func:`_energy_cached` sums them, plus the smoothness terms: the same value. It changes the z-buffer only on
-    the right-view columns the moved segments reach under their old or new planes (per row, one span), so only
-    those are drawn again (into ``zt1, ot1, zt2``, the kept z-buffer elsewhere), and only the segments with a
-    pixel whose visibility test gives another answer there get their data term computed again; the cache is
-    moved to the new z-buffer only when the move is kept."""
+    Data terms are remembered (:func:`_data_cached`); the cache always holds the z-buffer ``z1, o1, z2``
+    they are read under."""
     order, starts, w, cost, min_disp, reliable = dt
     pairs, bstart, bp_lo, bp_hi, bw, nstart, nbr, nedge = g
     (zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval, cn, clean, afor, rstart, rp, rseg, sstart, srun, elab,
      es) = cache
     k = starts.size - 1
     h = cost.shape[1] // w
-    nd = cost.shape[2]
     gamma = prm.gamma
     thr = prm.smooth_threshold
-    margin = prm.occ_margin
-    vis = prm.visibility
     in_s = np.zeros(k, np.bool_)
     seen = np.zeros(k, np.bool_)
-    slist = np.empty(k, np.int64)
     region = np.empty(k, np.int64)
     dnew = np.empty(k, np.float64)
+    dold = np.empty(k, np.float64)
     prev = np.empty(k, np.int32)
     e_cur = _energy_cached(a, planes, dt, g, prm, cache)
-    # each segment's data term under its plane and the kept z-buffer (the terms E was just summed from)
-    dcur = np.empty(k, np.float64)
-    for j in range(k):
-        dcur[j] = _data_cached(j, a[j], planes, dt, prm, zc1, oc1, zc2, clab, cval, cn)
-    rs, rid, runseg = _row_runs(srun, sstart, h)
-    # the tried move's z-buffer: the kept one outside the spans drawn again
-    zt1, ot1, zt2 = zc1.copy(), oc1.copy(), zc2.copy()
-    s0 = np.full(h, w, np.int64)  # per row, the span of right-view columns the move may change
-    s1 = np.full(h, -1, np.int64)
-    rows = np.empty(h, np.int64)  # the rows with a span
-    nchg = np.zeros(h, np.int64)  # changed pixels per row
-    chg = np.zeros(h * w, np.bool_)
-    pre = np.empty((h, w + 1), np.int64)  # per row, changed pixels of the span up to each column
-    dirty = np.zeros(k, np.bool_)
-    dlist = np.empty(k, np.int64)  # segments not moved whose data term the move changes
-    save_r = np.empty(k, np.float64)
-    save_d = np.empty(k, np.float64)
+    # the z-buffer of the kept assignment: the cache's (it holds the last one computed)
+    z1, o1, z2 = zc1.copy(), oc1.copy(), zc2.copy()
+    rows = np.zeros(h, np.bool_)
     accepted = 0
     for m in range(cand.size):
         lab = cand[m]
         pl = planes[lab]
         n = 0
-        ns = 0
         head = 0
         for t in range(seed_start[m], seed_start[m + 1]):
             s = seeds[t]
             if a[s] != lab and not seen[s]:
                 seen[s] = True
-                slist[ns] = s
-                ns += 1
-                dn = _data_cached(s, lab, planes, dt, prm, zc1, oc1, zc2, clab, cval, cn)
-                if dn <= dcur[s]:
+                dn = _data_cached(s, lab, planes, dt, prm, z1, o1, z2, clab, cval, cn)
+                do = _data_cached(s, a[s], planes, dt, prm, z1, o1, z2, clab, cval, cn)
+                if dn <= do:
                     region[n] = s
                     dnew[n] = dn
+                    dold[n] = do
                     in_s[s] = True
                     n += 1
         while head < n and n < max_region:
@@ -1503,18 +1384,18 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, dt: Pix
                 if seen[i] or a[i] == lab:
                     continue
                 seen[i] = True
-                slist[ns] = i
-                ns += 1
-                dn = _data_cached(i, lab, planes, dt, prm, zc1, oc1, zc2, clab, cval, cn)
-                if dn <= dcur[i] and n < max_region:
+                dn = _data_cached(i, lab, planes, dt, prm, z1, o1, z2, clab, cval, cn)
+                do = _data_cached(i, a[i], planes, dt, prm, z1, o1, z2, clab, cval, cn)
+                if dn <= do and n < max_region:
                     region[n] = i
                     dnew[n] = dn
+                    dold[n] = do
                     in_s[i] = True
                     n += 1
         de = 0.0
         for r in range(n):
             j = region[r]
-            de += dnew[r] - dcur[j]
+            de += dnew[r] - dold[r]
             for t in range(nstart[j], nstart[j + 1]):
                 i = nbr[t]
                 before = 0.0
@@ -1529,155 +1410,30 @@ def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, dt: Pix
                         after = _smooth(j, i, nedge[t], pl, planes[a[i]], pairs, bstart, bp_lo, bp_hi, bw, w, thr)
                     de += 2.0 * gamma * (after - before)
         if n > 0 and de < -1e-9:
-            # the spans: where the moved segments' pixels land in the right view, before or after
-            nrow = 0
+            rows[:] = False
             for r in range(n):
-                j = region[r]
-                prev[r] = a[j]
-                for ri in range(sstart[j], sstart[j + 1]):
-                    y = srun[ri, 0]
-                    for u in range(2):
-                        c0, c1 = _run_reach(planes[prev[r]] if u == 0 else pl, y, srun[ri, 2], srun[ri, 3], w)
-                        if c0 <= c1:
-                            if s1[y] < 0:
-                                rows[nrow] = y
-                                nrow += 1
-                            s0[y] = min(s0[y], c0)
-                            s1[y] = max(s1[y], c1)
-            for r in range(n):
+                prev[r] = a[region[r]]
                 a[region[r]] = lab
-            # the spans drawn again (a right-view pixel is reached only from its row), the row's pixels taken in
-            # the order of _zbuffer_rows: the values it would give there; then where they differ from the kept
-            for u in range(nrow):
-                y = rows[u]
-                x0 = s0[y]
-                x1 = s1[y]
-                base = y * w
-                for q in range(base + x0, base + x1 + 1):
-                    zt1[q] = -1e9
-                    zt2[q] = -1e9
-                    ot1[q] = -1
-                for v in range(rs[y], rs[y + 1]):
-                    ri = rid[v]
-                    j = runseg[ri]
-                    plj = planes[a[j]]
-                    c0, c1 = _run_reach(plj, y, srun[ri, 2], srun[ri, 3], w)
-                    if c1 < x0 or c0 > x1:
-                        continue
-                    for t in range(srun[ri, 1], srun[ri + 1, 1]):
-                        x = order[t] - base
-                        d = plj[0] * x + plj[1] * y + plj[2]
-                        xr = int(np.floor(x - d + 0.5))
-                        if xr < x0 or xr > x1:
-                            continue
-                        _zinsert(zt1, ot1, zt2, base + xr, j, d)
-                cnt = 0
-                pre[y, 0] = 0
-                for x in range(x0, x1 + 1):
-                    q = base + x
-                    if zt1[q] != zc1[q] or ot1[q] != oc1[q] or zt2[q] != zc2[q]:
-                        chg[q] = True
-                        cnt += 1
-                    pre[y, x - x0 + 1] = cnt
-                nchg[y] = cnt
-            # the data terms the move changes: the moved segments' (the value under the kept z-buffer unless a
-            # visibility answer changes) and those of the other segments with such an answer
-            for r in range(n):
-                j = region[r]
-                save_r[r] = dcur[j]
-                flip = False
-                if vis:
-                    for ri in range(sstart[j], sstart[j + 1]):
-                        y = srun[ri, 0]
-                        if nchg[y] > 0 and _run_flips(j, pl, y, ri, srun, order, w, nd, min_disp, margin, s0[y], s1[y],
-                                                      pre, chg, zt1, ot1, zt2, zc1, oc1, zc2):
-                            flip = True
-                            break
-                dcur[j] = _data(j, pl, dt, prm, zt1, ot1, zt2) if flip else dnew[r]
-            nd_ = 0
-            if vis:
-                for u in range(nrow):
-                    y = rows[u]
-                    if nchg[y] == 0:
-                        continue
-                    for v in range(rs[y], rs[y + 1]):
-                        ri = rid[v]
-                        j = runseg[ri]
-                        if in_s[j] or dirty[j]:
-                            continue
-                        if _run_flips(j, planes[a[j]], y, ri, srun, order, w, nd, min_disp, margin, s0[y], s1[y], pre,
-                                      chg, zt1, ot1, zt2, zc1, oc1, zc2):
-                            dirty[j] = True
-                            dlist[nd_] = j
-                            save_d[nd_] = dcur[j]
-                            dcur[j] = _data(j, planes[a[j]], dt, prm, zt1, ot1, zt2)
-                            nd_ += 1
-            # E as _energy_cached sums it
-            e_new = 0.0
-            for j in range(k):
-                e_new += dcur[j]
-            if es.size == pairs.shape[0]:
-                e_new = _add_smoothness_cached(e_new, a, planes, g, w, gamma, thr, elab, es)
-            else:
-                e_new = _add_smoothness(e_new, a, planes, g, w, gamma, thr)
+                rows[bbox[region[r], 2]:bbox[region[r], 3] + 1] = True
+            e_new = _energy_cached(a, planes, dt, g, prm, cache)
             if e_new < e_cur - 1e-9:
                 e_cur = e_new
                 accepted += 1
-                # the cache moves to the new z-buffer: drop the remembered terms it changes (_cache_refresh's
-                # rule), take the spans, remember the new terms
-                if vis:
-                    for u in range(nrow):
-                        y = rows[u]
-                        if nchg[y] == 0:
-                            continue
-                        for v in range(rs[y], rs[y + 1]):
-                            ri = rid[v]
-                            j = runseg[ri]
-                            t = 0
-                            while t < cn[j]:
-                                if _run_flips(j, planes[clab[j, t]], y, ri, srun, order, w, nd, min_disp, margin, s0[y],
-                                              s1[y], pre, chg, zt1, ot1, zt2, zc1, oc1, zc2):
-                                    cn[j] -= 1
-                                    clab[j, t] = clab[j, cn[j]]
-                                    cval[j, t] = cval[j, cn[j]]
-                                    clean[j] = False
-                                else:
-                                    t += 1
-                for u in range(nrow):
-                    y = rows[u]
-                    for q in range(y * w + s0[y], y * w + s1[y] + 1):
-                        zc1[q] = zt1[q]
-                        oc1[q] = ot1[q]
-                        zc2[q] = zt2[q]
-                for r in range(n):
-                    zfor[region[r]] = lab
-                    _cache_put(region[r], lab, dcur[region[r]], clab, cval, cn)
-                for u in range(nd_):
-                    _cache_put(dlist[u], a[dlist[u]], dcur[dlist[u]], clab, cval, cn)
+                # the cache's z-buffer is the new assignment's; it differs from the old on the region's rows
+                for y in range(h):
+                    if rows[y]:
+                        z1[y * w:(y + 1) * w] = zc1[y * w:(y + 1) * w]
+                        o1[y * w:(y + 1) * w] = oc1[y * w:(y + 1) * w]
+                        z2[y * w:(y + 1) * w] = zc2[y * w:(y + 1) * w]
             else:
                 for r in range(n):
                     a[region[r]] = prev[r]
-                    dcur[region[r]] = save_r[r]
-                for u in range(nd_):
-                    dcur[dlist[u]] = save_d[u]
-                for u in range(nrow):
-                    y = rows[u]
-                    for q in range(y * w + s0[y], y * w + s1[y] + 1):
-                        zt1[q] = zc1[q]
-                        ot1[q] = oc1[q]
-                        zt2[q] = zc2[q]
-            for u in range(nd_):
-                dirty[dlist[u]] = False
-            for u in range(nrow):
-                y = rows[u]
-                chg[y * w + s0[y]:y * w + s1[y] + 1] = False
-                nchg[y] = 0
-                s0[y] = w
-                s1[y] = -1
+                # back to the z-buffer of the kept assignment (the cache now holds the rejected one's)
+                _cache_refresh(z1, o1, z2, rows, cache, planes, dt, prm)
+                zfor[:] = a
         for r in range(n):
             in_s[region[r]] = False
-        for r in range(ns):
-            seen[slist[r]] = False  # also the segments visited but not taken
+        seen[:] = False  # also the segments visited but not taken
     return accepted
 
 
