@@ -45,7 +45,7 @@ from prismstereo.cameras import VirtualView, calibrate_rig
 from prismstereo.checks import check_fields, fail
 from prismstereo.config import DEFAULT_DEPTH_RANGE_MM, Rig
 from prismstereo.depth.apex_band import apex_band_info, apex_band_views
-from prismstereo.depth.confidence import confident_fill, confident_growth, confident_matches
+from prismstereo.depth.confidence import confident_fill, confident_growth, confident_matches, plane_interpolation
 from prismstereo.depth.confidence import remove_speckles as drop_small_patches
 from prismstereo.depth.memory import check_depth_memory, estimate_depth_memory, resident_bytes
 from prismstereo.depth.search_range import (
@@ -236,6 +236,17 @@ class DepthConfig:
         :func:`~prismstereo.depth.confidence.confident_growth`): near occlusions and depth edges the wide
         window reaches the other surface, and the plane test bounds the small one's noise on weak texture.
         None: one window.
+    refine_interp_sigma : float or None
+        Where the matches, the fill and the growth kept nothing, keep the Gaussian-weighted (σ this, px) plane
+        through the kept values within ``refine_grow_inlier`` px of the matcher's dense value where those weigh
+        ``refine_interp_support`` and ``refine_grow_share`` of all around, spread less than
+        ``refine_interp_spread`` px about it and it lies within ``refine_interp_agree`` px of the dense value
+        (:func:`~prismstereo.depth.confidence.plane_interpolation`): beside depth edges and on the weakest
+        texture no window confirms the value, but the matcher found the surface the kept values continue.
+        Its confidence is the inliers' weight. In ``refine_interp_passes`` passes; needs the dense map;
+        None: no such step.
+    refine_interp_support, refine_interp_spread, refine_interp_agree, refine_interp_passes : float, float, float, int
+        See ``refine_interp_sigma``.
     refine_smoothed_below : float or None
         A capture whose pixel-scale noise (:func:`~prismstereo.depth.smoothed.pixel_noise`, grey levels)
         is below this has lost its finest scale to compression or demosaicing (a real camera's capture):
@@ -292,6 +303,11 @@ class DepthConfig:
     refine_grow_share: float = 0.9
     refine_grow_agree_depth: float | None = 0.0022
     refine_grow_second_radius: int | None = 5
+    refine_interp_sigma: float | None = 8.0
+    refine_interp_support: float = 0.3
+    refine_interp_spread: float = 0.3
+    refine_interp_agree: float = 0.5
+    refine_interp_passes: int = 2
     refine_smoothed_below: float | None = 0.5
     refine_smoothed_retry_below: float = 0.99
     refine_smoothed_fill_agree: float | None = 1.0
@@ -314,12 +330,16 @@ class DepthConfig:
                             "refine_grow_spread": (0.0, None), "refine_grow_passes": (1, 10),
                             "refine_grow_inlier": (0.0, None), "refine_grow_share": (0.0, 1.0),
                             "refine_grow_agree_depth": (0.0, 1.0), "refine_grow_second_radius": (1, 50),
+                            "refine_interp_sigma": (0.0, 50.0), "refine_interp_support": (0.0, 1.0),
+                            "refine_interp_spread": (0.0, None), "refine_interp_agree": (0.0, None),
+                            "refine_interp_passes": (1, 10),
                             "refine_smoothed_below": (0.0, None),
                             "refine_smoothed_retry_below": (0.0, 1.0), "refine_smoothed_fill_agree": (0.0, None),
                             "refine_smoothed_grow_agree": (0.0, None), "refine_smoothed_grow_spread": (0.0, None)},
                      positive=("max_gap_mm", "refine_max_shift", "refine_fill_agree", "refine_grow_agree",
                                "refine_grow_sigma", "refine_grow_spread", "refine_grow_inlier",
-                               "refine_grow_agree_depth",
+                               "refine_grow_agree_depth", "refine_interp_sigma", "refine_interp_spread",
+                               "refine_interp_agree",
                                "refine_smoothed_fill_agree", "refine_smoothed_grow_agree",
                                "refine_smoothed_grow_spread"))
         if not isinstance(self.method, str):
@@ -943,7 +963,8 @@ def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, dis
     (:func:`~prismstereo.depth.confidence.confident_matches`), the right windows on the epipolar curves of
     ``epipolar`` (:func:`epipolar_curves`; None: on the left pixels' rows); with ``filled`` (the matcher's
     dense map) and ``refine_fill`` or ``refine_fill_agree``, a second try from it where none was kept
-    (:func:`~prismstereo.depth.confidence.confident_fill`; none lands on ``right_excluded``); ``checked``:
+    (:func:`~prismstereo.depth.confidence.confident_fill`; none lands on ``right_excluded``), the growth
+    (``refine_grow_radius``) and the plane interpolation (``refine_interp_sigma``); ``checked``:
     ``disparity`` passed the matcher's left–right check (False: a map without one, ``coop``'s; its values stand
     for the right view in the sub-pixel check only where their window confirms them, ``seeds_checked`` of
     :func:`~prismstereo.depth.confidence.confident_matches`); returns
@@ -973,6 +994,12 @@ def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, dis
                                       agree_depth=config.refine_grow_agree_depth,
                                       disparity_offset=pair.disparity_offset,
                                       second_radius=config.refine_grow_second_radius, valid_right=vr_fill, **kw)
+    if filled is not None and config.refine_interp_sigma is not None:
+        disp, conf = plane_interpolation(disp, conf, filled, sigma=config.refine_interp_sigma,
+                                         inlier=config.refine_grow_inlier, min_support=config.refine_interp_support,
+                                         min_share=config.refine_grow_share, max_spread=config.refine_interp_spread,
+                                         agree=config.refine_interp_agree, passes=config.refine_interp_passes,
+                                         valid_right=vr_fill)
     return disp, conf
 
 
