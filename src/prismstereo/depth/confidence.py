@@ -551,7 +551,7 @@ def _grown(left: np.ndarray, right: np.ndarray, d: np.ndarray, f: np.ndarray, *,
 
 
 def plane_interpolation(disparity: np.ndarray, confidence: np.ndarray, filled: np.ndarray, *, sigma: float = 8.0,
-                        inlier: float = 1.0, min_support: float = 0.3, min_share: float = 0.9,
+                        inlier: float = 1.0, min_support: float = 0.3, min_share: float = 0.95,
                         max_spread: float = 0.3, agree: float = 0.5, passes: int = 2,
                         valid_right: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Add the kept neighbours' plane where the matcher's dense value lies on it and nothing was kept.

@@ -239,13 +239,15 @@ class DepthConfig:
     refine_interp_sigma : float or None
         Where the matches, the fill and the growth kept nothing, keep the Gaussian-weighted (σ this, px) plane
         through the kept values within ``refine_grow_inlier`` px of the matcher's dense value where those weigh
-        ``refine_interp_support`` and ``refine_grow_share`` of all around, spread less than
+        ``refine_interp_support`` and ``refine_interp_share`` of all around, spread less than
         ``refine_interp_spread`` px about it and it lies within ``refine_interp_agree`` px of the dense value
         (:func:`~prismstereo.depth.confidence.plane_interpolation`): beside depth edges and on the weakest
         texture no window confirms the value, but the matcher found the surface the kept values continue.
         Its confidence is the inliers' weight. In ``refine_interp_passes`` passes; needs the dense map;
         None: no such step.
-    refine_interp_support, refine_interp_spread, refine_interp_agree, refine_interp_passes : float, float, float, int
+    refine_interp_support, refine_interp_share, refine_interp_spread, refine_interp_agree : float
+        See ``refine_interp_sigma``.
+    refine_interp_passes : int
         See ``refine_interp_sigma``.
     refine_smoothed_below : float or None
         A capture whose pixel-scale noise (:func:`~prismstereo.depth.smoothed.pixel_noise`, grey levels)
@@ -305,6 +307,7 @@ class DepthConfig:
     refine_grow_second_radius: int | None = 5
     refine_interp_sigma: float | None = 8.0
     refine_interp_support: float = 0.3
+    refine_interp_share: float = 0.95
     refine_interp_spread: float = 0.3
     refine_interp_agree: float = 0.5
     refine_interp_passes: int = 2
@@ -331,6 +334,7 @@ class DepthConfig:
                             "refine_grow_inlier": (0.0, None), "refine_grow_share": (0.0, 1.0),
                             "refine_grow_agree_depth": (0.0, 1.0), "refine_grow_second_radius": (1, 50),
                             "refine_interp_sigma": (0.0, 50.0), "refine_interp_support": (0.0, 1.0),
+                            "refine_interp_share": (0.0, 1.0),
                             "refine_interp_spread": (0.0, None), "refine_interp_agree": (0.0, None),
                             "refine_interp_passes": (1, 10),
                             "refine_smoothed_below": (0.0, None),
@@ -997,7 +1001,7 @@ def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, dis
     if filled is not None and config.refine_interp_sigma is not None:
         disp, conf = plane_interpolation(disp, conf, filled, sigma=config.refine_interp_sigma,
                                          inlier=config.refine_grow_inlier, min_support=config.refine_interp_support,
-                                         min_share=config.refine_grow_share, max_spread=config.refine_interp_spread,
+                                         min_share=config.refine_interp_share, max_spread=config.refine_interp_spread,
                                          agree=config.refine_interp_agree, passes=config.refine_interp_passes,
                                          valid_right=vr_fill)
     return disp, conf

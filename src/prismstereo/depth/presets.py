@@ -87,6 +87,7 @@ PROFILES: dict[str, Preset] = {
         ("refine_grow_second_radius", 5),
         ("refine_interp_sigma", None),
         ("refine_interp_support", 0.3),
+        ("refine_interp_share", 0.95),
         ("refine_interp_spread", 0.3),
         ("refine_interp_agree", 0.5),
         ("refine_interp_passes", 2),
