@@ -889,8 +889,9 @@ def _roi_box(mask: np.ndarray) -> tuple[int, int, int, int]:
 def needs_dense_map(config: DepthConfig) -> bool:
     """Whether a pair run reads the matcher's dense (hole-filled) map: it triangulates it (``use_filled``) or
     tries its values where no match was kept (:func:`_fill_rule`: ``refine_fill`` or ``refine_fill_agree``, with
-    the refinement and its sub-pixel check)."""
-    return bool(config.use_filled or (config.refine and (_fill_rule(config)[0] or _grows(config))))
+    the refinement and its sub-pixel check; the growth; the plane interpolation, ``refine_interp_sigma``)."""
+    return bool(config.use_filled or (config.refine and (_fill_rule(config)[0] or _grows(config)
+                                                         or config.refine_interp_sigma is not None)))
 
 
 def match_pair(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, region: SearchRegion,
