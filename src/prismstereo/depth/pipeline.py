@@ -236,6 +236,12 @@ class DepthConfig:
         :func:`~prismstereo.depth.confidence.confident_growth`): near occlusions and depth edges the wide
         window reaches the other surface, and the plane test bounds the small one's noise on weak texture.
         None: one window.
+    refine_grow_min_confidence : float or None
+        With ``refine_grow_fit="plane"``, the growth's windows are confirmed from this ZNCC on where it is
+        below ``min_confidence`` (the refinement within ``refine_max_shift`` and the sub-pixel check still asked):
+        on the weakest texture (a far floor, leaves) a 33×33 window refines to the right value at a ZNCC the
+        sensor noise keeps below 0.5, and the plane test is what bounds a grown value. None:
+        ``min_confidence``.
     refine_interp_sigma : float or None
         Where the matches, the fill and the growth kept nothing, keep the Gaussian-weighted (σ this, px) plane
         through the kept values within ``refine_grow_inlier`` px of the matcher's dense value where those weigh
@@ -305,6 +311,7 @@ class DepthConfig:
     refine_grow_share: float = 0.9
     refine_grow_agree_depth: float | None = 0.0022
     refine_grow_second_radius: int | None = 5
+    refine_grow_min_confidence: float | None = 0.3
     refine_interp_sigma: float | None = 8.0
     refine_interp_support: float = 0.3
     refine_interp_share: float = 0.95
@@ -333,6 +340,7 @@ class DepthConfig:
                             "refine_grow_spread": (0.0, None), "refine_grow_passes": (1, 10),
                             "refine_grow_inlier": (0.0, None), "refine_grow_share": (0.0, 1.0),
                             "refine_grow_agree_depth": (0.0, 1.0), "refine_grow_second_radius": (1, 50),
+                            "refine_grow_min_confidence": (0.0, 1.0),
                             "refine_interp_sigma": (0.0, 50.0), "refine_interp_support": (0.0, 1.0),
                             "refine_interp_share": (0.0, 1.0),
                             "refine_interp_spread": (0.0, None), "refine_interp_agree": (0.0, None),
@@ -991,6 +999,10 @@ def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, dis
         disp, conf = confident_fill(left, right, disp, conf, filled, valid_right=vr_fill, agree=agree, **kw)
     if filled is not None and _grows(config):
         assert config.refine_grow_radius is not None
+        kw_grow = dict(kw)
+        if (config.refine_grow_fit == "plane" and config.refine_grow_min_confidence is not None
+                and config.min_confidence is not None):  # None keeps every match: nothing to lower
+            kw_grow["min_confidence"] = min(config.min_confidence, config.refine_grow_min_confidence)
         disp, conf = confident_growth(left, right, disp, conf, filled, grow_radius=config.refine_grow_radius,
                                       sigma=config.refine_grow_sigma, agree=config.refine_grow_agree,
                                       max_spread=config.refine_grow_spread, passes=config.refine_grow_passes,
@@ -998,7 +1010,8 @@ def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, dis
                                       min_share=config.refine_grow_share,
                                       agree_depth=config.refine_grow_agree_depth,
                                       disparity_offset=pair.disparity_offset,
-                                      second_radius=config.refine_grow_second_radius, valid_right=vr_fill, **kw)
+                                      second_radius=config.refine_grow_second_radius, valid_right=vr_fill,
+                                      **kw_grow)
     if filled is not None and config.refine_interp_sigma is not None:
         disp, conf = plane_interpolation(disp, conf, filled, sigma=config.refine_interp_sigma,
                                          inlier=config.refine_grow_inlier, min_support=config.refine_interp_support,
