@@ -268,6 +268,10 @@ class DepthConfig:
         The growth's ``refine_grow_fit``, ``refine_grow_agree`` and ``refine_grow_spread`` on a smoothed
         capture (``refine_smoothed_below``; None: left as it is): the plane's growth there adds values less
         precise than the map's, the mean's (0.3, 0.5 px) keeps its median.
+    refine_smoothed_interp : bool
+        Whether the plane interpolation (``refine_interp_sigma``) runs on a smoothed capture
+        (``refine_smoothed_below``): off by default, its values there raise the median (docs/EXPERIMENTS.md,
+        issue 26, stop 43).
     sweep : SweepParams
         The plane sweep of ``views="all"`` (:class:`~prismstereo.multiview.prism.SweepParams`).
     coarse_to_fine : {"auto", "on", "off"}
@@ -324,6 +328,7 @@ class DepthConfig:
     refine_smoothed_grow_fit: str | None = "mean"
     refine_smoothed_grow_agree: float | None = 0.3
     refine_smoothed_grow_spread: float | None = 0.5
+    refine_smoothed_interp: bool = False
     sweep: SweepParams = field(default_factory=SweepParams)
     coarse_to_fine: str = "auto"
     max_memory: int | None = None

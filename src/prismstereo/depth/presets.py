@@ -98,6 +98,7 @@ PROFILES: dict[str, Preset] = {
         ("refine_smoothed_grow_fit", "mean"),
         ("refine_smoothed_grow_agree", 0.3),
         ("refine_smoothed_grow_spread", 0.5),
+        ("refine_smoothed_interp", False),
         ("min_confidence", 0.5),
         ("speckle_fraction", 0.001),
     )),
