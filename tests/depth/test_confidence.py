@@ -652,3 +652,37 @@ def test_neighbour_disparity_is_the_weighted_mean_and_spread_of_the_finite_value
     assert abs(float(mean[15, 15]) - ref) < 1e-3 and abs(float(spread[15, 15]) - ref_sd) < 1e-2
     assert abs(float(support[15, 15]) - wts.sum()) < 1e-4
     assert support[15, 15] < 0.5 < support[15, 5]  # a hole's middle has few finite values in reach
+
+
+def test_plane_interpolation_keeps_the_neighbours_plane_where_the_dense_value_lies_on_it_and_nowhere_else():
+    from prismstereo.depth.confidence import plane_interpolation
+
+    h, w = 60, 90
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    true = 30.0 + 0.05 * xx + 0.03 * yy  # a slanted surface
+    kept = true.copy()
+    kept[25:35, 30:45] = np.nan  # a hole no window confirmed
+    conf = np.where(np.isfinite(kept), np.float32(0.9), np.float32(np.nan)).astype(np.float32)
+    dense = np.rint(true).astype(np.float32)  # the matcher's integer values, right
+    d, c = plane_interpolation(kept, conf, dense, sigma=8.0, passes=2)
+    hole = ~np.isfinite(kept)
+    got = hole & np.isfinite(d)
+    # all but where the integer value is off (its inlier band then cuts the slant one-sidedly: share < 0.95)
+    assert got.sum() > 0.75 * hole.sum() and (np.abs(true - dense)[hole & ~got] > 0.2).all()
+    assert np.max(np.abs(d[got] - true[got])) < 0.02  # the plane's value, not the integer one
+    assert (c[got] >= 0.3).all() and (c[got] <= 1.0).all()
+    assert np.array_equal(d[~hole], kept[~hole]) and np.array_equal(c[~hole], conf[~hole])
+    # a dense value a pixel off the surface around it is not kept
+    d_off, _ = plane_interpolation(kept, conf, dense + np.float32(1.0), sigma=8.0)
+    assert not np.isfinite(d_off[hole]).any()
+    # two surfaces around the hole, 3 px apart, half and half: neither is the pixel's (share < 0.9)
+    step = np.where(xx < 37.5, true, true + 3.0).astype(np.float32)
+    kept_step = np.where(hole, np.float32(np.nan), step).astype(np.float32)
+    d_step, _ = plane_interpolation(kept_step, conf, np.rint(step).astype(np.float32), sigma=8.0, passes=1)
+    near = hole & (np.abs(xx - 37.5) < 3)
+    assert not np.isfinite(d_step[near]).any()
+    # a dense value whose right pixel is outside the right view is not used
+    vr = np.ones((h, w), dtype=bool)
+    vr[:, : int(np.rint(45 - 33.0))] = False  # x − d < 12 for every hole pixel
+    d_vr, _ = plane_interpolation(kept, conf, dense, sigma=8.0, valid_right=vr)
+    assert not np.isfinite(d_vr[hole]).any()

@@ -156,8 +156,9 @@ def test_the_steps_compose_to_run_depth(plane_capture, plane_run):
     # the default refinement tries the dense map where no match was kept (refine_fill_agree, refine_grow_radius):
     # it is computed
     assert pl.needs_dense_map(cfg) and matched.filled is not None
-    bare = dataclasses.replace(cfg, refine_fill_agree=None, refine_grow_radius=None)
+    bare = dataclasses.replace(cfg, refine_fill_agree=None, refine_grow_radius=None, refine_interp_sigma=None)
     assert not pl.needs_dense_map(bare) and pl.needs_dense_map(dataclasses.replace(bare, refine_fill=True))
+    assert pl.needs_dense_map(dataclasses.replace(bare, refine_interp_sigma=8.0))
     assert pl.needs_dense_map(dataclasses.replace(bare, refine_grow_radius=16))
     assert not pl.needs_dense_map(dataclasses.replace(bare, refine_grow_radius=16, refine_max_lr_gap=None))
     # a run that reads no dense map skips the matcher's hole filling; the cross-checked matches are the same
@@ -177,6 +178,39 @@ def test_the_steps_compose_to_run_depth(plane_capture, plane_run):
     assert region.disparity_range == plane_run.disparity_range and cfg == plane_run.config
     with pytest.raises(dataclasses.FrozenInstanceError):
         plane_run.depth = pts.depth  # type: ignore[misc]
+
+
+def test_the_plane_growth_confirms_its_windows_from_its_own_zncc_threshold(plane_capture, monkeypatch):
+    """refine_grow_min_confidence lowers the growth's threshold (only with the plane test, only below
+    min_confidence); the matches and the fill keep min_confidence."""
+    import dataclasses
+
+    from prismstereo.depth import pipeline as pl
+
+    rig, _, cap = plane_capture
+    img, cfg = pl.validate_inputs(rig, cap.image, DepthConfig())
+    views = pl.virtual_cameras(rig, cfg)
+    pair = pl.rectify_geometry(rig, views, cfg)
+    left, right = pl.rectify_capture(pair, img)
+    disparity = np.full(left.shape[:2], 30.0, dtype=np.float32)
+    asked: list[tuple[str, float | None]] = []
+
+    def matches(left, right, disparity, **kwargs):  # what the steps are asked, not their work
+        asked.append(("matches", kwargs["min_confidence"]))
+        return disparity, np.ones_like(disparity)
+
+    def growth(left, right, disparity, confidence, filled, **kwargs):
+        asked.append(("growth", kwargs["min_confidence"]))
+        return disparity, confidence
+
+    monkeypatch.setattr(pl, "confident_matches", matches)
+    monkeypatch.setattr(pl, "confident_growth", growth)
+    for over, want in (({}, 0.3), ({"refine_grow_fit": "mean"}, 0.5), ({"refine_grow_min_confidence": None}, 0.5),
+                       ({"min_confidence": 0.2}, 0.2)):
+        asked.clear()
+        c = dataclasses.replace(cfg, refine_fill_agree=None, **over)
+        pl.refine_matches(left, right, pair, disparity, c, epipolar=None, filled=disparity)
+        assert asked == [("matches", c.min_confidence), ("growth", want)], over
 
 
 def test_a_map_without_a_cross_check_is_refined_with_confirmed_right_seeds(plane_capture, plane_run, monkeypatch):

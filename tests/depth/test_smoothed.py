@@ -49,6 +49,10 @@ def test_smoothed_config_switches_the_refinement_profile_below_the_threshold():
                                                refine_smoothed_grow_spread=None), smooth)
     assert (kept.refine_grow_fit, kept.refine_grow_agree, kept.refine_grow_spread) == (
         cfg.refine_grow_fit, cfg.refine_grow_agree, cfg.refine_grow_spread)
+    # the plane interpolation is off on a smoothed capture unless asked for
+    assert cfg.refine_interp_sigma is not None and got.refine_interp_sigma is None
+    assert smoothed_config(dataclasses.replace(cfg, refine_smoothed_interp=True), smooth).refine_interp_sigma == \
+        cfg.refine_interp_sigma
     off = DepthConfig(refine_smoothed_below=None)
     assert smoothed_config(off, smooth) is off
     assert smoothed_config(DepthConfig(refine=False), smooth).refine_retry_below == cfg.refine_retry_below

@@ -29,6 +29,10 @@ The pipeline's ``refine`` and ``speckles`` steps are these plain functions on ar
   the weighted plane through those on the value's own surface, :func:`neighbour_plane`):
   on texture too weak for the two windows, a value that the wide window confirms on its own and that
   continues the surface around it is right far more often than one that only a window confirms.
+- :func:`plane_interpolation` keeps, where none of those kept a value, the weighted plane through the kept
+  neighbours on one surface where the matcher's dense value lies on it: beside a depth edge and on the
+  weakest texture every window reaches the other surface or has nothing to match, but the matcher's
+  aggregated cost still found the surface that the kept values around the pixel continue.
 """
 
 from __future__ import annotations
@@ -45,7 +49,7 @@ from prismstereo.errors import ConfigError
 from prismstereo.rectify.epipolar import EpipolarTable
 
 __all__ = ["confident_fill", "confident_growth", "confident_matches", "neighbour_disparity", "neighbour_plane",
-           "remove_speckles"]
+           "plane_interpolation", "remove_speckles"]
 
 
 def confident_matches(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, *, radius: int = 5,
@@ -544,6 +548,72 @@ def _grown(left: np.ndarray, right: np.ndarray, d: np.ndarray, f: np.ndarray, *,
     out_d[ys[ok], xs[ok]] = v[ok].astype(np.float32)
     out_c[ys[ok], xs[ok]] = c2[ys[ok], xs[ok]]
     return out_d, out_c
+
+
+def plane_interpolation(disparity: np.ndarray, confidence: np.ndarray, filled: np.ndarray, *, sigma: float = 8.0,
+                        inlier: float = 1.0, min_support: float = 0.3, min_share: float = 0.95,
+                        max_spread: float = 0.3, agree: float = 0.5, passes: int = 2,
+                        valid_right: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Add the kept neighbours' plane where the matcher's dense value lies on it and nothing was kept.
+
+    At each pixel without a kept value whose ``filled`` value lands inside the right view, the weighted
+    plane through the kept neighbours within ``inlier`` px of that value, refit through those within
+    ``inlier`` px of the first plane (:func:`neighbour_plane`), is kept where (a) those inliers weigh at
+    least ``min_support`` and ``min_share`` of all the kept neighbours (one surface around the pixel, not two),
+    (b) they spread less than ``max_spread`` px about it, and (c) the plane's value at the pixel lies within
+    ``agree`` px of the dense value. The value kept is the plane's. Beside a depth edge every refinement
+    window reaches the other surface, and on the weakest texture it has nothing to match; but the matcher's
+    aggregated cost found the value there, and where it is the surface the kept values around the pixel
+    continue, their plane is a better estimate than the dense (integer) value itself.
+
+    Parameters
+    ----------
+    disparity, confidence : (H, W) float32
+        The kept matches so far (NaN = none).
+    filled : (H, W) float array
+        The matcher's dense disparities, px, NaN outside the searched region.
+    sigma : float
+        Standard deviation of the neighbours' Gaussian weights, px.
+    inlier : float
+        See :func:`neighbour_plane`, px.
+    min_support, min_share : float, float
+        Least weight of the plane's inliers (1: every pixel in reach holds one), and least share of the
+        weight of all kept neighbours.
+    max_spread : float
+        Largest weighted standard deviation of the inliers about the plane, px.
+    agree : float
+        Largest distance of the plane's value at the pixel from the dense value, px.
+    passes : int
+        How many times to interpolate: each pass's neighbours include the values the passes before it kept.
+    valid_right : (H, W) bool, optional
+        Valid region of the rectified right view (a dense value whose right pixel is outside is not used).
+
+    Returns
+    -------
+    disparity, confidence : (H, W) float32
+        ``disparity`` and ``confidence`` with the interpolated values added; an interpolated value's
+        confidence is its inliers' weight (no window confirmed it: the share of its surroundings that holds
+        kept values of its surface).
+    """
+    d = np.asarray(disparity, dtype=np.float32).copy()
+    conf = np.asarray(confidence, dtype=np.float32).copy()
+    f = np.asarray(filled, dtype=np.float32)
+    seen = np.isfinite(_seeds_seen(f, np.isfinite(f), valid_right))
+    for _ in range(passes):
+        ys, xs = np.nonzero(~np.isfinite(d) & seen)
+        if ys.size == 0:
+            break
+        v = f[ys, xs].astype(np.float64)
+        plane, spread, inl, total = neighbour_plane(d, ys, xs, v, sigma=sigma, inlier=inlier)
+        with np.errstate(invalid="ignore"):
+            ok = ((inl >= min_support) & (inl >= min_share * total) & (spread < max_spread)
+                  & (np.abs(plane - v) < agree))
+        if not ok.any():
+            break
+        # every pixel of a pass reads the map before it: the result does not depend on the order
+        d[ys[ok], xs[ok]] = plane[ok].astype(np.float32)
+        conf[ys[ok], xs[ok]] = np.minimum(inl[ok], 1.0).astype(np.float32)
+    return d, conf
 
 
 def _require_lr_check(kwargs: dict[str, Any], function: str, tested: str) -> None:

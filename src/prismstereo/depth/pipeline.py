@@ -45,7 +45,7 @@ from prismstereo.cameras import VirtualView, calibrate_rig
 from prismstereo.checks import check_fields, fail
 from prismstereo.config import DEFAULT_DEPTH_RANGE_MM, Rig
 from prismstereo.depth.apex_band import apex_band_info, apex_band_views
-from prismstereo.depth.confidence import confident_fill, confident_growth, confident_matches
+from prismstereo.depth.confidence import confident_fill, confident_growth, confident_matches, plane_interpolation
 from prismstereo.depth.confidence import remove_speckles as drop_small_patches
 from prismstereo.depth.memory import check_depth_memory, estimate_depth_memory, resident_bytes
 from prismstereo.depth.search_range import (
@@ -236,6 +236,25 @@ class DepthConfig:
         :func:`~prismstereo.depth.confidence.confident_growth`): near occlusions and depth edges the wide
         window reaches the other surface, and the plane test bounds the small one's noise on weak texture.
         None: one window.
+    refine_grow_min_confidence : float or None
+        With ``refine_grow_fit="plane"``, the growth's windows are confirmed from this ZNCC on where it is
+        below ``min_confidence`` (the refinement within ``refine_max_shift`` and the sub-pixel check still asked):
+        on the weakest texture (a far floor, leaves) a 33×33 window refines to the right value at a ZNCC the
+        sensor noise keeps below 0.5, and the plane test is what bounds a grown value. None:
+        ``min_confidence``.
+    refine_interp_sigma : float or None
+        Where the matches, the fill and the growth kept nothing, keep the Gaussian-weighted (σ this, px) plane
+        through the kept values within ``refine_grow_inlier`` px of the matcher's dense value where those weigh
+        ``refine_interp_support`` and ``refine_interp_share`` of all around, spread less than
+        ``refine_interp_spread`` px about it and it lies within ``refine_interp_agree`` px of the dense value
+        (:func:`~prismstereo.depth.confidence.plane_interpolation`): beside depth edges and on the weakest
+        texture no window confirms the value, but the matcher found the surface the kept values continue.
+        Its confidence is the inliers' weight. In ``refine_interp_passes`` passes; needs the dense map;
+        None: no such step.
+    refine_interp_support, refine_interp_share, refine_interp_spread, refine_interp_agree : float
+        See ``refine_interp_sigma``.
+    refine_interp_passes : int
+        See ``refine_interp_sigma``.
     refine_smoothed_below : float or None
         A capture whose pixel-scale noise (:func:`~prismstereo.depth.smoothed.pixel_noise`, grey levels)
         is below this has lost its finest scale to compression or demosaicing (a real camera's capture):
@@ -249,6 +268,10 @@ class DepthConfig:
         The growth's ``refine_grow_fit``, ``refine_grow_agree`` and ``refine_grow_spread`` on a smoothed
         capture (``refine_smoothed_below``; None: left as it is): the plane's growth there adds values less
         precise than the map's, the mean's (0.3, 0.5 px) keeps its median.
+    refine_smoothed_interp : bool
+        Whether the plane interpolation (``refine_interp_sigma``) runs on a smoothed capture
+        (``refine_smoothed_below``): off by default, its values there raise the median (docs/EXPERIMENTS.md,
+        issue 26, stop 43).
     sweep : SweepParams
         The plane sweep of ``views="all"`` (:class:`~prismstereo.multiview.prism.SweepParams`).
     coarse_to_fine : {"auto", "on", "off"}
@@ -292,12 +315,20 @@ class DepthConfig:
     refine_grow_share: float = 0.9
     refine_grow_agree_depth: float | None = 0.0022
     refine_grow_second_radius: int | None = 5
+    refine_grow_min_confidence: float | None = 0.3
+    refine_interp_sigma: float | None = 8.0
+    refine_interp_support: float = 0.3
+    refine_interp_share: float = 0.95
+    refine_interp_spread: float = 0.3
+    refine_interp_agree: float = 0.5
+    refine_interp_passes: int = 2
     refine_smoothed_below: float | None = 0.5
     refine_smoothed_retry_below: float = 0.99
     refine_smoothed_fill_agree: float | None = 1.0
     refine_smoothed_grow_fit: str | None = "mean"
     refine_smoothed_grow_agree: float | None = 0.3
     refine_smoothed_grow_spread: float | None = 0.5
+    refine_smoothed_interp: bool = False
     sweep: SweepParams = field(default_factory=SweepParams)
     coarse_to_fine: str = "auto"
     max_memory: int | None = None
@@ -314,12 +345,18 @@ class DepthConfig:
                             "refine_grow_spread": (0.0, None), "refine_grow_passes": (1, 10),
                             "refine_grow_inlier": (0.0, None), "refine_grow_share": (0.0, 1.0),
                             "refine_grow_agree_depth": (0.0, 1.0), "refine_grow_second_radius": (1, 50),
+                            "refine_grow_min_confidence": (0.0, 1.0),
+                            "refine_interp_sigma": (0.0, 50.0), "refine_interp_support": (0.0, 1.0),
+                            "refine_interp_share": (0.0, 1.0),
+                            "refine_interp_spread": (0.0, None), "refine_interp_agree": (0.0, None),
+                            "refine_interp_passes": (1, 10),
                             "refine_smoothed_below": (0.0, None),
                             "refine_smoothed_retry_below": (0.0, 1.0), "refine_smoothed_fill_agree": (0.0, None),
                             "refine_smoothed_grow_agree": (0.0, None), "refine_smoothed_grow_spread": (0.0, None)},
                      positive=("max_gap_mm", "refine_max_shift", "refine_fill_agree", "refine_grow_agree",
                                "refine_grow_sigma", "refine_grow_spread", "refine_grow_inlier",
-                               "refine_grow_agree_depth",
+                               "refine_grow_agree_depth", "refine_interp_sigma", "refine_interp_spread",
+                               "refine_interp_agree",
                                "refine_smoothed_fill_agree", "refine_smoothed_grow_agree",
                                "refine_smoothed_grow_spread"))
         if not isinstance(self.method, str):
@@ -865,8 +902,9 @@ def _roi_box(mask: np.ndarray) -> tuple[int, int, int, int]:
 def needs_dense_map(config: DepthConfig) -> bool:
     """Whether a pair run reads the matcher's dense (hole-filled) map: it triangulates it (``use_filled``) or
     tries its values where no match was kept (:func:`_fill_rule`: ``refine_fill`` or ``refine_fill_agree``, with
-    the refinement and its sub-pixel check)."""
-    return bool(config.use_filled or (config.refine and (_fill_rule(config)[0] or _grows(config))))
+    the refinement and its sub-pixel check; the growth; the plane interpolation, ``refine_interp_sigma``)."""
+    return bool(config.use_filled or (config.refine and (_fill_rule(config)[0] or _grows(config)
+                                                         or config.refine_interp_sigma is not None)))
 
 
 def match_pair(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, region: SearchRegion,
@@ -943,7 +981,8 @@ def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, dis
     (:func:`~prismstereo.depth.confidence.confident_matches`), the right windows on the epipolar curves of
     ``epipolar`` (:func:`epipolar_curves`; None: on the left pixels' rows); with ``filled`` (the matcher's
     dense map) and ``refine_fill`` or ``refine_fill_agree``, a second try from it where none was kept
-    (:func:`~prismstereo.depth.confidence.confident_fill`; none lands on ``right_excluded``); ``checked``:
+    (:func:`~prismstereo.depth.confidence.confident_fill`; none lands on ``right_excluded``), the growth
+    (``refine_grow_radius``) and the plane interpolation (``refine_interp_sigma``); ``checked``:
     ``disparity`` passed the matcher's left–right check (False: a map without one, ``coop``'s; its values stand
     for the right view in the sub-pixel check only where their window confirms them, ``seeds_checked`` of
     :func:`~prismstereo.depth.confidence.confident_matches`); returns
@@ -965,6 +1004,10 @@ def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, dis
         disp, conf = confident_fill(left, right, disp, conf, filled, valid_right=vr_fill, agree=agree, **kw)
     if filled is not None and _grows(config):
         assert config.refine_grow_radius is not None
+        kw_grow = dict(kw)
+        if (config.refine_grow_fit == "plane" and config.refine_grow_min_confidence is not None
+                and config.min_confidence is not None):  # None keeps every match: nothing to lower
+            kw_grow["min_confidence"] = min(config.min_confidence, config.refine_grow_min_confidence)
         disp, conf = confident_growth(left, right, disp, conf, filled, grow_radius=config.refine_grow_radius,
                                       sigma=config.refine_grow_sigma, agree=config.refine_grow_agree,
                                       max_spread=config.refine_grow_spread, passes=config.refine_grow_passes,
@@ -972,7 +1015,14 @@ def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, dis
                                       min_share=config.refine_grow_share,
                                       agree_depth=config.refine_grow_agree_depth,
                                       disparity_offset=pair.disparity_offset,
-                                      second_radius=config.refine_grow_second_radius, valid_right=vr_fill, **kw)
+                                      second_radius=config.refine_grow_second_radius, valid_right=vr_fill,
+                                      **kw_grow)
+    if filled is not None and config.refine_interp_sigma is not None:
+        disp, conf = plane_interpolation(disp, conf, filled, sigma=config.refine_interp_sigma,
+                                         inlier=config.refine_grow_inlier, min_support=config.refine_interp_support,
+                                         min_share=config.refine_interp_share, max_spread=config.refine_interp_spread,
+                                         agree=config.refine_interp_agree, passes=config.refine_interp_passes,
+                                         valid_right=vr_fill)
     return disp, conf
 
 

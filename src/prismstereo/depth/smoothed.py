@@ -69,7 +69,8 @@ def smoothed_config(config: DepthConfig, image: np.ndarray) -> DepthConfig:
     ``refine_smoothed_fill_agree`` (the dense map's values where the two windows agree that well; only
     where the configuration fills with an agreement, not with ``refine_fill``), and the growth's
     ``refine_grow_fit``, ``refine_grow_agree`` and ``refine_grow_spread`` replaced by the
-    ``refine_smoothed_grow_*`` ones that are not None."""
+    ``refine_smoothed_grow_*`` ones that are not None, and the plane interpolation (``refine_interp_sigma``)
+    off unless ``refine_smoothed_interp``."""
     below = config.refine_smoothed_below
     if below is None or not config.refine or config.refine_retry_radius is None \
             or config.refine_retry_radius == config.refine_radius:
@@ -88,6 +89,8 @@ def smoothed_config(config: DepthConfig, image: np.ndarray) -> DepthConfig:
         float(config.refine_smoothed_grow_agree)
     spread = config.refine_grow_spread if config.refine_smoothed_grow_spread is None else \
         float(config.refine_smoothed_grow_spread)
+    # the plane interpolation's values on a smoothed capture cost the median more than the coverage they add
+    interp = config.refine_interp_sigma if config.refine_smoothed_interp else None
     return dataclasses.replace(config, refine_retry_below=retry_below, refine_fill_agree=fill_agree,
                                refine_smoothed_below=None, refine_grow_fit=fit, refine_grow_agree=agree,
-                               refine_grow_spread=spread)
+                               refine_grow_spread=spread, refine_interp_sigma=interp)
