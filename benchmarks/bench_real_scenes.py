@@ -4,7 +4,7 @@ Run (from the repository root):
 
     PYTHONPATH=src NUMBA_CACHE_DIR=.numba_cache python benchmarks/bench_real_scenes.py -o OUT \
         [--data ../shared/data] [--scenes books,Piano,...] [--rigs biprism,triprism,misaligned] \
-        [--presets fast,balanced,accurate] [--realism ideal,real] [--calib none,board,self]
+        [--presets fast,balanced,accurate] [--realism ideal,real] [--calib none,board,self] [--render-cache DIR]
 
 Every scene is the left view of a Middlebury pair with its true depth (``simulate.middlebury_rgbd``: the five
 2005/2006 scenes of ``middlebury-extra``, the eight 2014 scenes of ``middlebury-2014``), a similar copy whose
@@ -100,6 +100,18 @@ def make_scene(data: Path, name: str, rig: Rig, *, realism: str, center_depth: f
     return scene
 
 
+def cached_render(true: Rig, scene: Scene, cache: Path | None, key: str) -> np.ndarray:
+    """The capture of ``scene`` through ``true``, read from ``cache/key.npy`` when an earlier run rendered it."""
+    file = None if cache is None else cache / f"{key}.npy"
+    if file is not None and file.is_file():
+        return np.load(file)
+    image = render_capture(true, scene).image
+    if file is not None:
+        file.parent.mkdir(parents=True, exist_ok=True)
+        np.save(file, image)
+    return image
+
+
 def board_calibrated(true: Rig, out: Path) -> tuple[Rig, dict[str, Any]]:
     """calibrate_prism from 10 board captures through the true rig, starting from the nominal prism (cached)."""
     cached = out / "board_calibrated_rig.toml"
@@ -189,6 +201,9 @@ def main() -> None:
     ap.add_argument("--presets", default="balanced")
     ap.add_argument("--realism", default="ideal")
     ap.add_argument("--calib", default="none,board,self", help="for the misaligned rig")
+    ap.add_argument("--render-cache", default=None,
+                    help="folder of rendered captures (SCENE_RIG_REALISM_DEPTH_FILL.npy): read when there, else "
+                         "rendered and saved (the render is deterministic: the scene's seed is fixed)")
     ap.add_argument("--center-depth", type=float, default=1400.0)
     ap.add_argument("--fill", type=float, default=1.3, help="scene width / one half-sensor view at the centre depth")
     ap.add_argument("--max-memory", type=float, default=None,
@@ -227,7 +242,8 @@ def main() -> None:
                 scene = make_scene(data, name, true, realism=realism, center_depth=args.center_depth,
                                    fill=args.fill, seed=(EXTRA + MB2014).index(name))
                 t0 = time.perf_counter()
-                image = render_capture(true, scene).image
+                image = cached_render(true, scene, None if args.render_cache is None else Path(args.render_cache),
+                                      f"{name}_{rig_name}_{realism}_{args.center_depth:g}_{args.fill:g}")
                 render_s = time.perf_counter() - t0
                 self_rig: Rig | None = None
                 self_err = ""

@@ -126,6 +126,8 @@ def test_depth_self_calibrate(tmp_path, start_rig, scene_capture, capsys):
     unobserved = sc["depth_error_unobserved"]
     assert set(unobserved["parameters"]) == {k for k, seen in sc["observed"].items() if not seen}
     assert isinstance(sc["warnings"], list)
+    # the held tilt y of this capture can move the depth by > 0.2 %: the run's own warnings say so too
+    assert sc["warnings"] and set(sc["warnings"]) <= set(run["warnings"])
     refined = (out / "rig_refined.toml").read_text()
     assert "rotation" in refined and "self-calibration" in capsys.readouterr().out
 
