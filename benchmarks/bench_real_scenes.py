@@ -24,7 +24,8 @@ the scene's place in the full list whatever ``--scenes`` holds):
 
 Per row: median relative depth error, share of reconstructed points within 1 %, coverage of the common view
 (``evaluation.depth_metrics``: ground truth by exact scene rays; the skin across depth jumps and pixels of unknown
-depth are not judged), the pipeline's warnings and seconds. Rows are printed as a markdown table and appended to
+depth are not judged), the pipeline's warnings (calib self: with the self-calibration's, as ``depth
+--self-calibrate`` gives them) and seconds. Rows are printed as a markdown table and appended to
 ``OUT/results.json`` as they finish (a partial run keeps its rows; rerunning skips rows already there).
 """
 
@@ -44,7 +45,7 @@ import numpy as np
 
 from prismstereo.calibration import Board, calibrate_prism
 from prismstereo.calibration.from_scene import calibrate_from_scene
-from prismstereo.calibration.scene_uncertainty import unobserved_depth_error
+from prismstereo.calibration.scene_uncertainty import uncertainty_warnings, unobserved_depth_error
 from prismstereo.config import Rig, load_rig, thesis_biprism
 from prismstereo.depth import DepthConfig, run_depth
 from prismstereo.depth.presets import apply_preset
@@ -269,6 +270,9 @@ def main() -> None:
                                                   None if args.max_memory is None else int(args.max_memory))}
                         if calib == "self":
                             row["self_calibration"] = self_info
+                            # what depth --self-calibrate adds to the run's warnings (api.depth)
+                            row["warnings"] = (uncertainty_warnings(self_info["depth_error_unobserved"])
+                                               + row["warnings"])
                     except PrismStereoError as exc:
                         row = {**base, "error": str(exc).splitlines()[0][:200]}
                     rows.append(row)
