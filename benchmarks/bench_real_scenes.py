@@ -4,7 +4,7 @@ Run (from the repository root):
 
     PYTHONPATH=src NUMBA_CACHE_DIR=.numba_cache python benchmarks/bench_real_scenes.py -o OUT \
         [--data ../shared/data] [--scenes books,Piano,...] [--rigs biprism,triprism,misaligned] \
-        [--presets fast,balanced,accurate] [--realism ideal,real] [--calib none,board,self]
+        [--presets fast,balanced,accurate] [--realism ideal,real] [--calib none,board,self] [--render-cache DIR]
 
 Every scene is the left view of a Middlebury pair with its true depth (``simulate.middlebury_rgbd``: the five
 2005/2006 scenes of ``middlebury-extra``, the eight 2014 scenes of ``middlebury-2014``), a similar copy whose
@@ -24,7 +24,8 @@ the scene's place in the full list whatever ``--scenes`` holds):
 
 Per row: median relative depth error, share of reconstructed points within 1 %, coverage of the common view
 (``evaluation.depth_metrics``: ground truth by exact scene rays; the skin across depth jumps and pixels of unknown
-depth are not judged), the pipeline's warnings and seconds. Rows are printed as a markdown table and appended to
+depth are not judged), the pipeline's warnings (calib self: with the self-calibration's, as ``depth
+--self-calibrate`` gives them) and seconds. Rows are printed as a markdown table and appended to
 ``OUT/results.json`` as they finish (a partial run keeps its rows; rerunning skips rows already there).
 """
 
@@ -44,7 +45,7 @@ import numpy as np
 
 from prismstereo.calibration import Board, calibrate_prism
 from prismstereo.calibration.from_scene import calibrate_from_scene
-from prismstereo.calibration.scene_uncertainty import unobserved_depth_error
+from prismstereo.calibration.scene_uncertainty import uncertainty_warnings, unobserved_depth_error
 from prismstereo.config import Rig, load_rig, thesis_biprism
 from prismstereo.depth import DepthConfig, run_depth
 from prismstereo.depth.presets import apply_preset
@@ -98,6 +99,18 @@ def make_scene(data: Path, name: str, rig: Rig, *, realism: str, center_depth: f
         scene = dataclasses.replace(scene, lens=ThinLens(f_number=8.0, focus_distance=center_depth, samples=16),
                                     bayer="RGGB", demosaic="edge-aware", jpeg_quality=85)
     return scene
+
+
+def cached_render(true: Rig, scene: Scene, cache: Path | None, key: str) -> np.ndarray:
+    """The capture of ``scene`` through ``true``, read from ``cache/key.npy`` when an earlier run rendered it."""
+    file = None if cache is None else cache / f"{key}.npy"
+    if file is not None and file.is_file():
+        return np.load(file)
+    image = render_capture(true, scene).image
+    if file is not None:
+        file.parent.mkdir(parents=True, exist_ok=True)
+        np.save(file, image)
+    return image
 
 
 def board_calibrated(true: Rig, out: Path) -> tuple[Rig, dict[str, Any]]:
@@ -189,6 +202,9 @@ def main() -> None:
     ap.add_argument("--presets", default="balanced")
     ap.add_argument("--realism", default="ideal")
     ap.add_argument("--calib", default="none,board,self", help="for the misaligned rig")
+    ap.add_argument("--render-cache", default=None,
+                    help="folder of rendered captures (SCENE_RIG_REALISM_DEPTH_FILL.npy): read when there, else "
+                         "rendered and saved (the render is deterministic: the scene's seed is fixed)")
     ap.add_argument("--center-depth", type=float, default=1400.0)
     ap.add_argument("--fill", type=float, default=1.3, help="scene width / one half-sensor view at the centre depth")
     ap.add_argument("--max-memory", type=float, default=None,
@@ -227,7 +243,8 @@ def main() -> None:
                 scene = make_scene(data, name, true, realism=realism, center_depth=args.center_depth,
                                    fill=args.fill, seed=(EXTRA + MB2014).index(name))
                 t0 = time.perf_counter()
-                image = render_capture(true, scene).image
+                image = cached_render(true, scene, None if args.render_cache is None else Path(args.render_cache),
+                                      f"{name}_{rig_name}_{realism}_{args.center_depth:g}_{args.fill:g}")
                 render_s = time.perf_counter() - t0
                 self_rig: Rig | None = None
                 self_err = ""
@@ -253,6 +270,9 @@ def main() -> None:
                                                   None if args.max_memory is None else int(args.max_memory))}
                         if calib == "self":
                             row["self_calibration"] = self_info
+                            # what depth --self-calibrate adds to the run's warnings (api.depth)
+                            row["warnings"] = (uncertainty_warnings(self_info["depth_error_unobserved"])
+                                               + row["warnings"])
                     except PrismStereoError as exc:
                         row = {**base, "error": str(exc).splitlines()[0][:200]}
                     rows.append(row)

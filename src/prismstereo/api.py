@@ -283,14 +283,19 @@ def depth(rig: Rig | PathLike, image: np.ndarray | PathLike, *, preset: str | No
     depth_gt = None if ground_truth is None else _ground_truth(rig_, ground_truth)
     scene_cal = None
     unobserved = None
+    calib_warnings: tuple[str, ...] = ()
     if self_calibrate:
         scene_cal = calibrate_from_scene(rig_, [img])
         rig_ = scene_cal.rig
         # what the parameters the scene did not observe can do to the depth, at the scene's depths
         unobserved = unobserved_depth_error(scene_cal)
-        for line in uncertainty_warnings(unobserved):
+        calib_warnings = tuple(uncertainty_warnings(unobserved))
+        for line in calib_warnings:
             log.warning("%s", line)
     res = run_depth(rig_, img, config=cfg, progress=progress)
+    if calib_warnings:
+        # the depth's own warnings (run.json's "warnings", report.png) must say it too: its scale rests on them
+        res = dataclasses.replace(res, warnings=calib_warnings + res.warnings)
     if depth_gt is not None:
         res = dataclasses.replace(res, accuracy=evaluate_depth(res, depth_gt=depth_gt))
     inputs = {"rig": None if isinstance(rig, Rig) else str(rig), "image": str(image) if _is_path(image) else None,

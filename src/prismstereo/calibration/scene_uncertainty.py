@@ -6,8 +6,11 @@ leaves it where its prior holds it (:func:`~prismstereo.calibration.from_scene.c
 notes). Whatever it is off by goes into the depth scale. :func:`unobserved_depth_error` turns each such
 parameter's remaining standard deviation into a relative depth error at the depths of the scene's own
 matches: every match is triangulated (exact refracted rays, the midpoint of their closest points) with the
-fitted prism and with that parameter moved by its std, and the median relative change of the depth is
-reported, in %.
+fitted prism and with that parameter moved by its std, both ways, and the median relative change of the
+depth is reported, in %, for the worse way. The change is not odd in the parameter: a tilt moves the depth
+of the whole view one way (second order) and tilts it (first order), so the median |change| of one way can
+be half the other's (the misaligned bi-prism of issue 26: tilt y −2° moves the depth of bowling1's matches
+by 1.06 %, +2° by 0.40 %).
 """
 
 from __future__ import annotations
@@ -62,8 +65,9 @@ def unobserved_depth_error(cal: SceneCalibration) -> dict[str, Any]:
     dict
         ``depth_mm``: the matches' depths (5th, 50th, 95th percentile); ``parameters``: for each unobserved
         parameter its std, the median / 95th percentile relative depth change (%) when it moves by that
-        std and the median change per unit of the parameter (% per degree or mm); ``max_median_pct``:
-        the largest of those medians (0 when every parameter was observed).
+        std the worse way (``direction``: ``"+"`` or ``"-"``; ``by_direction``: both ways' median and
+        p95), and that median per unit of the parameter (% per degree or mm); ``max_median_pct``: the
+        largest of those medians (0 when every parameter was observed).
     """
     z0 = _depths(cal.rig, cal)
     ok0 = np.isfinite(z0)
@@ -74,16 +78,24 @@ def unobserved_depth_error(cal: SceneCalibration) -> dict[str, Any]:
     for k, seen in cal.observed.items():
         if seen:
             continue
-        values = dict(base)
-        values[k] = base[k] + cal.std[k]
-        z1 = _depths(with_prism_values(cal.rig, values), cal)
-        ok = ok0 & np.isfinite(z1)
-        if not ok.any():
+        ways: dict[str, tuple[float, float]] = {}
+        for sign in ("+", "-"):
+            values = dict(base)
+            values[k] = base[k] + (cal.std[k] if sign == "+" else -cal.std[k])
+            z1 = _depths(with_prism_values(cal.rig, values), cal)
+            ok = ok0 & np.isfinite(z1)
+            if ok.any():
+                rel = 100.0 * np.abs(z1[ok] - z0[ok]) / z0[ok]
+                ways[sign] = (float(np.median(rel)), float(np.percentile(rel, 95)))
+        if not ways:
             continue
-        rel = 100.0 * np.abs(z1[ok] - z0[ok]) / z0[ok]
-        med, p95 = float(np.median(rel)), float(np.percentile(rel, 95))
-        out["parameters"][k] = {"std": float(cal.std[k]), "median_pct": round(med, 4), "p95_pct": round(p95, 4),
-                                "per_unit_pct": round(med / max(abs(float(cal.std[k])), 1e-12), 4)}
+        # the input value may be off either way: the worse one is what the depth can be off by
+        worse = max(ways, key=lambda w: ways[w][0])
+        med, p95 = ways[worse]
+        out["parameters"][k] = {
+            "std": float(cal.std[k]), "median_pct": round(med, 4), "p95_pct": round(p95, 4),
+            "per_unit_pct": round(med / max(abs(float(cal.std[k])), 1e-12), 4), "direction": worse,
+            "by_direction": {w: {"median_pct": round(m, 4), "p95_pct": round(q, 4)} for w, (m, q) in ways.items()}}
         out["max_median_pct"] = max(out["max_median_pct"], round(med, 4))
     return out
 
