@@ -72,11 +72,12 @@ def test_coarse_to_fine_matches_the_full_search(scene: tuple, method: str) -> No
     c2f = match(left, right, max_disp=63, method=method, scale=p)
     info = c2f.extras["scale"]
     assert info["coarse_to_fine"]
-    # bpasw's tiles span the row (its band is per row segment): 3 strips of 64 rows; sgm's are 64 px squares
+    # bpasw's tiles span the row (its band is per row segment): 3 strips of 64 rows; sgm's band is per pixel,
+    # untiled
     if method == "bpasw":
         assert info["tiles"] == 3 and info["searched_per_pixel"] < 45
     else:
-        assert info["tiles"] > 4 and info["band_mean"] < 45
+        assert info["tiles"] == 1 and info["band_mean"] < 45
     assert c2f.disparity.shape == gt.shape and c2f.disparity.dtype == np.float32
     assert _bad(full.disparity, gt) < 10.0
     assert _bad(c2f.disparity, gt) <= _bad(full.disparity, gt) + 1.0
@@ -88,7 +89,7 @@ def test_coarse_to_fine_matches_the_full_search(scene: tuple, method: str) -> No
     assert _bad_valid(c2f, gt) <= _bad_valid(full, gt) + 0.15
     assert c2f.disparity_raw is not None and full.disparity_raw is not None
     assert set(c2f.timings) >= {"coarse"}
-    assert info["band"] == ("segment" if method == "bpasw" else "tile")
+    assert info["band"] == ("segment" if method == "bpasw" else "pixel")
 
 
 def test_band_per_segment_searches_less_than_the_band_per_tile(scene: tuple) -> None:
@@ -103,9 +104,10 @@ def test_band_per_segment_searches_less_than_the_band_per_tile(scene: tuple) -> 
     assert _bad(seg.disparity, gt) <= _bad(tile.disparity, gt) + 0.2
     assert _bad_valid(seg, gt) <= _bad_valid(tile, gt) + 0.05
     assert seg.valid[:, 64:].mean() >= tile.valid[:, 64:].mean() - 0.005
-    # sgm takes no band: the tile's
+    # sgm takes a band per pixel, which searches less again
     sgm = match(left, right, max_disp=63, method="sgm", scale=p)
-    assert sgm.extras["scale"]["band"] == "tile"
+    assert sgm.extras["scale"]["band"] == "pixel"
+    assert sgm.extras["scale"]["searched_per_pixel"] < s["searched_per_pixel"]
 
 
 def test_band_falls_back_to_the_full_range_where_the_coarse_map_is_unreliable(scene: tuple) -> None:
@@ -116,11 +118,15 @@ def test_band_falls_back_to_the_full_range_where_the_coarse_map_is_unreliable(sc
     # rejects most of the left view's matches there
     blank_r[:, 130:] = np.random.default_rng(9).integers(0, 256, size=blank_r[:, 130:].shape, dtype=np.uint8)
     res = match(blank_l, blank_r, max_disp=63, method="sgm",
-                scale=ScaleParams(coarse_to_fine="on", tile=64, overlap=16))
+                scale=ScaleParams(coarse_to_fine="on", tile=64, overlap=16, band="tile"))
     assert res.extras["scale"]["full_range_tiles"] > 0
     strict = match(left, right, max_disp=63, method="sgm",
-                   scale=ScaleParams(coarse_to_fine="on", tile=64, overlap=16, min_valid=1.0))
+                   scale=ScaleParams(coarse_to_fine="on", tile=64, overlap=16, min_valid=1.0, band="tile"))
     assert strict.extras["scale"]["full_range_tiles"] == strict.extras["scale"]["tiles"]
+    # a band per pixel: the whole range there too
+    pix = match(blank_l, blank_r, max_disp=63, method="sgm", scale=ScaleParams(coarse_to_fine="on", tile=64,
+                                                                               overlap=16))
+    assert pix.extras["scale"]["band"] == "pixel" and pix.extras["scale"]["full_range_pixels"] > 0.1
 
 
 def test_auto_below_the_size_is_the_matcher_itself(scene: tuple) -> None:
@@ -134,6 +140,13 @@ def test_auto_below_the_size_is_the_matcher_itself(scene: tuple) -> None:
     np.testing.assert_array_equal(off.disparity, ref.disparity)
     on = match(left, right, max_disp=63, method="sgm", scale=ScaleParams(auto_pixels=1000, auto_range=8))
     assert on.extras["scale"]["coarse_to_fine"]
+    # sgm's band per pixel: its own (lower) size; another matcher keeps auto_pixels
+    px = match(left, right, max_disp=63, method="sgm", scale=ScaleParams(pixel_band_pixels=60_000))
+    assert px.extras["scale"]["coarse_to_fine"] and px.extras["scale"]["band"] == "pixel"
+    assert planned_memory("sgm", *left.shape[:2], max_disp=63, scale=ScaleParams(pixel_band_pixels=60_000)) \
+        >= px.extras["scale"]["estimate_bytes"]
+    assert not match(left, right, max_disp=63, method="sad",
+                     scale=ScaleParams(pixel_band_pixels=60_000)).extras["scale"]["coarse_to_fine"]
 
 
 def test_auto_bands_a_banded_matcher_over_a_wide_range_at_any_size(scene: tuple) -> None:

@@ -144,6 +144,12 @@ class ScaleParams:
     band_tile_cols : int
         Width of a core tile with ``band="segment"`` (``tile`` rows high; narrower where the budget asks): the
         tiles' context, which every tile's weights and costs cover again, is then above and below only.
+    pixel_band_pixels : int
+        With ``auto`` and ``band="segment"``, a matcher that takes a band per pixel (``sgm``) runs coarse-to-fine
+        from this many pixels (and ``auto_range`` disparities; ``auto_pixels`` where that is smaller): its
+        full-resolution match then costs pixels × band instead of pixels × range. ``fast`` at 3 MP (1.85 M
+        rectified pixels, 138 disparities): the match −26 % CPU; at 0.8 MP (0.46 M, 74) the same CPU, so the
+        full search there (docs/EXPERIMENTS.md, issue 30, stop 44).
     band_pixels : int
         With ``band="segment"`` and a matcher that takes it, a coarse level of at least this many pixels (and
         ``auto_range`` disparities) is itself coarse-to-fine (its bands from a coarser level), whatever ``auto``
@@ -170,6 +176,7 @@ class ScaleParams:
     segment: int = 32
     band_context: int = 16
     band_pixels: int = 250_000
+    pixel_band_pixels: int = 1_000_000
     band_range: int | None = 48
     band_tile_cols: int = 2048
     strip_pixels: int | None = None
@@ -192,10 +199,11 @@ class ScaleParams:
         if self.band not in ("segment", "tile"):
             raise ConfigError(f"expected band 'segment' or 'tile', got {self.band!r}")
         if (self.band_radius < 0 or self.segment < 1 or self.band_context < 0 or self.band_pixels < 0
-                or self.band_tile_cols < 16):
-            raise ConfigError(f"expected band_radius >= 0, segment >= 1, band_context >= 0, band_pixels >= 0 and "
-                              f"band_tile_cols >= 16, got {self.band_radius}, {self.segment}, {self.band_context}, "
-                              f"{self.band_pixels}, {self.band_tile_cols}")
+                or self.band_tile_cols < 16 or self.pixel_band_pixels < 0):
+            raise ConfigError(f"expected band_radius >= 0, segment >= 1, band_context >= 0, band_pixels >= 0, "
+                              f"band_tile_cols >= 16 and pixel_band_pixels >= 0, got {self.band_radius}, "
+                              f"{self.segment}, {self.band_context}, {self.band_pixels}, {self.band_tile_cols}, "
+                              f"{self.pixel_band_pixels}")
         if (self.strip_bytes is not None and self.strip_bytes <= 0
                 or any(v is not None and v < 0 for v in (self.strip_pixels, self.strip_overlap))):
             raise ConfigError(f"expected strip_pixels >= 0, strip_bytes > 0 and strip_overlap >= 0 (or None for the "
@@ -280,9 +288,10 @@ class _Tile:
 
 
 def _use_c2f(p: ScaleParams, h: int, w: int, nd: int, over_budget: bool, method: str, top: bool,
-             banded: bool = False) -> bool:
+             banded: bool = False, pixel_banded: bool = False) -> bool:
     """Whether :func:`match_scaled` runs this level coarse-to-fine (``ScaleParams.coarse_to_fine``;
-    ``banded``: the matcher takes a band per row segment with ``band="segment"``)."""
+    ``banded``: the matcher takes a band per row segment with ``band="segment"``; ``pixel_banded``: a band per
+    pixel, ``pixel_band_pixels``)."""
     if p.coarse_to_fine == "off":
         return False
     small = min(h, w) < 4 * p.factor or nd < 4 * p.factor
@@ -293,7 +302,14 @@ def _use_c2f(p: ScaleParams, h: int, w: int, nd: int, over_budget: bool, method:
     if top and banded and p.band_range is not None and nd >= max(p.band_range, 4 * p.factor) and not small:
         return True  # a band per row segment: every pixel searches around the coarse map, not the whole range
     heavy = estimate_memory(method, h, w, nd, base=False) > p.auto_bytes
-    return not small and nd >= p.auto_range and (h * w >= p.auto_pixels or heavy or over_budget)
+    pixels = min(p.auto_pixels, p.pixel_band_pixels) if pixel_banded else p.auto_pixels
+    return not small and nd >= p.auto_range and (h * w >= pixels or heavy or over_budget)
+
+
+def _takes_pixel_band(p: ScaleParams, matcher: Matcher) -> bool:
+    """Whether ``matcher`` searches a band per pixel under ``p`` (``band="segment"`` and its
+    ``supports_pixel_band``: ``sgm``'s ``compute_banded``)."""
+    return p.band == "segment" and bool(getattr(matcher, "supports_pixel_band", False))
 
 
 def _takes_band(p: ScaleParams, matcher: Matcher) -> bool:
@@ -319,6 +335,13 @@ def _crop_cols(t: _Tile, w: int, overlap: int) -> tuple[int, int]:
     a = max(t.x0 - overlap - (t.hi - t.lo), t.lo)
     b = min(t.x1 + overlap, w)
     return a, b
+
+
+def _pixel_band_estimate(method: str, h: int, w: int, total: int) -> int:
+    """Peak bytes of one untiled match with a band per pixel, ``total`` pixel·disparities in all (the ragged
+    cost volume and the two scans' path sums, uint16 each, beside the per-pixel maps)."""
+    per_pixel = estimate_memory(method, h, w, 1, base=False) / max(h * w, 1)
+    return int(per_pixel * h * w + 6 * total)
 
 
 def _tile_estimate(method: str, t: _Tile, h: int, w: int, overlap: int) -> int:
@@ -591,7 +614,9 @@ def planned_memory(method: str, height: int, width: int, *, max_disp: int, min_d
     nd = hi - lo + 1
     h, w = int(height), int(width)
     est_full = p.base + estimate_memory(method, h, w, nd, base=False)
-    if not _use_c2f(p, h, w, nd, est_full > budget, method, _level == 0, _takes_band(p, get_matcher(method))):
+    planned = get_matcher(method)
+    if not _use_c2f(p, h, w, nd, est_full > budget, method, _level == 0, _takes_band(p, planned),
+                    _takes_pixel_band(p, planned)):
         strips = _untiled_strips(method, p, h, w, lo, hi, budget)
         if strips is None:
             return est_full
@@ -620,6 +645,10 @@ def planned_memory(method: str, height: int, width: int, *, max_disp: int, min_d
                                 f"({need / 2**30:.2f} GiB with method {method!r}), got {budget / 2**30:.2f} GiB: "
                                 "raise max_memory")
     worst = tile_bytes(ty, tx)
+    if _takes_pixel_band(p, planned):
+        # a band per pixel runs untiled where it fits the budget (the tiles otherwise); its bands are known only
+        # after the coarse match: at most the whole range at every pixel
+        return max(coarse, stitch + worst, min(budget, p.base + _pixel_band_estimate(method, h, w, h * w * nd)))
     return max(coarse, stitch + worst)
 
 
@@ -664,7 +693,7 @@ def match_scaled(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp
     nd = hi - lo + 1
     est_full = p.base + estimate_memory(method, h, w, nd, base=False)
     banded = _takes_band(p, matcher)
-    c2f = _use_c2f(p, h, w, nd, est_full > budget, method, _level == 0, banded)
+    c2f = _use_c2f(p, h, w, nd, est_full > budget, method, _level == 0, banded, _takes_pixel_band(p, matcher))
     if banded and _level > 0 and not c2f and p.coarse_to_fine != "off" and h * w >= p.band_pixels:
         # a coarse level of a banded matcher: its own bands cost less than its full search
         c2f = _use_c2f(dataclasses.replace(p, coarse_to_fine="on"), h, w, nd, False, method, False) \
@@ -700,6 +729,25 @@ def match_scaled(left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp
         info["levels"] = int(coarse.extras.get("scale", {}).get("levels", _level + 2))
         # the coarse levels ran first, in the same process: the run's peak is the larger of theirs and the tiles'
         coarse_est = int(coarse.extras.get("scale", {}).get("estimate_bytes", 0))
+        if _takes_pixel_band(p, matcher):
+            # every pixel its own band (tSGM): one untiled match that costs pixels × band, where it fits
+            pb = _pixel_bands(coarse, f, h, w, lo, hi, p)
+            widths = (pb.hi.astype(np.int64) - pb.lo + 1)
+            total = int(widths.sum())
+            est = max(coarse_est, p.base + _pixel_band_estimate(method, h, w, total))
+            if est <= budget:
+                del coarse
+                if _level == 0:
+                    log.info("match %s %d×%d, %d disparities: coarse-to-fine, a band per pixel (mean %.1f), "
+                             "peak memory estimate %.2f GiB (budget %.2f GiB; untiled full search %.2f GiB)", method,
+                             w, h, nd, total / max(h * w, 1), est / 2**30, budget / 2**30, est_full / 2**30)
+                res = matcher.compute_banded(left, right, max_disp=hi, min_disp=lo,  # type: ignore[attr-defined]
+                                             band_lo=pb.lo, band_hi=pb.hi)
+                info.update({"estimate_bytes": est, "band_mean": round(total / max(h * w, 1), 2), "band": "pixel",
+                             "full_range_pixels": round(float((widths == nd).mean()), 4),
+                             "searched_per_pixel": round(total / max(h * w, 1), 2), "overlap": 0})
+                return MatchResult(disparity=res.disparity, valid=res.valid, disparity_raw=res.disparity_raw,
+                                   timings={**res.timings, "coarse": coarse_s}, extras={"scale": info})
         # a banded matcher's tiles are wide: their weights and costs are computed once per row, not per tile
         tiles = _band_tiles(method, coarse, f, h, w, lo, hi, p, budget, p.band_tile_cols if banded else None)
         if banded:

@@ -270,6 +270,12 @@ class SGMMatcher:
             fail(self, "p2", f"an integer >= p1 = {self.p1}", self.p2)
         check_census_window(self, self.census_window)
 
+    @property
+    def supports_pixel_band(self) -> bool:
+        """Whether :meth:`compute_banded` takes this configuration (the census cost): coarse-to-fine
+        (:func:`~prismstereo.matching.scale.match_scaled`) then gives every pixel its own band."""
+        return self.cost == "census"
+
     def cost_volume(self, left: np.ndarray, right: np.ndarray, *, max_disp: int, min_disp: int,
                     gray_left: np.ndarray | None = None) -> np.ndarray:
         """The uint16 matching cost volume ``(H, W, D)`` before aggregation; ``gray_left``: ``costs.to_gray`` of
