@@ -140,13 +140,14 @@ def test_auto_below_the_size_is_the_matcher_itself(scene: tuple) -> None:
     np.testing.assert_array_equal(off.disparity, ref.disparity)
     on = match(left, right, max_disp=63, method="sgm", scale=ScaleParams(auto_pixels=1000, auto_range=8))
     assert on.extras["scale"]["coarse_to_fine"]
-    # sgm's band per pixel: its own (lower) size; another matcher keeps auto_pixels
-    px = match(left, right, max_disp=63, method="sgm", scale=ScaleParams(pixel_band_pixels=60_000))
+    # sgm's band per pixel: its own (lower) size over a wide range; another matcher keeps auto_pixels
+    low = ScaleParams(pixel_band_pixels=60_000, pixel_band_range=64)
+    px = match(left, right, max_disp=63, method="sgm", scale=low)
     assert px.extras["scale"]["coarse_to_fine"] and px.extras["scale"]["band"] == "pixel"
-    assert planned_memory("sgm", *left.shape[:2], max_disp=63, scale=ScaleParams(pixel_band_pixels=60_000)) \
-        >= px.extras["scale"]["estimate_bytes"]
-    assert not match(left, right, max_disp=63, method="sad",
-                     scale=ScaleParams(pixel_band_pixels=60_000)).extras["scale"]["coarse_to_fine"]
+    assert planned_memory("sgm", *left.shape[:2], max_disp=63, scale=low) >= px.extras["scale"]["estimate_bytes"]
+    assert not match(left, right, max_disp=63, method="sad", scale=low).extras["scale"]["coarse_to_fine"]
+    narrow = dataclasses.replace(low, pixel_band_range=65)  # 64 disparities: the full search
+    assert not match(left, right, max_disp=63, method="sgm", scale=narrow).extras["scale"]["coarse_to_fine"]
 
 
 def test_auto_bands_a_banded_matcher_over_a_wide_range_at_any_size(scene: tuple) -> None:

@@ -277,7 +277,8 @@ class DepthConfig:
     coarse_to_fine : {"auto", "on", "off"}
         Match a downsampled pair over the whole range, then the full resolution in tiles within a band
         around it (:mod:`prismstereo.matching.scale`; ``sgm``: a band per pixel); ``auto``: above
-        ``ScaleParams.auto_pixels`` (``sgm``: ``ScaleParams.pixel_band_pixels``, 1 M pixels).
+        ``ScaleParams.auto_pixels`` (``sgm``: ``ScaleParams.pixel_band_pixels``, 1 M pixels, over at least
+        ``pixel_band_range``, 96 disparities).
     max_memory : int or None
         Peak-memory budget of the match, bytes (over it, the match is tiled; refused when no tile fits);
         None: 80 % of the machine's available memory.

@@ -144,12 +144,14 @@ class ScaleParams:
     band_tile_cols : int
         Width of a core tile with ``band="segment"`` (``tile`` rows high; narrower where the budget asks): the
         tiles' context, which every tile's weights and costs cover again, is then above and below only.
-    pixel_band_pixels : int
+    pixel_band_pixels, pixel_band_range : int
         With ``auto`` and ``band="segment"``, a matcher that takes a band per pixel (``sgm``) runs coarse-to-fine
-        from this many pixels (and ``auto_range`` disparities; ``auto_pixels`` where that is smaller): its
-        full-resolution match then costs pixels × band instead of pixels × range. ``fast`` at 3 MP (1.85 M
-        rectified pixels, 138 disparities): the match −26 % CPU; at 0.8 MP (0.46 M, 74) the same CPU, so the
-        full search there (docs/EXPERIMENTS.md, issue 30, stop 44).
+        from this many pixels over at least this many disparities (``auto_pixels`` where that is smaller): its
+        full-resolution match then costs pixels × band instead of pixels × range, and the band (≈ 30–40
+        disparities with the coarse map's min…max around each pixel, ± ``margin``, at 1.5× the full search's
+        cost per pixel·disparity) pays only over a wide range. ``fast`` at 3 MP: robot (1.85 M rectified
+        pixels, 138 disparities) the match −26 % CPU; Adirondack and Jadeplant (61 and 72 disparities) +7 and
+        +10 %; at 0.8 MP robot (0.46 M, 74) the same CPU (docs/EXPERIMENTS.md, issue 30, stop 44).
     band_pixels : int
         With ``band="segment"`` and a matcher that takes it, a coarse level of at least this many pixels (and
         ``auto_range`` disparities) is itself coarse-to-fine (its bands from a coarser level), whatever ``auto``
@@ -177,6 +179,7 @@ class ScaleParams:
     band_context: int = 16
     band_pixels: int = 250_000
     pixel_band_pixels: int = 1_000_000
+    pixel_band_range: int = 96
     band_range: int | None = 48
     band_tile_cols: int = 2048
     strip_pixels: int | None = None
@@ -199,11 +202,11 @@ class ScaleParams:
         if self.band not in ("segment", "tile"):
             raise ConfigError(f"expected band 'segment' or 'tile', got {self.band!r}")
         if (self.band_radius < 0 or self.segment < 1 or self.band_context < 0 or self.band_pixels < 0
-                or self.band_tile_cols < 16 or self.pixel_band_pixels < 0):
+                or self.band_tile_cols < 16 or self.pixel_band_pixels < 0 or self.pixel_band_range < 0):
             raise ConfigError(f"expected band_radius >= 0, segment >= 1, band_context >= 0, band_pixels >= 0, "
-                              f"band_tile_cols >= 16 and pixel_band_pixels >= 0, got {self.band_radius}, "
-                              f"{self.segment}, {self.band_context}, {self.band_pixels}, {self.band_tile_cols}, "
-                              f"{self.pixel_band_pixels}")
+                              f"band_tile_cols >= 16, pixel_band_pixels >= 0 and pixel_band_range >= 0, got "
+                              f"{self.band_radius}, {self.segment}, {self.band_context}, {self.band_pixels}, "
+                              f"{self.band_tile_cols}, {self.pixel_band_pixels}, {self.pixel_band_range}")
         if (self.strip_bytes is not None and self.strip_bytes <= 0
                 or any(v is not None and v < 0 for v in (self.strip_pixels, self.strip_overlap))):
             raise ConfigError(f"expected strip_pixels >= 0, strip_bytes > 0 and strip_overlap >= 0 (or None for the "
@@ -302,7 +305,7 @@ def _use_c2f(p: ScaleParams, h: int, w: int, nd: int, over_budget: bool, method:
     if top and banded and p.band_range is not None and nd >= max(p.band_range, 4 * p.factor) and not small:
         return True  # a band per row segment: every pixel searches around the coarse map, not the whole range
     heavy = estimate_memory(method, h, w, nd, base=False) > p.auto_bytes
-    pixels = min(p.auto_pixels, p.pixel_band_pixels) if pixel_banded else p.auto_pixels
+    pixels = min(p.auto_pixels, p.pixel_band_pixels) if pixel_banded and nd >= p.pixel_band_range else p.auto_pixels
     return not small and nd >= p.auto_range and (h * w >= pixels or heavy or over_budget)
 
 
