@@ -244,7 +244,7 @@ class DepthConfig:
         ``min_confidence``.
     refine_grow_cut : float or None
         With ``refine_grow_fit="plane"``, where no whole window confirms a value beside a depth edge or an
-        occlusion, both growth windows are tried once more cut to the pixels of the value's own surface: the
+        occlusion, the wide growth window is tried once more cut to the pixels of the value's own surface: the
         left ones whose kept (else dense) value lies within this many px of it and that the right view sees,
         the right ones whose value does (``cut`` of :func:`~prismstereo.depth.confidence.confident_growth`):
         a whole window beside an occluder holds the band the right view does not see and the occluder itself.
