@@ -624,7 +624,8 @@ def _surface_cut(left: np.ndarray, right: np.ndarray, seeds: np.ndarray, surface
     box = np.ones((k, k), np.uint8)
     hi = cv2.dilate(np.where(np.isfinite(s), s, -np.inf).astype(np.float32), box)
     lo = cv2.erode(np.where(np.isfinite(s), s, np.inf).astype(np.float32), box)
-    edge = (hi - lo > cut) | (cv2.dilate(hidden.astype(np.uint8), box) > 0)
+    with np.errstate(over="ignore", invalid="ignore"):  # windows without a value: ±inf, or cv2's ±FLT_MAX border
+        edge = (hi - lo > cut) | (cv2.dilate(hidden.astype(np.uint8), box) > 0)
     ys, xs = np.nonzero(np.isfinite(seeds) & edge)
     if ys.size == 0:
         return nan, nan.copy()
