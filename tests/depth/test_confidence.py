@@ -686,3 +686,33 @@ def test_plane_interpolation_keeps_the_neighbours_plane_where_the_dense_value_li
     vr[:, : int(np.rint(45 - 33.0))] = False  # x − d < 12 for every hole pixel
     d_vr, _ = plane_interpolation(kept, conf, dense, sigma=8.0, valid_right=vr)
     assert not np.isfinite(d_vr[hole]).any()
+
+
+def test_beside_an_occluder_the_growth_cuts_its_windows_and_its_plane_test_to_the_pixels_own_surface():
+    from prismstereo.depth.confidence import confident_growth
+
+    left, right, true, x0, x1 = _strip_in_front()
+    h, w = true.shape
+    xs = np.arange(w)[None, :] * np.ones((h, 1), dtype=int)
+    rows = (np.arange(h)[:, None] >= 16) & (np.arange(h)[:, None] < h - 16)
+    # the background's holes on both sides of the strip, the strip kept: two surfaces around every hole
+    holes = (((xs >= x0 - 20) & (xs < x0 - 5)) | ((xs >= x1) & (xs < x1 + 15))) & rows
+    occluded = (xs >= x0 - 5) & (xs < x0)
+    kept = np.where(~holes & ~occluded, true, np.nan).astype(np.float32)
+    conf = np.where(np.isfinite(kept), np.float32(0.9), np.float32(np.nan))
+    filled = np.rint(true).astype(np.float32)
+    kw = dict(min_confidence=0.5, max_lr_gap=0.45, fit="plane", agree=0.2, second_radius=5, passes=2)
+    whole, _ = confident_growth(left, right, kept, conf, filled, **kw)
+    cut, c_cut = confident_growth(left, right, kept, conf, filled, cut=1.5, gap=1.5, **kw)
+    # whole windows reach the strip and the share test counts the strip against the background's plane
+    assert (np.isfinite(whole) & holes).sum() < 0.4 * holes.sum()
+    grown = np.isfinite(cut) & holes
+    for side in (xs < x0, xs >= x1):
+        assert (grown & side).sum() > 0.95 * (holes & side).sum()
+    assert np.all(np.abs(cut[grown] - true[grown]) < 0.5)
+    assert np.all((c_cut[grown] >= 0.5) & (c_cut[grown] <= 1.0))
+    assert not (np.isfinite(cut) & occluded).any()
+    # neighbours 1 px off the image: the cut windows' values break with them, nothing grows
+    off = np.where(np.isfinite(kept), kept + np.float32(1.0), np.nan).astype(np.float32)
+    d_off, _ = confident_growth(left, right, off, conf, filled, cut=1.5, gap=1.5, **kw)
+    assert (np.isfinite(d_off) & holes).sum() < 0.02 * holes.sum()

@@ -242,6 +242,19 @@ class DepthConfig:
         on the weakest texture (a far floor, leaves) a 33×33 window refines to the right value at a ZNCC the
         sensor noise keeps below 0.5, and the plane test is what bounds a grown value. None:
         ``min_confidence``.
+    refine_grow_cut : float or None
+        With ``refine_grow_fit="plane"``, where no whole window confirms a value beside a depth edge or an
+        occlusion, the wide growth window is tried once more cut to the pixels of the value's own surface: the
+        left ones whose kept (else dense) value lies within this many px of it and that the right view sees,
+        the right ones whose value does (``cut`` of :func:`~prismstereo.depth.confidence.confident_growth`):
+        a whole window beside an occluder holds the band the right view does not see and the occluder itself.
+        None: whole windows only.
+    refine_grow_gap : float or None
+        With ``refine_grow_fit="plane"``, the kept neighbours farther than this many px from the value's plane
+        are another surface, and ``refine_grow_share`` is asked of the others only (``gap`` of
+        :func:`~prismstereo.depth.confidence.confident_growth`): beside an occluder the occluder's kept values
+        are not evidence against the background's plane; those between ``refine_grow_inlier`` and this many px
+        off still are. None: of all the kept neighbours.
     refine_interp_sigma : float or None
         Where the matches, the fill and the growth kept nothing, keep the Gaussian-weighted (σ this, px) plane
         through the kept values within ``refine_grow_inlier`` px of the matcher's dense value where those weigh
@@ -318,6 +331,8 @@ class DepthConfig:
     refine_grow_agree_depth: float | None = 0.0022
     refine_grow_second_radius: int | None = 5
     refine_grow_min_confidence: float | None = 0.3
+    refine_grow_cut: float | None = 1.5
+    refine_grow_gap: float | None = 1.5
     refine_interp_sigma: float | None = 8.0
     refine_interp_support: float = 0.3
     refine_interp_share: float = 0.95
@@ -348,6 +363,7 @@ class DepthConfig:
                             "refine_grow_inlier": (0.0, None), "refine_grow_share": (0.0, 1.0),
                             "refine_grow_agree_depth": (0.0, 1.0), "refine_grow_second_radius": (1, 50),
                             "refine_grow_min_confidence": (0.0, 1.0),
+                            "refine_grow_cut": (0.0, None), "refine_grow_gap": (0.0, None),
                             "refine_interp_sigma": (0.0, 50.0), "refine_interp_support": (0.0, 1.0),
                             "refine_interp_share": (0.0, 1.0),
                             "refine_interp_spread": (0.0, None), "refine_interp_agree": (0.0, None),
@@ -357,7 +373,8 @@ class DepthConfig:
                             "refine_smoothed_grow_agree": (0.0, None), "refine_smoothed_grow_spread": (0.0, None)},
                      positive=("max_gap_mm", "refine_max_shift", "refine_fill_agree", "refine_grow_agree",
                                "refine_grow_sigma", "refine_grow_spread", "refine_grow_inlier",
-                               "refine_grow_agree_depth", "refine_interp_sigma", "refine_interp_spread",
+                               "refine_grow_agree_depth", "refine_grow_cut", "refine_grow_gap",
+                               "refine_interp_sigma", "refine_interp_spread",
                                "refine_interp_agree",
                                "refine_smoothed_fill_agree", "refine_smoothed_grow_agree",
                                "refine_smoothed_grow_spread"))
@@ -1017,7 +1034,9 @@ def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, dis
                                       min_share=config.refine_grow_share,
                                       agree_depth=config.refine_grow_agree_depth,
                                       disparity_offset=pair.disparity_offset,
-                                      second_radius=config.refine_grow_second_radius, valid_right=vr_fill,
+                                      second_radius=config.refine_grow_second_radius,
+                                      cut=config.refine_grow_cut, gap=config.refine_grow_gap,
+                                      valid_right=vr_fill,
                                       **kw_grow)
     if filled is not None and config.refine_interp_sigma is not None:
         disp, conf = plane_interpolation(disp, conf, filled, sigma=config.refine_interp_sigma,

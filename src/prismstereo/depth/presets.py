@@ -86,6 +86,8 @@ PROFILES: dict[str, Preset] = {
         ("refine_grow_agree_depth", 0.0022),
         ("refine_grow_second_radius", 5),
         ("refine_grow_min_confidence", 0.3),
+        ("refine_grow_cut", 1.5),
+        ("refine_grow_gap", 1.5),
         ("refine_interp_sigma", None),
         ("refine_interp_support", 0.3),
         ("refine_interp_share", 0.95),
