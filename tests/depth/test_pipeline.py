@@ -262,7 +262,8 @@ def test_coarse_to_fine_depth_matches_the_full_search(plane_capture):
 
 def test_a_third_window_refines_the_weak_kept_matches_and_drops_none(plane_capture, monkeypatch):
     """refine_third_radius: the kept matches below refine_third_below are refined again from the matcher's value
-    with the third window; its confirmed values replace theirs, the others keep theirs, none is dropped."""
+    with the third window; its values confirmed with a higher ZNCC replace theirs, the others keep theirs, none
+    is dropped."""
     import dataclasses
 
     from prismstereo.depth import pipeline as pl
@@ -287,7 +288,9 @@ def test_a_third_window_refines_the_weak_kept_matches_and_drops_none(plane_captu
             return d, conf
         d = np.where(np.isfinite(disparity), disparity + np.float32(0.3), nan)  # the third confirms even rows
         d[1::2] = nan
-        return d, np.where(np.isfinite(d), np.float32(0.97), nan)
+        c3 = np.where(np.isfinite(d), np.float32(0.97), nan)
+        c3[0::4] = 0.55  # confirmed, but matching worse than the weaker third's 0.6
+        return d, c3
 
     monkeypatch.setattr(pl, "confident_matches", matches)
     c = dataclasses.replace(cfg, refine_fill_agree=None, refine_grow_radius=None, refine_interp_sigma=None,
@@ -296,9 +299,10 @@ def test_a_third_window_refines_the_weak_kept_matches_and_drops_none(plane_captu
     assert [call[:2] for call in calls] == [(c.refine_radius, c.refine_retry_radius), (16, None)]
     asked = calls[1][2]
     assert not asked[:, :t].any() and asked[:, t:-1].all() and not asked[:, -1].any()
-    np.testing.assert_allclose(disp[0::2, t:-1], 30.3)
+    np.testing.assert_allclose(disp[2::4, t:-1], 30.3)
+    np.testing.assert_allclose(conf[2::4, t:-1], 0.97)
     np.testing.assert_allclose(disp[1::2, t:-1], 30.1)
-    np.testing.assert_allclose(conf[0::2, t:-1], 0.97)
+    np.testing.assert_allclose(disp[0::4, t:-1], 30.1)
     np.testing.assert_allclose(disp[:, :t], 30.1)
     assert np.isnan(disp[:, -1]).all()
     calls.clear()

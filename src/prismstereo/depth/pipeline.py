@@ -203,8 +203,9 @@ class DepthConfig:
     refine_third_radius : int or None
         Half-size of a third refinement window for the kept matches whose confidence after the first two
         stayed below ``refine_third_below``: its result replaces theirs where the refinement, the sub-pixel
-        left–right check and ``min_confidence`` confirm it; it drops none. None (default): no third window;
-        the smoothed-capture profile sets it (``refine_smoothed_third_radius``).
+        left–right check and ``min_confidence`` confirm it with a higher ZNCC than theirs; it drops none.
+        None (default): no third window; the smoothed-capture profile sets it
+        (``refine_smoothed_third_radius``).
     refine_third_below : float
         See ``refine_third_radius``.
     refine_retry_drop : bool
@@ -1049,14 +1050,15 @@ def _third_window(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, di
                   ) -> tuple[np.ndarray, np.ndarray]:
     """``refine_third_radius``: the kept matches below ``refine_third_below`` refined again from the matcher's
     value with that window (the whole map standing for the right view in the sub-pixel check, as for the
-    second window); its result replaces theirs where it is confirmed, none is dropped."""
+    second window); its result replaces theirs where it is confirmed with a higher ZNCC (a wider window that
+    matches worse reaches across a depth edge, as beside Jadeplant's leaves), none is dropped."""
     weak = np.isfinite(disp) & (conf < config.refine_third_below)
     if not weak.any():
         return disp, conf
     kw3 = {**kw, "radius": config.refine_third_radius, "retry_radius": None}
     d3, c3 = confident_matches(left, right, np.where(weak, np.asarray(disparity, dtype=np.float32), np.float32(np.nan)),
                                valid_right=vr, seeds_checked=checked, right_seeds=disparity, **kw3)
-    take = weak & np.isfinite(d3) & (c3 > 0.0)
+    take = weak & np.isfinite(d3) & (c3 > conf)
     return (np.where(take, d3, disp).astype(np.float32), np.where(take, c3, conf).astype(np.float32))
 
 

@@ -11,8 +11,8 @@ estimator, the median form: texture edges do not raise it); below ``DepthConfig.
 :func:`smoothed_config` gives the refinement its smoothed-capture profile: the wider window for every
 match whose small window stayed below a ZNCC of 0.99 instead of 0.95 (its value taken where it is
 confirmed), a third, 33-px window for the kept matches still below 0.95 (its value where it is
-confirmed; ``DepthConfig.refine_third_radius``), and the dense map's values filled where the two windows
-agree within 1 px instead of 0.5.
+confirmed with a higher ZNCC; ``DepthConfig.refine_third_radius``), and the dense map's values filled where
+the two windows agree within 1 px instead of 0.5.
 """
 
 from __future__ import annotations
