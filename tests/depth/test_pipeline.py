@@ -258,3 +258,53 @@ def test_coarse_to_fine_depth_matches_the_full_search(plane_capture):
         run_depth(rig, cap.image, config=DepthConfig(method="sgm", max_memory=2**20))
     with pytest.raises(ConfigError, match="coarse_to_fine"):
         run_depth(rig, cap.image, config=DepthConfig(coarse_to_fine="maybe"))
+
+
+def test_a_third_window_refines_the_weak_kept_matches_and_drops_none(plane_capture, monkeypatch):
+    """refine_third_radius: the kept matches below refine_third_below are refined again from the matcher's value
+    with the third window; its values confirmed with a higher ZNCC replace theirs, the others keep theirs, none
+    is dropped."""
+    import dataclasses
+
+    from prismstereo.depth import pipeline as pl
+
+    rig, _, cap = plane_capture
+    img, cfg = pl.validate_inputs(rig, cap.image, DepthConfig())
+    pair = pl.rectify_geometry(rig, pl.virtual_cameras(rig, cfg), cfg)
+    left, right = pl.rectify_capture(pair, img)
+    h, w = left.shape[:2]
+    t = w // 3
+    disparity = np.full((h, w), 30.0, dtype=np.float32)
+    calls: list[tuple[int, int | None, np.ndarray]] = []
+
+    def matches(left, right, disparity, **kwargs):  # what the windows are asked, not their work
+        calls.append((kwargs["radius"], kwargs["retry_radius"], np.isfinite(disparity)))
+        nan = np.float32(np.nan)
+        if len(calls) == 1:  # the first two windows: strong, weak and weaker thirds, the last column dropped
+            conf = np.full((h, w), 0.99, dtype=np.float32)
+            conf[:, t:2 * t], conf[:, 2 * t:] = 0.9, 0.6
+            d = disparity + np.float32(0.1)
+            d[:, -1], conf[:, -1] = nan, nan
+            return d, conf
+        d = np.where(np.isfinite(disparity), disparity + np.float32(0.3), nan)  # the third confirms even rows
+        d[1::2] = nan
+        c3 = np.where(np.isfinite(d), np.float32(0.97), nan)
+        c3[0::4] = 0.55  # confirmed, but matching worse than the weaker third's 0.6
+        return d, c3
+
+    monkeypatch.setattr(pl, "confident_matches", matches)
+    c = dataclasses.replace(cfg, refine_fill_agree=None, refine_grow_radius=None, refine_interp_sigma=None,
+                            refine_third_radius=16)
+    disp, conf = pl.refine_matches(left, right, pair, disparity, c, epipolar=None)
+    assert [call[:2] for call in calls] == [(c.refine_radius, c.refine_retry_radius), (16, None)]
+    asked = calls[1][2]
+    assert not asked[:, :t].any() and asked[:, t:-1].all() and not asked[:, -1].any()
+    np.testing.assert_allclose(disp[2::4, t:-1], 30.3)
+    np.testing.assert_allclose(conf[2::4, t:-1], 0.97)
+    np.testing.assert_allclose(disp[1::2, t:-1], 30.1)
+    np.testing.assert_allclose(disp[0::4, t:-1], 30.1)
+    np.testing.assert_allclose(disp[:, :t], 30.1)
+    assert np.isnan(disp[:, -1]).all()
+    calls.clear()
+    pl.refine_matches(left, right, pair, disparity, dataclasses.replace(c, refine_third_radius=None), epipolar=None)
+    assert len(calls) == 1

@@ -41,6 +41,10 @@ def test_smoothed_config_switches_the_refinement_profile_below_the_threshold():
     assert smoothed_config(cfg, sharp) is cfg
     got = smoothed_config(cfg, smooth)
     assert got.refine_retry_below == cfg.refine_smoothed_retry_below
+    # the third window is the smoothed captures' only (None leaves the configuration's)
+    assert cfg.refine_third_radius is None and got.refine_third_radius == cfg.refine_smoothed_third_radius is not None
+    assert smoothed_config(dataclasses.replace(cfg, refine_smoothed_third_radius=None), smooth).refine_third_radius \
+        is None
     assert got.refine_fill_agree == cfg.refine_smoothed_fill_agree and not got.refine_fill
     assert got.refine_smoothed_below is None  # what run.json records reproduces the run
     assert (got.refine_grow_fit, got.refine_grow_agree, got.refine_grow_spread) == (

@@ -200,6 +200,14 @@ class DepthConfig:
         the sub-pixel left–right check confirm it; None: one window.
     refine_retry_below : float
         See ``refine_retry_radius``.
+    refine_third_radius : int or None
+        Half-size of a third refinement window for the kept matches whose confidence after the first two
+        stayed below ``refine_third_below``: its result replaces theirs where the refinement, the sub-pixel
+        left–right check and ``min_confidence`` confirm it with a higher ZNCC than theirs; it drops none.
+        None (default): no third window; the smoothed-capture profile sets it
+        (``refine_smoothed_third_radius``).
+    refine_third_below : float
+        See ``refine_third_radius``.
     refine_retry_drop : bool
         A match whose ``refine_radius`` window stayed below ``refine_retry_below`` and whose wider window
         is not confirmed gets confidence 0 (``min_confidence`` drops it) instead of keeping the small
@@ -277,6 +285,10 @@ class DepthConfig:
         None: never.
     refine_smoothed_retry_below, refine_smoothed_fill_agree : float, float or None
         See ``refine_smoothed_below`` (None: the fill agreement is left as it is).
+    refine_smoothed_third_radius : int or None
+        ``refine_third_radius`` on a smoothed capture (``refine_smoothed_below``; None: left as it is): the
+        blurred weak texture pins a sub-pixel value only over more pixels, and a weak match's 33-px window
+        is the more precise one where it is confirmed (docs/EXPERIMENTS.md, issue 26, stop 44).
     refine_smoothed_grow_fit, refine_smoothed_grow_agree, refine_smoothed_grow_spread : str, float, float or None
         The growth's ``refine_grow_fit``, ``refine_grow_agree`` and ``refine_grow_spread`` on a smoothed
         capture (``refine_smoothed_below``; None: left as it is): the plane's growth there adds values less
@@ -319,6 +331,8 @@ class DepthConfig:
     refine_retry_radius: int | None = 11
     refine_retry_below: float = 0.95
     refine_retry_drop: bool = True
+    refine_third_radius: int | None = None
+    refine_third_below: float = 0.95
     refine_fill_agree: float | None = 0.5
     refine_grow_radius: int | None = 16
     refine_grow_agree: float = 0.2
@@ -342,6 +356,7 @@ class DepthConfig:
     refine_smoothed_below: float | None = 0.5
     refine_smoothed_retry_below: float = 0.99
     refine_smoothed_fill_agree: float | None = 1.0
+    refine_smoothed_third_radius: int | None = 16
     refine_smoothed_grow_fit: str | None = "mean"
     refine_smoothed_grow_agree: float | None = 0.3
     refine_smoothed_grow_spread: float | None = 0.5
@@ -357,6 +372,8 @@ class DepthConfig:
                             "refine_min_texture": (0.0, None), "refine_max_lr_gap": (0.0, None),
                             "refine_prefilter": (0.0, 5.0),
                             "refine_retry_radius": (1, 50), "refine_retry_below": (0.0, 1.0),
+                            "refine_third_radius": (1, 50), "refine_third_below": (0.0, 1.0),
+                            "refine_smoothed_third_radius": (1, 50),
                             "refine_fill_agree": (0.0, None), "refine_grow_radius": (1, 50),
                             "refine_grow_agree": (0.0, None), "refine_grow_sigma": (0.0, 50.0),
                             "refine_grow_spread": (0.0, None), "refine_grow_passes": (1, 10),
@@ -1017,6 +1034,8 @@ def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, dis
                               prefilter=config.refine_prefilter, retry_radius=config.refine_retry_radius,
                               retry_below=config.refine_retry_below, retry_drop=config.refine_retry_drop)
     disp, conf = confident_matches(left, right, disparity, valid_right=vr, seeds_checked=checked, **kw)
+    if config.refine_third_radius is not None and config.refine_third_radius != config.refine_radius:
+        disp, conf = _third_window(left, right, disparity, disp, conf, config, kw, vr, checked)
     fill, agree = _fill_rule(config)
     vr_fill = vr if right_excluded is None else np.asarray(vr, dtype=bool) & ~right_excluded
     if filled is not None and fill:
@@ -1045,6 +1064,23 @@ def refine_matches(left: np.ndarray, right: np.ndarray, pair: RectifiedPair, dis
                                          agree=config.refine_interp_agree, passes=config.refine_interp_passes,
                                          valid_right=vr_fill)
     return disp, conf
+
+
+def _third_window(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, disp: np.ndarray, conf: np.ndarray,
+                  config: DepthConfig, kw: dict[str, Any], vr: np.ndarray, checked: bool
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """``refine_third_radius``: the kept matches below ``refine_third_below`` refined again from the matcher's
+    value with that window (the whole map standing for the right view in the sub-pixel check, as for the
+    second window); its result replaces theirs where it is confirmed with a higher ZNCC (a wider window that
+    matches worse reaches across a depth edge, as beside Jadeplant's leaves), none is dropped."""
+    weak = np.isfinite(disp) & (conf < config.refine_third_below)
+    if not weak.any():
+        return disp, conf
+    kw3 = {**kw, "radius": config.refine_third_radius, "retry_radius": None}
+    d3, c3 = confident_matches(left, right, np.where(weak, np.asarray(disparity, dtype=np.float32), np.float32(np.nan)),
+                               valid_right=vr, seeds_checked=checked, right_seeds=disparity, **kw3)
+    take = weak & np.isfinite(d3) & (c3 > conf)
+    return (np.where(take, d3, disp).astype(np.float32), np.where(take, c3, conf).astype(np.float32))
 
 
 def _grows(config: DepthConfig) -> bool:

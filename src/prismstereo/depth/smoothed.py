@@ -10,7 +10,9 @@ same ZNCC on texture that pins its value less, and the wider window is the preci
 estimator, the median form: texture edges do not raise it); below ``DepthConfig.refine_smoothed_below``
 :func:`smoothed_config` gives the refinement its smoothed-capture profile: the wider window for every
 match whose small window stayed below a ZNCC of 0.99 instead of 0.95 (its value taken where it is
-confirmed), and the dense map's values filled where the two windows agree within 1 px instead of 0.5.
+confirmed), a third, 33-px window for the kept matches still below 0.95 (its value where it is
+confirmed with a higher ZNCC; ``DepthConfig.refine_third_radius``), and the dense map's values filled where
+the two windows agree within 1 px instead of 0.5.
 """
 
 from __future__ import annotations
@@ -69,7 +71,8 @@ def smoothed_config(config: DepthConfig, image: np.ndarray) -> DepthConfig:
     ``refine_smoothed_fill_agree`` (the dense map's values where the two windows agree that well; only
     where the configuration fills with an agreement, not with ``refine_fill``), and the growth's
     ``refine_grow_fit``, ``refine_grow_agree`` and ``refine_grow_spread`` replaced by the
-    ``refine_smoothed_grow_*`` ones that are not None, and the plane interpolation (``refine_interp_sigma``)
+    ``refine_smoothed_grow_*`` ones that are not None, ``refine_third_radius`` =
+    ``refine_smoothed_third_radius`` where that is not None, and the plane interpolation (``refine_interp_sigma``)
     off unless ``refine_smoothed_interp``."""
     below = config.refine_smoothed_below
     if below is None or not config.refine or config.refine_retry_radius is None \
@@ -91,6 +94,10 @@ def smoothed_config(config: DepthConfig, image: np.ndarray) -> DepthConfig:
         float(config.refine_smoothed_grow_spread)
     # the plane interpolation's values on a smoothed capture cost the median more than the coverage they add
     interp = config.refine_interp_sigma if config.refine_smoothed_interp else None
+    # the blurred weak texture pins a weak match's value only over more pixels: a third, wider window
+    third = config.refine_third_radius if config.refine_smoothed_third_radius is None else \
+        int(config.refine_smoothed_third_radius)
     return dataclasses.replace(config, refine_retry_below=retry_below, refine_fill_agree=fill_agree,
+                               refine_third_radius=third,
                                refine_smoothed_below=None, refine_grow_fit=fit, refine_grow_agree=agree,
                                refine_grow_spread=spread, refine_interp_sigma=interp)
