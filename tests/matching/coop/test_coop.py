@@ -382,23 +382,3 @@ def test_memo_across_calls_gives_the_results_of_fresh_calls() -> None:
     assert len(fresh) == len(remembered)
     for x, y in zip(fresh, remembered, strict=True):
         np.testing.assert_array_equal(x, y)
-
-
-def test_group_moves_grown_in_batches_are_the_serial_order(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Regions grown in parallel batches on the batch's state (a region a kept move may have changed grown
-    again) give the moves of growing each candidate on its own turn, to the bit; also with a tiny region cap."""
-    from prismstereo.matching.coop import cooperative as co
-
-    idx, pset, rel, graph, cost = _optimisation_inputs(6)
-    rng = np.random.default_rng(11)
-    a0 = rng.integers(0, len(pset), size=idx.n_segments).astype(np.int32)
-    cands = co.neighbour_plane_candidates(graph, a0)
-    for cap in (400, 3):
-        got = {}
-        for batch in (1, 7, 32):
-            monkeypatch.setattr(co, "_BATCH", batch)
-            got[batch] = co.expand_planes(a0, pset, idx, graph, cost, rel, cands, max_region=cap)
-        assert got[1][1]["group_moves"] >= 5  # moves kept inside the batches
-        for batch in (7, 32):
-            np.testing.assert_array_equal(got[batch][0], got[1][0])
-            assert got[batch][1] == got[1][1]

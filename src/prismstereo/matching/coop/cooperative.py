@@ -1333,308 +1333,107 @@ def cooperative_optimize(assign: npt.NDArray[np.integer], planes: F64, index: Se
                            "changes": float(changes), "refined": float(refined)}
 
 
-class GrowState(NamedTuple):
-    """What :func:`_grow` reads of a group move's state (:func:`_expand`): the assignment ``a`` and the planes,
-    the kept assignment's right-view z-buffer ``z1, o1, z2`` (:func:`_zbuffer`) and the data terms remembered
-    under it (``clab, cval, cn`` of :class:`SweepCache`). :func:`_expand` writes into them between the growths,
-    never during one."""
-
-    a: I32
-    planes: F64
-    z1: F64
-    o1: I64
-    z2: F64
-    clab: I64
-    cval: F64
-    cn: I64
-
-
-class GroupCandidates(NamedTuple):
-    """The candidate planes of :func:`_expand` and the segments each was proposed for: candidate ``m`` is plane
-    ``cand[m]``, its seeds ``seeds[seed_start[m]:seed_start[m + 1]]``."""
-
-    cand: I64
-    seed_start: I64
-    seeds: I64
-
-
-class GrowScratch(NamedTuple):
-    """One row per region grown in a batch (:func:`_speculate`), each of K entries: ``seen`` (visited) and
-    ``in_s`` (member) flags, left cleared; the members ``region`` with their data terms under the candidate
-    (``dnew``) and their own (``dold``); the segments visited (``slist``) with their terms under the candidate
-    (``sval``); ``res[b]`` = (members, visited, change of E)."""
-
-    seen: npt.NDArray[np.bool_]
-    in_s: npt.NDArray[np.bool_]
-    region: I64
-    dnew: F64
-    dold: F64
-    slist: I64
-    sval: F64
-    res: F64
-
-
-_BATCH = 32  # regions grown in parallel on the same state (:func:`_expand`)
-
-
 @njit(cache=True)
-def _data_held(j: int, lab: int, st: GrowState, dt: PixelData, prm: KernelParams) -> float:
-    """:func:`_data_cached` (Eqs. 6.21-6.22) under the kept z-buffer without writing the cache (several threads
-    read it at once): the remembered value, or the term computed afresh (the same value)."""
-    for t in range(st.cn[j]):
-        if st.clab[j, t] == lab:
-            return st.cval[j, t]
-    return _data(j, st.planes[lab], dt, prm, st.z1, st.o1, st.z2)
-
-
-@njit(cache=True)
-def _cache_put(j: int, lab: int, v: float, clab: I64, cval: F64, cn: I64) -> None:
-    """Remember data term ``v`` of segment ``j`` under plane ``lab`` as :func:`_data_cached` does, unless it is
-    held already.
-
-    Implementation helper (cache) with no thesis equation of its own.
-    """
-    for t in range(cn[j]):
-        if clab[j, t] == lab:
-            return
-    if cn[j] >= clab.shape[1]:
-        cn[j] = 0
-    clab[j, cn[j]] = lab
-    cval[j, cn[j]] = v
-    cn[j] += 1
-
-
-@njit(cache=True)
-def _grow(m: int, cs: GroupCandidates, st: GrowState, dt: PixelData, g: GraphArrays, prm: KernelParams,
-          max_region: int, scr: GrowScratch, b: int) -> None:
-    """Candidate ``m``'s region of a group move (:func:`_expand`) into row ``b`` of ``scr``: grown from its seeds
-    through the segments whose data term (Eqs. 6.21-6.22) its plane does not raise, at most ``max_region`` of
-    them, and the change of E (Eq. 6.18) with the visibility held. Reads ``st``, writes only row ``b`` of
-    ``scr``: regions of one state can grow in parallel."""
-    w = dt.w
+def _expand(a: I32, planes: F64, cand: I64, seed_start: I64, seeds: I64, dt: PixelData, g: GraphArrays,
+            prm: KernelParams, max_region: int, cache: SweepCache) -> int:
+    """Group moves, in place: for each candidate plane, the connected region of segments grown from its seeds
+    through segments whose data term it does not raise moves to it at once when that lowers E (Eq. 6.18).
+    Data terms are remembered (:func:`_data_cached`); the cache always holds the z-buffer ``z1, o1, z2``
+    they are read under."""
+    order, starts, w, cost, min_disp, reliable = dt
     pairs, bstart, bp_lo, bp_hi, bw, nstart, nbr, nedge = g
-    a, planes = st.a, st.planes
-    seen, in_s, region, dnew, dold = scr.seen[b], scr.in_s[b], scr.region[b], scr.dnew[b], scr.dold[b]
-    slist, sval = scr.slist[b], scr.sval[b]
+    (zc1, oc1, zc2, zvalid, zfor, bbox, clab, cval, cn, clean, afor, rstart, rp, rseg, sstart, srun, elab,
+     es) = cache
+    k = starts.size - 1
+    h = cost.shape[1] // w
     gamma = prm.gamma
     thr = prm.smooth_threshold
-    lab = cs.cand[m]
-    pl = planes[lab]
-    n = 0
-    ns = 0
-    head = 0
-    for t in range(cs.seed_start[m], cs.seed_start[m + 1]):
-        s = cs.seeds[t]
-        if a[s] != lab and not seen[s]:
-            seen[s] = True
-            dn = _data_held(s, lab, st, dt, prm)
-            do = _data_held(s, a[s], st, dt, prm)
-            slist[ns] = s
-            sval[ns] = dn
-            ns += 1
-            if dn <= do:
-                region[n] = s
-                dnew[n] = dn
-                dold[n] = do
-                in_s[s] = True
-                n += 1
-    while head < n and n < max_region:
-        j = region[head]
-        head += 1
-        for t in range(nstart[j], nstart[j + 1]):
-            i = nbr[t]
-            if seen[i] or a[i] == lab:
-                continue
-            seen[i] = True
-            dn = _data_held(i, lab, st, dt, prm)
-            do = _data_held(i, a[i], st, dt, prm)
-            slist[ns] = i
-            sval[ns] = dn
-            ns += 1
-            if dn <= do and n < max_region:
-                region[n] = i
-                dnew[n] = dn
-                dold[n] = do
-                in_s[i] = True
-                n += 1
-    de = 0.0
-    for r in range(n):
-        j = region[r]
-        de += dnew[r] - dold[r]
-        for t in range(nstart[j], nstart[j + 1]):
-            i = nbr[t]
-            before = 0.0
-            if a[i] != a[j]:
-                before = _smooth(j, i, nedge[t], planes[a[j]], planes[a[i]], pairs, bstart, bp_lo, bp_hi, bw, w, thr)
-            if in_s[i]:
-                de -= gamma * before  # visited from both sides: 2 γ S in E (Eq. 6.18)
-            else:
-                after = 0.0
-                if a[i] != lab:
-                    after = _smooth(j, i, nedge[t], pl, planes[a[i]], pairs, bstart, bp_lo, bp_hi, bw, w, thr)
-                de += 2.0 * gamma * (after - before)
-    for r in range(n):
-        in_s[region[r]] = False
-    for r in range(ns):
-        seen[slist[r]] = False
-    scr.res[b, 0] = n
-    scr.res[b, 1] = ns
-    scr.res[b, 2] = de
-
-
-@njit(cache=True, parallel=True)
-def _speculate(m0: int, nb: int, cs: GroupCandidates, st: GrowState, dt: PixelData, g: GraphArrays,
-               prm: KernelParams, max_region: int, scr: GrowScratch) -> None:
-    """:func:`_grow` of candidates ``m0 .. m0 + nb - 1`` in parallel, all on the same state, candidate ``m0 + b``
-    into row ``b`` of ``scr``.
-
-    Implementation helper (group moves, Eq. 6.18) with no thesis equation of its own.
-    """
-    for b in prange(nb):
-        _grow(m0 + b, cs, st, dt, g, prm, max_region, scr, b)
-
-
-class KeptSince(NamedTuple):
-    """What the moves kept since a batch's start changed (:func:`_expand`, :func:`_still_grown`): ``touched[j]``
-    is the last kept move that gave segment ``j`` a plane (-1: none), and per row ``y`` the kept z-buffer changed
-    at most on columns ``lo[y] .. hi[y]`` since the move ``since[y]`` (``hi[y] < lo[y]``: not changed)."""
-
-    touched: I64
-    since: I64
-    lo: I64
-    hi: I64
-
-
-@njit(cache=True)
-def _still_grown(m: int, b: int, cs: GroupCandidates, g: GraphArrays, scr: GrowScratch, kept: KeptSince,
-                 bbox: I64, reach: tuple[int, int], epoch: int) -> bool:
-    """Whether row ``b`` of ``scr`` (candidate ``m`` grown on the state of kept move ``epoch``) is what
-    :func:`_grow` would give now: no move kept since changed the plane of its seeds, members or their
-    neighbours, nor the kept z-buffer where one of them reads it. A segment's data terms read the z-buffer on its
-    own rows only, at columns ``x - d`` with ``d`` in the search range (:func:`_data`; ``reach`` = the columns
-    from ``x0 - reach[0]`` to ``x1 - reach[1]`` of its box), and every segment the growth visits is a seed or a
-    member's neighbour, so the growth reads the same values.
-
-    Implementation helper (group moves, Eq. 6.18) with no thesis equation of its own.
-    """
-    for t in range(cs.seed_start[m], cs.seed_start[m + 1]):
-        if not _untouched(cs.seeds[t], kept, bbox, reach, epoch):
-            return False
-    region = scr.region[b]
-    for r in range(int(scr.res[b, 0])):
-        j = region[r]
-        if not _untouched(j, kept, bbox, reach, epoch):
-            return False
-        for t in range(g.nstart[j], g.nstart[j + 1]):
-            if not _untouched(g.nbr[t], kept, bbox, reach, epoch):
-                return False
-    return True
-
-
-@njit(cache=True, inline="always")
-def _untouched(j: int, kept: KeptSince, bbox: I64, reach: tuple[int, int], epoch: int) -> bool:
-    """Whether no move kept from ``epoch`` on changed segment ``j``'s plane or the z-buffer where its data terms
-    read it (:func:`_still_grown`).
-
-    Implementation helper (group moves) with no thesis equation of its own.
-    """
-    if kept.touched[j] >= epoch:
-        return False
-    c0 = bbox[j, 0] - reach[0]
-    c1 = bbox[j, 1] - reach[1]
-    for y in range(bbox[j, 2], bbox[j, 3] + 1):
-        if kept.since[y] >= epoch and kept.lo[y] <= c1 and kept.hi[y] >= c0:
-            return False
-    return True
-
-
-@njit(cache=True)
-def _expand(st: GrowState, cs: GroupCandidates, dt: PixelData, g: GraphArrays, prm: KernelParams, max_region: int,
-            cache: SweepCache, scr: GrowScratch) -> int:
-    """Group moves, in place (``st.a``): for each candidate plane, the connected region of segments grown from its
-    seeds through segments whose data term it does not raise moves to it at once when that lowers E (Eq. 6.18).
-    Data terms are remembered (:func:`_data_cached`); the cache always holds the z-buffer ``st.z1, o1, z2``
-    they are read under.
-
-    The candidates are taken in their order, as one serial loop would; their regions are grown in batches of
-    ``scr``'s rows in parallel (:func:`_speculate`) on the state at the batch's start, and a region a move kept
-    since may have changed (:func:`_still_grown`) is grown again on the state of its turn: the same regions,
-    moves and E as growing each on its turn."""
-    a, planes, z1, o1, z2, clab, cval, cn = st
-    cand = cs.cand
-    pairs, bstart, bp_lo, bp_hi, bw, nstart, nbr, nedge = g
-    zc1, oc1, zc2, zfor, bbox = cache.zc1, cache.oc1, cache.zc2, cache.zfor, cache.bbox
-    w = dt.w
-    k = dt.starts.size - 1
-    h = dt.cost.shape[1] // w
+    in_s = np.zeros(k, np.bool_)
+    seen = np.zeros(k, np.bool_)
+    region = np.empty(k, np.int64)
+    dnew = np.empty(k, np.float64)
+    dold = np.empty(k, np.float64)
     prev = np.empty(k, np.int32)
     e_cur = _energy_cached(a, planes, dt, g, prm, cache)
     # the z-buffer of the kept assignment: the cache's (it holds the last one computed)
-    z1[:] = zc1
-    o1[:] = oc1
-    z2[:] = zc2
+    z1, o1, z2 = zc1.copy(), oc1.copy(), zc2.copy()
     rows = np.zeros(h, np.bool_)
-    kept = KeptSince(touched=np.full(k, -1, np.int64), since=np.full(h, -1, np.int64), lo=np.zeros(h, np.int64),
-                     hi=np.full(h, -1, np.int64))
-    # the columns a pixel's data term may read the z-buffer at: x - d, d within half a slice of the range
-    nd = dt.cost.shape[2]
-    reach = (dt.min_disp + nd + 1, dt.min_disp - 1)
     accepted = 0
-    nbat = scr.res.shape[0]
-    for m0 in range(0, cand.size, nbat):
-        nb = min(nbat, cand.size - m0)
-        epoch = accepted
-        _speculate(m0, nb, cs, st, dt, g, prm, max_region, scr)
-        for b in range(nb):
-            m = m0 + b
-            lab = cand[m]
-            if accepted > epoch and not _still_grown(m, b, cs, g, scr, kept, bbox, reach, epoch):
-                _grow(m, cs, st, dt, g, prm, max_region, scr, b)
-            n = int(scr.res[b, 0])
-            de = scr.res[b, 2]
-            region = scr.region[b]
-            # the data terms the growth computed, remembered as its serial form remembers them
-            for r in range(int(scr.res[b, 1])):
-                _cache_put(scr.slist[b, r], lab, scr.sval[b, r], clab, cval, cn)
-            if n > 0 and de < -1e-9:
-                rows[:] = False
-                for r in range(n):
-                    prev[r] = a[region[r]]
-                    a[region[r]] = lab
-                    rows[bbox[region[r], 2]:bbox[region[r], 3] + 1] = True
-                e_new = _energy_cached(a, planes, dt, g, prm, cache)
-                if e_new < e_cur - 1e-9:
-                    e_cur = e_new
-                    for r in range(n):
-                        kept.touched[region[r]] = accepted
-                    # the cache's z-buffer is the new assignment's; it differs from the old on the region's rows
-                    for y in range(h):
-                        if rows[y]:
-                            c0 = w
-                            c1 = -1
-                            for x in range(w):
-                                q = y * w + x
-                                if z1[q] != zc1[q] or o1[q] != oc1[q] or z2[q] != zc2[q]:
-                                    c0 = min(c0, x)
-                                    c1 = x
-                            if c1 >= 0:
-                                if kept.since[y] < epoch:  # the first change of this batch on the row
-                                    kept.lo[y] = c0
-                                    kept.hi[y] = c1
-                                else:
-                                    kept.lo[y] = min(kept.lo[y], c0)
-                                    kept.hi[y] = max(kept.hi[y], c1)
-                                kept.since[y] = accepted
-                            z1[y * w:(y + 1) * w] = zc1[y * w:(y + 1) * w]
-                            o1[y * w:(y + 1) * w] = oc1[y * w:(y + 1) * w]
-                            z2[y * w:(y + 1) * w] = zc2[y * w:(y + 1) * w]
-                    accepted += 1
+    for m in range(cand.size):
+        lab = cand[m]
+        pl = planes[lab]
+        n = 0
+        head = 0
+        for t in range(seed_start[m], seed_start[m + 1]):
+            s = seeds[t]
+            if a[s] != lab and not seen[s]:
+                seen[s] = True
+                dn = _data_cached(s, lab, planes, dt, prm, z1, o1, z2, clab, cval, cn)
+                do = _data_cached(s, a[s], planes, dt, prm, z1, o1, z2, clab, cval, cn)
+                if dn <= do:
+                    region[n] = s
+                    dnew[n] = dn
+                    dold[n] = do
+                    in_s[s] = True
+                    n += 1
+        while head < n and n < max_region:
+            j = region[head]
+            head += 1
+            for t in range(nstart[j], nstart[j + 1]):
+                i = nbr[t]
+                if seen[i] or a[i] == lab:
+                    continue
+                seen[i] = True
+                dn = _data_cached(i, lab, planes, dt, prm, z1, o1, z2, clab, cval, cn)
+                do = _data_cached(i, a[i], planes, dt, prm, z1, o1, z2, clab, cval, cn)
+                if dn <= do and n < max_region:
+                    region[n] = i
+                    dnew[n] = dn
+                    dold[n] = do
+                    in_s[i] = True
+                    n += 1
+        de = 0.0
+        for r in range(n):
+            j = region[r]
+            de += dnew[r] - dold[r]
+            for t in range(nstart[j], nstart[j + 1]):
+                i = nbr[t]
+                before = 0.0
+                if a[i] != a[j]:
+                    before = _smooth(j, i, nedge[t], planes[a[j]], planes[a[i]], pairs, bstart, bp_lo, bp_hi, bw, w,
+                                     thr)
+                if in_s[i]:
+                    de -= gamma * before  # visited from both sides: 2 γ S in E (Eq. 6.18)
                 else:
-                    for r in range(n):
-                        a[region[r]] = prev[r]
-                    # back to the z-buffer of the kept assignment (the cache now holds the rejected one's)
-                    _cache_refresh(z1, o1, z2, rows, cache, planes, dt, prm)
-                    zfor[:] = a
+                    after = 0.0
+                    if a[i] != lab:
+                        after = _smooth(j, i, nedge[t], pl, planes[a[i]], pairs, bstart, bp_lo, bp_hi, bw, w, thr)
+                    de += 2.0 * gamma * (after - before)
+        if n > 0 and de < -1e-9:
+            rows[:] = False
+            for r in range(n):
+                prev[r] = a[region[r]]
+                a[region[r]] = lab
+                rows[bbox[region[r], 2]:bbox[region[r], 3] + 1] = True
+            e_new = _energy_cached(a, planes, dt, g, prm, cache)
+            if e_new < e_cur - 1e-9:
+                e_cur = e_new
+                accepted += 1
+                # the cache's z-buffer is the new assignment's; it differs from the old on the region's rows
+                for y in range(h):
+                    if rows[y]:
+                        z1[y * w:(y + 1) * w] = zc1[y * w:(y + 1) * w]
+                        o1[y * w:(y + 1) * w] = oc1[y * w:(y + 1) * w]
+                        z2[y * w:(y + 1) * w] = zc2[y * w:(y + 1) * w]
+            else:
+                for r in range(n):
+                    a[region[r]] = prev[r]
+                # back to the z-buffer of the kept assignment (the cache now holds the rejected one's)
+                _cache_refresh(z1, o1, z2, rows, cache, planes, dt, prm)
+                zfor[:] = a
+        for r in range(n):
+            in_s[region[r]] = False
+        seen[:] = False  # also the segments visited but not taken
     return accepted
 
 
@@ -1679,17 +1478,9 @@ def expand_planes(assign: npt.NDArray[np.integer], planes: F64, index: SegmentIn
     pl = np.asarray(planes, np.float64)
     prm = _prm(p, slopes)
     cache = _take_cache(memo, index, graph, cost, reliable, prm, int(min_disp), pl)
-    k = int(index.starts.size - 1)
-    npx = int(index.shape[0]) * int(index.shape[1])
-    st = GrowState(a=a, planes=pl, z1=np.empty(npx), o1=np.empty(npx, np.int64), z2=np.empty(npx), clab=cache.clab,
-                   cval=cache.cval, cn=cache.cn)
-    nb = max(1, min(_BATCH, int(uniq.size)))
-    scr = GrowScratch(seen=np.zeros((nb, k), np.bool_), in_s=np.zeros((nb, k), np.bool_),
-                      region=np.empty((nb, k), np.int64), dnew=np.empty((nb, k)), dold=np.empty((nb, k)),
-                      slist=np.empty((nb, k), np.int64), sval=np.empty((nb, k)), res=np.empty((nb, 3)))
-    n = _expand(st, GroupCandidates(cand=uniq.astype(np.int64), seed_start=seed_start, seeds=segs.astype(np.int64)),
+    n = _expand(a, pl, uniq.astype(np.int64), seed_start, segs.astype(np.int64),
                 _pixel_data(index, cost, reliable, slopes, min_disp), _graph_arrays(graph), prm, int(max_region),
-                cache, scr)
+                cache)
     if memo is not None:
         memo.keep(index, cost, reliable, prm, int(min_disp), pl, cache)
     return a, {"group_moves": float(n)}
