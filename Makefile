@@ -20,7 +20,11 @@ demo: $(STAMP)
 # .numba_cache (numba writes each cache file under a temporary name and renames it).
 TEST_WORKERS ?= 2
 
+# The warm-up first compiles every kernel into that cache in TEST_WORKERS processes, one item each, so that a
+# fresh clone does not compile a kernel twice (two pytest processes reaching it before either has written the
+# cache) nor pay it at the tail of one worker; on a warm cache it only loads them (seconds).
 test: $(STAMP)
+	NUMBA_CACHE_DIR=$(CURDIR)/.numba_cache $(BIN)/prismstereo warmup --jobs $(TEST_WORKERS) -q
 	NUMBA_CACHE_DIR=$(CURDIR)/.numba_cache $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile
 
 lint: $(STAMP)
